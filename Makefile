@@ -1,0 +1,44 @@
+# Every target sets itself up: a .venv with the project installed editable.
+PYTHON ?= python3.11
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+# make produce: the main job (see README). Override any of these.
+DOMAINS ?= all
+OUT     ?= output
+FRAMES  ?= 2
+WIDTH   ?= 480
+HEIGHT  ?= 270
+SEED    ?= 0
+PRODUCE_ARGS ?=
+
+.PHONY: help venv produce test bench clean
+
+help: ## list the targets
+	@grep -E '^[a-z]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  make %-9s %s\n", $$1, $$2}'
+
+$(STAMP): pyproject.toml
+	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found; install Python 3.11 or pass PYTHON=..."; exit 2; }
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	# pyrender 0.1.45 pins PyOpenGL==3.1.0, which breaks EGL; install it without
+	# its pins (its real dependencies are listed in pyproject.toml).
+	$(BIN)/pip install --quiet --no-deps pyrender==0.1.45
+	$(BIN)/pip install --quiet -e '.[test]'
+	@touch $(STAMP)
+
+venv: $(STAMP) ## create .venv with the project and its dependencies
+
+produce: $(STAMP) ## render DOMAINS (default all) into OUT; FRAMES/WIDTH/HEIGHT size the run
+	$(BIN)/idda produce --domains '$(DOMAINS)' --out '$(OUT)' \
+		--frames-per-scenario $(FRAMES) --width $(WIDTH) --height $(HEIGHT) --seed $(SEED) $(PRODUCE_ARGS)
+
+test: $(STAMP) ## run the test suite
+	$(BIN)/python -m pytest -q
+
+bench: $(STAMP) ## run the benchmarks; figures go to docs/
+	$(BIN)/python -m benchmarks.run
+
+clean: ## remove the .venv and caches (never your output)
+	rm -rf $(VENV) .pytest_cache .hypothesis

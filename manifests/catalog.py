@@ -1,0 +1,271 @@
+"""The dataset's vocabulary: classes, towns, weathers and viewpoints.
+
+Each axis is one table of frozen rows. Everything else (palettes, lookup
+tables, Cityscapes maps, scenario codes, the manifest's column names) is
+derived from these tables, so nothing else in the code base hard-codes an id.
+
+Sources: the IDDA paper (classes, towns T01/T02, weathers, viewpoints) and
+CARLA / cityscapesScripts conventions, as collected in ``shared/REFERENCE.md``.
+Values the paper does not give (T03-T07 road lengths, sun angles, hood shapes)
+are our documented assumptions; see ``docs/assumptions.md``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import cached_property
+from typing import Iterable
+
+import numpy as np
+
+RGB = tuple[int, int, int]
+
+
+# --------------------------------------------------------------------------
+# Classes
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Label:
+    id: int  # IDDA class id, stored in the red channel of semantic_raw
+    name: str  # human-readable name, unique
+    color: RGB  # colour in semantic_color (paper's Fig. "pixeldistr")
+    evaluated: bool  # False for the paper's excluded classes (*)
+    cityscapes_id: int  # Cityscapes label id written by the cityscapes export
+    train_id: int  # Cityscapes trainId (255 = ignored in training/eval)
+
+    @property
+    def column(self) -> str:
+        """Manifest column holding this class's per-frame pixel count."""
+        return "px_" + self.name.replace(" ", "_")
+
+
+LABELS: tuple[Label, ...] = (
+    #     id  name             colour            eval   cs_id  trainId
+    Label(0, "unlabeled", (0, 0, 0), False, 0, 255),
+    Label(1, "building", (70, 70, 70), True, 11, 2),
+    Label(2, "fence", (190, 153, 153), True, 13, 4),
+    Label(3, "other", (72, 0, 90), False, 0, 255),
+    Label(4, "pedestrian", (220, 20, 60), True, 24, 11),
+    Label(5, "pole", (153, 153, 153), True, 17, 5),
+    Label(6, "road line", (157, 234, 50), False, 0, 255),
+    Label(7, "road", (128, 64, 128), True, 7, 0),
+    Label(8, "sidewalk", (244, 35, 232), True, 8, 1),
+    Label(9, "vegetation", (107, 142, 35), True, 21, 8),
+    Label(10, "vehicle", (0, 0, 142), True, 26, 13),
+    Label(11, "wall", (102, 102, 156), True, 12, 3),
+    Label(12, "traffic sign", (220, 220, 0), True, 20, 7),
+    Label(13, "traffic light", (250, 170, 30), True, 19, 6),
+    Label(14, "guard rail", (180, 165, 180), False, 14, 255),
+    Label(15, "dynamic", (111, 74, 0), False, 5, 255),
+    Label(16, "bicycle", (119, 11, 32), True, 33, 18),
+    Label(17, "motorcycle", (0, 0, 230), True, 32, 17),
+    Label(18, "rider", (255, 0, 0), True, 25, 12),
+    Label(19, "terrain", (152, 251, 152), True, 22, 9),
+    Label(20, "sky", (70, 130, 180), True, 23, 10),
+    Label(21, "railway", (230, 150, 140), False, 10, 255),
+    Label(22, "ground", (81, 0, 81), False, 6, 255),
+    Label(23, "static", (0, 0, 0), False, 4, 255),
+)
+
+NUM_CLASSES = len(LABELS)
+ID2LABEL = {label.id: label for label in LABELS}
+NAME2LABEL = {label.name: label for label in LABELS}
+EVALUATED_IDS = tuple(label.id for label in LABELS if label.evaluated)
+PIXEL_COLUMNS = tuple(label.column for label in LABELS)
+
+# uint8 palette: PALETTE[class_id] -> RGB colour.
+PALETTE = np.array([label.color for label in LABELS], dtype=np.uint8)
+# Lookup tables from IDDA id to Cityscapes label id / trainId (256 entries so
+# that any uint8 image can be indexed; unknown ids map to "ignore").
+CITYSCAPES_ID_LUT = np.zeros(256, dtype=np.uint8)
+TRAIN_ID_LUT = np.full(256, 255, dtype=np.uint8)
+for _label in LABELS:
+    CITYSCAPES_ID_LUT[_label.id] = _label.cityscapes_id
+    TRAIN_ID_LUT[_label.id] = _label.train_id
+del _label
+
+
+def class_id(name: str) -> int:
+    """Class id for a class name; raises ValueError listing valid names."""
+    try:
+        return NAME2LABEL[name].id
+    except KeyError:
+        valid = ", ".join(label.name for label in LABELS)
+        raise ValueError(f"unknown class {name!r}; valid classes: {valid}") from None
+
+
+# --------------------------------------------------------------------------
+# Per-frame outputs (six images, as in IDDA)
+# --------------------------------------------------------------------------
+OUTPUTS: tuple[str, ...] = (
+    "rgb",  # lit colour image with post effects
+    "depth_raw",  # 24-bit planar depth in R,G,B (CARLA encoding, 1000 m far)
+    "depth_gray",  # linear grayscale depth (CARLA "Depth")
+    "depth_log",  # logarithmic grayscale depth (CARLA "LogarithmicDepth")
+    "semantic_raw",  # class id in the red channel
+    "semantic_color",  # class colours from the palette
+)
+
+
+# --------------------------------------------------------------------------
+# Towns
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Town:
+    code: str  # T01..T07, as in IDDA scenario codes
+    name: str  # CARLA map this town stands in for
+    road_km: float  # drivable road length; sizes the town's shards
+    style: str  # "urban" | "multi-lane urban" | "countryside"
+    lanes: int  # lanes per direction on main roads
+    block_m: float  # typical block edge length (junction spacing)
+    building_height_m: tuple[float, float]  # min / max building height
+    building_density: float  # 0..1, share of frontage with buildings
+    vegetation_density: float  # 0..1, trees and hedges per frontage
+    sidewalks: bool  # countryside roads have verges instead
+    traffic_light_share: float  # share of junctions that are signalised
+    railway: bool
+    bridges: bool
+    tunnels: bool
+    roundabouts: bool
+    freeway: bool
+
+
+TOWNS: tuple[Town, ...] = (
+    #    code   name      km   style                lanes block  heights       bld  veg   side   tl    rail   bridge tunnel round  freeway
+    Town("T01", "Town01", 2.9, "urban", 1, 80.0, (6.0, 14.0), 0.65, 0.45, True, 0.7, False, True, False, False, False),
+    Town("T02", "Town02", 1.4, "urban", 1, 60.0, (6.0, 12.0), 0.75, 0.35, True, 0.7, False, True, False, False, False),
+    Town("T03", "Town03", 4.1, "multi-lane urban", 2, 90.0, (10.0, 45.0), 0.80, 0.25, True, 0.9, True, True, True, True, True),
+    Town("T04", "Town04", 6.0, "multi-lane urban", 2, 110.0, (8.0, 30.0), 0.60, 0.45, True, 0.8, False, True, True, False, True),
+    Town("T05", "Town05", 3.9, "multi-lane urban", 2, 90.0, (12.0, 50.0), 0.85, 0.25, True, 0.9, False, True, True, True, True),
+    Town("T06", "Town06", 5.2, "multi-lane urban", 2, 120.0, (8.0, 35.0), 0.70, 0.40, True, 0.8, False, True, False, True, True),
+    Town("T07", "Town07", 11.0, "countryside", 1, 150.0, (4.0, 9.0), 0.15, 0.85, False, 0.15, False, True, False, False, False),
+)
+
+
+# --------------------------------------------------------------------------
+# Weathers
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Weather:
+    code: str  # CN | CS | HRN, as in IDDA scenario codes
+    name: str  # CARLA weather preset
+    sun_elevation_deg: float  # sun height above the horizon
+    sun_azimuth_deg: float  # sun direction, degrees from +x towards +y
+    light_color: tuple[float, float, float]  # linear RGB of the sun light
+    light_intensity: float  # directional light intensity (pyrender units)
+    ambient: float  # ambient light share (0..1)
+    sky_zenith: RGB  # sky colour straight up
+    sky_horizon: RGB  # sky colour at the horizon
+    cloudiness: float  # 0..1
+    rain: float  # 0..1, rain streak intensity
+    wetness: float  # 0..1, darkening and specular sheen of the road
+    puddles: float  # 0..1, share of road covered by reflective puddles
+    fog: float  # 0..1, contrast loss per 1000 m
+    grading: tuple[float, float, float]  # per-channel colour grading gain
+
+
+WEATHERS: tuple[Weather, ...] = (
+    Weather("CN", "ClearNoon", 65.0, 40.0, (1.0, 0.98, 0.94), 4.0, 0.45,
+            (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0, 0.02, (1.0, 1.0, 1.0)),
+    Weather("CS", "ClearSunset", 6.0, 200.0, (1.0, 0.62, 0.38), 3.2, 0.35,
+            (70, 80, 150), (250, 160, 120), 0.15, 0.0, 0.0, 0.0, 0.05, (1.12, 0.92, 0.82)),
+    Weather("HRN", "HardRainNoon", 55.0, 40.0, (0.80, 0.83, 0.88), 1.3, 0.75,
+            (105, 110, 118), (150, 153, 158), 0.95, 0.9, 0.9, 0.35, 0.45, (0.86, 0.90, 0.95)),
+)
+
+
+# --------------------------------------------------------------------------
+# Viewpoints
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Viewpoint:
+    code: str  # A | M | J | V | B, as in IDDA scenario codes
+    vehicle: str  # ego vehicle the camera is mounted on
+    camera_height_m: float  # camera height above the road
+    hood_fraction: float  # share of the image covered by the hood (0 = none)
+    hood_color: RGB  # hood paint colour
+    hood_curvature: float  # bulge of the hood's top edge, in image heights
+    hood_drop_m: float  # hood surface below the camera
+
+    @property
+    def hood_visible(self) -> bool:
+        return self.hood_fraction > 0.0
+
+
+VIEWPOINTS: tuple[Viewpoint, ...] = (
+    Viewpoint("A", "Audi TT", 1.20, 0.1399, (196, 24, 28), 0.10, 0.45),
+    Viewpoint("M", "Ford Mustang", 1.35, 0.1250, (28, 52, 120), 0.07, 0.50),
+    Viewpoint("J", "Jeep Wrangler", 1.80, 0.1108, (70, 82, 58), 0.02, 0.60),
+    Viewpoint("V", "Volkswagen T2", 2.10, 0.0, (210, 200, 170), 0.0, 0.0),
+    Viewpoint("B", "Bus", 2.50, 0.0, (230, 180, 20), 0.0, 0.0),
+)
+
+TOWN_BY_CODE = {t.code: t for t in TOWNS}
+WEATHER_BY_CODE = {w.code: w for w in WEATHERS}
+VIEWPOINT_BY_CODE = {v.code: v for v in VIEWPOINTS}
+
+
+def _lookup(table: dict, code: str, axis: str):
+    try:
+        return table[code]
+    except KeyError:
+        valid = ", ".join(table)
+        raise ValueError(f"unknown {axis} {code!r}; valid {axis}s: {valid}") from None
+
+
+def town(code: str) -> Town:
+    return _lookup(TOWN_BY_CODE, code, "town")
+
+
+def weather(code: str) -> Weather:
+    return _lookup(WEATHER_BY_CODE, code, "weather")
+
+
+def viewpoint(code: str) -> Viewpoint:
+    return _lookup(VIEWPOINT_BY_CODE, code, "viewpoint")
+
+
+# --------------------------------------------------------------------------
+# Scenarios = town x weather x viewpoint
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Scenario:
+    town: Town
+    weather: Weather
+    viewpoint: Viewpoint
+
+    @cached_property
+    def code(self) -> str:
+        return f"{self.town.code}_{self.weather.code}_{self.viewpoint.code}"
+
+    @property
+    def key(self) -> tuple[int, int, int]:
+        """Stable numeric identity (table positions), used to derive seeds."""
+        return (
+            TOWNS.index(self.town),
+            WEATHERS.index(self.weather),
+            VIEWPOINTS.index(self.viewpoint),
+        )
+
+    def __str__(self) -> str:
+        return self.code
+
+
+ALL_SCENARIOS: tuple[Scenario, ...] = tuple(
+    Scenario(t, w, v) for t in TOWNS for w in WEATHERS for v in VIEWPOINTS
+)
+SCENARIO_BY_CODE = {s.code: s for s in ALL_SCENARIOS}
+
+
+def scenario(code: str) -> Scenario:
+    """Parse a scenario code such as ``T01_CS_A``."""
+    parts = code.split("_")
+    if len(parts) != 3:
+        raise ValueError(
+            f"malformed scenario code {code!r}; expected TOWN_WEATHER_VIEWPOINT such as T01_CS_A"
+        )
+    return Scenario(town(parts[0]), weather(parts[1]), viewpoint(parts[2]))
+
+
+def scenarios(codes: Iterable[str]) -> list[Scenario]:
+    return [scenario(c) for c in codes]

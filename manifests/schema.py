@@ -1,0 +1,86 @@
+"""The one schema module: plan and manifest layouts, shared by writers,
+readers and tests. Column lists derive from the catalog tables."""
+
+from __future__ import annotations
+
+import pyarrow as pa
+
+from manifests.catalog import LABELS, OUTPUTS
+
+# ---------------------------------------------------------------- plan ----
+PLAN_SCHEMA = pa.schema(
+    [
+        ("scenario", pa.string()),
+        ("town", pa.string()),
+        ("weather", pa.string()),
+        ("viewpoint", pa.string()),
+        ("episode", pa.int32()),
+        ("frames", pa.int32()),
+        ("seed", pa.int64()),
+        ("split", pa.string()),
+        ("width", pa.int32()),
+        ("height", pa.int32()),
+    ]
+)
+PLAN_CONFIG_KEY = b"idda.plan_config"  # Parquet metadata key holding the config JSON
+
+# ------------------------------------------------------------ manifest ----
+# Hive partition keys: directories town=T01/weather=CN/viewpoint=A. They are
+# not stored inside the part files; readers get them back from the path.
+PARTITION_KEYS = ("town", "weather", "viewpoint")
+PARTITION_SCHEMA = pa.schema([(k, pa.string()) for k in PARTITION_KEYS])
+
+
+def output_columns(output: str) -> tuple[str, str, str]:
+    """Manifest columns of one output: relative path, size and checksum."""
+    return (f"{output}_path", f"{output}_bytes", f"{output}_sha256")
+
+
+_FRAME_FIELDS = [
+    ("frame_id", pa.string()),  # <episode:04d>_<frame:03d>; file stem is <frame_id>_<scenario>
+    ("scenario", pa.string()),
+    ("episode", pa.int32()),
+    ("frame", pa.int32()),  # index within the episode
+    ("sim_time_s", pa.float32()),  # simulated time of the frame
+    ("split", pa.string()),
+    ("seed", pa.int64()),  # the episode's seed
+    ("n_vehicles", pa.int16()),
+    ("n_pedestrians", pa.int16()),
+    ("camera_height_m", pa.float32()),
+    ("hood_fraction", pa.float32()),
+    ("ego_speed_mps", pa.float32()),
+    ("width", pa.int32()),
+    ("height", pa.int32()),
+    ("render_s", pa.float32()),  # worker seconds spent on this frame (render + encode + write)
+]
+_OUTPUT_FIELDS = [
+    field
+    for output in OUTPUTS
+    for field in zip(output_columns(output), (pa.string(), pa.int64(), pa.string()))
+]
+PIXEL_FIELDS = [(label.column, pa.int64()) for label in LABELS]
+
+# Schema of a part file (one episode); the full manifest adds PARTITION_KEYS.
+PART_SCHEMA = pa.schema(_FRAME_FIELDS + _OUTPUT_FIELDS + PIXEL_FIELDS)
+MANIFEST_SCHEMA = pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA))
+
+MANIFEST_DIR = "manifest"  # <root>/manifest/town=../weather=../viewpoint=../<scenario>_eNNNN.parquet
+RUN_FILE = "run.json"  # <root>/run.json: config, versions, git revision
+
+
+def frame_id(episode: int, frame: int) -> str:
+    return f"{episode:04d}_{frame:03d}"
+
+
+def frame_path(scenario: str, output: str, fid: str) -> str:
+    """Relative path of one image: <scenario>/<output>/<frameid>_<scenario>.png"""
+    return f"{scenario}/{output}/{fid}_{scenario}.png"
+
+
+def part_path(scenario: str, episode: int) -> str:
+    """Relative path of an episode's manifest part (its "done" marker)."""
+    town, weather, viewpoint = scenario.split("_")
+    return (
+        f"{MANIFEST_DIR}/town={town}/weather={weather}/viewpoint={viewpoint}/"
+        f"{scenario}_e{episode:04d}.parquet"
+    )

@@ -1,0 +1,166 @@
+"""Expand a domain selection into shards (one per scenario) of episodes.
+
+At full scale the 105 scenarios hold exactly the paper's 1,006,800 frames.
+Frames are shared out between towns in proportion to their drivable road
+length (the same for every weather and viewpoint of a town), and each shard is
+split into episodes of 60-80 frames (3-4 simulated minutes at one frame every
+3 s): 60 in the smallest town, 80 in the largest.
+
+A plan holds episodes, never frames, so it stays small at any scale.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Scenario, Town
+from manifests.selection import parse_selection
+from manifests.spec import EpisodeSpec
+
+PAPER_TOTAL_FRAMES = 1_006_800
+FRAME_PERIOD_S = 3.0  # one frame every 3 s of simulated time
+EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
+MIN_SIZE, MAX_SIZE = 32, 8192  # accepted image width / height in pixels
+SPLITS = ("train", "val", "test")
+SPLIT_SHARES = (0.8, 0.1, 0.1)
+
+_SPLIT_STREAM = 1  # rng stream ids keep seeds of different uses apart
+_EPISODE_STREAM = 2
+_TOWN_STREAM = 3
+
+
+def _largest_remainder(total: int, weights: list[float]) -> list[int]:
+    exact = [total * w / sum(weights) for w in weights]
+    counts = [math.floor(x) for x in exact]
+    by_remainder = sorted(range(len(weights)), key=lambda i: exact[i] - counts[i], reverse=True)
+    for i in by_remainder[: total - sum(counts)]:
+        counts[i] += 1
+    return counts
+
+
+def full_scale_frames(town: Town) -> int:
+    """Frames per scenario of ``town`` at full scale (paper total, by road length)."""
+    per_town_column = PAPER_TOTAL_FRAMES // (len(WEATHERS) * len(VIEWPOINTS))
+    counts = _largest_remainder(per_town_column, [t.road_km for t in TOWNS])
+    return counts[TOWNS.index(town)]
+
+
+def episode_target(town: Town) -> int:
+    """Target episode length: 60 frames in the shortest town, 80 in the longest."""
+    lo, hi = EPISODE_FRAMES
+    lengths = [t.road_km for t in TOWNS]
+    share = (town.road_km - min(lengths)) / (max(lengths) - min(lengths))
+    return round(lo + share * (hi - lo))
+
+
+def split_episodes(frames: int, target: int) -> list[int]:
+    """Split ``frames`` into near-equal episodes close to ``target``, none above 80."""
+    n = max(1, round(frames / target), math.ceil(frames / EPISODE_FRAMES[1]))
+    base, extra = divmod(frames, n)
+    return [base + (1 if i < extra else 0) for i in range(n)]
+
+
+def town_seed(run_seed: int, town: Town) -> int:
+    """Seed of a town's static world: shared by all its weathers and viewpoints."""
+    rng = np.random.default_rng([run_seed, _TOWN_STREAM, TOWNS.index(town)])
+    return int(rng.integers(0, 2**63 - 1))
+
+
+@dataclass(frozen=True)
+class PlanConfig:
+    """What the user asked for; validated before any work starts."""
+
+    domains: str = "all"
+    scale: float | None = None
+    frames_per_scenario: int | None = None
+    width: int = 1920
+    height: int = 1080
+    seed: int = 0
+
+    def validate(self) -> None:
+        if self.scale is not None and self.frames_per_scenario is not None:
+            raise ValueError("give either --scale or --frames-per-scenario, not both")
+        if self.scale is not None and not (0.0 < self.scale <= 1.0):
+            raise ValueError(f"scale must be in (0, 1], got {self.scale}")
+        if self.frames_per_scenario is not None and self.frames_per_scenario < 1:
+            raise ValueError(
+                f"frames per scenario must be at least 1, got {self.frames_per_scenario}"
+            )
+        for name, value in (("width", self.width), ("height", self.height)):
+            if not (MIN_SIZE <= value <= MAX_SIZE):
+                raise ValueError(
+                    f"{name} must be between {MIN_SIZE} and {MAX_SIZE} pixels, got {value}"
+                )
+        if self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
+        parse_selection(self.domains)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class Plan:
+    config: PlanConfig
+    episodes: tuple[EpisodeSpec, ...] = field(repr=False)
+
+    @property
+    def total_frames(self) -> int:
+        return sum(e.frames for e in self.episodes)
+
+    def scenarios(self) -> list[str]:
+        return list(dict.fromkeys(e.scenario for e in self.episodes))
+
+    def by_scenario(self) -> dict[str, list[EpisodeSpec]]:
+        out: dict[str, list[EpisodeSpec]] = {}
+        for e in self.episodes:
+            out.setdefault(e.scenario, []).append(e)
+        return out
+
+
+def scenario_frames(config: PlanConfig, town: Town) -> int:
+    if config.frames_per_scenario is not None:
+        return config.frames_per_scenario
+    full = full_scale_frames(town)
+    if config.scale is None:
+        return full
+    return max(1, round(config.scale * full))
+
+
+def _splits(config: PlanConfig, scenario: Scenario, n: int) -> list[str]:
+    n_val = round(SPLIT_SHARES[1] * n)
+    n_test = round(SPLIT_SHARES[2] * n)
+    labels = ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
+    rng = np.random.default_rng([config.seed, _SPLIT_STREAM, *scenario.key])
+    return [labels[i] for i in rng.permutation(n)]
+
+
+def episode_seed(run_seed: int, scenario: Scenario, episode: int) -> int:
+    rng = np.random.default_rng([run_seed, _EPISODE_STREAM, *scenario.key, episode])
+    return int(rng.integers(0, 2**63 - 1))
+
+
+def make_plan(config: PlanConfig) -> Plan:
+    """Build the plan; raises ValueError for any invalid config."""
+    config.validate()
+    episodes: list[EpisodeSpec] = []
+    for scenario in parse_selection(config.domains):
+        lengths = split_episodes(scenario_frames(config, scenario.town), episode_target(scenario.town))
+        splits = _splits(config, scenario, len(lengths))
+        for index, (frames, split) in enumerate(zip(lengths, splits)):
+            episodes.append(
+                EpisodeSpec(
+                    scenario=scenario.code,
+                    episode=index,
+                    seed=episode_seed(config.seed, scenario, index),
+                    frames=frames,
+                    width=config.width,
+                    height=config.height,
+                    split=split,
+                    run_seed=config.seed,
+                )
+            )
+    return Plan(config=config, episodes=tuple(episodes))

@@ -1,0 +1,77 @@
+import numpy as np
+import pytest
+
+from manifests import catalog
+from manifests.catalog import LABELS, PALETTE, TOWNS, VIEWPOINTS, WEATHERS
+
+
+def test_class_ids_are_unique_and_dense():
+    ids = [label.id for label in LABELS]
+    assert ids == list(range(24))
+    assert len({label.name for label in LABELS}) == 24
+
+
+def test_palette_equals_table():
+    for label in LABELS:
+        assert tuple(PALETTE[label.id]) == label.color
+    assert PALETTE.dtype == np.uint8 and PALETTE.shape == (24, 3)
+
+
+def test_sixteen_evaluated_classes():
+    evaluated = {label.name for label in LABELS if label.evaluated}
+    assert len(evaluated) == 16
+    assert evaluated.isdisjoint(
+        {"unlabeled", "other", "road line", "guard rail", "dynamic", "railway", "ground", "static"}
+    )
+
+
+# Cityscapes label ids and trainIds of the 19 training classes
+# (cityscapesScripts helpers/labels.py).
+CITYSCAPES = {
+    "road": (7, 0), "sidewalk": (8, 1), "building": (11, 2), "wall": (12, 3), "fence": (13, 4),
+    "pole": (17, 5), "traffic light": (19, 6), "traffic sign": (20, 7), "vegetation": (21, 8),
+    "terrain": (22, 9), "sky": (23, 10), "pedestrian": (24, 11), "rider": (25, 12),
+    "vehicle": (26, 13), "motorcycle": (32, 17), "bicycle": (33, 18),
+}
+# Cityscapes ids with ignoreInEval=True.
+CITYSCAPES_IGNORED = {0, 1, 2, 3, 4, 5, 6, 9, 10, 14, 15, 16, 18, 29, 30}
+
+
+def test_train_id_map_matches_cityscapes():
+    for label in LABELS:
+        if label.evaluated:
+            assert (label.cityscapes_id, label.train_id) == CITYSCAPES[label.name]
+        else:
+            assert label.train_id == 255
+            assert label.cityscapes_id in CITYSCAPES_IGNORED
+    assert catalog.TRAIN_ID_LUT[7] == 0 and catalog.TRAIN_ID_LUT[200] == 255
+
+
+def test_axis_codes_unique_and_scenario_codes():
+    for table in (TOWNS, WEATHERS, VIEWPOINTS):
+        codes = [row.code for row in table]
+        assert len(codes) == len(set(codes))
+    assert len(catalog.ALL_SCENARIOS) == 105
+    assert catalog.scenario("T01_CS_A").code == "T01_CS_A"
+    assert catalog.town("T01").road_km == 2.9 and catalog.town("T02").road_km == 1.4
+
+
+def test_viewpoints_match_paper():
+    heights = [v.camera_height_m for v in VIEWPOINTS]
+    assert min(heights) == 1.2 and max(heights) == 2.5
+    for v in VIEWPOINTS:
+        if v.code in "AMJ":
+            assert 0.1108 <= v.hood_fraction <= 0.1399
+        else:
+            assert not v.hood_visible
+
+
+@pytest.mark.parametrize("bad", ["T08_CN_A", "T01_XX_A", "T01_CN_Z", "T01CNA"])
+def test_bad_scenario_codes_name_valid_values(bad):
+    with pytest.raises(ValueError, match="valid|expected"):
+        catalog.scenario(bad)
+
+
+def test_unknown_class_name():
+    with pytest.raises(ValueError, match="valid classes: unlabeled, building"):
+        catalog.class_id("cat")

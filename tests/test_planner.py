@@ -1,0 +1,100 @@
+import pytest
+
+from manifests.catalog import TOWNS
+from manifests.selection import parse_selection
+from pipeline.planner import (
+    PAPER_TOTAL_FRAMES,
+    PlanConfig,
+    episode_target,
+    full_scale_frames,
+    make_plan,
+)
+
+
+@pytest.fixture(scope="module")
+def full_plan():
+    return make_plan(PlanConfig())
+
+
+def test_full_scale_matches_paper(full_plan):
+    assert len(full_plan.scenarios()) == 105
+    assert full_plan.total_frames == PAPER_TOTAL_FRAMES == 1_006_800
+
+
+def test_episode_lengths_within_60_80(full_plan):
+    lengths = {e.frames for e in full_plan.episodes}
+    assert min(lengths) >= 60 and max(lengths) <= 80
+
+
+def test_shards_monotone_in_town_length():
+    by_length = sorted(TOWNS, key=lambda t: t.road_km)
+    frames = [full_scale_frames(t) for t in by_length]
+    targets = [episode_target(t) for t in by_length]
+    assert frames == sorted(frames) and len(set(frames)) == len(frames)
+    assert targets == sorted(targets)
+    assert targets[0] == 60 and targets[-1] == 80
+
+
+def test_paper_subsets_drawable(full_plan):
+    per_scenario = {code: sum(e.frames for e in eps) for code, eps in full_plan.by_scenario().items()}
+    worst = [s.code for s in parse_selection("towns=T07 weathers=HRN viewpoints=J,B")]
+    assert sum(per_scenario[c] for c in worst) >= 40_128
+    best = [s.code for s in parse_selection("towns=T01-T06 weathers=CN viewpoints=A,M")]
+    assert len(best) == 12 and all(per_scenario[c] >= 2_496 for c in best)
+
+
+def test_seeds_deterministic_distinct_and_independent_of_selection(full_plan):
+    again = make_plan(PlanConfig())
+    assert [e.seed for e in again.episodes] == [e.seed for e in full_plan.episodes]
+    assert len({e.seed for e in full_plan.episodes}) == len(full_plan.episodes)
+    sub = make_plan(PlanConfig(domains="T03_CS_M"))
+    full_t03 = [e for e in full_plan.episodes if e.scenario == "T03_CS_M"]
+    assert [e.seed for e in sub.episodes] == [e.seed for e in full_t03]
+    other_seed = make_plan(PlanConfig(domains="T03_CS_M", seed=1))
+    assert other_seed.episodes[0].seed != sub.episodes[0].seed
+
+
+def test_seed_zero_is_a_real_seed():
+    zero = make_plan(PlanConfig(domains="T01_CN_A", seed=0))
+    one = make_plan(PlanConfig(domains="T01_CN_A", seed=1))
+    assert zero.episodes[0].seed != one.episodes[0].seed
+
+
+def test_splits_cover_train_val_test(full_plan):
+    for code, eps in list(full_plan.by_scenario().items())[:5]:
+        splits = [e.split for e in eps]
+        assert set(splits) == {"train", "val", "test"}
+        assert splits.count("train") > splits.count("val")
+
+
+def test_scaled_and_fixed_size_plans():
+    half = make_plan(PlanConfig(domains="T01_CN_A", scale=0.5))
+    assert half.total_frames == round(0.5 * full_scale_frames(TOWNS[0]))
+    fixed = make_plan(PlanConfig(domains="towns=T01,T07 weathers=CN viewpoints=A", frames_per_scenario=7))
+    assert fixed.total_frames == 14 and len(fixed.episodes) == 2
+    small = make_plan(PlanConfig(scale=0.001))
+    assert len(small.scenarios()) == 105 and all(e.frames >= 1 for e in small.episodes)
+    assert all(e.frames <= 80 for e in make_plan(PlanConfig(frames_per_scenario=200)).episodes)
+
+
+def test_plan_holds_episodes_not_frames(full_plan):
+    assert len(full_plan.episodes) < 20_000
+
+
+@pytest.mark.parametrize(
+    "kwargs, message",
+    [
+        (dict(scale=0.0), r"scale must be in \(0, 1\]"),
+        (dict(scale=1.5), r"scale must be in \(0, 1\]"),
+        (dict(width=0), "width must be between 32 and 8192"),
+        (dict(height=-5), "height must be between 32 and 8192"),
+        (dict(width=100_000), "width must be between"),
+        (dict(frames_per_scenario=0), "at least 1"),
+        (dict(scale=0.5, frames_per_scenario=3), "either"),
+        (dict(domains="towns=T09"), "valid towns: T01, T02"),
+        (dict(seed=-1), "non-negative"),
+    ],
+)
+def test_bad_configs_raise_clear_errors(kwargs, message):
+    with pytest.raises(ValueError, match=message):
+        make_plan(PlanConfig(**kwargs))
