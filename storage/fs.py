@@ -1,0 +1,276 @@
+"""Storage: one output root (local directory or S3 prefix) addressed by relative paths."""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import os
+import uuid
+from typing import Callable
+
+import pyarrow.fs as pafs
+
+from storage import atomic
+from storage.checksum import sha256_bytes, sha256_stream
+from storage.errors import StorageError, describe, storage_error
+from storage.uri import Location, S3Config, clean_rel, parse_root
+
+# Arrow's S3 output stream (with allow_delayed_open) sends objects below 10 MiB
+# as one PutObject on close. Larger payloads would use a multipart upload that
+# Arrow completes on close even after a Python-side error, so they are staged
+# under a temp key and published with one server-side copy instead.
+S3_SINGLE_PUT_MAX = 8 * 1024 * 1024
+
+
+def _local_filesystem(_config: S3Config | None) -> pafs.FileSystem:
+    return pafs.LocalFileSystem()
+
+
+def _s3_filesystem(config: S3Config | None) -> pafs.FileSystem:
+    config = config or S3Config()
+    # Credentials are left to the AWS SDK, which reads AWS_ACCESS_KEY_ID etc.
+    return pafs.S3FileSystem(
+        region=config.region,
+        endpoint_override=config.endpoint,
+        scheme=config.scheme,
+        allow_delayed_open=True,
+    )
+
+
+_FILESYSTEMS: dict[str, Callable[[S3Config | None], pafs.FileSystem]] = {
+    "local": _local_filesystem,
+    "s3": _s3_filesystem,
+}
+
+
+class Storage:
+    """An output root: atomic writes, reads, listing and checksums by relative path.
+
+    Picklable: only the root and the (credential-free) S3 settings travel; the
+    pyarrow filesystem is re-created lazily on first use.
+    """
+
+    sha256_bytes = staticmethod(sha256_bytes)
+
+    def __init__(self, location: Location, s3_config: S3Config | None = None) -> None:
+        self._loc = location
+        self._s3 = s3_config
+        self._fs: pafs.FileSystem | None = None
+
+    @classmethod
+    def from_uri(cls, uri: str) -> Storage:
+        """A local path (relative or absolute), ``file:///abs/path`` or ``s3://bucket/prefix``.
+
+        S3 settings come from the environment: endpoint from IDDA_S3_ENDPOINT,
+        AWS_ENDPOINT_URL_S3 or AWS_ENDPOINT_URL; region from AWS_REGION or
+        AWS_DEFAULT_REGION; credentials from the AWS SDK's usual sources. Nothing
+        is created or contacted until first use.
+        """
+        location = parse_root(uri)
+        return cls(location, S3Config.from_env() if location.kind == "s3" else None)
+
+    # -- identity ----------------------------------------------------------------
+
+    @property
+    def uri(self) -> str:
+        """The root as a credential-free URI (an absolute path for local roots)."""
+        return self._loc.uri
+
+    @property
+    def is_local(self) -> bool:
+        return self._loc.kind == "local"
+
+    def __repr__(self) -> str:
+        return f"Storage({self.uri!r})"
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Storage):
+            return NotImplemented
+        return (self._loc, self._s3) == (other._loc, other._s3)
+
+    def __hash__(self) -> int:
+        return hash((self._loc, self._s3))
+
+    def __getstate__(self) -> dict:
+        return {"location": self._loc, "s3_config": self._s3}
+
+    def __setstate__(self, state: dict) -> None:
+        self.__init__(state["location"], state["s3_config"])
+
+    @property
+    def filesystem(self) -> pafs.FileSystem:
+        """The pyarrow filesystem; pair it with :meth:`path` for pyarrow.dataset."""
+        if self._fs is None:
+            try:
+                self._fs = _FILESYSTEMS[self._loc.kind](self._s3)
+            except (OSError, RuntimeError, ValueError) as exc:
+                raise storage_error("open filesystem for", self.uri, exc) from exc
+        return self._fs
+
+    def path(self, rel: str = "") -> str:
+        """The filesystem path of ``rel`` ('' for the root itself)."""
+        return self._loc.fs_path(clean_rel(rel, allow_empty=True))
+
+    def join(self, rel: str = "") -> str:
+        """The full URI of ``rel`` (an absolute path for local roots), for logs and records."""
+        return self._loc.join(clean_rel(rel, allow_empty=True))
+
+    # -- writes ------------------------------------------------------------------
+
+    def write_bytes(self, rel: str, data: bytes) -> None:
+        """Write ``data`` to ``rel`` atomically: readers see the old object or the whole new one."""
+        rel = clean_rel(rel)
+        data = _as_bytes(data)
+        try:
+            if self.is_local:
+                atomic.atomic_write(self.path(rel), data)
+            elif len(data) <= S3_SINGLE_PUT_MAX:
+                self._s3_put(self.path(rel), data)
+            else:
+                self._s3_put_staged(rel, data)
+        except OSError as exc:
+            raise storage_error("write", self.join(rel), exc) from exc
+
+    def create_exclusive(self, rel: str, data: bytes) -> bool:
+        """Create ``rel`` only if absent; True if this call created it.
+
+        Local: atomic and exclusive (temp file, then a hard link that fails if
+        the target exists). S3: best effort only, an existence check followed by
+        a put, so two concurrent callers may both get True and the last put wins.
+        """
+        rel = clean_rel(rel)
+        data = _as_bytes(data)
+        if not self.is_local:
+            if self.exists(rel):
+                return False
+            self.write_bytes(rel, data)
+            return True
+        try:
+            return atomic.exclusive_write(self.path(rel), data)
+        except OSError as exc:
+            raise storage_error("create", self.join(rel), exc) from exc
+
+    def delete(self, rel: str) -> None:
+        """Delete the file at ``rel``; a missing file is not an error."""
+        rel = clean_rel(rel)
+        try:
+            self.filesystem.delete_file(self.path(rel))
+        except FileNotFoundError:
+            pass
+        except OSError as exc:
+            raise storage_error("delete", self.join(rel), exc) from exc
+
+    def ensure_writable(self) -> None:
+        """Create the root if needed and write then delete a probe; StorageError if that fails."""
+        probe = f".write-probe-{uuid.uuid4().hex}"
+        try:
+            if self.is_local:
+                if os.path.exists(self._loc.base) and not os.path.isdir(self._loc.base):
+                    raise NotADirectoryError(errno.ENOTDIR, "the root is not a directory")
+                os.makedirs(self._loc.base, exist_ok=True)
+            self.write_bytes(probe, b"probe")
+            self.delete(probe)
+        except StorageError as exc:
+            raise StorageError(f"output root {self.uri} is not writable: {exc.cause}", cause=exc.cause) from exc
+        except OSError as exc:
+            cause = describe(exc)
+            raise StorageError(f"output root {self.uri} is not writable: {cause}", cause=cause) from exc
+
+    # -- reads -------------------------------------------------------------------
+
+    def read_bytes(self, rel: str) -> bytes:
+        """The whole content of ``rel``; FileNotFoundError if it does not exist."""
+        rel = clean_rel(rel)
+        with self._open_input(rel) as stream:
+            return self._guard("read", rel, stream.readall)
+
+    def sha256(self, rel: str) -> str:
+        """Hex SHA-256 of ``rel``, streamed in 1 MiB chunks."""
+        rel = clean_rel(rel)
+        with self._open_input(rel) as stream:
+            return self._guard("read", rel, lambda: sha256_stream(stream))
+
+    def exists(self, rel: str) -> bool:
+        """True if ``rel`` is an existing file (directories do not count)."""
+        return self._info(clean_rel(rel)).type == pafs.FileType.File
+
+    def size(self, rel: str) -> int:
+        """Size of ``rel`` in bytes; FileNotFoundError if it is not a file."""
+        rel = clean_rel(rel)
+        info = self._info(rel)
+        if info.type != pafs.FileType.File:
+            raise FileNotFoundError(f"no such file: {self.join(rel)}")
+        return int(info.size)
+
+    def list_files(self, prefix: str = "", suffix: str | None = None) -> list[str]:
+        """Sorted relative paths of all files whose path starts with ``prefix``.
+
+        ``prefix`` is a plain string prefix: pass ``"dir/"`` for a directory.
+        In-flight temp files are never listed.
+        """
+        clean = clean_rel(prefix, allow_empty=True)
+        if prefix.endswith("/") and clean:
+            clean += "/"
+        directory = clean.rpartition("/")[0]
+        base = self._loc.fs_path("")
+        selector = pafs.FileSelector(self.path(directory), recursive=True, allow_not_found=True)
+        infos = self._guard("list", directory, lambda: self.filesystem.get_file_info(selector))
+        found = []
+        for info in infos:
+            if info.type != pafs.FileType.File or atomic.is_temp_name(info.base_name):
+                continue
+            rel = info.path[len(base) :].lstrip("/")
+            if rel.startswith(clean) and (suffix is None or rel.endswith(suffix)):
+                found.append(rel)
+        return sorted(found)
+
+    # -- internals ---------------------------------------------------------------
+
+    def _guard(self, action: str, rel: str, call: Callable):
+        """Run ``call``; FileNotFoundError stays one, other OSErrors become StorageError."""
+        try:
+            return call()
+        except FileNotFoundError as exc:
+            raise FileNotFoundError(f"no such file: {self.join(rel)}") from exc
+        except NotADirectoryError as exc:
+            raise FileNotFoundError(f"no such file: {self.join(rel)}") from exc
+        except OSError as exc:
+            raise storage_error(action, self.join(rel), exc) from exc
+
+    def _open_input(self, rel: str):
+        return self._guard("open", rel, lambda: self.filesystem.open_input_stream(self.path(rel)))
+
+    def _info(self, rel: str) -> pafs.FileInfo:
+        return self._guard("stat", rel, lambda: self.filesystem.get_file_info(self.path(rel)))
+
+    def _s3_put(self, path: str, data: bytes) -> None:
+        # One write() buffers everything; close() sends a single PutObject.
+        with self.filesystem.open_output_stream(path) as stream:
+            stream.write(data)
+
+    def _s3_put_staged(self, rel: str, data: bytes) -> None:
+        """Upload to a hidden temp key, check its size, then copy it into place."""
+        final = self.path(rel)
+        head, _, name = final.rpartition("/")
+        tmp = f"{head}/.{name}.{uuid.uuid4().hex}.tmp"
+        try:
+            with self.filesystem.open_output_stream(tmp) as stream:
+                _write_all(stream, data)
+            got = self.filesystem.get_file_info(tmp).size
+            if got != len(data):
+                raise OSError(f"staged upload has {got} bytes, expected {len(data)}")
+            self.filesystem.copy_file(tmp, final)
+        finally:
+            with contextlib.suppress(OSError):
+                self.filesystem.delete_file(tmp)
+
+
+def _write_all(stream, data: bytes) -> None:
+    """Write ``data`` to a pyarrow output stream in one call."""
+    stream.write(data)
+
+
+def _as_bytes(data) -> bytes | memoryview:
+    if isinstance(data, str):
+        raise TypeError("data must be bytes-like, not str")
+    return data if isinstance(data, bytes) else memoryview(data).cast("B")
