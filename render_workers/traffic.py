@@ -1,0 +1,347 @@
+"""Per-episode traffic: vehicles, parked cars, riders, pedestrians and the ego.
+
+``populate(world, viewpoint_code, episode_seed)`` draws everything from
+``np.random.default_rng(episode_seed)``:
+
+* ``n_vehicles`` in [20, 150] (moving, parked, and two-wheelers) and
+  ``n_pedestrians`` in [0, 100], as in IDDA;
+* moving vehicles ride the world's lane loops. Loops never cross, and every
+  actor on a loop keeps the loop's speed, so actors spaced apart at t=0 stay
+  apart forever;
+* the ego drives a random loop from a random spawn point; its loop gets the
+  ego's speed, a free slot around the ego, and riders a few dozen metres
+  ahead so the rare classes show up in frames;
+* parked cars sit in the kerbside parking strips, pedestrians walk the
+  sidewalks, mostly near the ego's route.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import numpy as np
+import trimesh
+
+from manifests.catalog import LABELS, viewpoint as viewpoint_row
+from render_workers import meshes as M
+from render_workers import world as W
+from render_workers.scene import Actor, EpisodeScene, Part, World
+
+ID = {label.name: label.id for label in LABELS}
+
+
+@dataclass(frozen=True)
+class VehicleKind:
+    name: str
+    length: float
+    width: float
+    height: float
+    wheel_r: float
+    glass_from: float  # share of the height where the windows start
+    cabin: tuple[float, float]  # cabin span along x as shares of the length (rear, front)
+
+
+VEHICLE_KINDS = {
+    k.name: k
+    for k in (
+        VehicleKind("sedan", 4.5, 1.8, 1.45, 0.32, 0.6, (-0.32, 0.18)),
+        VehicleKind("suv", 4.8, 1.9, 1.75, 0.36, 0.58, (-0.4, 0.2)),
+        VehicleKind("van", 5.2, 2.0, 2.15, 0.34, 0.55, (-0.48, 0.4)),
+        VehicleKind("truck", 7.5, 2.4, 3.2, 0.5, 0.55, (0.3, 0.48)),
+        VehicleKind("bus", 11.0, 2.55, 3.1, 0.5, 0.5, (-0.47, 0.49)),
+    )
+}
+KIND_WEIGHTS = {"sedan": 0.45, "suv": 0.25, "van": 0.15, "truck": 0.08, "bus": 0.07}
+PARKED_KINDS = ("sedan", "suv", "van")
+PAINTS = [(200, 30, 30), (240, 240, 240), (20, 20, 24), (130, 130, 135), (30, 60, 150), (200, 200, 205),
+          (20, 90, 50), (230, 180, 20), (110, 20, 30), (70, 110, 160), (180, 90, 30), (90, 90, 95)]
+CLOTHES = [(30, 40, 80), (180, 30, 40), (40, 40, 45), (200, 200, 195), (60, 110, 60), (150, 120, 80),
+           (220, 170, 40), (90, 60, 120), (120, 120, 130), (30, 110, 160)]
+SKIN = [(224, 180, 150), (190, 140, 100), (140, 95, 65), (90, 60, 40)]
+RIDER_SLOT = 2.4  # bicycles and motorcycles occupy this much lane length
+EGO_SPEED = {"A": (10.0, 14.0), "M": (10.0, 14.0), "J": (9.0, 13.0), "V": (8.0, 12.0), "B": (8.0, 11.0)}
+FREEWAY_EGO_SPEED = (16.0, 20.0)
+
+
+# --------------------------------------------------------------------------
+# Meshes (actor frame: +x forward, +y left, z up from the ground)
+# --------------------------------------------------------------------------
+def _wheels(xs, half_track, radius, width, sides=8):
+    """Wheels as prisms with their axis along y."""
+    v, f = M.cylinders(np.zeros((1, 3)), width, radius, sides)
+    v = v[:, [0, 2, 1]]  # axis z -> y (this mirrors, so flip the winding)
+    v[:, 1] -= width / 2
+    f = f[:, [0, 2, 1]]
+    vs, fs = [], []
+    for x in xs:
+        for y in (-half_track, half_track):
+            vs.append(v + np.array([x, y, radius]))
+            fs.append(f)
+    return M._concat(list(zip(vs, fs)))
+
+
+@lru_cache(maxsize=None)
+def _vehicle_geometry(name: str):
+    """(body, glass, dark) geometry of one vehicle kind."""
+    k = VEHICLE_KINDS[name]
+    L, Wd, H = k.length, k.width, k.height
+    clear = k.wheel_r * 0.8
+    zg = H * k.glass_from
+    body = [M.boxes([[0, 0, clear]], [[L, Wd, zg - clear]])]
+    r0, r1 = k.cabin
+    cab_len = (r1 - r0) * L
+    cab_x = (r0 + r1) / 2 * L
+    glass = M.boxes([[cab_x, 0, zg]], [[cab_len, Wd * 0.92, (H - zg) * 0.8]])
+    body.append(M.boxes([[cab_x, 0, zg + (H - zg) * 0.8]], [[cab_len * 0.98, Wd * 0.94, (H - zg) * 0.2]]))
+    if name == "truck":  # cargo box behind the cab
+        body.append(M.boxes([[-0.18 * L, 0, clear + 0.2]], [[0.62 * L, Wd, H - clear - 0.2]]))
+    xs = (L / 2 - 0.9 - k.wheel_r * 0.5, -L / 2 + 0.9 + k.wheel_r * 0.5)
+    dark = [_wheels(xs, Wd / 2 - 0.12, k.wheel_r, 0.25)]
+    dark.append(M.boxes([[L / 2 + 0.01, 0, clear + 0.05]], [[0.04, Wd * 0.9, 0.22]]))  # grille / bumper
+    dark.append(M.boxes([[-L / 2 - 0.01, 0, clear + 0.05]], [[0.04, Wd * 0.9, 0.22]]))
+    return M._concat(body), glass, M._concat(dark)
+
+
+def _part(cls: str, geom, color, material: str, amount: float = 0.04) -> Part:
+    v, f = geom
+    cols = M.noisy_colors(v, color, amount, 0.7, seed=int(sum(color)) % 97)
+    mesh = trimesh.Trimesh(vertices=v, faces=f, vertex_colors=cols, process=False)
+    return Part(ID[cls], mesh, material)
+
+
+def vehicle_parts(name: str, paint) -> tuple[Part, ...]:
+    body, glass, dark = _vehicle_geometry(name)
+    return (_part("vehicle", body, paint, "glossy"),
+            _part("vehicle", glass, (34, 44, 56), "glass"),
+            _part("vehicle", dark, (26, 26, 28), "matte"))
+
+
+def _person(height: float, sitting: bool = False):
+    """(clothes_top, clothes_bottom, skin) geometry of a person, feet at z=0."""
+    s = height / 1.75
+    if sitting:
+        legs = M.boxes([[0.15 * s, 0.12 * s, 0.55 * s], [0.15 * s, -0.12 * s, 0.55 * s]], [[0.5 * s, 0.15 * s, 0.18 * s]])
+        shins = M.boxes([[0.38 * s, 0.12 * s, 0.15 * s], [0.38 * s, -0.12 * s, 0.15 * s]], [[0.14 * s, 0.14 * s, 0.45 * s]])
+        bottom = M._concat([legs, shins])
+        top = M.boxes([[0.0, 0, 0.72 * s]], [[0.3 * s, 0.42 * s, 0.6 * s]], 0.0)
+        arms = M.boxes([[0.25 * s, 0.24 * s, 1.0 * s], [0.25 * s, -0.24 * s, 1.0 * s]], [[0.5 * s, 0.1 * s, 0.1 * s]])
+        top = M._concat([top, arms])
+        head = M.boxes([[0.05 * s, 0, 1.33 * s]], [[0.22 * s, 0.2 * s, 0.26 * s]])
+    else:
+        bottom = M.boxes([[0, 0.1 * s, 0], [0, -0.1 * s, 0]], [[0.18 * s, 0.15 * s, 0.86 * s]])
+        top = M._concat([M.boxes([[0, 0, 0.86 * s]], [[0.26 * s, 0.44 * s, 0.6 * s]]),
+                         M.boxes([[0, 0.27 * s, 0.8 * s], [0, -0.27 * s, 0.8 * s]], [[0.1 * s, 0.09 * s, 0.62 * s]])])
+        head = M.boxes([[0, 0, 1.49 * s]], [[0.22 * s, 0.2 * s, 0.26 * s]])
+    return top, bottom, head
+
+
+def pedestrian_parts(rng) -> tuple[Part, ...]:
+    height = float(rng.uniform(1.45, 1.95)) if rng.random() > 0.12 else float(rng.uniform(1.0, 1.4))
+    top, bottom, head = _person(height)
+    geom = M._concat([top, bottom, head])
+    v, f = geom
+    cols = np.empty((len(v), 4), np.uint8)
+    n_top, n_bot = len(top[0]), len(bottom[0])
+    cols[:n_top] = M.flat_colors(n_top, CLOTHES[int(rng.integers(len(CLOTHES)))])
+    cols[n_top:n_top + n_bot] = M.flat_colors(n_bot, CLOTHES[int(rng.integers(len(CLOTHES)))])
+    cols[n_top + n_bot:] = M.flat_colors(len(v) - n_top - n_bot, SKIN[int(rng.integers(len(SKIN)))])
+    return (Part(ID["pedestrian"], trimesh.Trimesh(v, f, vertex_colors=cols, process=False), "matte"),)
+
+
+def rider_parts(rng, motor: bool) -> tuple[Part, ...]:
+    """A bicycle or motorcycle (own class) with its rider (class rider)."""
+    r = 0.3 if motor else 0.34
+    wheels = _wheels((0.65, -0.65), 0.0, r, 0.12 if motor else 0.05, sides=10)
+    if motor:
+        frame = M._concat([wheels, M.boxes([[0.0, 0, 0.35]], [[1.2, 0.35, 0.45]]),
+                           M.boxes([[0.25, 0, 0.75]], [[0.5, 0.3, 0.2]])])
+        vcls, vcol = "motorcycle", PAINTS[int(rng.integers(len(PAINTS)))]
+    else:
+        frame = M._concat([wheels, M.boxes([[0.0, 0, 0.45]], [[1.0, 0.05, 0.05]]),
+                           M.boxes([[-0.1, 0, 0.35]], [[0.05, 0.05, 0.5]]),
+                           M.boxes([[0.5, 0, 0.35]], [[0.05, 0.05, 0.65]]),
+                           M.boxes([[0.5, 0, 1.0]], [[0.05, 0.55, 0.04]])])
+        vcls, vcol = "bicycle", CLOTHES[int(rng.integers(len(CLOTHES)))]
+    top, bottom, head = _person(float(rng.uniform(1.6, 1.9)), sitting=True)
+    lift = np.array([-0.25, 0, 0.35 if motor else 0.45])
+    body = M._concat([top, bottom, head])
+    v = body[0] + lift
+    cols = M.flat_colors(len(v), CLOTHES[int(rng.integers(len(CLOTHES)))])
+    n_h = len(head[0])
+    cols[-n_h:] = M.flat_colors(n_h, (40, 40, 45) if motor else SKIN[int(rng.integers(len(SKIN)))])
+    rider = Part(ID["rider"], trimesh.Trimesh(v, body[1], vertex_colors=cols, process=False), "matte")
+    fv, ff = frame
+    bike = Part(ID[vcls], trimesh.Trimesh(fv, ff, vertex_colors=M.flat_colors(len(fv), vcol), process=False),
+                "glossy" if motor else "metal")
+    return bike, rider
+
+
+# --------------------------------------------------------------------------
+# Slots along loops
+# --------------------------------------------------------------------------
+class _LoopSlots:
+    """Occupied arc-length intervals of one closed loop."""
+
+    def __init__(self, length: float) -> None:
+        self.length = length
+        self.taken: list[tuple[float, float]] = []
+
+    def free(self, s: float, half: float, gap: float) -> bool:
+        for c, h in self.taken:
+            d = abs((s - c + self.length / 2) % self.length - self.length / 2)
+            if d < half + h + gap:
+                return False
+        return True
+
+    def take(self, s: float, half: float) -> None:
+        self.taken.append((s % self.length, half))
+
+
+def _allowed_kinds(loop: W.Loop) -> list[str]:
+    """Long vehicles only where corners are wide enough to keep them in lane."""
+    kinds = []
+    for name, k in VEHICLE_KINDS.items():
+        # on an arc a box's outer corners stick out beyond its lane
+        rr = loop.min_radius_m + k.width / 2
+        overshoot = np.sqrt(rr**2 + (k.length / 2) ** 2) - rr
+        neighbour = 1.275 if k.width > 2.1 else 1.0
+        if overshoot + k.width / 2 + neighbour + 0.05 <= loop.lane_sep_m:
+            kinds.append(name)
+    return kinds or ["sedan"]
+
+
+def _pick_kind(rng, kinds: list[str]) -> str:
+    w = np.array([KIND_WEIGHTS[k] for k in kinds])
+    return kinds[int(rng.choice(len(kinds), p=w / w.sum()))]
+
+
+def _min_distance(a: np.ndarray, b: np.ndarray) -> float:
+    a, b = a[:, :2][::2], b[:, :2][::2]
+    return float(np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)).min())
+
+
+# --------------------------------------------------------------------------
+# populate
+# --------------------------------------------------------------------------
+def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeScene:
+    """Vehicles, riders, pedestrians and the ego for one episode."""
+    vp = viewpoint_row(viewpoint_code)
+    rng = np.random.default_rng(episode_seed)
+    n_vehicles = int(rng.integers(20, 151))
+    n_pedestrians = int(rng.integers(0, 101))
+    loops = W.loops(world.town, world.seed)
+    if len(loops) != len(world.lanes):
+        raise ValueError(f"world {world.town} seed {world.seed} does not match its lane plan")
+    lengths = np.array([lp.path.length for lp in loops])
+
+    # the ego: a random loop (longer ones more likely) and spawn point
+    ego_i = int(rng.choice(len(loops), p=lengths / lengths.sum()))
+    ego_loop = loops[ego_i]
+    lo, hi = FREEWAY_EGO_SPEED if ego_loop.kind == "freeway" else EGO_SPEED[vp.code]
+    ego_speed = float(rng.uniform(lo, hi))
+    ego_s = float(rng.uniform(0, lengths[ego_i]))
+    ego = Actor(vp.vehicle, (), ego_loop.path, ego_s, ego_speed, 0.0)
+
+    speeds = rng.uniform(5.0, 14.0, len(loops))
+    speeds[ego_i] = ego_speed
+    slots = [_LoopSlots(L) for L in lengths]
+    ego_half = 5.5 if vp.code == "B" else 2.4
+    slots[ego_i].take(ego_s + 6.0, ego_half + 12.0)  # free space ahead of and behind the ego
+
+    actors: list[Actor] = []
+    n_two = min(n_vehicles // 3, max(4, int(round(0.12 * n_vehicles))))
+    n_parked_target = int(round(rng.uniform(0.2, 0.4) * (n_vehicles - n_two)))
+
+    # riders: some just ahead of the ego, the rest near its route
+    near = [i for i in range(len(loops)) if i == ego_i or _min_distance(loops[i].path.points, ego_loop.path.points) < 20]
+    ahead = rng.uniform(28, 75, size=min(3, n_two))
+    placed_two = 0
+    for k in range(n_two):
+        motor = bool(k % 2)
+        if k < len(ahead):
+            i, s = ego_i, ego_s + ego_half + float(ahead[k])
+        else:
+            i = int(rng.choice(near)) if rng.random() < 0.7 else int(rng.integers(len(loops)))
+            s = float(rng.uniform(0, lengths[i]))
+        if not slots[i].free(s, RIDER_SLOT / 2, 2.0):
+            continue
+        slots[i].take(s, RIDER_SLOT / 2)
+        lat = loops[i].kerb_lateral_m + float(rng.uniform(-0.2, 0.2))
+        actors.append(Actor("motorcyclist" if motor else "cyclist", rider_parts(rng, motor),
+                            loops[i].path, s, float(speeds[i]), lat))
+        placed_two += 1
+
+    # moving vehicles
+    n_moving = n_vehicles - n_two - n_parked_target
+    weights = lengths / lengths.sum()
+    placed_moving = 0
+    for _ in range(8 * max(1, n_moving)):
+        if placed_moving >= n_moving:
+            break
+        i = int(rng.choice(len(loops), p=weights))
+        kinds = _allowed_kinds(loops[i])
+        kind = _pick_kind(rng, kinds)
+        half = VEHICLE_KINDS[kind].length / 2
+        s = float(rng.uniform(0, lengths[i]))
+        if not slots[i].free(s, half, 3.0 + 0.4 * speeds[i]):
+            continue
+        slots[i].take(s, half)
+        paint = PAINTS[int(rng.integers(len(PAINTS)))]
+        actors.append(Actor(kind, vehicle_parts(kind, paint), loops[i].path, s, float(speeds[i]), 0.0))
+        placed_moving += 1
+
+    # parked vehicles in the kerbside strips
+    parking = [(i, a, b) for i, lp in enumerate(loops) for a, b in lp.parking]
+    parked = [_LoopSlots(L) for L in lengths]
+    n_parked = 0
+    if parking:
+        span_len = np.array([b - a for _, a, b in parking])
+        for _ in range(6 * max(1, n_parked_target)):
+            if n_parked >= n_vehicles - n_two - placed_moving:
+                break
+            k = int(rng.choice(len(parking), p=span_len / span_len.sum()))
+            i, a, b = parking[k]
+            kind = PARKED_KINDS[int(rng.integers(len(PARKED_KINDS)))]
+            half = VEHICLE_KINDS[kind].length / 2
+            if b - a < 2 * half:
+                continue
+            s = float(rng.uniform(a + half, b - half))
+            if not parked[i].free(s, half, 0.8):
+                continue
+            parked[i].take(s, half)
+            paint = PAINTS[int(rng.integers(len(PAINTS)))]
+            actors.append(Actor(kind, vehicle_parts(kind, paint), loops[i].path, s, 0.0,
+                                loops[i].parking_lateral_m))
+            n_parked += 1
+
+    # pedestrians on the sidewalks, most of them along the ego's route
+    walk_loops = [p for p in world.walkways if p.closed]
+    if walk_loops and n_pedestrians:
+        near_w = np.array([_min_distance(p.points, ego_loop.path.points) < 25 for p in walk_loops], float)
+        wts = np.array([p.length for p in walk_loops]) * (1.0 + 8.0 * near_w)
+        wts /= wts.sum()
+        half_w = 0.5 * W.layout(world.town, world.seed).sidewalk_w or 1.25
+        for _ in range(n_pedestrians):
+            p = walk_loops[int(rng.choice(len(walk_loops), p=wts))]
+            speed = 0.0 if rng.random() < 0.2 else float(rng.uniform(0.8, 1.6))
+            lat = -float(rng.uniform(0.0, max(0.1, half_w - 0.5)))
+            actors.append(Actor("pedestrian", pedestrian_parts(rng), p,
+                                float(rng.uniform(0, p.length)), speed, lat))
+
+    return EpisodeScene(
+        world=world,
+        actors=tuple(actors),
+        ego=ego,
+        n_vehicles=n_vehicles,
+        n_pedestrians=n_pedestrians,
+        extras={
+            "viewpoint": vp.code,
+            "camera_height_m": vp.camera_height_m,
+            "ego_loop": ego_i,
+            "ego_loop_kind": ego_loop.kind,
+            "vehicles_placed": placed_moving + n_parked + placed_two,
+            "parked": n_parked,
+            "two_wheelers": placed_two,
+        },
+    )

@@ -1,0 +1,233 @@
+"""Procedural towns and per-episode traffic (render_workers.world / traffic)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from manifests.catalog import TOWNS, VIEWPOINTS, class_id, town as town_row
+from render_workers import world as W
+from render_workers.scene import MATERIALS
+from render_workers.traffic import populate
+
+TOWN_CODES = [t.code for t in TOWNS]
+MOVING_CLASSES = {class_id("vehicle"), class_id("bicycle"), class_id("motorcycle")}
+
+
+@pytest.fixture(scope="module")
+def worlds():
+    return {code: W.build_world(code, 0) for code in TOWN_CODES}
+
+
+def _tri_counts(world) -> dict[int, int]:
+    out: dict[int, int] = {}
+    for part in world.static:
+        out[part.class_id] = out.get(part.class_id, 0) + len(part.mesh.faces)
+    return out
+
+
+# --------------------------------------------------------------------------
+# Determinism
+# --------------------------------------------------------------------------
+def test_layout_is_deterministic_and_seed_dependent():
+    for code in TOWN_CODES:
+        a, b = W.layout.__wrapped__(code, 3), W.layout.__wrapped__(code, 3)
+        assert np.array_equal(a.xs, b.xs) and np.array_equal(a.ys, b.ys)
+        assert a.signals == b.signals and a.groups == b.groups
+        c = W.layout.__wrapped__(code, 4)
+        assert not np.array_equal(a.xs, c.xs)
+
+
+def test_geometry_is_deterministic_and_seed_dependent():
+    a, _ = W._built.__wrapped__("T02", 5)
+    b, _ = W._built.__wrapped__("T02", 5)
+    assert len(a) == len(b)
+    for pa, pb in zip(a, b):
+        assert pa.class_id == pb.class_id and pa.material == pb.material
+        assert np.array_equal(pa.mesh.vertices, pb.mesh.vertices)
+        assert np.array_equal(pa.mesh.faces, pb.mesh.faces)
+        assert np.array_equal(pa.mesh.visual.vertex_colors, pb.mesh.visual.vertex_colors)
+    c, _ = W._built.__wrapped__("T02", 6)
+    va = np.concatenate([p.mesh.vertices for p in a])
+    vc = np.concatenate([p.mesh.vertices for p in c])
+    assert va.shape != vc.shape or not np.array_equal(va, vc)
+
+
+# --------------------------------------------------------------------------
+# Content
+# --------------------------------------------------------------------------
+@pytest.mark.parametrize("code", TOWN_CODES)
+def test_town_contains_its_classes(worlds, code):
+    t = town_row(code)
+    present = set(_tri_counts(worlds[code]))
+    need = ["road", "road line", "building", "vegetation", "terrain", "pole", "traffic sign",
+            "traffic light", "fence", "wall"]
+    if t.sidewalks:
+        need.append("sidewalk")
+    if t.railway:
+        need.append("railway")
+    if t.freeway:
+        need.append("guard rail")
+    missing = [name for name in need if class_id(name) not in present]
+    assert not missing, f"{code} lacks {missing}"
+    if not t.railway:
+        assert class_id("railway") not in present
+    if not t.sidewalks:
+        assert class_id("sidewalk") not in present
+
+
+@pytest.mark.parametrize("code", TOWN_CODES)
+def test_parts_are_merged_tiled_and_coloured(worlds, code):
+    world = worlds[code]
+    keys = set()
+    for part in world.static:
+        assert part.material in MATERIALS
+        colors = part.mesh.visual.vertex_colors
+        assert colors.dtype == np.uint8 and len(colors) == len(part.mesh.vertices)
+        # a part holds one 200 m tile's pieces, which may overhang it a little
+        c = part.mesh.triangles_center[:, :2]
+        assert (np.ptp(c, axis=0) <= 200.0 + 2 * 90.0).all()
+        key = (tuple(np.floor(c.mean(axis=0) / 200.0)), part.class_id, part.material)
+        keys.add(key)
+    assert len(keys) > 20
+    # large classes are never one flat colour
+    for name in ("road", "building", "vegetation", "terrain"):
+        cols = np.concatenate([p.mesh.visual.vertex_colors[:, :3] for p in world.static
+                               if p.class_id == class_id(name)])
+        assert cols.std(axis=0).max() > 3.0, name
+
+
+@pytest.mark.parametrize("code", TOWN_CODES)
+def test_triangle_budget(worlds, code):
+    world = worlds[code]
+    total = sum(len(p.mesh.faces) for p in world.static)
+    assert total < 1_500_000
+    centres = np.concatenate([p.mesh.triangles_center[:, :2] for p in world.static])
+    probe = W.loops(code, 0)[-1].path.points[0, :2]  # a point on the perimeter / freeway
+    near = np.linalg.norm(centres - probe, axis=1) < 450.0
+    assert near.sum() < 300_000
+
+
+@pytest.mark.parametrize("code", TOWN_CODES)
+def test_road_length_matches_catalog(code):
+    lay = W.layout(code, 0)
+    target = town_row(code).road_km * 1000.0
+    assert abs(lay.road_length_m - target) / target < 0.15
+
+
+def test_towns_differ():
+    a, b = W.layout("T07", 0), W.layout("T05", 0)
+    assert a.sidewalk_w == 0 and b.sidewalk_w > 0
+    assert b.town.building_height_m[1] > 3 * a.town.building_height_m[1]
+
+
+# --------------------------------------------------------------------------
+# Traffic
+# --------------------------------------------------------------------------
+def _box(actor, t):
+    """2D oriented box (centre, half extents, axes) of an actor's parts at time t."""
+    verts = np.concatenate([p.mesh.vertices for p in actor.parts])
+    lo, hi = verts[:, :2].min(axis=0), verts[:, :2].max(axis=0)
+    pose = actor.pose(t)
+    centre_local = np.array([(lo[0] + hi[0]) / 2, (lo[1] + hi[1]) / 2, 0.0, 1.0])
+    centre = (pose @ centre_local)[:2]
+    return centre, (hi - lo) / 2, pose[:2, :2]
+
+
+def _overlap(a, b, shrink=0.05) -> bool:
+    """Separating-axis test for two 2D oriented boxes."""
+    (ca, ha, ra), (cb, hb, rb) = a, b
+    ha, hb = ha - shrink, hb - shrink
+    d = cb - ca
+    for axis in (ra[:, 0], ra[:, 1], rb[:, 0], rb[:, 1]):
+        pa = abs(ra[:, 0] @ axis) * ha[0] + abs(ra[:, 1] @ axis) * ha[1]
+        pb = abs(rb[:, 0] @ axis) * hb[0] + abs(rb[:, 1] @ axis) * hb[1]
+        if abs(d @ axis) > pa + pb:
+            return False
+    return True
+
+
+def _movers(scene):
+    return [a for a in scene.actors if any(p.class_id in MOVING_CLASSES for p in a.parts)]
+
+
+@pytest.mark.parametrize("code,seed", [("T01", 0), ("T03", 1), ("T05", 2), ("T07", 3), ("T02", 4)])
+def test_no_vehicle_overlaps(worlds, code, seed):
+    scene = populate(worlds[code], "A", seed)
+    movers = _movers(scene)
+    assert len(movers) >= 20
+    fp = W.building_footprints(code, 0)
+    bld = [(f[:2], f[2:4] / 2, np.array([[np.cos(f[4]), -np.sin(f[4])], [np.sin(f[4]), np.cos(f[4])]])) for f in fp]
+    for t in (0.0, 3.0, 17.0, 61.0, 149.0):
+        boxes = [_box(a, t) for a in movers]
+        centres = np.array([b[0] for b in boxes])
+        radius = np.array([np.linalg.norm(b[1]) for b in boxes])
+        dist = np.linalg.norm(centres[:, None] - centres[None], axis=2)
+        close = np.argwhere(np.triu(dist < radius[:, None] + radius[None], 1))
+        for i, j in close:
+            assert not _overlap(boxes[i], boxes[j]), f"{movers[i].kind} / {movers[j].kind} overlap at t={t}"
+        if t == 0.0:
+            for b in boxes:
+                for f in bld:
+                    if np.linalg.norm(f[0] - b[0]) < np.linalg.norm(f[1]) + np.linalg.norm(b[1]):
+                        assert not _overlap(b, f), "vehicle inside a building"
+
+
+def _road_triangles(world):
+    tris = [p.mesh.triangles[:, :, :2] for p in world.static if p.class_id == class_id("road")]
+    return np.concatenate(tris)
+
+
+def _on_triangles(points, tris):
+    """For each 2D point, whether some triangle contains it (barycentric test)."""
+    a, b, c = tris[:, 0], tris[:, 1], tris[:, 2]
+    v0, v1 = b - a, c - a
+    den = v0[:, 0] * v1[:, 1] - v0[:, 1] * v1[:, 0]
+    out = np.zeros(len(points), bool)
+    for k, p in enumerate(points):
+        w = p - a
+        u = (w[:, 0] * v1[:, 1] - w[:, 1] * v1[:, 0]) / den
+        v = (v0[:, 0] * w[:, 1] - v0[:, 1] * w[:, 0]) / den
+        out[k] = bool(((u >= -1e-6) & (v >= -1e-6) & (u + v <= 1 + 1e-6)).any())
+    return out
+
+
+@pytest.mark.parametrize("code,seed", [("T01", 0), ("T03", 5), ("T06", 7), ("T07", 2)])
+def test_ego_stays_on_road(worlds, code, seed):
+    world = worlds[code]
+    scene = populate(world, "J", seed)
+    ego = scene.ego
+    assert ego.parts == ()
+    pts = np.array([ego.pose(t)[:2, 3] for t in np.arange(0.0, 240.0, 1.5)])
+    tris = _road_triangles(world)
+    inside = _on_triangles(pts, tris)
+    assert inside.all(), f"ego off the road at {pts[~inside][:3]}"
+
+
+def test_populate_counts_determinism_and_viewpoints(worlds):
+    world = worlds["T01"]
+    seen_ego = set()
+    for seed in range(4):
+        scene = populate(world, "A", seed)
+        assert 20 <= scene.n_vehicles <= 150 and 0 <= scene.n_pedestrians <= 100
+        peds = [a for a in scene.actors if a.kind == "pedestrian"]
+        assert len(peds) == scene.n_pedestrians
+        seen_ego.add(round(scene.ego.offset_m, 3))
+        again = populate(world, "A", seed)
+        assert [a.kind for a in again.actors] == [a.kind for a in scene.actors]
+        assert [a.offset_m for a in again.actors] == [a.offset_m for a in scene.actors]
+    assert len(seen_ego) == 4  # a new spawn point every episode
+    for vp in VIEWPOINTS:
+        scene = populate(world, vp.code, 11)
+        assert scene.extras["camera_height_m"] == vp.camera_height_m
+        assert 1.2 <= scene.extras["camera_height_m"] <= 2.5
+        assert 7.0 <= scene.ego.speed_mps <= 20.0
+
+
+def test_rare_classes_are_placed_near_the_ego(worlds):
+    scene = populate(worlds["T03"], "M", 1)
+    kinds = {a.kind for a in scene.actors}
+    assert {"cyclist", "motorcyclist", "sedan"} <= kinds
+    ego_lane = [a for a in scene.actors if a.path is scene.ego.path]
+    assert any(a.kind in ("cyclist", "motorcyclist") for a in ego_lane)
+    assert all(a.speed_mps == scene.ego.speed_mps for a in ego_lane)
