@@ -51,7 +51,6 @@ _FRAME_FIELDS = [
     ("ego_speed_mps", pa.float32()),
     ("width", pa.int32()),
     ("height", pa.int32()),
-    ("render_s", pa.float32()),  # worker seconds spent on this frame (render + encode + write)
 ]
 _OUTPUT_FIELDS = [
     field
@@ -66,6 +65,7 @@ MANIFEST_SCHEMA = pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA))
 
 MANIFEST_DIR = "manifest"  # <root>/manifest/town=../weather=../viewpoint=../<scenario>_eNNNN.parquet
 RUN_FILE = "run.json"  # <root>/run.json: config, versions, git revision
+STATS_DIR = "_stats"  # <root>/_stats/<scenario>_eNNNN.json: worker timings (not part of the data)
 
 
 def frame_id(episode: int, frame: int) -> str:
@@ -75,6 +75,15 @@ def frame_id(episode: int, frame: int) -> str:
 def frame_path(scenario: str, output: str, fid: str) -> str:
     """Relative path of one image: <scenario>/<output>/<frameid>_<scenario>.png"""
     return f"{scenario}/{output}/{fid}_{scenario}.png"
+
+
+INDEX_NAME = "_index.parquet"  # per-scenario compaction of its parts (see manifests.reader.compact)
+INDEX_EPISODES_KEY = b"idda.index_episodes"  # footer metadata: episodes the index covers
+
+
+def index_path(scenario: str) -> str:
+    town, weather, viewpoint = scenario.split("_")
+    return f"{MANIFEST_DIR}/town={town}/weather={weather}/viewpoint={viewpoint}/{INDEX_NAME}"
 
 
 def part_path(scenario: str, episode: int) -> str:

@@ -120,6 +120,289 @@ def plan(
             typer.echo(f"wrote {len(the_plan.episodes):,} episodes to {out}")
 
 
+def _storage(root: str):
+    from storage import Storage
+
+    return Storage.from_uri(root)
+
+
+@app.command()
+def produce(
+    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
+    out: str = typer.Option("output", "--out", "-o", help="Output root: a local path or s3://bucket/prefix."),
+    scale: Optional[float] = typer.Option(None, help="Fraction (0, 1] of the paper's full-scale frame counts; 1 is the full dataset."),
+    frames_per_scenario: Optional[int] = typer.Option(None, help="Frames per scenario (default 2 when --scale is not given)."),
+    width: int = typer.Option(1920, help="Image width in pixels."),
+    height: int = typer.Option(1080, help="Image height in pixels."),
+    seed: int = typer.Option(0, help="Run seed; every episode's seed derives from it."),
+    world: str = typer.Option("procedural", help="World builder: procedural (the seven towns) or test (simple test world)."),
+    address: Optional[str] = typer.Option(None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster)."),
+    workers: Optional[int] = typer.Option(None, help="CPUs for a local Ray cluster (default: all cores)."),
+    gpus_per_task: float = typer.Option(0.0, help="GPU share per render task, e.g. 0.25 to run four per GPU."),
+    max_retries: int = typer.Option(3, help="Retries per episode after a worker, node or renderer failure."),
+    extend: bool = typer.Option(False, "--extend", help="Allow a different selection or size than the root was made with."),
+    repair: bool = typer.Option(False, "--repair", help="Verify first and re-render exactly the damaged episodes."),
+) -> None:
+    """Render the selected scenarios into an output root (resumable).
+
+    Re-running the same command skips finished episodes: kill it at any time
+    and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
+    """
+    from pipeline.driver import ProduceConfig, produce as run_produce
+    from pipeline.runmeta import RunConfig
+
+    with user_errors():
+        if scale is None and frames_per_scenario is None:
+            frames_per_scenario = 2
+        plan_cfg = _plan_config(domains, scale, frames_per_scenario, width, height, seed)
+        config = ProduceConfig(
+            run=RunConfig(plan=plan_cfg, world=world),
+            out=out,
+            address=address,
+            workers=workers,
+            gpus_per_task=gpus_per_task,
+            max_retries=max_retries,
+            extend=extend,
+            repair=repair,
+        )
+        _check_world(world)
+        bar = _ProgressBar()
+        try:
+            report = run_produce(config, progress=bar.update)
+        finally:
+            bar.close()
+        typer.echo(format_produce_report(report))
+        if not report.ok:
+            raise typer.Exit(code=1)
+
+
+def _check_world(world: str) -> None:
+    from render_workers.episode import WORLDS
+
+    if world not in WORLDS:
+        raise ValueError(f"unknown world {world!r}; valid worlds: {', '.join(WORLDS)}")
+
+
+class _ProgressBar:
+    """tqdm bar on stderr: frames done / total, frames per second and ETA."""
+
+    def __init__(self) -> None:
+        self._bar = None
+
+    def update(self, p) -> None:
+        if self._bar is None:
+            from tqdm import tqdm
+
+            self._bar = tqdm(total=p.frames_total, unit="frame", desc="rendering", dynamic_ncols=True)
+        self._bar.n = p.frames_done
+        self._bar.set_postfix(episodes=f"{p.episodes_done}/{p.episodes_total}", failed=p.failed, refresh=False)
+        self._bar.refresh()
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+
+
+def format_produce_report(report) -> str:
+    from pipeline.status import format_duration
+
+    lines = []
+    if report.repaired:
+        lines.append(f"repair: re-rendering {len(report.repaired)} damaged episode(s): {', '.join(report.repaired[:10])}"
+                     + (" ..." if len(report.repaired) > 10 else ""))
+    if report.per_scenario:
+        lines.append(f"{'scenario':<10} {'episodes':>8} {'frames':>8} {'worker s/frame':>15}")
+        for code, row in sorted(report.per_scenario.items()):
+            lines.append(f"{code:<10} {row['episodes']:>8} {row['frames']:>8} {row['seconds'] / max(row['frames'], 1):>15.2f}")
+    rate = report.rendered_frames / report.seconds if report.seconds else 0.0
+    lines.append(
+        f"{report.out}: rendered {report.rendered_frames:,} frames in {report.rendered_episodes:,} episodes "
+        f"({format_duration(report.seconds)}, {rate:.2f} frames/s on {report.workers or '-'} workers); "
+        f"{report.skipped_episodes:,} of {report.planned_episodes:,} episodes were already done"
+    )
+    for key, error in report.failed:
+        lines.append(f"FAILED {key}: {error}")
+    if report.failed:
+        lines.append(f"{len(report.failed)} episode(s) failed; run the same command again to retry them")
+    return "\n".join(lines)
+
+
+@app.command()
+def status(root: str = typer.Argument(..., help="Output root (path or s3:// URI).")) -> None:
+    """Done / pending episodes and frames per scenario, and the time left."""
+    from pipeline.status import format_duration, root_status
+
+    with user_errors():
+        st = root_status(_storage(root))
+        typer.echo(f"{'scenario':<10} {'episodes':>13} {'frames':>17}")
+        for s in st.scenarios:
+            mark = "done" if s.frames_done == s.frames_total else ""
+            typer.echo(f"{s.scenario:<10} {s.episodes_done:>6}/{s.episodes_total:<6} {s.frames_done:>8}/{s.frames_total:<8} {mark}")
+        pct = 100 * st.frames_done / max(st.frames_total, 1)
+        line = f"{st.uri}: {st.frames_done:,} of {st.frames_total:,} frames done ({pct:.1f}%)"
+        if st.frames_done < st.frames_total:
+            eta = st.eta_s
+            line += f"; about {format_duration(eta)} left at the last run's {st.frames_per_s:.2f} frames/s" if eta is not None else "; no rate measured yet"
+        if st.extra_episodes:
+            line += f"; {st.extra_episodes} more episode(s) from earlier --extend runs"
+        typer.echo(line)
+
+
+@app.command()
+def verify(
+    root: str = typer.Argument(..., help="Output root (path or s3:// URI)."),
+    threads: int = typer.Option(8, help="Files checked in parallel."),
+) -> None:
+    """Recompute every checksum; report missing, corrupt and extra files.
+
+    Exits 1 when anything is wrong; `idda produce --repair` fixes it.
+    """
+    from manifests.verify import verify as run_verify
+
+    with user_errors():
+        report = run_verify(_storage(root), threads=threads)
+        for p in report.problems[:50]:
+            typer.echo(f"{p.kind:<8} {p.path}" + (f"  ({p.detail})" if p.detail else ""))
+        if len(report.problems) > 50:
+            typer.echo(f"... and {len(report.problems) - 50} more")
+        mb = report.bytes_checked / 1e6
+        rate = mb / report.seconds if report.seconds else 0.0
+        summary = f"checked {report.files_checked:,} files, {mb:,.1f} MB in {report.seconds:.1f} s ({rate:.0f} MB/s)"
+        if report.ok:
+            typer.echo(f"OK: {summary}")
+            return
+        counts = ", ".join(f"{n} {kind}" for kind, n in sorted(report.counts().items()))
+        typer.echo(f"FAILED: {counts}; {summary}. Fix with: idda produce --repair (same options as the run)")
+        raise typer.Exit(code=1)
+
+
+@app.command()
+def query(
+    root: str = typer.Argument(..., help="Output root (path or s3:// URI)."),
+    preset: Optional[str] = typer.Option(None, help="Ready-made subset: best-case or worst-case (the paper's)."),
+    domains: Optional[str] = typer.Option(None, "--domains", "-d", help=DOMAINS_HELP),
+    split: list[str] = typer.Option([], help="Keep frames of this split (train, val, test); repeatable."),
+    episode: list[int] = typer.Option([], help="Keep this episode index; repeatable."),
+    has_class: list[str] = typer.Option([], "--has", help="Keep frames containing this class, e.g. --has rider; repeatable."),
+    min_share: list[str] = typer.Option([], help="CLASS=SHARE: keep frames where the class covers at least SHARE (0-1); repeatable."),
+    per_scenario: Optional[int] = typer.Option(None, help="Sample this many frames per scenario."),
+    total: Optional[int] = typer.Option(None, help="Sample this many frames in total, stratified by scenario."),
+    seed: Optional[int] = typer.Option(None, help="Sampling seed (default 0)."),
+    out: Optional[Path] = typer.Option(None, help="Write the frames: .txt/.lst (file list), .csv or .parquet."),
+    fmt: Optional[str] = typer.Option(None, "--format", help="list, csv or parquet (default: from --out's suffix)."),
+    outputs: str = typer.Option("rgb,semantic_raw", help="Outputs listed per frame in file lists and CSV."),
+) -> None:
+    """Filter frames and draw seeded stratified samples, e.g. --preset best-case."""
+    from manifests import query as q
+    from manifests.reader import manifest_dataset, read_manifest
+
+    with user_errors():
+        shares = []
+        for item in min_share:
+            name, sep, value = item.rpartition("=")
+            if not sep:
+                raise ValueError(f"--min-share takes CLASS=SHARE, got {item!r}")
+            shares.append((name, float(value)))
+        fields = dict(
+            domains=domains, splits=tuple(split) or None, episodes=tuple(episode) or None,
+            classes=tuple(has_class) or None, min_share=tuple(shares) or None,
+            per_scenario=per_scenario, total=total, seed=seed,
+        )
+        if preset is not None:
+            the_query = q.preset(preset, **fields)
+        else:
+            the_query = q.Query(**{k: v for k, v in fields.items() if v is not None})
+        the_query.validate()
+        storage = _storage(root)
+        source = manifest_dataset(storage) if storage.list_files("manifest/", suffix=".parquet") else read_manifest(storage)
+        result = q.run_query(source, the_query)
+        chosen = tuple(o.strip() for o in outputs.split(",") if o.strip())
+        if out is not None:
+            fmt = fmt or q.FORMAT_BY_SUFFIX.get(out.suffix)
+            if fmt is None:
+                raise ValueError(f"cannot tell the format of {out}; use --format list|csv|parquet")
+            data = q.encode_result(result.table, fmt, chosen)
+            _write_local(out, data)
+        for code, missing in sorted(result.shortfall.items()):
+            typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
+        counts: dict[str, int] = {}
+        for code in result.table.column("scenario").to_pylist():
+            counts[code] = counts.get(code, 0) + 1
+        for code, n in sorted(counts.items()):
+            typer.echo(f"{code:<10} {n:>8}")
+        where = f"; wrote {out}" if out is not None else ""
+        typer.echo(f"{len(result.table):,} frames selected of {result.matched:,} matching the filters{where}")
+
+
+def _write_local(path: Path, data: bytes) -> None:
+    import os
+
+    if not path.parent.exists():
+        raise ValueError(f"cannot write {path}: directory {path.parent} does not exist")
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+@app.command()
+def stats(
+    root: str = typer.Argument(..., help="Output root (path or s3:// URI)."),
+    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
+    per_scenario: bool = typer.Option(False, "--per-scenario", help="One table per scenario instead of overall."),
+    chart: Optional[Path] = typer.Option(None, help="Write a log-scale bar chart PNG (default: <root>/class_shares.png for local roots)."),
+) -> None:
+    """Class pixel shares as a table and a log-scale bar chart (paper's Fig. pixeldistr)."""
+    from manifests import query as q
+    from manifests.reader import read_manifest
+    from manifests.stats import bar_chart_png, format_share_table, share_table
+
+    with user_errors():
+        storage = _storage(root)
+        table = q.filter_frames(read_manifest(storage), q.Query(domains=domains))
+        if len(table) == 0:
+            raise ValueError(f"{storage.uri} has no frames for {domains!r} yet")
+        shares = share_table(table, by_scenario=per_scenario)
+        typer.echo(format_share_table(shares))
+        png = bar_chart_png(share_table(table), title=f"Class pixel shares, {len(table):,} frames")
+        if chart is None:
+            if not storage.is_local:
+                typer.echo("(pass --chart FILE.png to save the chart for an s3:// root)")
+                return
+            storage.write_bytes("class_shares.png", png)
+            chart_where = storage.join("class_shares.png")
+        else:
+            _write_local(chart, png)
+            chart_where = str(chart)
+        typer.echo(f"chart: {chart_where}")
+
+
+@app.command()
+def preview(
+    out: Path = typer.Option(..., "--out", "-o", help="Directory for the contact sheet(s) and the six-output strip."),
+    domains: str = typer.Option("weathers=CN", "--domains", "-d", help=DOMAINS_HELP),
+    width: int = typer.Option(480, help="Width of each rendered frame."),
+    height: int = typer.Option(270, help="Height of each rendered frame."),
+    seed: int = typer.Option(0, help="Run seed."),
+    world: str = typer.Option("procedural", help="World builder: procedural or test."),
+) -> None:
+    """Render one frame per scenario into a contact sheet (rows = viewpoints,
+    columns = towns, one sheet per weather) plus one frame's six outputs."""
+    from manifests.selection import parse_selection
+    from render_workers.preview import write_preview
+
+    with user_errors():
+        PlanConfig(domains=domains, width=width, height=height, seed=seed, frames_per_scenario=1).validate()
+        _check_world(world)
+        out.mkdir(parents=True, exist_ok=True)
+        codes = [s.code for s in parse_selection(domains)]
+        paths = write_preview(out, codes, width, height, seed, world=world)
+        for path in paths:
+            typer.echo(f"wrote {path}")
+
+
 def main() -> None:
     """Entry point of the ``idda`` script."""
     logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")

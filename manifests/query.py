@@ -1,0 +1,199 @@
+"""Select frames from a manifest and draw seeded, stratified samples.
+
+Filters: domains (the selection grammar), split, episode, class presence and
+minimum class share. Sampling: N frames per scenario, or N in total spread
+over scenarios in proportion to what each has. Presets give the paper's
+"best case" and "worst case" subsets.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+import pyarrow.dataset as ds
+
+from manifests.catalog import ALL_SCENARIOS, NAME2LABEL, OUTPUTS, class_id
+from manifests.schema import output_columns
+from manifests.selection import parse_selection
+
+SPLITS = ("train", "val", "test")
+
+
+@dataclass(frozen=True)
+class Query:
+    domains: str = "all"  # selection grammar, as for --domains
+    splits: tuple[str, ...] = ()  # empty: any split
+    episodes: tuple[int, ...] = ()  # empty: any episode
+    classes: tuple[str, ...] = ()  # each frame must contain all of these
+    min_share: tuple[tuple[str, float], ...] = ()  # (class, minimum share in [0, 1])
+    per_scenario: int | None = None  # sample this many frames per scenario
+    total: int | None = None  # or this many in total, stratified by scenario
+    seed: int = 0
+
+    def validate(self) -> None:
+        parse_selection(self.domains)
+        for split in self.splits:
+            if split not in SPLITS:
+                raise ValueError(f"unknown split {split!r}; valid splits: {', '.join(SPLITS)}")
+        for name in self.classes:
+            class_id(name)
+        for name, share in self.min_share:
+            class_id(name)
+            if not 0.0 <= share <= 1.0:
+                raise ValueError(f"minimum share of {name} must be in [0, 1], got {share}")
+        if self.per_scenario is not None and self.total is not None:
+            raise ValueError("give either a per-scenario or a total sample size, not both")
+        for label, n in (("per-scenario sample", self.per_scenario), ("total sample", self.total)):
+            if n is not None and n < 1:
+                raise ValueError(f"{label} size must be at least 1, got {n}")
+        if self.seed < 0:
+            raise ValueError(f"seed must be non-negative, got {self.seed}")
+
+
+# The paper's subsets (shared/REFERENCE.md): 2,496 frames from each of
+# T01-T06 x {A, M} x CN, and 40,128 frames from T07 x {J, B} x HRN.
+PRESETS: dict[str, Query] = {
+    "best-case": Query(domains="towns=T01-T06 weathers=CN viewpoints=A,M", per_scenario=2_496),
+    "worst-case": Query(domains="towns=T07 weathers=HRN viewpoints=J,B", total=40_128),
+}
+
+
+def preset(name: str, **overrides) -> Query:
+    try:
+        base = PRESETS[name]
+    except KeyError:
+        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}") from None
+    return replace(base, **{k: v for k, v in overrides.items() if v is not None})
+
+
+@dataclass
+class QueryResult:
+    table: pa.Table  # the chosen frames, sorted by scenario, episode, frame
+    matched: int  # frames that passed the filters, before sampling
+    shortfall: dict[str, int] = field(default_factory=dict)  # scenario -> frames missing from the sample
+
+
+def _partition_filter(query: Query) -> ds.Expression:
+    chosen = parse_selection(query.domains)
+    codes = sorted({s.code for s in chosen})
+    expr = ds.field("scenario").isin(codes)
+    for key in ("town", "weather", "viewpoint"):
+        values = sorted({getattr(s, key).code for s in chosen})
+        expr = expr & ds.field(key).isin(values)
+    if query.splits:
+        expr = expr & ds.field("split").isin(list(query.splits))
+    if query.episodes:
+        expr = expr & ds.field("episode").isin(list(query.episodes))
+    return expr
+
+
+def filter_frames(table_or_dataset, query: Query) -> pa.Table:
+    """Frames matching the query's filters (no sampling)."""
+    query.validate()
+    expr = _partition_filter(query)
+    if isinstance(table_or_dataset, pa.Table):
+        table = table_or_dataset.filter(expr)
+    else:
+        table = table_or_dataset.to_table(filter=expr)
+    if query.classes or query.min_share:
+        pixels = pc.multiply(table.column("width"), table.column("height"))
+        mask = pa.array(np.ones(len(table), dtype=bool))
+        for name in query.classes:
+            mask = pc.and_(mask, pc.greater(table.column(NAME2LABEL[name].column), 0))
+        for name, share in query.min_share:
+            frac = pc.divide(pc.cast(table.column(NAME2LABEL[name].column), pa.float64()), pc.cast(pixels, pa.float64()))
+            mask = pc.and_(mask, pc.greater_equal(frac, share))
+        table = table.filter(mask)
+    return table.sort_by([("scenario", "ascending"), ("episode", "ascending"), ("frame", "ascending")])
+
+
+def _allocate(total: int, available: dict[str, int]) -> dict[str, int]:
+    """Spread ``total`` over scenarios in proportion to their frames (largest remainder)."""
+    pool = sum(available.values())
+    if total >= pool:
+        return dict(available)
+    exact = {k: total * v / pool for k, v in available.items()}
+    counts = {k: math.floor(x) for k, x in exact.items()}
+    order = sorted(available, key=lambda k: (exact[k] - counts[k], k), reverse=True)
+    for k in order[: total - sum(counts.values())]:
+        counts[k] += 1
+    return counts
+
+
+def run_query(table_or_dataset, query: Query) -> QueryResult:
+    """Filter, then draw the seeded stratified sample the query asks for."""
+    table = filter_frames(table_or_dataset, query)
+    matched = len(table)
+    if query.per_scenario is None and query.total is None:
+        return QueryResult(table, matched)
+    scenarios = table.column("scenario").to_numpy(zero_copy_only=False)
+    codes, starts, sizes = np.unique(scenarios, return_index=True, return_counts=True)
+    available = dict(zip(codes.tolist(), sizes.tolist()))
+    if query.per_scenario is not None:
+        # Every selected scenario is a stratum, also those with no frames yet.
+        for s in parse_selection(query.domains):
+            available.setdefault(s.code, 0)
+        want = {k: query.per_scenario for k in available}
+    else:
+        want = _allocate(query.total, available)
+    scenario_index = {s.code: i for i, s in enumerate(ALL_SCENARIOS)}
+    picks = []
+    shortfall = {}
+    for code, start, size in zip(codes.tolist(), starts.tolist(), sizes.tolist()):
+        n = min(want.get(code, 0), size)
+        rng = np.random.default_rng([query.seed, scenario_index[code]])
+        picks.append(start + np.sort(rng.choice(size, size=n, replace=False)))
+    for code, n in want.items():
+        have = available.get(code, 0)
+        if n > have:
+            shortfall[code] = n - have
+    index = np.concatenate(picks) if picks else np.array([], dtype=np.int64)
+    if query.total is not None and sum(want.values()) < query.total:
+        shortfall["(total)"] = query.total - sum(want.values())
+    return QueryResult(table.take(pa.array(index, type=pa.int64())), matched, shortfall)
+
+
+# ------------------------------------------------------------- writers ----
+def _file_list(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
+    cols = [table.column(output_columns(o)[0]).to_pylist() for o in outputs]
+    return "".join(" ".join(paths) + "\n" for paths in zip(*cols)).encode()
+
+
+def _csv(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
+    names = ["frame_id", "scenario", "town", "weather", "viewpoint", "episode", "frame", "split"]
+    names += [output_columns(o)[0] for o in outputs]
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(names)
+    cols = [table.column(n).to_pylist() for n in names]
+    writer.writerows(zip(*cols))
+    return buf.getvalue().encode()
+
+
+def _parquet(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
+    import pyarrow.parquet as pq
+
+    sink = io.BytesIO()
+    pq.write_table(table, sink, compression="zstd")
+    return sink.getvalue()
+
+
+WRITERS = {"list": _file_list, "csv": _csv, "parquet": _parquet}
+FORMAT_BY_SUFFIX = {".txt": "list", ".lst": "list", ".csv": "csv", ".parquet": "parquet"}
+
+
+def encode_result(table: pa.Table, fmt: str, outputs: tuple[str, ...] = ("rgb", "semantic_raw")) -> bytes:
+    """Serialise a query result: a file list (root-relative paths, one frame
+    per line), CSV, or Parquet (all manifest columns)."""
+    if fmt not in WRITERS:
+        raise ValueError(f"unknown output format {fmt!r}; valid formats: {', '.join(WRITERS)}")
+    for o in outputs:
+        if o not in OUTPUTS:
+            raise ValueError(f"unknown output {o!r}; valid outputs: {', '.join(OUTPUTS)}")
+    return WRITERS[fmt](table, outputs)

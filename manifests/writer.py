@@ -1,0 +1,53 @@
+"""Manifest parts: one Parquet file per episode, written last and atomically.
+
+A part's existence is the episode's "done" marker, so it is written only
+after every frame file it lists has been written.
+"""
+
+from __future__ import annotations
+
+import io
+
+import pyarrow as pa
+import pyarrow.parquet as pq
+
+from manifests.schema import PART_SCHEMA, part_path
+
+
+class ManifestError(Exception):
+    """A manifest part is missing, unreadable or inconsistent."""
+
+
+def part_table(rows: list[dict]) -> pa.Table:
+    """Build a part table from frame rows; every schema column must be present."""
+    if not rows:
+        raise ManifestError("an episode part needs at least one frame row")
+    missing = [name for name in PART_SCHEMA.names if name not in rows[0]]
+    if missing:
+        raise ManifestError(f"frame row lacks manifest columns: {', '.join(missing)}")
+    columns = {name: [row[name] for row in rows] for name in PART_SCHEMA.names}
+    return pa.table(columns, schema=PART_SCHEMA)
+
+
+def part_bytes(table: pa.Table) -> bytes:
+    """Serialise deterministically: the same rows give the same bytes."""
+    sink = io.BytesIO()
+    pq.write_table(table, sink, compression="zstd", write_statistics=True, store_schema=True)
+    return sink.getvalue()
+
+
+def write_part(storage, scenario: str, episode: int, rows: list[dict]) -> str:
+    """Write an episode's part atomically; returns its relative path."""
+    rel = part_path(scenario, episode)
+    storage.write_bytes(rel, part_bytes(part_table(rows)))
+    return rel
+
+
+def read_part(storage, scenario: str, episode: int) -> pa.Table:
+    rel = part_path(scenario, episode)
+    try:
+        return pq.read_table(io.BytesIO(storage.read_bytes(rel)), schema=PART_SCHEMA)
+    except FileNotFoundError:
+        raise
+    except Exception as exc:  # pyarrow raises several types for a damaged file
+        raise ManifestError(f"manifest part {rel} is unreadable: {exc}") from exc

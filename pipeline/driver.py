@@ -1,0 +1,223 @@
+"""The distributor: runs a plan's pending episodes on Ray.
+
+This is the only module that imports Ray. One task per episode; worker
+processes are reused, so each keeps its renderer alive between episodes.
+In-flight tasks are bounded, so the driver's memory stays flat whatever the
+plan size. Worker or node death and renderer exceptions are retried by Ray;
+an episode that still fails is reported, never silently skipped.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import time
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Callable
+
+from manifests.reader import compact, done_episodes
+from manifests.schema import STATS_DIR, part_path
+from pipeline.planner import make_plan
+from pipeline.runmeta import RunConfig, prepare_root
+
+log = logging.getLogger(__name__)
+
+# Environment passed on to Ray workers (renderer platform, test hooks).
+_FORWARDED_ENV = ("PYOPENGL_PLATFORM", "EGL_DEVICE_ID", "IDDA_FAULT_INJECT")
+
+
+@dataclass(frozen=True)
+class ProduceConfig:
+    run: RunConfig
+    out: str  # output root: local path or s3:// URI
+    address: str | None = None  # Ray cluster; None: RAY_ADDRESS, else a local cluster
+    workers: int | None = None  # CPUs of the local cluster (default: all cores)
+    cpus_per_task: float = 1.0
+    gpus_per_task: float = 0.0  # e.g. 0.25 to pack four renderers on one GPU
+    max_retries: int = 3  # per episode, for worker/node death and renderer errors
+    max_in_flight: int | None = None  # default: twice the cluster's task slots
+    extend: bool = False
+    repair: bool = False
+
+    def validate(self) -> None:
+        self.run.plan.validate()
+        if self.workers is not None and self.workers < 1:
+            raise ValueError(f"workers must be at least 1, got {self.workers}")
+        if self.cpus_per_task <= 0:
+            raise ValueError(f"cpus per task must be positive, got {self.cpus_per_task}")
+        if not 0 <= self.gpus_per_task <= 1:
+            raise ValueError(f"gpus per task must be in [0, 1], got {self.gpus_per_task}")
+        if self.max_retries < 0:
+            raise ValueError(f"max retries must be >= 0, got {self.max_retries}")
+        if self.max_in_flight is not None and self.max_in_flight < 1:
+            raise ValueError(f"max in flight must be at least 1, got {self.max_in_flight}")
+
+
+@dataclass(frozen=True)
+class Progress:
+    """Sent to the progress callback after each finished episode."""
+
+    frames_done: int
+    frames_total: int
+    episodes_done: int
+    episodes_total: int
+    failed: int
+    elapsed_s: float
+
+
+@dataclass
+class ProduceReport:
+    out: str
+    planned_episodes: int
+    planned_frames: int
+    skipped_episodes: int  # already done before this run
+    rendered_frames: int = 0
+    rendered_episodes: int = 0
+    failed: list[tuple[str, str]] = field(default_factory=list)  # (episode key, error)
+    repaired: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+    per_scenario: dict[str, dict] = field(default_factory=dict)  # frames, episodes, seconds
+    workers: int = 0
+
+    @property
+    def ok(self) -> bool:
+        return not self.failed
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError as exc:  # pragma: no cover - ray is a dependency
+        raise ImportError("Ray is not installed: run `make venv` or `pip install 'ray[default]'`") from exc
+    return ray
+
+
+def _connect(ray, config: ProduceConfig) -> bool:
+    """Start or attach to Ray. Returns True when this call started it."""
+    if ray.is_initialized():
+        return False
+    address = config.address or os.environ.get("RAY_ADDRESS")
+    common = dict(log_to_driver=False, logging_level=logging.WARNING)
+    if address:
+        ray.init(address=address, **common)
+    else:
+        ray.init(num_cpus=config.workers or os.cpu_count(), include_dashboard=False, **common)
+    return True
+
+
+def _episode_task(spec, storage, world):
+    from pipeline.episode_job import run_episode
+
+    return run_episode(spec, storage, world=world)
+
+
+def _repair(storage, plan) -> list[str]:
+    """Drop the parts of episodes with bad files (and stray files), so they re-render."""
+    from manifests.verify import verify
+
+    report = verify(storage)
+    planned = {(e.scenario, e.episode) for e in plan.episodes}
+    touched = []
+    for scenario, episode in sorted(report.affected_episodes()):
+        storage.delete(part_path(scenario, episode))
+        if (scenario, episode) not in planned:
+            log.warning("%s_e%04d is damaged but not in the current plan; it stays pending", scenario, episode)
+        touched.append(f"{scenario}/e{episode:04d}")
+    for problem in report.problems:
+        if problem.kind == "extra":
+            storage.delete(problem.path)
+    return touched
+
+
+def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None) -> ProduceReport:
+    """Render every pending episode of the plan into ``config.out``."""
+    from storage import Storage
+
+    config.validate()
+    plan = make_plan(config.run.plan)
+    storage = Storage.from_uri(config.out)
+    storage.ensure_writable()
+    prepare_root(storage, config.run, extend=config.extend)
+
+    report = ProduceReport(
+        out=storage.uri,
+        planned_episodes=len(plan.episodes),
+        planned_frames=plan.total_frames,
+        skipped_episodes=0,
+    )
+    if config.repair:
+        report.repaired = _repair(storage, plan)
+    done = done_episodes(storage)
+    todo = [e for e in plan.episodes if (e.scenario, e.episode) not in done]
+    report.skipped_episodes = len(plan.episodes) - len(todo)
+    start = time.perf_counter()
+    frames_total = sum(e.frames for e in todo)
+    if not todo:
+        return report
+
+    ray = _import_ray()
+    started = _connect(ray, config)
+    try:
+        slots = max(1, int(ray.cluster_resources().get("CPU", 1) // config.cpus_per_task))
+        report.workers = slots
+        limit = config.max_in_flight or 2 * slots
+        options = dict(
+            num_cpus=config.cpus_per_task,
+            max_retries=config.max_retries,
+            retry_exceptions=True,
+        )
+        if config.gpus_per_task:
+            options["num_gpus"] = config.gpus_per_task
+        env = {k: os.environ[k] for k in _FORWARDED_ENV if k in os.environ}
+        if env:  # per task, so it also reaches workers of an existing cluster
+            options["runtime_env"] = {"env_vars": env}
+        task = ray.remote(_episode_task).options(**options)
+        storage_ref = ray.put(storage)
+        queue, in_flight = deque(todo), {}
+        frames_done = 0
+        while queue or in_flight:
+            while queue and len(in_flight) < limit:
+                spec = queue.popleft()
+                in_flight[task.remote(spec, storage_ref, config.run.world)] = spec
+            ready, _ = ray.wait(list(in_flight), num_returns=1)
+            for ref in ready:
+                spec = in_flight.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as exc:  # RayTaskError, WorkerCrashedError, NodeDiedError...
+                    message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+                    report.failed.append((spec.key, message))
+                    log.error("episode %s failed after %d retries: %s", spec.key, config.max_retries, message)
+                    continue
+                frames_done += result.frames
+                report.rendered_frames += result.frames
+                report.rendered_episodes += 1
+                row = report.per_scenario.setdefault(spec.scenario, {"frames": 0, "episodes": 0, "seconds": 0.0})
+                row["frames"] += result.frames
+                row["episodes"] += 1
+                row["seconds"] += result.seconds
+            if progress is not None:
+                progress(
+                    Progress(
+                        frames_done=frames_done,
+                        frames_total=frames_total,
+                        episodes_done=report.rendered_episodes,
+                        episodes_total=len(todo),
+                        failed=len(report.failed),
+                        elapsed_s=time.perf_counter() - start,
+                    )
+                )
+    finally:
+        if started:
+            ray.shutdown()
+    compact(storage, sorted(report.per_scenario))  # one index file per finished scenario
+    report.seconds = time.perf_counter() - start
+    if report.rendered_frames and report.seconds > 0:
+        driver_stats = {
+            "workers": report.workers,
+            "frames_per_s": round(report.rendered_frames / report.seconds, 4),
+        }
+        storage.write_bytes(f"{STATS_DIR}/driver.json", json.dumps(driver_stats).encode())
+    return report

@@ -1,0 +1,122 @@
+"""One episode, start to finish: render, encode, write frames, then the part.
+
+A plain function (no Ray), so tests and the plain-loop benchmark call it
+directly. The order is what makes runs resumable: frame files first, the
+episode's manifest part last; a killed episode leaves no part and is simply
+rendered again (same spec, same bytes).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from manifests.catalog import LABELS, OUTPUTS
+from manifests.schema import STATS_DIR, frame_id, frame_path, output_columns
+from manifests.spec import EpisodeSpec
+from manifests.writer import write_part
+
+log = logging.getLogger(__name__)
+
+# Test hook: "kill-after:<frames>:<marker path>" makes the worker process die
+# abruptly (os._exit) after writing that many frames, once per marker file.
+# It lets the test suite kill a real worker mid-episode; unset in normal runs.
+FAULT_ENV = "IDDA_FAULT_INJECT"
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    """What a worker reports back: small, never image data."""
+
+    scenario: str
+    episode: int
+    frames: int
+    seconds: float
+    node: str
+    pid: int
+
+
+def _fault_after() -> int | None:
+    spec = os.environ.get(FAULT_ENV, "")
+    if not spec.startswith("kill-after:"):
+        return None
+    _, count, marker = spec.split(":", 2)
+    try:
+        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        return None
+    os.close(fd)
+    return int(count)
+
+
+def frame_row(spec: EpisodeSpec, frame, storage, n_vehicles: int, n_pedestrians: int) -> dict:
+    """Encode and write one frame's six images; return its manifest row."""
+    from render_workers.encoders import encode_png
+    from storage import sha256_bytes
+
+    fid = frame_id(spec.episode, frame.index)
+    row = {
+        "frame_id": fid,
+        "scenario": spec.scenario,
+        "episode": spec.episode,
+        "frame": frame.index,
+        "sim_time_s": float(frame.sim_time_s),
+        "split": spec.split,
+        "seed": spec.seed,
+        "n_vehicles": n_vehicles,
+        "n_pedestrians": n_pedestrians,
+        "camera_height_m": float(frame.camera_height_m),
+        "hood_fraction": float(frame.hood_fraction),
+        "ego_speed_mps": float(frame.ego_speed_mps),
+        "width": spec.width,
+        "height": spec.height,
+    }
+    for output in OUTPUTS:
+        data = encode_png(frame.images[output])
+        rel = frame_path(spec.scenario, output, fid)
+        storage.write_bytes(rel, data)
+        path_col, bytes_col, sha_col = output_columns(output)
+        row[path_col], row[bytes_col], row[sha_col] = rel, len(data), sha256_bytes(data)
+    counts = np.asarray(frame.class_counts, dtype=np.int64)
+    if counts.shape != (len(LABELS),) or int(counts.sum()) != spec.width * spec.height:
+        raise ValueError(
+            f"{spec.key} frame {frame.index}: class counts must be {len(LABELS)} values summing to "
+            f"{spec.width * spec.height}, got shape {counts.shape} sum {int(counts.sum())}"
+        )
+    for label in LABELS:
+        row[label.column] = int(counts[label.id])
+    return row
+
+
+def run_episode(spec: EpisodeSpec, storage, world: str = "procedural") -> EpisodeResult:
+    """Render ``spec`` into ``storage`` and mark it done; returns timings."""
+    from render_workers.episode import render_episode
+
+    start = time.perf_counter()
+    rows: list[dict] = []
+    kill_after = _fault_after()
+
+    def sink(frame) -> None:
+        rows.append(frame_row(spec, frame, storage, 0, 0))
+        if kill_after is not None and len(rows) >= kill_after:
+            os._exit(17)
+
+    # The process keeps one renderer alive across episodes (render_workers.episode).
+    info = render_episode(spec, sink, world=world)
+    for row in rows:  # the episode's traffic counts come with the episode info
+        row["n_vehicles"], row["n_pedestrians"] = info.n_vehicles, info.n_pedestrians
+    if len(rows) != spec.frames:
+        raise RuntimeError(f"{spec.key}: rendered {len(rows)} frames, expected {spec.frames}")
+    seconds = time.perf_counter() - start
+    result = EpisodeResult(spec.scenario, spec.episode, len(rows), seconds, socket.gethostname(), os.getpid())
+    stats = {"frames": len(rows), "seconds": round(seconds, 3), "node": result.node, "stages": info.timings}
+    storage.write_bytes(f"{STATS_DIR}/{spec.scenario}_e{spec.episode:04d}.json", json.dumps(stats).encode())
+    write_part(storage, spec.scenario, spec.episode, rows)  # last: the "done" marker
+    log.debug("%s done: %d frames in %.1f s", spec.key, len(rows), seconds)
+    return result

@@ -1,0 +1,82 @@
+"""Done / pending per scenario for an output root, with a time estimate."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+
+from manifests.reader import done_episodes
+from manifests.schema import STATS_DIR
+from pipeline.planner import make_plan
+from pipeline.runmeta import read_run, recorded_config
+
+
+@dataclass
+class ScenarioStatus:
+    scenario: str
+    episodes_done: int
+    episodes_total: int
+    frames_done: int
+    frames_total: int
+
+
+@dataclass
+class RootStatus:
+    uri: str
+    config: dict
+    scenarios: list[ScenarioStatus] = field(default_factory=list)
+    frames_per_s: float | None = None  # rate of the last produce run
+    extra_episodes: int = 0  # done episodes outside the recorded plan (from --extend history)
+
+    @property
+    def frames_done(self) -> int:
+        return sum(s.frames_done for s in self.scenarios)
+
+    @property
+    def frames_total(self) -> int:
+        return sum(s.frames_total for s in self.scenarios)
+
+    @property
+    def eta_s(self) -> float | None:
+        if not self.frames_per_s:
+            return None
+        return (self.frames_total - self.frames_done) / self.frames_per_s
+
+
+def root_status(storage) -> RootStatus:
+    record = read_run(storage)
+    if record is None:
+        raise ValueError(f"{storage.uri} is not an output root (no run.json); run `idda produce` first")
+    config = recorded_config(record)
+    plan = make_plan(config.plan)
+    done = done_episodes(storage)
+    status = RootStatus(uri=storage.uri, config=record["config"])
+    planned = set()
+    for code, episodes in plan.by_scenario().items():
+        finished = [e for e in episodes if (e.scenario, e.episode) in done]
+        planned.update((e.scenario, e.episode) for e in episodes)
+        status.scenarios.append(
+            ScenarioStatus(
+                scenario=code,
+                episodes_done=len(finished),
+                episodes_total=len(episodes),
+                frames_done=sum(e.frames for e in finished),
+                frames_total=sum(e.frames for e in episodes),
+            )
+        )
+    status.extra_episodes = len(done - planned)
+    if storage.exists(f"{STATS_DIR}/driver.json"):
+        status.frames_per_s = json.loads(storage.read_bytes(f"{STATS_DIR}/driver.json")).get("frames_per_s")
+    return status
+
+
+def format_duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    days, rem = divmod(seconds, 86400)
+    hours, rem = divmod(rem, 3600)
+    minutes, secs = divmod(rem, 60)
+    if days:
+        return f"{days}d {hours}h {minutes}m"
+    if hours:
+        return f"{hours}h {minutes}m"
+    return f"{minutes}m {secs}s"

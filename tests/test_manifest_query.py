@@ -1,0 +1,167 @@
+"""Manifest parts written through the writer, read back through the public
+reader, then queried and summarised."""
+
+import numpy as np
+import pyarrow.parquet as pq
+import pytest
+
+from manifests import query as q
+from manifests.catalog import LABELS
+from manifests.reader import done_episodes, manifest_dataset, read_manifest
+from manifests.schema import MANIFEST_SCHEMA, PART_SCHEMA, part_path
+from manifests.stats import PAPER_SHARES, bar_chart_png, class_pixels, share_table
+from manifests.synthetic import episode_rows
+from manifests.writer import ManifestError, part_bytes, part_table, write_part
+from pipeline.planner import PlanConfig, make_plan
+from storage import Storage
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    storage = Storage.from_uri(str(tmp_path_factory.mktemp("root")))
+    plan = make_plan(PlanConfig(domains="towns=T01,T07 weathers=CN,HRN viewpoints=A,J,B", frames_per_scenario=30, width=64, height=36))
+    for spec in plan.episodes:
+        write_part(storage, spec.scenario, spec.episode, episode_rows(spec))
+    return storage, plan
+
+
+def test_read_back_through_public_reader(root):
+    storage, plan = root
+    table = read_manifest(storage)
+    assert table.schema.names == MANIFEST_SCHEMA.names
+    assert len(table) == plan.total_frames
+    assert done_episodes(storage) == {(e.scenario, e.episode) for e in plan.episodes}
+    row = table.slice(0, 1).to_pylist()[0]
+    assert row["scenario"] == "T01_CN_A" and row["town"] == "T01" and row["weather"] == "CN"
+    assert row["rgb_path"] == "T01_CN_A/rgb/0000_000_T01_CN_A.png"
+    pixels = sum(row[label.column] for label in LABELS)
+    assert pixels == 64 * 36
+
+
+def test_part_bytes_are_deterministic(root):
+    _, plan = root
+    rows = episode_rows(plan.episodes[0])
+    assert part_bytes(part_table(rows)) == part_bytes(part_table(episode_rows(plan.episodes[0])))
+    with pytest.raises(ManifestError, match="lacks manifest columns: frame_id"):
+        part_table([{k: v for k, v in rows[0].items() if k != "frame_id"}])
+
+
+def test_empty_root_reads_as_empty_table(tmp_path):
+    table = read_manifest(Storage.from_uri(str(tmp_path)))
+    assert len(table) == 0 and table.schema.names == MANIFEST_SCHEMA.names
+
+
+def test_filters_by_axis_split_episode(root):
+    storage, _ = root
+    table = read_manifest(storage)
+    res = q.run_query(table, q.Query(domains="towns=T07 weathers=HRN", splits=("train",), episodes=(0,)))
+    got = res.table.to_pylist()
+    assert got and all(r["town"] == "T07" and r["weather"] == "HRN" and r["episode"] == 0 for r in got)
+    # Same answer from the lazy dataset (partition pruning) as from the table.
+    lazy = q.run_query(manifest_dataset(storage), q.Query(domains="towns=T07 weathers=HRN", splits=("train",), episodes=(0,)))
+    assert lazy.table.equals(res.table)
+
+
+def test_class_presence_and_min_share(root):
+    storage, _ = root
+    table = read_manifest(storage)
+    res = q.run_query(table, q.Query(min_share=(("sky", 0.3),), classes=("rider",)))
+    for row in res.table.to_pylist():
+        assert row["px_sky"] >= 0.3 * 64 * 36 and row["px_rider"] > 0
+    everything = q.run_query(table, q.Query())
+    expected = sum(1 for r in everything.table.to_pylist() if r["px_sky"] >= 0.3 * 64 * 36 and r["px_rider"] > 0)
+    assert res.matched == expected
+
+
+def test_stratified_sampling_is_seeded_and_stratified(root):
+    storage, _ = root
+    table = read_manifest(storage)
+    a = q.run_query(table, q.Query(per_scenario=5, seed=3)).table
+    b = q.run_query(table, q.Query(per_scenario=5, seed=3)).table
+    c = q.run_query(table, q.Query(per_scenario=5, seed=4)).table
+    assert a.equals(b) and not a.equals(c)
+    codes = a.column("scenario").to_pylist()
+    assert all(codes.count(s) == 5 for s in set(codes)) and len(set(codes)) == 12
+    total = q.run_query(table, q.Query(total=100, seed=0))
+    assert len(total.table) == 100 and not total.shortfall
+    per = {s: total.table.column("scenario").to_pylist().count(s) for s in set(codes)}
+    assert max(per.values()) - min(per.values()) <= 1  # equal-size scenarios get equal shares
+
+
+def test_presets_report_shortfall_on_small_runs(root):
+    storage, _ = root
+    res = q.run_query(read_manifest(storage), q.preset("worst-case"))
+    assert set(res.table.column("scenario").to_pylist()) == {"T07_HRN_J", "T07_HRN_B"}
+    assert len(res.table) == 60 and res.shortfall["(total)"] == 40_128 - 60
+    best = q.run_query(read_manifest(storage), q.preset("best-case"))
+    assert best.shortfall["T02_CN_A"] == 2_496  # in the pool, not produced
+
+
+@pytest.mark.parametrize(
+    "query, message",
+    [
+        (q.Query(splits=("dev",)), "valid splits: train, val, test"),
+        (q.Query(classes=("cat",)), "valid classes"),
+        (q.Query(min_share=(("sky", 2.0),)), "must be in"),
+        (q.Query(per_scenario=2, total=3), "either"),
+        (q.Query(domains="towns=T42"), "valid towns"),
+    ],
+)
+def test_bad_queries(query, message):
+    with pytest.raises(ValueError, match=message):
+        query.validate()
+    with pytest.raises(ValueError, match="valid presets: best-case, worst-case"):
+        q.preset("average-case")
+
+
+def test_writers(root, tmp_path):
+    storage, _ = root
+    table = q.run_query(read_manifest(storage), q.Query(total=7)).table
+    lines = q.encode_result(table, "list").decode().splitlines()
+    assert len(lines) == 7 and lines[0].split()[0].endswith(".png") and "/semantic_raw/" in lines[0].split()[1]
+    csv_text = q.encode_result(table, "csv").decode().splitlines()
+    assert csv_text[0].startswith("frame_id,scenario,town") and len(csv_text) == 8
+    (tmp_path / "s.parquet").write_bytes(q.encode_result(table, "parquet"))
+    assert pq.read_table(tmp_path / "s.parquet").equals(table)
+    with pytest.raises(ValueError, match="valid formats: list, csv, parquet"):
+        q.encode_result(table, "xlsx")
+
+
+def test_share_table_and_chart(root):
+    storage, _ = root
+    table = read_manifest(storage)
+    shares = share_table(table)
+    total = class_pixels(table).sum()
+    assert total == len(table) * 64 * 36
+    assert abs(sum(shares.column("share").to_pylist()) - 1.0) < 1e-9
+    sky = [r for r in shares.to_pylist() if r["class"] == "sky"][0]
+    assert sky["paper_share"] == pytest.approx(PAPER_SHARES["sky"]) and 0.2 < sky["paper_share"] < 0.3
+    per = share_table(table, by_scenario=True)
+    assert len(per) == 12 * 24
+    png = bar_chart_png(shares)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n" and len(png) > 10_000
+
+
+def test_compaction_is_used_only_while_it_matches_the_parts(root, tmp_path):
+    import shutil
+
+    from manifests.reader import compact, manifest_files
+
+    storage, plan = root
+    copy = Storage.from_uri(str(tmp_path / "copy"))
+    shutil.copytree(storage.path(), copy.path(), dirs_exist_ok=True)
+    before = read_manifest(copy)
+    assert compact(copy) == sorted(plan.scenarios())
+    assert compact(copy) == []  # nothing stale
+    files = manifest_files(copy)
+    assert len(files) == 12 and all(f.endswith("/_index.parquet") for f in files)
+    assert read_manifest(copy).equals(before)
+    # A part removed (as --repair does) makes that scenario's index stale.
+    spec = plan.episodes[0]
+    copy.delete(part_path(spec.scenario, spec.episode))
+    files = manifest_files(copy)
+    assert not any(f.startswith(f"manifest/town={spec.town}/weather={spec.weather}/viewpoint={spec.viewpoint}/_index") for f in files)
+    assert len(read_manifest(copy)) == len(before) - spec.frames
+    assert compact(copy) == []  # that scenario has no parts left: its index goes
+    assert not copy.exists(f"manifest/town={spec.town}/weather={spec.weather}/viewpoint={spec.viewpoint}/_index.parquet")
+    assert len(read_manifest(copy)) == len(before) - spec.frames

@@ -1,0 +1,292 @@
+"""Production on real Ray with real files: end to end, resume after a killed
+driver, a killed worker, a removed node, verify/repair, bad roots, S3."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+from typer.testing import CliRunner
+
+from manifests.catalog import OUTPUTS
+from manifests.reader import done_episodes, read_manifest
+from manifests.schema import output_columns
+from manifests.verify import verify
+from pipeline.cli import app
+from pipeline.driver import ProduceConfig, produce
+from pipeline.planner import PlanConfig, make_plan
+from pipeline.runmeta import RunConfig, RunConfigError
+from storage import Storage, StorageError
+
+pytestmark = pytest.mark.slow
+runner = CliRunner()
+
+# Small but real: 4 scenarios, one 4-frame episode each, at 64x36 in the test world.
+DOMAINS = "towns=T01,T07 weathers=CN,HRN viewpoints=A"
+PLAN = PlanConfig(domains=DOMAINS, frames_per_scenario=4, width=64, height=36, seed=7)
+ARGS = ["--domains", DOMAINS, "--frames-per-scenario", "4", "--width", "64", "--height", "36", "--seed", "7", "--world", "test"]
+
+
+def config(out, **kw) -> ProduceConfig:
+    return ProduceConfig(run=RunConfig(plan=kw.pop("plan", PLAN), world="test"), out=str(out), workers=2, **kw)
+
+
+def tree_digest(root: Path) -> dict[str, str]:
+    """sha256 of every dataset file (frames and manifest parts) under root."""
+    out = {}
+    for path in sorted(root.rglob("*")):
+        rel = path.relative_to(root).as_posix()
+        if path.is_file() and not rel.startswith("_stats/") and rel != "run.json":
+            out[rel] = hashlib.sha256(path.read_bytes()).hexdigest()
+    return out
+
+
+@pytest.fixture(scope="module")
+def ray_local():
+    import ray
+
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+@pytest.fixture(scope="module")
+def reference(ray_local, tmp_path_factory) -> Path:
+    """An uninterrupted run: what every other run must equal, byte for byte."""
+    out = tmp_path_factory.mktemp("reference")
+    report = produce(config(out))
+    assert report.ok and report.rendered_episodes == len(make_plan(PLAN).episodes)
+    return out
+
+
+def test_end_to_end_read_back(reference):
+    plan = make_plan(PLAN)
+    table = read_manifest(str(reference))
+    assert len(table) == plan.total_frames == 16
+    assert sorted(set(table.column("scenario").to_pylist())) == sorted(plan.scenarios())
+    for output in OUTPUTS:
+        path_col, bytes_col, sha_col = output_columns(output)
+        for rel, size, sha in zip(*(table.column(c).to_pylist() for c in (path_col, bytes_col, sha_col))):
+            data = (reference / rel).read_bytes()
+            assert len(data) == size and hashlib.sha256(data).hexdigest() == sha
+            assert rel.startswith(rel.split("/")[0] + f"/{output}/")
+    row = table.to_pylist()[0]
+    assert 20 <= row["n_vehicles"] <= 150 and 0 <= row["n_pedestrians"] <= 100
+    assert sum(row[c] for c in table.column_names if c.startswith("px_")) == 64 * 36
+    assert verify(str(reference)).ok
+
+
+def test_rerun_skips_everything(ray_local, reference, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(reference, copy)
+    before = tree_digest(copy)
+    report = produce(config(copy))
+    assert report.rendered_episodes == 0 and report.skipped_episodes == report.planned_episodes
+    assert tree_digest(copy) == before
+
+
+def test_cli_status_verify_query_stats(reference, tmp_path):
+    result = runner.invoke(app, ["status", str(reference)])
+    assert result.exit_code == 0, result.output
+    assert "16 of 16 frames done (100.0%)" in result.output
+    result = runner.invoke(app, ["verify", str(reference)])
+    assert result.exit_code == 0 and result.output.startswith("OK: checked 96 files")
+    out = tmp_path / "worst.txt"
+    result = runner.invoke(app, ["query", str(reference), "--preset", "worst-case", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "0 frames selected" in result.output  # HRN_J / HRN_B were not produced
+    result = runner.invoke(app, ["query", str(reference), "--domains", "towns=T07", "--per-scenario", "3", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    lines = out.read_text().splitlines()
+    assert len(lines) == 6 and all((reference / p).exists() for line in lines for p in line.split())
+    chart = tmp_path / "shares.png"
+    result = runner.invoke(app, ["stats", str(reference), "--chart", str(chart)])
+    assert result.exit_code == 0, result.output
+    assert "sky" in result.output and chart.read_bytes()[:4] == b"\x89PNG"
+
+
+def test_killed_driver_resumes_to_identical_output(reference, tmp_path):
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "pipeline.cli", "produce", *ARGS, "--out", str(out), "--workers", "1"]
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    deadline = time.time() + 240
+    storage = Storage.from_uri(str(out))
+    while time.time() < deadline and proc.poll() is None:
+        if (out / "run.json").exists() and len(done_episodes(storage)) >= 1:
+            break
+        time.sleep(0.2)
+    assert proc.poll() is None, f"driver ended before it could be killed: {proc.stderr.read().decode()[-2000:]}"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    done_before = len(done_episodes(storage))
+    assert 1 <= done_before < len(make_plan(PLAN).episodes)
+    # Run again (a fresh driver and a fresh local Ray), to the end.
+    result = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert f"{done_before} of 4 episodes were already done" in result.stdout
+    assert tree_digest(out) == tree_digest(reference)
+    assert read_manifest(str(out)).equals(read_manifest(str(reference)))
+
+
+def test_killed_worker_is_retried_without_duplicates(ray_local, reference, tmp_path, monkeypatch):
+    marker = tmp_path / "killed-once"
+    monkeypatch.setenv("IDDA_FAULT_INJECT", f"kill-after:1:{marker}")
+    out = tmp_path / "worker-killed"
+    report = produce(config(out))
+    assert marker.exists(), "the fault hook never fired"
+    assert report.ok and report.rendered_episodes == 4
+    table = read_manifest(str(out))
+    ids = list(zip(table.column("scenario").to_pylist(), table.column("frame_id").to_pylist()))
+    assert len(ids) == len(set(ids)) == 16
+    assert tree_digest(out) == tree_digest(reference)
+
+
+def test_two_drivers_on_one_root_do_not_corrupt_it(ray_local, reference, tmp_path):
+    out = tmp_path / "shared"
+    reports, errors = [], []
+
+    def drive():
+        try:
+            reports.append(produce(config(out)))
+        except Exception as exc:  # surfaced below
+            errors.append(exc)
+
+    threads = [threading.Thread(target=drive) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors and all(r.ok for r in reports)
+    assert verify(str(out)).ok
+    assert tree_digest(out) == tree_digest(reference)
+
+
+def test_verify_finds_and_repair_fixes(ray_local, reference, tmp_path):
+    root = tmp_path / "damaged"
+    shutil.copytree(reference, root)
+    table = read_manifest(str(root))
+    corrupt = root / table.column("rgb_path")[0].as_py()
+    missing = root / table.column("depth_raw_path")[len(table) - 1].as_py()
+    corrupt.write_bytes(corrupt.read_bytes()[:-10] + b"0123456789")
+    missing.unlink()
+    result = runner.invoke(app, ["verify", str(root)])
+    assert result.exit_code == 1
+    assert "corrupt" in result.output and "missing" in result.output and "FAILED: 1 corrupt, 1 missing" in result.output
+    report = produce(config(root, repair=True))
+    assert len(report.repaired) == 2 and report.rendered_episodes == 2
+    assert verify(str(root)).ok
+    assert tree_digest(root) == tree_digest(reference)
+
+
+def test_changed_config_is_refused_unless_extended(ray_local, reference, tmp_path):
+    root = tmp_path / "extend"
+    shutil.copytree(reference, root)
+    bigger = PlanConfig(domains=DOMAINS + "", frames_per_scenario=4, width=64, height=36, seed=7)
+    more = PlanConfig(domains="towns=T01,T07 weathers=CN,HRN viewpoints=A,B", frames_per_scenario=4, width=64, height=36, seed=7)
+    assert produce(config(root, plan=bigger)).rendered_episodes == 0
+    with pytest.raises(RunConfigError, match="pass --extend"):
+        produce(config(root, plan=more))
+    with pytest.raises(RunConfigError, match="different seed"):
+        produce(config(root, plan=PlanConfig(domains=DOMAINS, frames_per_scenario=4, width=64, height=36, seed=8), extend=True))
+    report = produce(config(root, plan=more, extend=True))
+    assert report.rendered_episodes == 4 and report.skipped_episodes == 4
+    assert verify(str(root)).ok
+
+
+def test_unwritable_root_is_a_clear_error(tmp_path):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("not a directory")
+    result = runner.invoke(app, ["produce", *ARGS, "--out", str(blocker / "out")])
+    assert result.exit_code == 2
+    assert result.output.startswith("error: ") and "not writable" in result.output
+    assert len(result.output.strip().splitlines()) == 1
+
+
+def test_full_disk_marks_nothing_done(tmp_path, monkeypatch):
+    """A write failing mid-episode leaves the episode without a part."""
+    import errno
+
+    from pipeline.episode_job import run_episode
+
+    storage = Storage.from_uri(str(tmp_path / "full"))
+    real = Storage.write_bytes
+    calls = {"n": 0}
+
+    def failing(self, rel, data):
+        calls["n"] += 1
+        if calls["n"] > 7:  # the second frame's first image
+            raise StorageError(f"cannot write {rel}: no space left on device (ENOSPC)")
+        return real(self, rel, data)
+
+    monkeypatch.setattr(Storage, "write_bytes", failing)
+    spec = make_plan(PLAN).episodes[0]
+    with pytest.raises(StorageError, match="no space left"):
+        run_episode(spec, storage, world="test")
+    assert done_episodes(storage) == set()
+
+
+def test_removed_node_run_completes(reference, tmp_path):
+    import ray
+    from ray.cluster_utils import Cluster
+
+    if ray.is_initialized():
+        ray.shutdown()
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1})
+    doomed = cluster.add_node(num_cpus=1)
+    cluster.wait_for_nodes()
+    out = tmp_path / "cluster"
+    result = {}
+
+    def drive():
+        try:
+            result["report"] = produce(config(out, address=cluster.address))
+        except Exception as exc:
+            result["error"] = exc
+
+    thread = threading.Thread(target=drive)
+    thread.start()
+    storage = Storage.from_uri(str(out))
+    deadline = time.time() + 240
+    while time.time() < deadline and thread.is_alive() and len(done_episodes(storage)) < 1:
+        time.sleep(0.2)
+    cluster.remove_node(doomed)
+    thread.join(timeout=600)
+    try:
+        assert "error" not in result, result.get("error")
+        assert result["report"].ok
+        assert tree_digest(out) == tree_digest(reference)
+    finally:
+        cluster.shutdown()
+
+
+def test_s3_end_to_end(reference, tmp_path):
+    import ray
+
+    from tests.s3_server import local_s3_server
+
+    if ray.is_initialized():
+        ray.shutdown()
+    with local_s3_server() as server:
+        uri = server.uri("runs/small")
+        report = produce(config(uri))
+        assert report.ok and report.rendered_episodes == 4
+        storage = Storage.from_uri(uri)
+        table = read_manifest(storage)
+        assert table.equals(read_manifest(str(reference)))
+        assert verify(storage).ok
+        ref = tree_digest(reference)
+        for rel, digest in ref.items():
+            if not rel.startswith("manifest/"):
+                assert storage.sha256(rel) == digest
+        result = runner.invoke(app, ["status", uri])
+        assert result.exit_code == 0 and "16 of 16 frames done" in result.output
+        assert "secret" not in result.output
