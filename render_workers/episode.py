@@ -1,0 +1,176 @@
+"""Render one episode: spec -> world -> traffic -> frames handed to a sink. No Ray here.
+
+Reads top to bottom like a worker script: look up the scenario, build (or reuse)
+the town's world, populate it from the episode seed, load it into the
+process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
+seconds) render, post-process, encode the six outputs and call ``sink(frame)``.
+
+Every random draw derives from ``spec.seed`` (traffic, sky, puddles, rain) or
+from the town seed (world), so the same spec gives byte-identical PNGs.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from manifests.catalog import NUM_CLASSES, OUTPUTS, scenario as lookup_scenario
+from manifests.spec import EpisodeSpec
+from pipeline.planner import FRAME_PERIOD_S, town_seed
+from render_workers import postfx
+from render_workers.camera import measured_hood_fraction
+from render_workers.encoders import encode_outputs, encode_png
+from render_workers.renderer import Renderer
+from render_workers.scene import EpisodeScene, Frame, World
+
+log = logging.getLogger(__name__)
+
+# World builders by name: the modules providing build_world(town_code, seed) and
+# populate(world, viewpoint_code, episode_seed). Imported on first use.
+WORLDS: dict[str, tuple[str, str]] = {
+    "procedural": ("render_workers.world", "render_workers.traffic"),
+    "test": ("render_workers.testworld", "render_workers.testworld"),
+}
+DEFAULT_WORLD = "procedural"
+_FX_STREAM = 404  # rng stream id of per-frame post effects
+
+FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "sink")
+
+
+@dataclass(frozen=True)
+class WorldBuilder:
+    """The two functions a world provides."""
+
+    build_world: Callable[[str, int], World]
+    populate: Callable[[World, str, int], EpisodeScene]
+
+
+def _function(module_name: str, fn: str, world: str) -> Callable:
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name != module_name:
+            raise
+        raise ImportError(f"world {world!r} needs module {module_name}, which is not available") from exc
+    function = getattr(module, fn, None)
+    if not callable(function):
+        raise ImportError(f"world {world!r}: module {module_name} has no {fn}() function")
+    return function
+
+
+def world_builder(name: str) -> WorldBuilder:
+    """The world registered as ``name``; ValueError for unknown names, ImportError if missing."""
+    try:
+        build_module, populate_module = WORLDS[name]
+    except KeyError:
+        raise ValueError(f"unknown world {name!r}; valid worlds: {', '.join(WORLDS)}") from None
+    return WorldBuilder(_function(build_module, "build_world", name), _function(populate_module, "populate", name))
+
+
+@functools.lru_cache(maxsize=8)
+def cached_world(world: str, town_code: str, seed: int) -> World:
+    """A town's static world, built once per process and reused across its episodes."""
+    return world_builder(world).build_world(town_code, seed)
+
+
+@functools.lru_cache(maxsize=1)
+def process_renderer() -> Renderer:
+    """The worker process's long-lived renderer (its first frame compiles shaders)."""
+    return Renderer()
+
+
+@dataclass(frozen=True)
+class EpisodeInfo:
+    """What rendering an episode reports back (small and serialisable)."""
+
+    n_vehicles: int
+    n_pedestrians: int
+    frames: int
+    timings: dict = field(default_factory=dict)  # stage -> total seconds over the episode
+
+
+def validate_spec(spec: EpisodeSpec) -> None:
+    """Raise ValueError for a spec no frame could be rendered from."""
+    lookup_scenario(spec.scenario)
+    if spec.frames < 1:
+        raise ValueError(f"{spec.key}: frames must be at least 1, got {spec.frames}")
+    if spec.width < 1 or spec.height < 1:
+        raise ValueError(f"{spec.key}: image size must be positive, got {spec.width}x{spec.height}")
+    if spec.seed < 0 or spec.run_seed < 0:
+        raise ValueError(f"{spec.key}: seeds must be non-negative")
+
+
+def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WORLD) -> tuple[EpisodeScene, dict]:
+    """Build/reuse the world, populate it and load it into ``renderer``; returns scene and timings."""
+    validate_spec(spec)
+    scen = lookup_scenario(spec.scenario)
+    timings = {}
+    start = time.perf_counter()
+    static = cached_world(world, scen.town.code, town_seed(spec.run_seed, scen.town))
+    timings["world"] = time.perf_counter() - start
+    start = time.perf_counter()
+    scene = world_builder(world).populate(static, scen.viewpoint.code, spec.seed)
+    timings["populate"] = time.perf_counter() - start
+    start = time.perf_counter()
+    renderer.load(scene, scen.weather, scen.viewpoint, spec.width, spec.height, sky_seed=spec.seed)
+    timings["load"] = time.perf_counter() - start
+    return scene, timings
+
+
+def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, index: int) -> tuple[Frame, dict]:
+    """Render frame ``index`` of a loaded episode; returns the frame and its stage timings."""
+    t = index * FRAME_PERIOD_S
+    result = renderer.render(t)
+    timings = dict(result.timings)
+    start = time.perf_counter()
+    ctx = postfx.FxContext(
+        depth=result.depth, classes=result.classes, hood_mask=result.hood_mask, rig=result.rig,
+        world_from_camera=result.world_from_camera, weather=renderer.weather,
+        ego_speed_mps=scene.ego.speed_mps, sun_pixel=result.sun_pixel,
+        rng=np.random.default_rng([spec.seed, _FX_STREAM, index]), episode_seed=spec.seed,
+    )
+    rgb = postfx.apply(result.rgb, ctx)
+    timings["post_fx"] = time.perf_counter() - start
+    start = time.perf_counter()
+    images = encode_outputs(rgb, result.depth, result.classes)
+    counts = np.bincount(result.classes.ravel(), minlength=NUM_CLASSES).astype(np.int64)
+    timings["outputs"] = time.perf_counter() - start
+    frame = Frame(
+        index=index, sim_time_s=t, images=images, class_counts=counts,
+        camera_height_m=renderer.rig.viewpoint.camera_height_m,
+        hood_fraction=measured_hood_fraction(result.hood_mask), ego_speed_mps=float(scene.ego.speed_mps),
+    )
+    return frame, timings
+
+
+def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: str = DEFAULT_WORLD,
+                   renderer: Renderer | None = None) -> EpisodeInfo:
+    """Render every frame of ``spec`` and pass each to ``sink``; returns counts and timings."""
+    renderer = renderer if renderer is not None else process_renderer()
+    scene, timings = load_episode(spec, renderer, world)
+    for stage in FRAME_STAGES:
+        timings[stage] = 0.0
+    for index in range(spec.frames):
+        frame, frame_timings = render_frame(renderer, scene, spec, index)
+        start = time.perf_counter()
+        sink(frame)
+        frame_timings["sink"] = time.perf_counter() - start
+        for stage, seconds in frame_timings.items():
+            timings[stage] = timings.get(stage, 0.0) + seconds
+    log.debug("%s: %d frames, timings %s", spec.key, spec.frames, timings)
+    return EpisodeInfo(n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
+                       frames=spec.frames, timings=timings)
+
+
+def encode_frame(frame: Frame) -> dict[str, bytes]:
+    """PNG bytes of each of a frame's outputs, in catalog order."""
+    missing = set(OUTPUTS) - set(frame.images)
+    if missing:
+        raise ValueError(f"frame {frame.index}: missing outputs {sorted(missing)}")
+    return {name: encode_png(frame.images[name], name) for name in OUTPUTS}

@@ -1,0 +1,578 @@
+"""Off-screen pyrender backend: EpisodeScene + time -> lit RGB, planar depth, class ids.
+
+One :class:`Renderer` lives per worker process (the first render compiles
+shaders, ~1.5 s). Per episode, :meth:`Renderer.load` builds the pyrender scene
+once: static parts are split into ``tile_m`` ground tiles and merged per
+(tile, class, material), so a town is a few hundred nodes that can be culled by
+distance and view; each actor becomes one node per (class, material), posed
+per frame. The hood is a child of the camera node.
+
+Each :meth:`Renderer.render` makes two passes:
+
+* a colour pass (sun as a DirectionalLight plus ambient light, 4x MSAA from
+  pyrender), composited over a procedural sky by its alpha coverage;
+* a ``RenderFlags.SEG`` pass where every node is mapped to ``(class_id, mark, 0)``
+  (mark 1 = ego hood). It gives crisp class ids (background -> sky) and the
+  metric depth (background -> 1000 m), both free of MSAA blending.
+
+Lighting: pyrender's PBR fragment shader costs ~1 s per 1920x1080 frame on
+llvmpipe, so by default the colour pass swaps in :data:`FAST_MESH_FRAG` (Lambert
+diffuse + normalised Blinn-Phong specular from the material's roughness and
+metallic factors, ambient, emissive, two-sided, gamma 2.2), about 4x cheaper.
+``Renderer(pbr=True)`` keeps pyrender's own shader.
+
+pyrender rules this module follows are listed in ``render_workers.compat``.
+"""
+
+from __future__ import annotations
+
+import atexit
+import logging
+import math
+import shutil
+import tempfile
+import time
+from pathlib import Path as FilePath
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from manifests.catalog import Viewpoint, Weather, class_id
+from render_workers import compat
+from render_workers.camera import CameraRig, hood_mesh, sun_direction
+from render_workers.scene import MATERIALS, EpisodeScene, Part
+
+log = logging.getLogger(__name__)
+
+ZNEAR_M = 0.1
+ZFAR_M = 1000.0  # the dataset's far limit; pyrender's default (100 m) is too short
+CULL_M = 450.0  # static tiles and actors farther than this are not drawn
+TILE_M = 200.0  # static geometry is split into square tiles of this size
+SKY_ID = class_id("sky")
+VEHICLE_ID = class_id("vehicle")
+HOOD_MARK = 1  # green channel of the hood's SEG colour
+SKY_DOWNSCALE = 4  # the sky is smooth: compute it at 1/4 size and upscale
+SUN_SCALE = 0.55  # exposure: Weather.light_intensity x this keeps noon albedo from clipping
+
+
+# Drop-in for pyrender's mesh.frag: same inputs and uniform names, cheaper maths.
+FAST_MESH_FRAG = """#version 330 core
+struct DirectionalLight { vec3 color; float intensity; vec3 direction; };
+struct Material {
+    vec3 emissive_factor;
+    vec4 base_color_factor;
+    float metallic_factor;
+    float roughness_factor;
+};
+uniform Material material;
+uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
+uniform int n_directional_lights;
+uniform vec3 cam_pos;
+uniform vec3 ambient_light;
+in vec3 frag_position;
+#ifdef NORMAL_LOC
+in vec3 frag_normal;
+#endif
+#ifdef COLOR_0_LOC
+in vec4 color_multiplier;
+#endif
+out vec4 frag_color;
+const float PI = 3.141592653589793;
+
+void main()
+{
+    vec4 base = material.base_color_factor;
+#ifdef COLOR_0_LOC
+    base *= color_multiplier;
+#endif
+    vec3 v = normalize(cam_pos - frag_position);
+#ifdef NORMAL_LOC
+    vec3 n = normalize(frag_normal);
+#else
+    vec3 n = v;
+#endif
+    if (dot(n, v) < 0.0) n = -n;  // two-sided
+    float rough = clamp(material.roughness_factor, 0.04, 1.0);
+    float metal = clamp(material.metallic_factor, 0.0, 1.0);
+    vec3 diffuse = base.rgb * (1.0 - metal) / PI;
+    vec3 f0 = mix(vec3(0.04), base.rgb, metal);
+    float shininess = clamp(2.0 / (rough * rough * rough * rough) - 2.0, 1.0, 2048.0);
+    float fresnel = pow(1.0 - max(dot(n, v), 0.0), 5.0);
+    vec3 spec_colour = f0 + (1.0 - f0) * fresnel;
+    vec3 color = base.rgb * ambient_light + material.emissive_factor * base.rgb;
+    for (int i = 0; i < n_directional_lights; i++) {
+        vec3 l = normalize(-directional_lights[i].direction);
+        float nl = max(dot(n, l), 0.0);
+        vec3 h = normalize(l + v);
+        float spec = pow(max(dot(n, h), 0.0), shininess) * (shininess + 8.0) / (8.0 * PI);
+        color += directional_lights[i].color * directional_lights[i].intensity * nl
+                 * (diffuse + spec_colour * spec);
+    }
+    frag_color = vec4(pow(clamp(color, 0.0, 1.0), vec3(1.0 / 2.2)), base.a);
+}
+"""
+
+
+def _install_fast_shaders(offscreen) -> FilePath:
+    """Point the context's shader cache at a copy of pyrender's shaders with FAST_MESH_FRAG."""
+    pr = compat.import_pyrender()
+    from pyrender.shader_program import ShaderProgramCache
+
+    shader_dir = FilePath(tempfile.mkdtemp(prefix="idda-shaders-"))
+    atexit.register(shutil.rmtree, shader_dir, True)  # also when a renderer is never closed
+    source = FilePath(pr.__file__).parent / "shaders"
+    for path in source.iterdir():
+        shutil.copy(path, shader_dir / path.name)
+    (shader_dir / "mesh.frag").write_text(FAST_MESH_FRAG)
+    renderer = offscreen._renderer  # pyrender keeps its shader cache on the inner renderer
+    renderer._program_cache.clear()
+    renderer._program_cache = ShaderProgramCache(shader_dir=str(shader_dir))
+    return shader_dir
+
+
+# --------------------------------------------------------------------------
+# Materials
+# --------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Look:
+    """pyrender MetallicRoughnessMaterial settings for one ``Part.material``."""
+
+    metallic: float
+    roughness: float
+    emissive: float = 0.0  # emissive factor; vertex colours tint it
+
+
+LOOKS: dict[str, Look] = {
+    "matte": Look(0.0, 0.95),
+    "glossy": Look(0.05, 0.45),
+    "metal": Look(0.6, 0.35),
+    "glass": Look(0.3, 0.12),
+    "emissive": Look(0.0, 0.9, emissive=1.5),
+    "road": Look(0.0, 0.85),
+    "water": Look(0.2, 0.08),
+}
+if set(LOOKS) != set(MATERIALS):
+    raise RuntimeError(f"material looks {sorted(LOOKS)} do not match scene.MATERIALS {sorted(MATERIALS)}")
+
+
+def look(material: str) -> Look:
+    try:
+        return LOOKS[material]
+    except KeyError:
+        raise ValueError(f"unknown material {material!r}; valid: {', '.join(LOOKS)}") from None
+
+
+def pyrender_material(material: str):
+    """A pyrender ``MetallicRoughnessMaterial`` for a ``Part.material`` key."""
+    pr = compat.import_pyrender()
+    lk = look(material)
+    return pr.MetallicRoughnessMaterial(
+        baseColorFactor=[1.0, 1.0, 1.0, 1.0],
+        metallicFactor=lk.metallic,
+        roughnessFactor=lk.roughness,
+        emissiveFactor=[lk.emissive] * 3,
+        alphaMode="OPAQUE",
+        doubleSided=True,
+    )
+
+
+# --------------------------------------------------------------------------
+# Geometry -> flat-shaded triangle soups
+# --------------------------------------------------------------------------
+@dataclass
+class _Soup:
+    """Unindexed triangles: positions, normals and linear RGBA colours, float32."""
+
+    positions: list = field(default_factory=list)
+    normals: list = field(default_factory=list)
+    colors: list = field(default_factory=list)
+
+    def add(self, positions: np.ndarray, normals: np.ndarray, colors: np.ndarray) -> None:
+        self.positions.append(positions)
+        self.normals.append(normals)
+        self.colors.append(colors)
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        return (
+            np.concatenate(self.positions).astype(np.float32),
+            np.concatenate(self.normals).astype(np.float32),
+            np.concatenate(self.colors).astype(np.float32),
+        )
+
+
+_SRGB_TO_LINEAR = (np.arange(256, dtype=np.float64) / 255.0) ** 2.2
+
+
+def _corner_colors(mesh) -> np.ndarray:
+    """(F, 3, 4) linear RGBA per triangle corner from a trimesh's vertex/face colours."""
+    faces = mesh.faces
+    kind = mesh.visual.kind if mesh.visual.defined else None
+    if kind == "vertex":
+        rgba = np.asarray(mesh.visual.vertex_colors)[faces]
+    elif kind == "face":
+        rgba = np.repeat(np.asarray(mesh.visual.face_colors)[:, None, :], 3, axis=1)
+    else:
+        rgba = np.full((len(faces), 3, 4), 128, dtype=np.uint8)
+    out = _SRGB_TO_LINEAR[rgba]
+    out[..., 3] = 1.0  # opaque: alpha is used for sky coverage
+    return out
+
+
+def _triangles(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    tri = np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces]  # (F, 3, 3)
+    normals = np.repeat(np.asarray(mesh.face_normals)[:, None, :], 3, axis=1)
+    return tri, normals, _corner_colors(mesh)
+
+
+def _sphere(positions: np.ndarray) -> tuple[np.ndarray, float]:
+    lo, hi = positions.min(axis=0), positions.max(axis=0)
+    centre = (lo + hi) / 2
+    return centre.astype(np.float64), float(np.linalg.norm(hi - lo) / 2)
+
+
+def static_groups(parts: tuple[Part, ...], tile_m: float) -> dict[tuple, _Soup]:
+    """Static triangles grouped by (tile x, tile y, class id, material), by face centroid."""
+    groups: dict[tuple, _Soup] = {}
+    for part in parts:
+        if len(part.mesh.faces) == 0:
+            continue
+        look(part.material)
+        tri, normals, colors = _triangles(part.mesh)
+        tiles = np.floor(tri.mean(axis=1)[:, :2] / tile_m).astype(np.int64)
+        keys, inverse = np.unique(tiles, axis=0, return_inverse=True)
+        inverse = inverse.ravel()
+        for k, (tx, ty) in enumerate(keys):
+            sel = inverse == k
+            soup = groups.setdefault((int(tx), int(ty), part.class_id, part.material), _Soup())
+            soup.add(tri[sel].reshape(-1, 3), normals[sel].reshape(-1, 3), colors[sel].reshape(-1, 4))
+    return groups
+
+
+def part_groups(parts: tuple[Part, ...]) -> dict[tuple, _Soup]:
+    """An actor's triangles grouped by (class id, material)."""
+    groups: dict[tuple, _Soup] = {}
+    for part in parts:
+        if len(part.mesh.faces) == 0:
+            continue
+        look(part.material)
+        tri, normals, colors = _triangles(part.mesh)
+        groups.setdefault((part.class_id, part.material), _Soup()).add(
+            tri.reshape(-1, 3), normals.reshape(-1, 3), colors.reshape(-1, 4)
+        )
+    return groups
+
+
+def _pyrender_mesh(soup: _Soup, material: str):
+    pr = compat.import_pyrender()
+    positions, normals, colors = soup.arrays()
+    primitive = pr.Primitive(
+        positions=positions, normals=normals, color_0=colors, material=pyrender_material(material), mode=4
+    )
+    return pr.Mesh(primitives=[primitive]), positions
+
+
+# --------------------------------------------------------------------------
+# Sky
+# --------------------------------------------------------------------------
+def _cloud_texture(seed: int, size: tuple[int, int] = (64, 256)) -> np.ndarray:
+    """Periodic (in azimuth) fractal noise in [0, 1], rows = elevation 0..90 deg."""
+    import cv2
+
+    rng = np.random.default_rng([seed, 17])
+    h, w = size
+    out = np.zeros((h, w), dtype=np.float32)
+    amplitude, total = 1.0, 0.0
+    for cells in (4, 8, 16, 32):
+        coarse = rng.random((max(2, cells * h // w), cells)).astype(np.float32)
+        wrapped = np.concatenate([coarse, coarse[:, :1]], axis=1)  # wrap in azimuth
+        big = cv2.resize(wrapped, (w + w // cells, h), interpolation=cv2.INTER_CUBIC)[:, :w]
+        out += amplitude * big
+        total += amplitude
+        amplitude *= 0.5
+    out /= total
+    return np.clip((out - out.min()) / max(1e-6, float(out.max() - out.min())), 0.0, 1.0)
+
+
+def sky_image(
+    weather: Weather, rig: CameraRig, world_from_camera: np.ndarray, clouds: np.ndarray
+) -> np.ndarray:
+    """HxWx3 float32 sky (0..1, sRGB) seen by the camera: gradient, clouds and sun glow."""
+    import cv2
+
+    h, w = max(2, rig.height // SKY_DOWNSCALE), max(2, rig.width // SKY_DOWNSCALE)
+    xs = (np.arange(w) + 0.5) / w * 2 * rig.tan_half_h - rig.tan_half_h  # right
+    ys = rig.tan_half_v - (np.arange(h) + 0.5) / h * 2 * rig.tan_half_v  # up
+    # world directions of the rays: R @ (x, y, -1)
+    rot = world_from_camera[:3, :3]
+    dirs = (xs[None, :, None] * rot[:, 0] + ys[:, None, None] * rot[:, 1] - rot[:, 2])
+    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
+    elevation = np.arcsin(np.clip(dirs[..., 2], -1, 1))
+    azimuth = np.arctan2(dirs[..., 1], dirs[..., 0])
+
+    t = np.clip(elevation / math.radians(55.0), 0.0, 1.0)[..., None] ** 0.6
+    zenith = np.asarray(weather.sky_zenith, np.float32) / 255.0
+    horizon = np.asarray(weather.sky_horizon, np.float32) / 255.0
+    sky = horizon + (zenith - horizon) * t
+    sky = np.where((elevation < 0)[..., None], horizon * 0.92, sky)
+
+    if weather.cloudiness > 0:
+        ch, cw = clouds.shape
+        row = np.clip(elevation / (math.pi / 2), 0, 1) * (ch - 1)
+        col = (azimuth / (2 * math.pi) % 1.0) * cw
+        # clouds thin out towards the horizon by perspective: stretch rows
+        noise = cv2.remap(clouds, col.astype(np.float32), row.astype(np.float32), cv2.INTER_LINEAR,
+                          borderMode=cv2.BORDER_WRAP)
+        cover = np.clip((noise - (1.0 - weather.cloudiness)) / 0.25 + weather.cloudiness * 0.5, 0.0, 1.0)
+        cloud_rgb = np.clip(horizon * 0.6 + 0.45 * (1 - weather.cloudiness) + 0.1, 0, 1)
+        sky = sky + (cloud_rgb - sky) * (cover * 0.9)[..., None]
+
+    sun = sun_direction(weather.sun_elevation_deg, weather.sun_azimuth_deg)
+    cos_angle = np.clip(dirs @ sun, -1.0, 1.0)
+    angle = np.degrees(np.arccos(cos_angle))
+    light = np.asarray(weather.light_color, np.float32)
+    glow = (np.exp(-np.square(angle / 12.0)) * 0.35 + np.exp(-np.square(angle / 1.2)) * 1.5)
+    glow *= (1.0 - 0.85 * weather.cloudiness)
+    sky = sky + glow[..., None] * light
+    sky = cv2.resize(np.clip(sky, 0, 1).astype(np.float32), (rig.width, rig.height),
+                     interpolation=cv2.INTER_LINEAR)
+    return sky
+
+
+# --------------------------------------------------------------------------
+# Renderer
+# --------------------------------------------------------------------------
+@dataclass(frozen=True, eq=False)
+class RenderResult:
+    """The raw buffers of one frame, before post effects."""
+
+    rgb: np.ndarray  # HxWx3 uint8, lit geometry over the sky
+    depth: np.ndarray  # HxW float32, planar metres, background = ZFAR_M
+    classes: np.ndarray  # HxW uint8 class ids, background = sky
+    hood_mask: np.ndarray  # HxW bool, pixels drawn by the ego hood
+    world_from_camera: np.ndarray  # 4x4
+    rig: CameraRig
+    sun_pixel: tuple[float, float] | None  # sun position in pixels when in front of the camera
+    timings: dict  # stage -> seconds
+
+
+@dataclass
+class _NodeSet:
+    nodes: list
+    centres: np.ndarray  # (N, 3) bounding-sphere centres (world for static, local for actors)
+    radii: np.ndarray  # (N,)
+
+
+class Renderer:
+    """A long-lived off-screen renderer; call :meth:`load` per episode, then :meth:`render`."""
+
+    def __init__(self, *, znear: float = ZNEAR_M, zfar: float = ZFAR_M, cull_m: float = CULL_M,
+                 tile_m: float = TILE_M, pbr: bool = False) -> None:
+        if not 0 < znear < zfar:
+            raise ValueError(f"need 0 < znear < zfar, got {znear}, {zfar}")
+        self.znear, self.zfar, self.cull_m, self.tile_m = znear, zfar, cull_m, tile_m
+        self.pbr = pbr
+        self._shader_dir: FilePath | None = None
+        self._offscreen = None
+        self._size: tuple[int, int] | None = None
+        self._static_world = None  # the World whose static nodes are cached
+        self._static: _NodeSet | None = None
+        self._scene = None
+        self._episode: EpisodeScene | None = None
+        self._draw_list: list = []
+
+    # -- lifecycle ---------------------------------------------------------
+    def __enter__(self) -> "Renderer":
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.close()
+
+    def close(self) -> None:
+        if self._offscreen is not None:
+            compat.delete_offscreen(self._offscreen)
+            self._offscreen = None
+        if self._shader_dir is not None:
+            shutil.rmtree(self._shader_dir, ignore_errors=True)
+            self._shader_dir = None
+        self._scene = self._static = self._static_world = self._episode = None
+        self._draw_list = []
+
+    def _ensure_context(self, width: int, height: int) -> None:
+        if self._offscreen is None:
+            self._offscreen = compat.offscreen_renderer(width, height)
+            if not self.pbr:
+                self._shader_dir = _install_fast_shaders(self._offscreen)
+            # pyrender sorts nodes by distance and breaks ties in set (id) order,
+            # so coplanar faces could resolve differently from run to run: draw
+            # the visible nodes in the fixed order load() built them instead.
+            self._offscreen._renderer._sorted_mesh_nodes = self._draw_order
+        elif self._size != (width, height):
+            self._offscreen.viewport_width, self._offscreen.viewport_height = width, height
+        self._size = (width, height)
+
+    # -- per episode -------------------------------------------------------
+    def load(self, scene: EpisodeScene, weather: Weather, viewpoint: Viewpoint, width: int, height: int,
+             sky_seed: int = 0) -> None:
+        """Build the pyrender scene of an episode (static nodes are reused for the same World)."""
+        pr = compat.import_pyrender()
+        self._ensure_context(width, height)
+        self.rig = CameraRig(viewpoint, width, height)
+        self.weather = weather
+        self._episode = scene
+        self._clouds = _cloud_texture(sky_seed)
+
+        if self._static_world is not scene.world:
+            self._static = self._build_static(scene.world.static)
+            self._static_world = scene.world
+        self._actors, self._actor_of = self._build_actors(scene)
+
+        ambient = weather.ambient * np.asarray(weather.light_color)
+        prs = pr.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=ambient)
+        self._seg_map: dict = {}
+        for node, key in zip(self._static.nodes, self._static_keys):
+            prs.add_node(node)
+            self._seg_map[node] = (key, 0, 0)
+        for node, key in zip(self._actors.nodes, self._actor_keys):
+            prs.add_node(node)
+            self._seg_map[node] = (key, 0, 0)
+
+        camera = pr.PerspectiveCamera(yfov=self.rig.yfov, aspectRatio=self.rig.aspect,
+                                      znear=self.znear, zfar=self.zfar)
+        self._camera_node = prs.add(camera, pose=np.eye(4))
+        hood = hood_mesh(viewpoint, self.rig.aspect)
+        if hood is not None:
+            soup = _Soup()
+            tri, normals, colors = _triangles(hood)
+            soup.add(tri.reshape(-1, 3), normals.reshape(-1, 3), colors.reshape(-1, 4))
+            mesh, _ = _pyrender_mesh(soup, "glossy")
+            hood_node = pr.Node(mesh=mesh, matrix=np.eye(4))
+            prs.add_node(hood_node, parent_node=self._camera_node)
+            self._seg_map[hood_node] = (VEHICLE_ID, HOOD_MARK, 0)
+        self._draw_list = list(self._seg_map)  # hood, then actors, then static: near first
+        self._draw_list.reverse()
+
+        sun = sun_direction(weather.sun_elevation_deg, weather.sun_azimuth_deg)
+        light = pr.DirectionalLight(color=np.asarray(weather.light_color),
+                                    intensity=weather.light_intensity * SUN_SCALE)
+        prs.add(light, pose=_look_along(-sun))
+        self._sun = sun
+        self._scene = prs
+
+    def _build_static(self, parts: tuple[Part, ...]) -> _NodeSet:
+        pr = compat.import_pyrender()
+        nodes, centres, radii, keys = [], [], [], []
+        for (tx, ty, cls, material), soup in sorted(static_groups(parts, self.tile_m).items()):
+            mesh, positions = _pyrender_mesh(soup, material)
+            centre, radius = _sphere(positions)
+            nodes.append(pr.Node(mesh=mesh, matrix=np.eye(4)))
+            centres.append(centre)
+            radii.append(radius)
+            keys.append(cls)
+        self._static_keys = keys
+        log.debug("static scene: %d nodes from %d parts", len(nodes), len(parts))
+        return _NodeSet(nodes, np.array(centres).reshape(-1, 3), np.array(radii))
+
+    def _build_actors(self, scene: EpisodeScene) -> tuple[_NodeSet, list[int]]:
+        pr = compat.import_pyrender()
+        nodes, centres, radii, keys, actor_of = [], [], [], [], []
+        for index, actor in enumerate(scene.actors):
+            for (cls, material), soup in sorted(part_groups(actor.parts).items()):
+                mesh, positions = _pyrender_mesh(soup, material)
+                centre, radius = _sphere(positions)
+                nodes.append(pr.Node(mesh=mesh, matrix=np.eye(4)))
+                centres.append(centre)
+                radii.append(radius)
+                keys.append(cls)
+                actor_of.append(index)
+        self._actor_keys = keys
+        return _NodeSet(nodes, np.array(centres).reshape(-1, 3), np.array(radii)), actor_of
+
+    def _draw_order(self, scene) -> list:
+        """Replacement for pyrender's ``_sorted_mesh_nodes``: a fixed, deterministic order."""
+        return [node for node in self._draw_list if node.mesh.is_visible]
+
+    # -- per frame -----------------------------------------------------------
+    def _visible(self, centres: np.ndarray, radii: np.ndarray, cam: np.ndarray) -> np.ndarray:
+        """Distance and horizontal-frustum test of bounding spheres (world frame)."""
+        d = centres - cam[:3, 3]
+        forward, right = -cam[:3, 2], cam[:3, 0]
+        z, x = d @ forward, d @ right
+        near = np.linalg.norm(d, axis=1) - radii < self.cull_m
+        half = math.atan(self.rig.tan_half_h)
+        c, s = math.cos(half), math.sin(half)
+        inside = (np.abs(x) * c - z * s) < radii
+        return near & inside & (z > -radii)
+
+    def update(self, t: float) -> np.ndarray:
+        """Pose the camera and actors for time ``t`` and cull; returns world_from_camera."""
+        if self._scene is None or self._episode is None:
+            raise RuntimeError("Renderer.load() must be called before rendering")
+        cam = self.rig.world_from_camera(self._episode.ego.pose(t))
+        self._scene.set_pose(self._camera_node, cam)
+        if self._static.nodes:
+            for node, on in zip(self._static.nodes, self._visible(self._static.centres, self._static.radii, cam)):
+                node.mesh.is_visible = bool(on)
+        if self._actors.nodes:
+            poses = [actor.pose(t) for actor in self._episode.actors]
+            world_centres = np.empty_like(self._actors.centres)
+            for i, (node, a) in enumerate(zip(self._actors.nodes, self._actor_of)):
+                pose = poses[a]
+                self._scene.set_pose(node, pose)
+                world_centres[i] = pose[:3, :3] @ self._actors.centres[i] + pose[:3, 3]
+            for node, on in zip(self._actors.nodes, self._visible(world_centres, self._actors.radii, cam)):
+                node.mesh.is_visible = bool(on)
+        return cam
+
+    def render(self, t: float) -> RenderResult:
+        """Render the loaded episode at simulated time ``t`` (seconds)."""
+        pr = compat.import_pyrender()
+        timings = {}
+        start = time.perf_counter()
+        cam = self.update(t)
+        timings["scene_update"] = time.perf_counter() - start
+
+        start = time.perf_counter()
+        flags = pr.RenderFlags.RGBA | pr.RenderFlags.SKIP_CULL_FACES
+        color, _ = self._offscreen.render(self._scene, flags=flags)
+        sky = sky_image(self.weather, self.rig, cam, self._clouds)
+        rgb = np.ascontiguousarray(color[..., :3])
+        open_px = color[..., 3] < 255  # sky, and edges MSAA blended with it
+        alpha = color[..., 3][open_px].astype(np.float32)[:, None] * np.float32(1.0 / 255.0)
+        over = rgb[open_px].astype(np.float32) + (1.0 - alpha) * sky[open_px] * np.float32(255.0)
+        rgb[open_px] = np.clip(over + 0.5, 0, 255).astype(np.uint8)
+        timings["color_pass"] = time.perf_counter() - start
+
+        start = time.perf_counter()
+        seg_flags = pr.RenderFlags.SEG | pr.RenderFlags.SKIP_CULL_FACES
+        seg, depth = self._offscreen.render(self._scene, flags=seg_flags, seg_node_map=self._seg_map)
+        background = depth <= 0.0
+        classes = seg[..., 0].copy()
+        classes[background] = SKY_ID
+        hood = seg[..., 1] == HOOD_MARK
+        depth = np.where(background, np.float32(self.zfar), np.minimum(depth, np.float32(self.zfar)))
+        timings["class_pass"] = time.perf_counter() - start
+
+        return RenderResult(
+            rgb=rgb, depth=depth.astype(np.float32), classes=classes, hood_mask=hood,
+            world_from_camera=cam, rig=self.rig, sun_pixel=self._sun_pixel(cam), timings=timings,
+        )
+
+    def _sun_pixel(self, cam: np.ndarray) -> tuple[float, float] | None:
+        sun_cam = cam[:3, :3].T @ self._sun
+        if sun_cam[2] >= -1e-6:
+            return None
+        x, y = self.rig.project(sun_cam[None, :])[0]
+        return float(x), float(y)
+
+
+def _look_along(direction: np.ndarray) -> np.ndarray:
+    """A pose whose -z axis points along ``direction`` (pyrender lights shine along -z)."""
+    z = -np.asarray(direction, dtype=np.float64)
+    z /= np.linalg.norm(z)
+    up = np.array([0.0, 0.0, 1.0]) if abs(z[2]) < 0.99 else np.array([1.0, 0.0, 0.0])
+    x = np.cross(up, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2] = x, y, z
+    return m

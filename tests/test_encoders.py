@@ -1,0 +1,123 @@
+"""Encoders: CARLA depth/semantic encodings and PNG bytes, as tiny arrays and properties."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra import numpy as hnp
+
+from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE
+from render_workers import encoders as enc
+
+depths = hnp.arrays(
+    np.float32, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=12),
+    elements=st.floats(0.0, 1000.0, width=32),
+)
+class_maps = hnp.arrays(
+    np.uint8, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=12),
+    elements=st.integers(0, NUM_CLASSES - 1),
+)
+images = hnp.arrays(np.uint8, st.tuples(st.integers(1, 16), st.integers(1, 16), st.just(3)))
+
+
+def test_registry_matches_catalog_outputs():
+    assert tuple(enc.ENCODERS) == OUTPUTS
+    with pytest.raises(ValueError, match="valid outputs"):
+        enc.encoder("depth_fancy")
+
+
+def test_depth_raw_known_values():
+    depth = np.array([[0.0, 1000.0, 500.0]], dtype=np.float32)
+    raw = enc.encode_depth_raw(depth)
+    assert raw[0, 0].tolist() == [0, 0, 0]
+    assert raw[0, 1].tolist() == [255, 255, 255]
+    v = round(0.5 * (256**3 - 1))
+    assert raw[0, 2].tolist() == [v & 255, (v >> 8) & 255, (v >> 16) & 255]
+
+
+@settings(max_examples=60, deadline=None)
+@given(depths)
+def test_depth_raw_round_trips_within_one_step(depth):
+    decoded = enc.decode_depth_raw(enc.encode_depth_raw(depth))
+    assert np.abs(decoded - depth.astype(np.float64)).max() <= enc.DEPTH_STEP_M
+
+
+def test_depth_gray_and_log_follow_carla():
+    depth = np.array([[0.0, 1000.0, 1000.0 / 300.0, 100.0, 2000.0]], dtype=np.float32)
+    gray = enc.encode_depth_gray(depth)[..., 0]
+    log = enc.encode_depth_log(depth)[..., 0]
+    assert gray.tolist() == [[0, 255, round(255 / 300), round(25.5), 255]]
+    expected_100 = round((1 + np.log(0.1) / 5.70378) * 255)
+    assert log.tolist() == [[0, 255, 0, expected_100, 255]]
+
+
+@settings(max_examples=40, deadline=None)
+@given(depths)
+def test_depth_images_are_gray_and_monotonic(depth):
+    for name in ("depth_gray", "depth_log"):
+        out = enc.encoder(name).encode(depth)
+        assert out.dtype == np.uint8 and out.shape == depth.shape + (3,)
+        assert (out[..., 0] == out[..., 1]).all() and (out[..., 1] == out[..., 2]).all()
+        order = np.argsort(depth.ravel(), kind="stable")
+        assert (np.diff(out[..., 0].ravel()[order].astype(int)) >= 0).all()
+
+
+@settings(max_examples=60, deadline=None)
+@given(class_maps)
+def test_semantic_encodings(classes):
+    raw = enc.encode_semantic_raw(classes)
+    assert (raw[..., 0] == classes).all() and not raw[..., 1:].any()
+    assert (enc.encode_semantic_color(classes) == PALETTE[raw[..., 0]]).all()
+
+
+@settings(max_examples=40, deadline=None)
+@given(images)
+def test_png_round_trip_and_determinism(image):
+    data = enc.encode_png(image)
+    assert data == enc.encode_png(image.copy())
+    assert (enc.decode_png(data) == image).all()
+
+
+def test_png_keeps_rgb_order():
+    red = np.zeros((2, 3, 3), np.uint8)
+    red[..., 0] = 255
+    data = enc.encode_png(red)
+    assert enc.decode_png(data)[0, 0].tolist() == [255, 0, 0]
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_encode_outputs_gives_every_output():
+    h, w = 4, 5
+    rgb = np.zeros((h, w, 3), np.uint8)
+    depth = np.full((h, w), 1000.0, np.float32)
+    classes = np.full((h, w), 20, np.uint8)
+    out = enc.encode_outputs(rgb, depth, classes)
+    assert tuple(out) == OUTPUTS
+    assert all(v.shape == (h, w, 3) and v.dtype == np.uint8 for v in out.values())
+
+
+@pytest.mark.parametrize(
+    "name, array",
+    [
+        ("rgb", np.zeros((2, 2, 3), np.float32)),
+        ("rgb", np.zeros((2, 2), np.uint8)),
+        ("depth_raw", np.zeros((2, 2), np.uint8)),
+        ("depth_log", np.full((2, 2), np.nan, np.float32)),
+        ("semantic_raw", np.full((2, 2), NUM_CLASSES, np.uint8)),
+        ("semantic_color", np.zeros((2, 2), np.int32)),
+    ],
+)
+def test_bad_buffers_raise_naming_the_output(name, array):
+    with pytest.raises(ValueError, match=name):
+        enc.encoder(name).encode(array)
+
+
+def test_bad_png_input_raises():
+    with pytest.raises(ValueError, match="semantic_color"):
+        enc.encode_png(np.zeros((2, 2, 4), np.uint8), "semantic_color")
+    with pytest.raises(ValueError, match="not a decodable PNG"):
+        enc.decode_png(b"not a png")
+    with pytest.raises(ValueError, match="disagree"):
+        enc.encode_outputs(np.zeros((2, 2, 3), np.uint8), np.zeros((3, 2), np.float32), np.zeros((2, 2), np.uint8))

@@ -1,0 +1,120 @@
+"""End to end: a small episode of the test world renders headless, deterministically."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE
+from manifests.spec import EpisodeSpec
+from pipeline.planner import FRAME_PERIOD_S
+from render_workers import episode, testworld
+from render_workers.encoders import decode_depth_raw, decode_png
+from render_workers.renderer import Renderer
+
+W, H = 160, 90
+
+
+def spec(scenario: str = "T01_CN_A", seed: int = 3, frames: int = 2, width: int = W, height: int = H) -> EpisodeSpec:
+    return EpisodeSpec(scenario, 0, seed, frames, width, height, "train", 0)
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    with Renderer() as r:
+        yield r
+
+
+def run(s: EpisodeSpec, renderer: Renderer):
+    frames = []
+    info = episode.render_episode(s, frames.append, world="test", renderer=renderer)
+    return info, frames
+
+
+def test_small_episode_renders_headless(renderer):
+    info, frames = run(spec(), renderer)
+    assert info.frames == len(frames) == 2
+    assert 20 <= info.n_vehicles <= 150 and 0 <= info.n_pedestrians <= 100
+    for stage in episode.FRAME_STAGES + ("world", "populate", "load"):
+        assert info.timings[stage] >= 0.0
+    for index, frame in enumerate(frames):
+        assert frame.index == index and frame.sim_time_s == index * FRAME_PERIOD_S
+        assert tuple(frame.images) == OUTPUTS
+        for name, image in frame.images.items():
+            assert image.shape == (H, W, 3) and image.dtype == np.uint8, name
+        assert frame.class_counts.shape == (NUM_CLASSES,)
+        assert frame.class_counts.sum() == W * H
+        ids = frame.images["semantic_raw"][..., 0]
+        assert ids.max() < NUM_CLASSES and not frame.images["semantic_raw"][..., 1:].any()
+        assert (frame.images["semantic_color"] == PALETTE[ids]).all()
+        assert (np.bincount(ids.ravel(), minlength=NUM_CLASSES) == frame.class_counts).all()
+        assert frame.camera_height_m == 1.20 and frame.ego_speed_mps > 0
+        assert 0.1108 - 1 / H <= frame.hood_fraction <= 0.1399 + 1 / H
+
+
+def test_depth_outputs_agree(renderer):
+    _, frames = run(spec(frames=1), renderer)
+    images = frames[0].images
+    depth = decode_depth_raw(images["depth_raw"])
+    assert depth.max() <= 1000.0 and depth.min() > 0.0
+    sky = images["semantic_raw"][..., 0] == 20
+    assert np.allclose(depth[sky], 1000.0)
+    gray = np.rint(depth / 1000.0 * 255.0)
+    assert np.abs(gray - images["depth_gray"][..., 0]).max() <= 1
+
+
+def test_no_hood_for_van_and_bus(renderer):
+    for view in ("V", "B"):
+        _, frames = run(spec(f"T01_CN_{view}", frames=1), renderer)
+        assert frames[0].hood_fraction == 0.0
+
+
+def test_every_class_is_visible_in_the_test_world(renderer):
+    _, frames = run(spec("T01_CN_V", seed=1, width=480, height=270), renderer)
+    seen = sum(f.class_counts for f in frames)
+    assert [c for c in range(1, 23) if seen[c] == 0] == []
+
+
+def test_same_spec_gives_identical_pngs(renderer):
+    s = spec("T02_HRN_M", seed=11)
+    _, first = run(s, renderer)
+    with Renderer() as fresh:  # a fresh process-like renderer: no cached static nodes
+        _, second = run(s, fresh)
+    for a, b in zip(first, second):
+        assert episode.encode_frame(a) == episode.encode_frame(b)
+    _, other = run(spec("T02_HRN_M", seed=12), renderer)
+    assert episode.encode_frame(other[0])["rgb"] != episode.encode_frame(first[0])["rgb"]
+
+
+def test_encode_frame_round_trips(renderer):
+    _, frames = run(spec(frames=1), renderer)
+    data = episode.encode_frame(frames[0])
+    assert tuple(data) == OUTPUTS
+    for name, png in data.items():
+        assert (decode_png(png) == frames[0].images[name]).all()
+
+
+def test_populate_counts_follow_idda():
+    world = testworld.build_world("T01", 0)
+    for seed in range(6):
+        scene = testworld.populate(world, "A", seed)
+        assert 20 <= scene.n_vehicles <= 150
+        assert 0 <= scene.n_pedestrians <= 100
+        assert len(scene.actors) == scene.n_vehicles + scene.n_pedestrians
+    same = testworld.populate(world, "A", 4), testworld.populate(world, "A", 4)
+    assert same[0].n_vehicles == same[1].n_vehicles and same[0].ego.offset_m == same[1].ego.offset_m
+
+
+def test_world_registry_is_lazy_and_validated():
+    with pytest.raises(ValueError, match="valid worlds"):
+        episode.world_builder("nope")
+    builder = episode.world_builder("test")
+    assert builder.build_world is testworld.build_world and builder.populate is testworld.populate
+    assert episode.cached_world("test", "T01", 5) is episode.cached_world("test", "T01", 5)
+
+
+def test_bad_spec_raises_before_rendering(renderer):
+    with pytest.raises(ValueError, match="frames"):
+        episode.render_episode(spec(frames=0), lambda f: None, world="test", renderer=renderer)
+    with pytest.raises(ValueError, match="unknown town"):
+        episode.render_episode(spec("T99_CN_A"), lambda f: None, world="test", renderer=renderer)

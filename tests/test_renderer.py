@@ -1,0 +1,141 @@
+"""Renderer and camera: projection, depth, hood coverage, SEG mapping and culling (headless)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from manifests.catalog import NUM_CLASSES, VIEWPOINTS, viewpoint, weather
+from render_workers import camera
+from render_workers.renderer import Renderer, look
+from render_workers.scene import Actor, EpisodeScene, Part, Path, World
+
+W, H = 160, 90
+ROAD, WALL = 7, 11
+
+
+def _grid(size: float = 400.0, cell: float = 20.0, z: float = 0.0) -> trimesh.Trimesh:
+    xs = np.arange(-size, size, cell)
+    vertices, faces = [], []
+    for x in xs:
+        for y in xs:
+            base = len(vertices)
+            vertices += [[x, y, z], [x + cell, y, z], [x + cell, y + cell, z], [x, y + cell, z]]
+            faces += [[base, base + 1, base + 2], [base, base + 2, base + 3]]
+    mesh = trimesh.Trimesh(np.array(vertices), np.array(faces), process=False)
+    mesh.visual.vertex_colors = np.tile([90, 90, 90, 255], (len(vertices), 1))
+    return mesh
+
+
+def flat_scene(extra: tuple[Part, ...] = ()) -> EpisodeScene:
+    """A flat road plane and an ego parked at the origin looking along +x."""
+    lane = Path(np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]]))
+    world = World(town="T01", seed=0, static=(Part(ROAD, _grid(), "road"), *extra), lanes=(lane,))
+    ego = Actor("test", (), lane, 0.0, 0.0)
+    return EpisodeScene(world=world, actors=(), ego=ego, n_vehicles=0, n_pedestrians=0)
+
+
+@pytest.fixture(scope="module")
+def renderer():
+    with Renderer() as r:
+        yield r
+
+
+def render(r: Renderer, scene: EpisodeScene, view: str, w: int = W, h: int = H):
+    r.load(scene, weather("CN"), viewpoint(view), w, h)
+    return r.render(0.0)
+
+
+@pytest.mark.parametrize("view", ["V", "B"])
+def test_flat_road_depth_matches_projection(renderer, view):
+    result = render(renderer, flat_scene(), view)
+    rig = result.rig
+    assert rig.focal_px == pytest.approx(W / 2)  # 90 degree horizontal FoV
+    col = W // 2
+    for row in range(H // 2 + 2, H):
+        expected = rig.focal_px * viewpoint(view).camera_height_m / (row + 0.5 - rig.cy)
+        assert result.depth[row, col] == pytest.approx(expected, rel=0.01), row
+        assert rig.ground_depth(row) == pytest.approx(expected)
+    # at and above the horizon there is only sky, at the far limit
+    assert (result.depth[: H // 2] == 1000.0).all()
+    assert (result.classes[: H // 2] == 20).all()
+    assert (result.classes[H // 2 + 1:] == ROAD).all()
+
+
+def test_higher_camera_moves_the_road_down_in_depth_terms(renderer):
+    low = render(renderer, flat_scene(), "V").depth
+    high = render(renderer, flat_scene(), "B").depth
+    row = H - 10
+    ratio = viewpoint("B").camera_height_m / viewpoint("V").camera_height_m
+    assert high[row, W // 2] / low[row, W // 2] == pytest.approx(ratio, rel=0.01)
+
+
+@pytest.mark.parametrize("vp", VIEWPOINTS, ids=lambda v: v.code)
+def test_hood_fraction(renderer, vp):
+    w, h = 320, 180
+    result = render(renderer, flat_scene(), vp.code, w, h)
+    measured = camera.measured_hood_fraction(result.hood_mask)
+    if not vp.hood_visible:
+        assert measured == 0.0 and camera.hood_mesh(vp, w / h) is None
+        return
+    assert camera.hood_fraction(vp) == pytest.approx(vp.hood_fraction, abs=1e-12)
+    tolerance = 1.0 / h  # one pixel row of rasterisation
+    assert 0.1108 - tolerance <= measured <= 0.1399 + tolerance
+    assert measured == pytest.approx(camera.measured_hood_fraction(camera.hood_mask(vp, w, h)), abs=0.004)
+    assert (result.classes[result.hood_mask] == 10).all()
+    # the hood's top edge is the parabola: highest in the middle
+    top = result.hood_mask.argmax(axis=0)
+    assert top[w // 2] <= top[2] and top[w // 2] <= top[-3]
+
+
+def test_hood_mask_converges_to_catalog_fraction():
+    for vp in VIEWPOINTS:
+        mask = camera.hood_mask(vp, 3840, 2160)
+        assert camera.measured_hood_fraction(mask) == pytest.approx(vp.hood_fraction, abs=5e-4)
+
+
+def test_every_pixel_has_a_valid_class_and_hood_follows_camera(renderer):
+    result = render(renderer, flat_scene(), "A")
+    assert result.classes.max() < NUM_CLASSES
+    assert result.rgb.shape == (H, W, 3) and result.rgb.dtype == np.uint8
+    assert result.depth.dtype == np.float32
+    # the hood is part of the camera rig: the same mask wherever the ego is
+    renderer.load(flat_scene(), weather("CN"), viewpoint("A"), W, H)
+    later = renderer.render(0.0)
+    assert (later.hood_mask == result.hood_mask).all()
+
+
+def _wall(distance: float) -> Part:
+    wall = trimesh.creation.box(extents=(1.0, 200.0, 60.0))
+    wall.apply_translation((distance, 0.0, 30.0))
+    wall.visual.vertex_colors = np.tile([150, 120, 100, 255], (len(wall.vertices), 1))
+    return Part(WALL, wall, "matte")
+
+
+def test_distance_culling(renderer):
+    scene = flat_scene((_wall(600.0),))
+    culled = render(renderer, scene, "V")
+    assert not (culled.classes == WALL).any()
+    with Renderer(cull_m=2000.0) as far:
+        drawn = render(far, scene, "V")
+    assert (drawn.classes == WALL).any()
+    assert drawn.depth[drawn.classes == WALL].min() == pytest.approx(599.5, rel=0.02)
+
+
+def test_near_wall_is_drawn_and_lit(renderer):
+    result = render(renderer, flat_scene((_wall(30.0),)), "V")
+    wall = result.classes == WALL
+    assert wall[H // 4, W // 2]
+    assert result.depth[H // 4, W // 2] == pytest.approx(29.5 - camera.CAMERA_FORWARD_M, rel=0.01)
+    assert result.rgb[wall].mean() > 10  # not black: ambient + sun
+
+
+def test_unknown_material_raises():
+    with pytest.raises(ValueError, match="valid"):
+        look("chrome")
+
+
+def test_render_before_load_raises():
+    with pytest.raises(RuntimeError, match="load"):
+        Renderer().render(0.0)
