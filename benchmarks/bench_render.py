@@ -41,7 +41,7 @@ def _write(frame, data: dict, out: Path) -> None:
 
 def _stage_times(world: str) -> dict:
     """Median seconds per stage over FRAMES frames of each scenario, plus the PNG floor."""
-    from render_workers.encoders import encode_png
+    from manifests.encoding import encode_png
     from render_workers.episode import load_episode, render_frame
     from render_workers.renderer import Renderer
 

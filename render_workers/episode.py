@@ -25,7 +25,7 @@ from manifests.spec import EpisodeSpec
 from pipeline.planner import FRAME_PERIOD_S, town_seed
 from render_workers import postfx
 from render_workers.camera import measured_hood_fraction
-from render_workers.encoders import encode_outputs, encode_png
+from manifests.encoding import encode_outputs, encode_png
 from render_workers.renderer import Renderer
 from render_workers.scene import EpisodeScene, Frame, World
 

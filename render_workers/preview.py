@@ -19,7 +19,7 @@ import numpy as np
 from manifests.catalog import OUTPUTS, TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario
 from manifests.spec import EpisodeSpec
 from pipeline.planner import episode_seed
-from render_workers.encoders import encode_png
+from manifests.encoding import encode_png
 from render_workers.episode import DEFAULT_WORLD, render_episode
 from render_workers.renderer import Renderer
 from render_workers.scene import Frame

@@ -9,7 +9,7 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE
-from render_workers import encoders as enc
+from manifests import encoding as enc
 
 depths = hnp.arrays(
     np.float32, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=12),

@@ -9,7 +9,7 @@ from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE
 from manifests.spec import EpisodeSpec
 from pipeline.planner import FRAME_PERIOD_S
 from render_workers import episode, testworld
-from render_workers.encoders import decode_depth_raw, decode_png
+from manifests.encoding import decode_depth_raw, decode_png
 from render_workers.renderer import Renderer
 
 W, H = 160, 90

@@ -1,4 +1,4 @@
-"""Per-frame output encoders (CARLA conventions) and PNG bytes, in pure numpy + cv2.
+"""Per-frame output encodings (CARLA conventions) and PNG bytes, in pure numpy + cv2.
 
 Each output in ``manifests.catalog.OUTPUTS`` has one registered encoder that
 turns one of the renderer's buffers into an HxWx3 uint8 RGB image:
@@ -13,6 +13,9 @@ turns one of the renderer's buffers into an HxWx3 uint8 RGB image:
 * ``semantic_color``: ``PALETTE[class id]``.
 
 Depth is metric planar Z (float, metres) with background/sky at 1000 m.
+
+This is part of the dataset's vocabulary: the renderer encodes with it, and
+exports, loaders and verification decode with it.
 """
 
 from __future__ import annotations
