@@ -274,7 +274,29 @@ def grading(img: np.ndarray, ctx: FxContext) -> np.ndarray:
     return img * gain
 
 
+def antialias(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Soften geometry edges (class or depth discontinuities) with a 3x3 blur.
+
+    Stands in for multisampling, which costs half the colour pass on llvmpipe.
+    """
+    import cv2
+
+    cls = ctx.classes
+    edge = np.zeros(cls.shape, dtype=bool)
+    edge[:, 1:] |= cls[:, 1:] != cls[:, :-1]
+    edge[1:, :] |= cls[1:, :] != cls[:-1, :]
+    depth = ctx.depth
+    near = np.minimum(depth[:, 1:], depth[:, :-1])
+    edge[:, 1:] |= np.abs(depth[:, 1:] - depth[:, :-1]) > 0.05 * near + 0.05
+    near = np.minimum(depth[1:, :], depth[:-1, :])
+    edge[1:, :] |= np.abs(depth[1:, :] - depth[:-1, :]) > 0.05 * near + 0.05
+    edge = cv2.dilate(edge.view(np.uint8), np.ones((2, 2), np.uint8)).astype(bool)
+    soft = cv2.blur(img, (3, 3))
+    return np.where(edge[..., None], soft, img)
+
+
 EFFECTS: dict[str, Effect] = {
+    "antialias": antialias,
     "puddles": puddles,
     "wet_road": wet_road,
     "fog": fog,

@@ -366,11 +366,15 @@ class Renderer:
     """A long-lived off-screen renderer; call :meth:`load` per episode, then :meth:`render`."""
 
     def __init__(self, *, znear: float = ZNEAR_M, zfar: float = ZFAR_M, cull_m: float = CULL_M,
-                 tile_m: float = TILE_M, pbr: bool = False) -> None:
+                 tile_m: float = TILE_M, pbr: bool = False, msaa: int = 0) -> None:
         if not 0 < znear < zfar:
             raise ValueError(f"need 0 < znear < zfar, got {znear}, {zfar}")
         self.znear, self.zfar, self.cull_m, self.tile_m = znear, zfar, cull_m, tile_m
         self.pbr = pbr
+        # 0: no multisampling (half the colour pass on llvmpipe); edges are
+        # anti-aliased in post instead (postfx.antialias).
+        compat.set_msaa_samples(msaa)
+        self.msaa = msaa
         self._shader_dir: FilePath | None = None
         self._offscreen = None
         self._size: tuple[int, int] | None = None
