@@ -212,7 +212,7 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     finally:
         if started:
             ray.shutdown()
-    compact(storage, sorted(report.per_scenario))  # one index file per finished scenario
+    compact(storage)  # one index file per scenario, also for scenarios an earlier (killed) run finished
     report.seconds = time.perf_counter() - start
     if report.rendered_frames and report.seconds > 0:
         driver_stats = {

@@ -57,7 +57,7 @@ def _fault_after() -> int | None:
 
 def frame_row(spec: EpisodeSpec, frame, storage, n_vehicles: int, n_pedestrians: int) -> dict:
     """Encode and write one frame's six images; return its manifest row."""
-    from render_workers.encoders import encode_png
+    from manifests.encoding import encode_png
     from storage import sha256_bytes
 
     fid = frame_id(spec.episode, frame.index)
@@ -99,6 +99,8 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural") -> Episod
     from render_workers.episode import render_episode
 
     start = time.perf_counter()
+    for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
+        storage.remove_stale_temp(f"{spec.scenario}/{output}", f"{spec.episode:04d}_")
     rows: list[dict] = []
     kill_after = _fault_after()
 

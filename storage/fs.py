@@ -224,6 +224,27 @@ class Storage:
                 found.append(rel)
         return sorted(found)
 
+    def remove_stale_temp(self, directory: str, name_prefix: str = "") -> int:
+        """Delete leftover temp files in ``directory`` whose target name starts
+        with ``name_prefix``; returns how many. A writer killed mid-write (local
+        roots) leaves one behind. S3 roots have none to clean: writes there
+        are whole-object PUTs, and staged large objects use their own keys.
+        """
+        if not self.is_local:
+            return 0
+        folder = self.path(clean_rel(directory))
+        removed = 0
+        try:
+            entries = list(os.scandir(folder))
+        except FileNotFoundError:
+            return 0
+        for entry in entries:
+            if atomic.is_temp_name(entry.name) and entry.name[1:].startswith(name_prefix):
+                with contextlib.suppress(FileNotFoundError):
+                    os.unlink(entry.path)
+                    removed += 1
+        return removed
+
     # -- internals ---------------------------------------------------------------
 
     def _guard(self, action: str, rel: str, call: Callable):

@@ -395,3 +395,20 @@ def test_s3_missing_bucket(s3_server):  # noqa: F811
         assert SECRET_KEY not in str(err) and SECRET_KEY not in repr(err)
     assert store.list_files() == []
     assert not store.exists("a.bin")
+
+
+def test_remove_stale_temp_only_touches_matching_temp_files(tmp_path):
+    from storage.atomic import temp_path
+
+    storage = Storage.from_uri(str(tmp_path))
+    storage.write_bytes("S/rgb/0001_000_S.png", b"kept")
+    folder = tmp_path / "S" / "rgb"
+    stale = temp_path(str(folder / "0001_003_S.png"))
+    other = temp_path(str(folder / "0002_000_S.png"))
+    for path in (stale, other):
+        with open(path, "wb") as f:
+            f.write(b"partial")
+    assert storage.remove_stale_temp("S/rgb", "0001_") == 1
+    assert not os.path.exists(stale) and os.path.exists(other)
+    assert storage.read_bytes("S/rgb/0001_000_S.png") == b"kept"
+    assert storage.remove_stale_temp("S/missing", "") == 0
