@@ -27,6 +27,12 @@ from manifests.catalog import (
     Scenario,
 )
 
+# One-line help for --domains, shared by every command.
+SELECTION_HELP = (
+    "Scenarios to use: 'all', codes like T01_CS_A (parts may be *), or filters like "
+    "'towns=T01-T06 weathers=CN viewpoints=A,M'."
+)
+
 _AXES = {
     "towns": ("town", [t.code for t in TOWNS]),
     "weathers": ("weather", [w.code for w in WEATHERS]),

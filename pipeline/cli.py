@@ -10,6 +10,7 @@ from typing import Iterator, Optional
 
 import typer
 
+from manifests.selection import SELECTION_HELP
 from pipeline.planner import PlanConfig, make_plan
 
 app = typer.Typer(
@@ -27,10 +28,7 @@ app = typer.Typer(
 def _root() -> None:
     """Produce large multi-domain synthetic driving datasets (IDDA-style)."""
 
-DOMAINS_HELP = (
-    "Scenarios to use: 'all', codes like T01_CS_A (parts may be *), or filters like "
-    "'towns=T01-T06 weathers=CN viewpoints=A,M'."
-)
+DOMAINS_HELP = SELECTION_HELP
 
 
 class UserError(Exception):
@@ -297,22 +295,9 @@ def query(
     from manifests.reader import manifest_dataset, read_manifest
 
     with user_errors():
-        shares = []
-        for item in min_share:
-            name, sep, value = item.rpartition("=")
-            if not sep:
-                raise ValueError(f"--min-share takes CLASS=SHARE, got {item!r}")
-            shares.append((name, float(value)))
-        fields = dict(
-            domains=domains, splits=tuple(split) or None, episodes=tuple(episode) or None,
-            classes=tuple(has_class) or None, min_share=tuple(shares) or None,
-            per_scenario=per_scenario, total=total, seed=seed,
-        )
-        if preset is not None:
-            the_query = q.preset(preset, **fields)
-        else:
-            the_query = q.Query(**{k: v for k, v in fields.items() if v is not None})
-        the_query.validate()
+        from pipeline.cli_data import build_query
+
+        the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
         storage = _storage(root)
         source = manifest_dataset(storage) if storage.list_files("manifest/", suffix=".parquet") else read_manifest(storage)
         result = q.run_query(source, the_query)
@@ -401,6 +386,11 @@ def preview(
         paths = write_preview(out, codes, width, height, seed, world=world)
         for path in paths:
             typer.echo(f"wrote {path}")
+
+
+from pipeline import cli_data  # noqa: E402  (export, distances, card)
+
+cli_data.register(app)
 
 
 def main() -> None:

@@ -1,0 +1,405 @@
+"""Export a query's frames into layouts that existing training code reads.
+
+Two layouts, chosen by name (see ``LAYOUTS``):
+
+* ``cityscapes``: what cityscapesScripts and Cityscapes data loaders expect::
+
+      leftImg8bit/<split>/<scenario>/<name>_leftImg8bit.png       the rgb (linked)
+      gtFine/<split>/<scenario>/<name>_gtFine_labelIds.png        Cityscapes label ids
+      gtFine/<split>/<scenario>/<name>_gtFine_labelTrainIds.png   trainIds, 255 = ignore
+      gtFine/<split>/<scenario>/<name>_gtFine_color.png           Cityscapes colours
+      gtFine/<split>/<scenario>/<name>_gtFine_instanceIds.png     = labelIds (16 bit)
+
+  ``<name>`` is ``<city>_<episode:06d>_<frame:06d>`` with ``<city>`` the
+  scenario code with ``-`` for ``_`` (``T01-CS-A``): cityscapesScripts splits
+  file names at ``_`` into city, sequence and frame, and finds a prediction
+  for a ground-truth file by the pattern ``<city>_<seq>_<frame>*.png``. The
+  instance image carries no instances (every id is below 1000, which
+  Cityscapes reads as "no instance"); it exists so the evaluation script runs
+  with its default settings, whose instance-level scores are then empty.
+  Excluded IDDA classes map to Cityscapes ids that the evaluation ignores.
+
+* ``idda``: the published IDDA layout::
+
+      <scenario>/RGB/<frameid>_<scenario>.jpg        the rgb as JPEG, quality 95
+      <scenario>/Semantic/<frameid>_<scenario>.png   the semantic_raw image (linked)
+      train.json, val.json, test.json                {scenario: [frame ids]} per split
+
+  IDDA's own split files are not documented in the paper; we write one JSON
+  object per split mapping each exported scenario to its sorted frame ids
+  (every split file lists every exported scenario, possibly with ``[]``).
+
+Both layouts also get ``frames.csv`` (one row per frame: source frame id,
+scenario, split and the exported paths) and, written last, ``EXPORT.json``
+(format, source root, query, counts): an export without it is unfinished.
+
+Files are never re-rendered. Unchanged images are hard-linked into the
+target (falling back to a copy across file systems), symlinked, or copied;
+s3:// roots are always downloaded. The export is built in a hidden temp
+directory next to the target and renamed into place when complete, so a
+half-finished export is never mistaken for a finished one.
+"""
+
+from __future__ import annotations
+
+import csv
+import errno
+import io
+import json
+import os
+import shutil
+import time
+import uuid
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import asdict, dataclass, field
+from typing import Callable
+
+import numpy as np
+import pyarrow as pa
+
+from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
+from manifests.query import SPLITS, Query, run_query
+
+MARKER = "EXPORT.json"  # written last: its presence means the export is complete
+INDEX = "frames.csv"
+JPEG_QUALITY = 95
+
+# Cityscapes label ids and colours (cityscapesScripts helpers/labels.py) for
+# the ids the catalog maps to; the gtFine colour image derives from this.
+CITYSCAPES_COLORS: dict[int, tuple[int, int, int]] = {
+    0: (0, 0, 0),  # unlabeled
+    4: (0, 0, 0),  # static
+    5: (111, 74, 0),  # dynamic
+    6: (81, 0, 81),  # ground
+    7: (128, 64, 128),  # road
+    8: (244, 35, 232),  # sidewalk
+    10: (230, 150, 140),  # rail track
+    11: (70, 70, 70),  # building
+    12: (102, 102, 156),  # wall
+    13: (190, 153, 153),  # fence
+    14: (180, 165, 180),  # guard rail
+    17: (153, 153, 153),  # pole
+    19: (250, 170, 30),  # traffic light
+    20: (220, 220, 0),  # traffic sign
+    21: (107, 142, 35),  # vegetation
+    22: (152, 251, 152),  # terrain
+    23: (70, 130, 180),  # sky
+    24: (220, 20, 60),  # person
+    25: (255, 0, 0),  # rider
+    26: (0, 0, 142),  # car
+    32: (0, 0, 230),  # motorcycle
+    33: (119, 11, 32),  # bicycle
+}
+_missing = sorted({label.cityscapes_id for label in LABELS} - set(CITYSCAPES_COLORS))
+if _missing:
+    raise RuntimeError(f"no Cityscapes colour for label ids {_missing}")
+# IDDA class id -> colour of its Cityscapes label (256 entries, unknown ids black).
+CITYSCAPES_COLOR_LUT = np.zeros((256, 3), dtype=np.uint8)
+CITYSCAPES_COLOR_LUT[: len(CITYSCAPES_ID_LUT)] = [CITYSCAPES_COLORS.get(int(i), (0, 0, 0)) for i in CITYSCAPES_ID_LUT]
+
+
+# ------------------------------------------------------------ file modes ----
+_NO_LINK = {errno.EPERM, errno.EXDEV, errno.EMLINK, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EACCES}
+
+
+def _place_copy(storage, rel: str, dest: str) -> None:
+    if storage.is_local:
+        shutil.copyfile(storage.path(rel), dest)
+    else:
+        with open(dest, "wb") as f:
+            f.write(storage.read_bytes(rel))
+
+
+def _place_hardlink(storage, rel: str, dest: str) -> None:
+    if not storage.is_local:
+        return _place_copy(storage, rel, dest)
+    try:
+        os.link(storage.path(rel), dest)
+    except OSError as exc:
+        if exc.errno not in _NO_LINK:
+            raise
+        _place_copy(storage, rel, dest)  # another file system: copy instead
+
+
+def _place_symlink(storage, rel: str, dest: str) -> None:
+    if not storage.is_local:
+        return _place_copy(storage, rel, dest)
+    os.symlink(storage.path(rel), dest)
+
+
+FILE_MODES: dict[str, Callable[[object, str, str], None]] = {
+    "hardlink": _place_hardlink,
+    "symlink": _place_symlink,
+    "copy": _place_copy,
+}
+
+
+# ---------------------------------------------------------------- images ----
+def _png(image: np.ndarray) -> bytes:
+    """Lossless PNG of an HxW (uint8 or uint16) or HxWx3 uint8 RGB array."""
+    import cv2
+
+    if image.ndim == 3:
+        image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ValueError(f"PNG encoding failed for an array of shape {image.shape}")
+    return buf.tobytes()
+
+
+def _jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
+    import cv2
+
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:
+        raise ValueError(f"JPEG encoding failed for an image of shape {rgb.shape}")
+    return buf.tobytes()
+
+
+def _decode(storage, rel: str) -> np.ndarray:
+    from manifests.encoding import decode_png
+
+    return decode_png(storage.read_bytes(rel), name=storage.join(rel))
+
+
+def cityscapes_targets(classes: np.ndarray) -> dict[str, np.ndarray]:
+    """The four gtFine images of an HxW uint8 IDDA class-id image."""
+    label_ids = CITYSCAPES_ID_LUT[classes]
+    return {
+        "labelIds": label_ids,
+        "labelTrainIds": TRAIN_ID_LUT[classes],
+        "color": CITYSCAPES_COLOR_LUT[classes],
+        "instanceIds": label_ids.astype(np.uint16),
+    }
+
+
+# --------------------------------------------------------------- layouts ----
+def cityscapes_name(scenario: str, episode: int, frame: int) -> str:
+    """``T01-CS-A_000003_000012``: a file stem cityscapesScripts can parse."""
+    return f"{scenario.replace('_', '-')}_{episode:06d}_{frame:06d}"
+
+
+@dataclass(frozen=True)
+class _Frame:
+    frame_id: str
+    scenario: str
+    episode: int
+    frame: int
+    split: str
+    rgb_path: str
+    semantic_raw_path: str
+
+
+def _cityscapes_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]:
+    name = cityscapes_name(frame.scenario, frame.episode, frame.frame)
+    image_dir = f"leftImg8bit/{frame.split}/{frame.scenario}"
+    gt_dir = f"gtFine/{frame.split}/{frame.scenario}"
+    rgb_rel = f"{image_dir}/{name}_leftImg8bit.png"
+    place(storage, frame.rgb_path, os.path.join(tmp, rgb_rel))
+    classes = _decode(storage, frame.semantic_raw_path)[..., 0]
+    written = {"image": rgb_rel}
+    for kind, array in cityscapes_targets(classes).items():
+        rel = f"{gt_dir}/{name}_gtFine_{kind}.png"
+        _write(os.path.join(tmp, rel), _png(array))
+        written[kind] = rel
+    return written
+
+
+def _idda_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]:
+    stem = f"{frame.frame_id}_{frame.scenario}"
+    rgb_rel = f"{frame.scenario}/RGB/{stem}.jpg"
+    sem_rel = f"{frame.scenario}/Semantic/{stem}.png"
+    _write(os.path.join(tmp, rgb_rel), _jpeg(_decode(storage, frame.rgb_path)))
+    place(storage, frame.semantic_raw_path, os.path.join(tmp, sem_rel))
+    return {"image": rgb_rel, "semantic": sem_rel}
+
+
+def _cityscapes_dirs(frames: list[_Frame]) -> set[str]:
+    return {f"{top}/{f.split}/{f.scenario}" for f in frames for top in ("leftImg8bit", "gtFine")}
+
+
+def _idda_dirs(frames: list[_Frame]) -> set[str]:
+    return {f"{f.scenario}/{sub}" for f in frames for sub in ("RGB", "Semantic")}
+
+
+def _no_extras(frames: list[_Frame], tmp: str) -> list[str]:
+    return []
+
+
+def _idda_split_files(frames: list[_Frame], tmp: str) -> list[str]:
+    scenarios = sorted({f.scenario for f in frames})
+    written = []
+    for split in SPLITS:
+        listing = {s: [] for s in scenarios}
+        for f in frames:
+            if f.split == split:
+                listing[f.scenario].append(f.frame_id)
+        body = {s: sorted(ids) for s, ids in listing.items()}
+        _write(os.path.join(tmp, f"{split}.json"), (json.dumps(body, indent=1, sort_keys=True) + "\n").encode())
+        written.append(f"{split}.json")
+    return written
+
+
+@dataclass(frozen=True)
+class Layout:
+    frame: Callable  # (storage, _Frame, tmp dir, place) -> {kind: exported rel path}
+    directories: Callable[[list[_Frame]], set[str]]  # directories the frames need
+    extras: Callable[[list[_Frame], str], list[str]]  # files written once per export
+
+
+LAYOUTS: dict[str, Layout] = {
+    "cityscapes": Layout(_cityscapes_frame, _cityscapes_dirs, _no_extras),
+    "idda": Layout(_idda_frame, _idda_dirs, _idda_split_files),
+}
+
+
+# ---------------------------------------------------------------- export ----
+@dataclass(frozen=True)
+class ExportConfig:
+    root: str  # source output root: local path or s3:// URI
+    to: str  # target directory (local)
+    format: str = "cityscapes"  # a key of LAYOUTS
+    query: Query = field(default_factory=Query)
+    files: str = "hardlink"  # a key of FILE_MODES; s3 sources are always copied
+    force: bool = False  # replace a non-empty target
+    threads: int = 8  # frames converted in parallel
+
+    def validate(self) -> None:
+        if self.format not in LAYOUTS:
+            raise ValueError(f"unknown export format {self.format!r}; valid formats: {', '.join(LAYOUTS)}")
+        if self.files not in FILE_MODES:
+            raise ValueError(f"unknown file mode {self.files!r}; valid modes: {', '.join(FILE_MODES)}")
+        if "://" in self.to and not self.to.startswith("file://"):
+            raise ValueError(f"export target must be a local directory, got {self.to}")
+        if self.threads < 1:
+            raise ValueError(f"threads must be at least 1, got {self.threads}")
+        self.query.validate()
+
+
+@dataclass
+class ExportReport:
+    target: str
+    format: str
+    frames: int
+    files: int
+    per_split: dict[str, int]
+    shortfall: dict[str, int]
+    seconds: float
+
+
+def _write(path: str, data: bytes) -> None:
+    with open(path, "wb") as f:
+        f.write(data)
+
+
+def _target_dir(to: str) -> str:
+    from storage import Storage
+
+    storage = Storage.from_uri(to)
+    return storage.path()
+
+
+def check_target(target: str, force: bool) -> None:
+    """Refuse a target that is a file, or a non-empty directory without ``force``."""
+    if os.path.lexists(target) and not os.path.isdir(target):
+        raise ValueError(f"export target {target} exists and is not a directory")
+    if os.path.isdir(target) and os.listdir(target) and not force:
+        raise ValueError(f"export target {target} is not empty; pass --force to replace it")
+
+
+def _is_within(path: str, directory: str) -> bool:
+    path, directory = os.path.realpath(path), os.path.realpath(directory)
+    return os.path.commonpath([path, directory]) == directory
+
+
+def _frames(table: pa.Table) -> list[_Frame]:
+    names = [f for f in _Frame.__dataclass_fields__]
+    cols = [table.column(n).to_pylist() for n in names]
+    return [_Frame(*values) for values in zip(*cols)]
+
+
+def _index_csv(frames: list[_Frame], exported: list[dict[str, str]]) -> bytes:
+    kinds = list(exported[0]) if exported else []
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["frame_id", "scenario", "episode", "frame", "split", *kinds])
+    for f, paths in zip(frames, exported):
+        writer.writerow([f.frame_id, f.scenario, f.episode, f.frame, f.split, *(paths[k] for k in kinds)])
+    return buf.getvalue().encode()
+
+
+def _commit(tmp: str, target: str) -> None:
+    """Move the finished temp directory to ``target``, replacing what is there."""
+    if os.path.isdir(target) and os.listdir(target):
+        old = os.path.join(os.path.dirname(target), f".{os.path.basename(target)}.{uuid.uuid4().hex}.old")
+        os.rename(target, old)
+        os.rename(tmp, target)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, target)  # an empty directory is replaced atomically
+
+
+def export(config: ExportConfig) -> ExportReport:
+    """Export the frames of ``config.query`` from ``config.root`` into ``config.to``."""
+    from manifests.reader import read_manifest
+    from storage import Storage
+
+    config.validate()
+    start = time.perf_counter()
+    storage = Storage.from_uri(config.root)
+    target = _target_dir(config.to)
+    check_target(target, config.force)
+    if storage.is_local and _is_within(storage.path(), target):
+        raise ValueError(f"export target {target} must not be the source root {storage.uri} or contain it")
+    result = run_query(read_manifest(storage), config.query)
+    if len(result.table) == 0:
+        raise ValueError(f"no frames in {storage.uri} match the query; nothing to export")
+    frames = _frames(result.table)
+    layout = LAYOUTS[config.format]
+    place = FILE_MODES[config.files]
+
+    parent = os.path.dirname(target)
+    os.makedirs(parent, exist_ok=True)
+    tmp = os.path.join(parent, f".{os.path.basename(target)}.{uuid.uuid4().hex}.tmp")
+    os.makedirs(tmp)
+    try:
+        for rel in sorted(layout.directories(frames)):
+            os.makedirs(os.path.join(tmp, rel), exist_ok=True)
+        with ThreadPoolExecutor(max_workers=config.threads) as pool:
+            exported = list(pool.map(lambda f: layout.frame(storage, f, tmp, place), frames))
+        extras = layout.extras(frames, tmp)
+        _write(os.path.join(tmp, INDEX), _index_csv(frames, exported))
+        per_split = {s: sum(f.split == s for f in frames) for s in SPLITS}
+        per_scenario: dict[str, int] = {}
+        for f in frames:
+            per_scenario[f.scenario] = per_scenario.get(f.scenario, 0) + 1
+        files = sum(len(paths) for paths in exported) + len(extras) + 2
+        marker = {
+            "format": config.format,
+            "source": storage.uri,
+            "query": asdict(config.query),
+            "frames": len(frames),
+            "files": files,
+            "file_mode": config.files if storage.is_local else "copy",
+            "per_split": per_split,
+            "per_scenario": per_scenario,
+        }
+        _write(os.path.join(tmp, MARKER), (json.dumps(marker, indent=2, sort_keys=True) + "\n").encode())
+        _commit(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return ExportReport(
+        target=target,
+        format=config.format,
+        frames=len(frames),
+        files=files,
+        per_split=per_split,
+        shortfall=dict(result.shortfall),
+        seconds=time.perf_counter() - start,
+    )
+
+
+def is_complete(target: str) -> bool:
+    """True if ``target`` holds a finished export (its marker exists)."""
+    return os.path.isfile(os.path.join(target, MARKER))

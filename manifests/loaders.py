@@ -1,0 +1,242 @@
+"""Training input: a map-style dataset and a Ray Data reader over a query's frames.
+
+Both read the images through ``storage`` (local roots and s3://) and decode
+them to plain numpy arrays; neither imports torch. Per requested output:
+
+=============== =================== ==========================================
+output          key                 array
+=============== =================== ==========================================
+rgb             ``rgb``             HxWx3 uint8
+semantic_raw    ``semantic``        HxW uint8 class ids (or mapped, ``labels``)
+semantic_color  ``semantic_color``  HxWx3 uint8 palette colours
+depth_raw       ``depth``           HxW float32 planar depth in metres
+depth_gray      ``depth_gray``      HxW uint8
+depth_log       ``depth_log``       HxW uint8
+=============== =================== ==========================================
+
+``labels`` picks the semantic ids: ``idda`` (the 24 class ids), ``cityscapes``
+(Cityscapes label ids) or ``train`` (Cityscapes trainIds, 255 = ignore).
+
+Example with PyTorch::
+
+    from torch.utils.data import DataLoader
+    from manifests.loaders import FrameDataset
+    from manifests.query import Query
+
+    data = FrameDataset("output", Query(domains="T01_*_*", splits=("train",)), labels="train")
+    for batch in DataLoader(data, batch_size=8, num_workers=4, shuffle=True):
+        images, targets = batch["rgb"], batch["semantic"]
+"""
+
+from __future__ import annotations
+
+import copy
+import os
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+import pyarrow as pa
+
+from manifests.catalog import CITYSCAPES_ID_LUT, OUTPUTS, TRAIN_ID_LUT
+from manifests.query import Query, run_query
+from manifests.schema import output_columns
+
+# Per-frame metadata returned with the arrays.
+META_COLUMNS = ("frame_id", "scenario", "town", "weather", "viewpoint", "episode", "frame", "split", "width", "height")
+
+
+def _first_channel(image: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(image[..., 0])
+
+
+def _depth_metres(image: np.ndarray) -> np.ndarray:
+    from manifests.encoding import decode_depth_raw
+
+    return decode_depth_raw(image).astype(np.float32)
+
+
+@dataclass(frozen=True)
+class Decoder:
+    key: str  # key of the decoded array in a sample
+    decode: Callable[[np.ndarray], np.ndarray]  # HxWx3 uint8 PNG pixels -> array
+
+
+DECODERS: dict[str, Decoder] = {
+    "rgb": Decoder("rgb", lambda image: image),
+    "depth_raw": Decoder("depth", _depth_metres),
+    "depth_gray": Decoder("depth_gray", _first_channel),
+    "depth_log": Decoder("depth_log", _first_channel),
+    "semantic_raw": Decoder("semantic", _first_channel),
+    "semantic_color": Decoder("semantic_color", lambda image: image),
+}
+if set(DECODERS) != set(OUTPUTS):  # one decoder per catalog output
+    raise RuntimeError(f"decoders {tuple(DECODERS)} do not match catalog outputs {OUTPUTS}")
+
+LABEL_MAPS: dict[str, np.ndarray | None] = {
+    "idda": None,  # the 24 IDDA class ids
+    "cityscapes": CITYSCAPES_ID_LUT,  # Cityscapes label ids
+    "train": TRAIN_ID_LUT,  # Cityscapes trainIds, 255 = ignore
+}
+
+
+def _check_options(outputs: tuple[str, ...], labels: str) -> None:
+    if not outputs:
+        raise ValueError(f"ask for at least one output; valid outputs: {', '.join(OUTPUTS)}")
+    for name in outputs:
+        if name not in DECODERS:
+            raise ValueError(f"unknown output {name!r}; valid outputs: {', '.join(OUTPUTS)}")
+    if labels not in LABEL_MAPS:
+        raise ValueError(f"unknown label map {labels!r}; valid label maps: {', '.join(LABEL_MAPS)}")
+
+
+def _as_storage(root):
+    from storage import Storage
+
+    return root if isinstance(root, Storage) else Storage.from_uri(str(root))
+
+
+def select_frames(root, query: Query | None = None) -> pa.Table:
+    """Manifest rows of the query's frames (all frames without a query)."""
+    from manifests.reader import read_manifest
+
+    table = read_manifest(_as_storage(root))
+    return table if query is None else run_query(table, query).table
+
+
+def load_output(storage, rel: str, output: str, decode: bool = True, labels: str = "idda"):
+    """One output file: its decoded array, or its PNG bytes when ``decode`` is False."""
+    data = storage.read_bytes(rel)
+    if not decode:
+        return data
+    from manifests.encoding import decode_png
+
+    array = DECODERS[output].decode(decode_png(data, name=storage.join(rel)))
+    lut = LABEL_MAPS[labels]
+    if output == "semantic_raw" and lut is not None:
+        array = lut[array]
+    return array
+
+
+class FrameDataset:
+    """Map-style dataset over a query's frames: ``len(ds)`` and ``ds[i]`` -> dict.
+
+    A sample holds the decoded arrays (keys in ``DECODERS``; with
+    ``decode=False`` the PNG bytes under the output names) and the frame's
+    metadata (``META_COLUMNS`` plus ``index``). Frames are in manifest order
+    (scenario, episode, frame). The object is small and picklable and opens
+    its storage lazily in each process, so DataLoader workers (fork or spawn)
+    never share a file-system handle. ``transform``, if given, is applied to
+    each sample and must be picklable for multi-process loading.
+    """
+
+    def __init__(
+        self,
+        root,
+        query: Query | None = None,
+        outputs: tuple[str, ...] = ("rgb", "semantic_raw"),
+        decode: bool = True,
+        labels: str = "idda",
+        transform: Callable[[dict], Any] | None = None,
+    ) -> None:
+        outputs = tuple(outputs)
+        _check_options(outputs, labels)
+        storage = _as_storage(root)
+        table = select_frames(storage, query)
+        columns = list(META_COLUMNS) + [output_columns(o)[0] for o in outputs]
+        self._table = table.select(columns).combine_chunks()
+        self._storage = copy.copy(storage)  # a fresh copy holds no open file system
+        self._pid: int | None = None
+        self.root = storage.uri
+        self.outputs = outputs
+        self.decode = decode
+        self.labels = labels
+        self.transform = transform
+
+    def __len__(self) -> int:
+        return self._table.num_rows
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state["_storage"] = copy.copy(self._storage)
+        state["_pid"] = None
+        return state
+
+    def _reader(self):
+        """This process's storage (re-created after a fork)."""
+        if self._pid != os.getpid():
+            self._storage = copy.copy(self._storage)
+            self._pid = os.getpid()
+        return self._storage
+
+    def metadata(self, index: int) -> dict:
+        """The frame's metadata (no image is read)."""
+        n = len(self)
+        if not -n <= index < n:
+            raise IndexError(f"frame index {index} out of range for {n} frames")
+        index %= n
+        row = {name: self._table.column(name)[index].as_py() for name in META_COLUMNS}
+        row["index"] = index
+        return row
+
+    def __getitem__(self, index: int) -> dict:
+        sample = self.metadata(int(index))
+        storage = self._reader()
+        for output in self.outputs:
+            rel = self._table.column(output_columns(output)[0])[sample["index"]].as_py()
+            key = DECODERS[output].key if self.decode else output
+            sample[key] = load_output(storage, rel, output, self.decode, self.labels)
+        return self.transform(sample) if self.transform is not None else sample
+
+    def __repr__(self) -> str:
+        return f"FrameDataset({self.root!r}, {len(self)} frames, outputs={self.outputs})"
+
+
+def _read_batch(batch: dict, storage, outputs: tuple[str, ...], labels: str) -> dict:
+    """Ray Data map_batches function: add the decoded arrays to a batch of rows."""
+    out = {name: batch[name] for name in META_COLUMNS}
+    for output in outputs:
+        paths = batch[output_columns(output)[0]]
+        arrays = [load_output(storage, str(rel), output, True, labels) for rel in paths]
+        out[DECODERS[output].key] = np.stack(arrays) if arrays else np.zeros((0,), dtype=np.uint8)
+    return out
+
+
+def ray_dataset(
+    root,
+    query: Query | None = None,
+    outputs: tuple[str, ...] = ("rgb", "semantic_raw"),
+    labels: str = "idda",
+    rows_per_block: int = 64,
+    batch_size: int = 16,
+):
+    """A ``ray.data.Dataset`` of the query's frames with decoded arrays.
+
+    Rows carry ``META_COLUMNS`` and one array column per output (keys as in
+    ``DECODERS``). The manifest rows are split into blocks of
+    ``rows_per_block`` frames so that reading and decoding spread over the
+    cluster; every task reads through ``storage``, so s3:// roots work from
+    any node. Needs Ray (installed with this project) and a running or
+    auto-started Ray instance.
+    """
+    outputs = tuple(outputs)
+    _check_options(outputs, labels)
+    if rows_per_block < 1 or batch_size < 1:
+        raise ValueError(f"rows_per_block and batch_size must be at least 1, got {rows_per_block}, {batch_size}")
+    try:
+        import ray.data
+    except ImportError as exc:
+        raise ImportError("ray_dataset needs Ray Data: pip install 'ray[data]'") from exc
+    storage = _as_storage(root)
+    table = select_frames(storage, query)
+    columns = list(META_COLUMNS) + [output_columns(o)[0] for o in outputs]
+    table = table.select(columns).combine_chunks()
+    if table.num_rows == 0:
+        raise ValueError(f"no frames in {storage.uri} match the query")
+    blocks = [table.slice(start, rows_per_block) for start in range(0, table.num_rows, rows_per_block)]
+    return ray.data.from_arrow(blocks).map_batches(
+        _read_batch,
+        batch_format="numpy",
+        batch_size=batch_size,
+        fn_kwargs={"storage": copy.copy(storage), "outputs": outputs, "labels": labels},
+    )

@@ -1,0 +1,160 @@
+"""CLI commands for the people who train on a dataset: export, distances, card.
+
+``register(app)`` adds them to the ``idda`` typer app (``pipeline.cli`` calls
+it at its bottom); it is idempotent. Like every command, each one parses its
+options, builds one config and calls one library function; expected errors
+become one line and exit code 2 via ``pipeline.cli.user_errors``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from manifests.selection import SELECTION_HELP
+
+ROOT_HELP = "Output root (path or s3:// URI)."
+DOMAINS_HELP = SELECTION_HELP
+
+
+def _cli():
+    from pipeline import cli  # imported late: pipeline.cli imports this module at its bottom
+
+    return cli
+
+
+def build_query(
+    preset: Optional[str],
+    domains: Optional[str],
+    split: list[str],
+    has_class: list[str],
+    min_share: list[str],
+    per_scenario: Optional[int],
+    total: Optional[int],
+    seed: Optional[int],
+    episode: tuple[int, ...] = (),
+):
+    """A validated Query from the shared query options (as in `idda query`)."""
+    from manifests import query as q
+
+    shares = []
+    for item in min_share:
+        name, sep, value = item.rpartition("=")
+        if not sep:
+            raise ValueError(f"--min-share takes CLASS=SHARE, got {item!r}")
+        try:
+            shares.append((name, float(value)))
+        except ValueError:
+            raise ValueError(f"--min-share takes CLASS=SHARE with SHARE a number in [0, 1], got {item!r}") from None
+    fields = dict(
+        domains=domains, splits=tuple(split) or None, episodes=tuple(episode) or None,
+        classes=tuple(has_class) or None,
+        min_share=tuple(shares) or None, per_scenario=per_scenario, total=total, seed=seed,
+    )
+    if preset is not None:
+        the_query = q.preset(preset, **fields)
+    else:
+        the_query = q.Query(**{k: v for k, v in fields.items() if v is not None})
+    the_query.validate()
+    return the_query
+
+
+def export(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    fmt: str = typer.Option(..., "--format", "-f", help="Layout: cityscapes or idda."),
+    to: Path = typer.Option(..., "--to", help="Target directory (local); must be empty or absent unless --force."),
+    preset: Optional[str] = typer.Option(None, help="Ready-made subset: best-case or worst-case (the paper's)."),
+    domains: Optional[str] = typer.Option(None, "--domains", "-d", help=DOMAINS_HELP),
+    split: list[str] = typer.Option([], help="Keep frames of this split (train, val, test); repeatable."),
+    has_class: list[str] = typer.Option([], "--has", help="Keep frames containing this class; repeatable."),
+    min_share: list[str] = typer.Option([], help="CLASS=SHARE: keep frames where the class covers at least SHARE (0-1); repeatable."),
+    per_scenario: Optional[int] = typer.Option(None, help="Sample this many frames per scenario."),
+    total: Optional[int] = typer.Option(None, help="Sample this many frames in total, stratified by scenario."),
+    seed: Optional[int] = typer.Option(None, help="Sampling seed (default 0)."),
+    copy: bool = typer.Option(False, "--copy", help="Copy files instead of hard-linking them."),
+    symlink: bool = typer.Option(False, "--symlink", help="Symlink files instead of hard-linking them."),
+    force: bool = typer.Option(False, "--force", help="Replace a non-empty target directory."),
+    threads: int = typer.Option(8, help="Frames converted in parallel."),
+) -> None:
+    """Export a query's frames as a Cityscapes or IDDA layout (links, never re-renders).
+
+    cityscapes: leftImg8bit/ and gtFine/ (labelIds, labelTrainIds, color,
+    instanceIds) that cityscapesScripts evaluates. idda: <scenario>/RGB/*.jpg,
+    <scenario>/Semantic/*.png and train/val/test.json split files.
+    """
+    from manifests.export import ExportConfig, export as run_export
+
+    cli = _cli()
+    with cli.user_errors():
+        if copy and symlink:
+            raise ValueError("give at most one of --copy and --symlink")
+        query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed)
+        config = ExportConfig(
+            root=root, to=str(to), format=fmt, query=query,
+            files="copy" if copy else "symlink" if symlink else "hardlink", force=force, threads=threads,
+        )
+        report = run_export(config)
+        for code, missing in sorted(report.shortfall.items()):
+            typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
+        splits = ", ".join(f"{n:,} {s}" for s, n in report.per_split.items() if n)
+        typer.echo(
+            f"exported {report.frames:,} frames ({splits}) as {report.format} to {report.target}: "
+            f"{report.files:,} files in {report.seconds:.1f} s"
+        )
+
+
+def distances(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    pairs: str = typer.Option("", help="Extra SOURCE:TARGET scenario pairs, comma-separated (the paper's three are always tried)."),
+    samples: int = typer.Option(500, help="First N frames per domain (the paper uses 500)."),
+    components: int = typer.Option(50, help="PCA components kept (the paper keeps 50)."),
+    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP + " Sampled and embedded."),
+    split: list[str] = typer.Option([], help="Sample only frames of this split; repeatable."),
+    plot: Optional[Path] = typer.Option(None, help="Write a 2-D embedding of all sampled domains to this PNG."),
+    seed: int = typer.Option(0, help="Seed of the feature extractor's random filters."),
+    threads: int = typer.Option(4, help="Images read and featurised in parallel."),
+) -> None:
+    """Domain distances as in the paper: features of the first N frames per
+    domain, PCA to 50 components, Euclidean / cosine distance of the domain
+    means and per-feature Bhattacharyya distance, next to the paper's values."""
+    from manifests.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
+
+    cli = _cli()
+    with cli.user_errors():
+        config = DistanceConfig(
+            root=root, pairs=parse_pairs(pairs), samples=samples, components=components,
+            domains=domains, splits=tuple(split), seed=seed, threads=threads,
+        )
+        report = domain_distances(config)
+        typer.echo(format_distance_table(report))
+        if plot is not None:
+            cli._write_local(plot, embedding_png(report))
+            typer.echo(f"plot: {plot}")
+
+
+def card(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    contact_sheet: bool = typer.Option(False, "--contact-sheet", help="Render a contact sheet into <root>/preview/ and show it."),
+) -> None:
+    """Write a dataset card (README.md and class_shares.png) into the root."""
+    from pipeline.card import CardConfig, write_card
+
+    cli = _cli()
+    with cli.user_errors():
+        result = write_card(CardConfig(root=root, contact_sheet=contact_sheet))
+        typer.echo(f"wrote {result.card} ({result.frames:,} frames) and {result.chart}")
+        for rel in result.previews:
+            typer.echo(f"linked preview {rel}")
+
+
+COMMANDS = {"export": export, "distances": distances, "card": card}
+
+
+def register(app: typer.Typer) -> None:
+    """Add the commands to ``app`` (once; calling again changes nothing)."""
+    present = {c.name or (c.callback.__name__ if c.callback else None) for c in app.registered_commands}
+    for name, function in COMMANDS.items():
+        if name not in present:
+            app.command(name=name)(function)

@@ -1,0 +1,118 @@
+"""The dataset card: its numbers match the manifest, its snippet decodes depth,
+previews are linked (or rendered), and the command writes it."""
+
+from __future__ import annotations
+
+import json
+import re
+import shutil
+import sys
+import types
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from manifests.catalog import LABELS
+from manifests.reader import read_manifest
+from manifests.stats import share_table
+from pipeline import card as card_mod
+from manifests.encoding import decode_depth_raw
+from tests.test_export import cli_app, make_tiny_root
+
+
+@pytest.fixture
+def root(tmp_path_factory, tmp_path):
+    """A private copy of the tiny root: the card writes into it."""
+    copy = tmp_path / "root"
+    shutil.copytree(make_tiny_root(tmp_path_factory), copy)
+    return copy
+
+
+def table_rows(text: str, first_cell: str) -> list[list[str]]:
+    """Cells of the markdown table whose header starts with ``first_cell``."""
+    lines = text.splitlines()
+    start = next(i for i, line in enumerate(lines) if line.startswith(f"| {first_cell} |"))
+    rows = []
+    for line in lines[start + 2 :]:
+        if not line.startswith("|"):
+            break
+        rows.append([c.strip().removeprefix("**").removesuffix("**") for c in line.strip("|").split("|")])
+    return rows
+
+
+def test_card_numbers_match_the_manifest(root):
+    result = card_mod.write_card(card_mod.CardConfig(root=str(root)))
+    text = (root / "README.md").read_text()
+    table = read_manifest(str(root))
+    assert result.frames == len(table) and result.card == str(root / "README.md")
+    assert text.startswith("# IDDA-style synthetic driving dataset")
+    assert f"{len(table):,} frames in 5 episodes over 5 scenarios" in text and "at 64x36" in text
+
+    rows = table_rows(text, "scenario")
+    manifest_rows = table.to_pylist()
+    for cells in rows[:-1]:
+        code, train, val, test, total = cells[0], *map(int, cells[4:])
+        mine = [r for r in manifest_rows if r["scenario"] == code]
+        assert (train, val, test, total) == tuple(sum(r["split"] == s for r in mine) for s in ("train", "val", "test")) + (len(mine),)
+    assert [c[0] for c in rows[:-1]] == sorted({r["scenario"] for r in manifest_rows})
+    assert int(rows[-1][-1].replace(",", "")) == len(table)
+
+    shares = {r["class"]: r for r in share_table(table).to_pylist()}
+    class_rows = table_rows(text, "id")
+    assert len(class_rows) == len(LABELS)
+    for cells in class_rows:
+        name = cells[1].removesuffix("\\*")
+        assert float(cells[5]) == pytest.approx(100 * shares[name]["share"], abs=5e-4)
+        assert float(cells[6]) == pytest.approx(100 * shares[name]["paper_share"], abs=5e-4)
+        assert cells[1].endswith("\\*") == (not LABELS[int(cells[0])].evaluated)
+
+    assert Image.open(root / "class_shares.png").format == "PNG"
+    run = json.loads((root / "run.json").read_text())
+    assert run["git_revision"] in text and json.dumps(run["config"], indent=2, sort_keys=True) in text
+    assert "No preview in this root yet" in text
+
+
+def test_card_depth_snippet_decodes_depth(root, monkeypatch):
+    card_mod.write_card(card_mod.CardConfig(root=str(root)))
+    text = (root / "README.md").read_text()
+    snippet = next(b for b in re.findall(r"```python\n(.*?)```", text, re.S) if "depth_m" in b)
+    assert len(snippet.strip().splitlines()) == 3
+    monkeypatch.chdir(root)
+    scope: dict = {}
+    exec(snippet, scope)
+    path = re.search(r'imread\("([^"]+)"', snippet).group(1)
+    expected = decode_depth_raw(np.array(Image.open(root / path).convert("RGB")))
+    assert np.allclose(scope["depth_m"], expected)
+
+
+def test_card_links_and_renders_previews(root, monkeypatch):
+    (root / "preview").mkdir()
+    Image.new("RGB", (8, 8)).save(root / "preview" / "strip.png")
+    Image.new("RGB", (8, 8)).save(root / "preview" / "contact_sheet_CN.png")
+    result = card_mod.write_card(card_mod.CardConfig(root=str(root)))
+    assert result.previews == ["preview/contact_sheet_CN.png", "preview/strip.png"]
+    assert "![contact_sheet_CN.png](preview/contact_sheet_CN.png)" in (root / "README.md").read_text()
+
+    calls = []
+
+    def write_preview(out_dir, codes, width, height, seed, world="procedural"):
+        calls.append((list(codes), width, height, seed, world))
+        path = f"{out_dir}/contact_sheet_HRN.png"
+        Image.new("RGB", (width, height)).save(path)
+        return [path]
+
+    monkeypatch.setitem(sys.modules, "render_workers.preview", types.SimpleNamespace(write_preview=write_preview))
+    result = CliRunner().invoke(cli_app(), ["card", str(root), "--contact-sheet"])
+    assert result.exit_code == 0, result.output
+    codes = sorted({r["scenario"] for r in read_manifest(str(root)).to_pylist()})
+    assert calls == [(codes, 64, 36, 3, "test")]
+    assert "linked preview preview/contact_sheet_HRN.png" in result.output
+    assert "(preview/contact_sheet_HRN.png)" in (root / "README.md").read_text()
+
+
+def test_card_command_errors(tmp_path):
+    result = CliRunner().invoke(cli_app(), ["card", str(tmp_path)])
+    assert result.exit_code == 2
+    assert result.output.strip() == f"error: {tmp_path} has no frames yet; produce some before writing its card"

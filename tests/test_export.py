@@ -1,0 +1,273 @@
+"""Exports of a small rendered root: Cityscapes layout evaluated by
+cityscapesScripts itself, IDDA layout, safe writes and the CLI."""
+
+from __future__ import annotations
+
+import glob
+import json
+import os
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from manifests import export as ex
+from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
+from manifests.query import Query
+from manifests.reader import read_manifest
+from tests.s3_server import s3_server  # noqa: F401  (fixture)
+
+# The paper's three distance pairs need these five scenarios; two frames each.
+TINY_DOMAINS = "T01_CS_A,T01_CS_J,T01_HRN_A,T01_HRN_J,T07_HRN_A"
+TINY_FRAMES = 2
+
+
+def make_tiny_root(tmp_path_factory) -> Path:
+    """A small rendered root (test world, 64x36), built once per test session
+    and shared by the export, loader, distance and card tests (read-only)."""
+    from pipeline.episode_job import run_episode
+    from pipeline.planner import PlanConfig, make_plan
+    from pipeline.runmeta import RunConfig, prepare_root
+    from storage import Storage
+
+    root = tmp_path_factory.getbasetemp() / "tiny_root"
+    done = tmp_path_factory.getbasetemp() / "tiny_root.done"
+    if done.exists():
+        return root
+    shutil.rmtree(root, ignore_errors=True)
+    config = RunConfig(
+        plan=PlanConfig(domains=TINY_DOMAINS, frames_per_scenario=TINY_FRAMES, width=64, height=36, seed=3), world="test"
+    )
+    storage = Storage.from_uri(str(root))
+    storage.ensure_writable()
+    prepare_root(storage, config)
+    for spec in make_plan(config.plan).episodes:
+        run_episode(spec, storage, world="test")
+    done.write_text("ok")
+    return root
+
+
+def upload_root(root: Path, uri: str) -> None:
+    """Copy a local root's files to an s3:// root through storage."""
+    from storage import Storage
+
+    target = Storage.from_uri(uri)
+    for path in sorted(root.rglob("*")):
+        if path.is_file():
+            target.write_bytes(path.relative_to(root).as_posix(), path.read_bytes())
+
+
+def cli_app():
+    from pipeline import cli_data
+    from pipeline.cli import app
+
+    cli_data.register(app)
+    return app
+
+
+def read_png(path) -> np.ndarray:
+    return np.array(Image.open(path))
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory) -> Path:
+    return make_tiny_root(tmp_path_factory)
+
+
+@pytest.fixture(scope="module")
+def manifest(root):
+    return read_manifest(str(root))
+
+
+@pytest.fixture(scope="module")
+def cityscapes(root, tmp_path_factory) -> Path:
+    target = tmp_path_factory.mktemp("cs") / "export"
+    report = ex.export(ex.ExportConfig(root=str(root), to=str(target), format="cityscapes"))
+    assert report.frames == 5 * TINY_FRAMES and report.target == str(target)
+    return target
+
+
+def test_cityscapes_layout_and_label_images(root, manifest, cityscapes):
+    from cityscapesscripts.helpers.csHelpers import getCsFileInfo
+    from cityscapesscripts.helpers.labels import id2label
+
+    assert ex.is_complete(str(cityscapes))
+    marker = json.loads((cityscapes / ex.MARKER).read_text())
+    assert marker["frames"] == len(manifest) and marker["format"] == "cityscapes"
+    for row in manifest.to_pylist():
+        name = ex.cityscapes_name(row["scenario"], row["episode"], row["frame"])
+        info = getCsFileInfo(f"{name}_gtFine_labelIds.png")
+        assert (info.city, info.sequenceNb, info.frameNb) == (
+            row["scenario"].replace("_", "-"), f"{row['episode']:06d}", f"{row['frame']:06d}"
+        )
+        image = cityscapes / "leftImg8bit" / row["split"] / row["scenario"] / f"{name}_leftImg8bit.png"
+        assert os.path.samefile(image, root / row["rgb_path"])  # hard link, not a re-render
+        gt = cityscapes / "gtFine" / row["split"] / row["scenario"]
+        classes = read_png(root / row["semantic_raw_path"])[..., 0]
+        label_ids = read_png(gt / f"{name}_gtFine_labelIds.png")
+        assert label_ids.dtype == np.uint8 and label_ids.shape == classes.shape
+        assert np.array_equal(label_ids, CITYSCAPES_ID_LUT[classes])
+        assert np.array_equal(read_png(gt / f"{name}_gtFine_labelTrainIds.png"), TRAIN_ID_LUT[classes])
+        assert np.array_equal(read_png(gt / f"{name}_gtFine_instanceIds.png"), label_ids)
+        color = read_png(gt / f"{name}_gtFine_color.png")
+        expected = np.array([id2label[int(i)].color for i in label_ids.ravel()], dtype=np.uint8).reshape(color.shape)
+        assert np.array_equal(color, expected)  # cityscapesScripts' own colours
+    # Excluded classes land on labels that Cityscapes ignores in evaluation.
+    for label in LABELS:
+        assert id2label[label.cityscapes_id].ignoreInEval == (not label.evaluated)
+        assert (label.train_id == 255) == (not label.evaluated)
+
+
+def _evaluate(cityscapes: Path, predictions: Path, monkeypatch):
+    """Run cityscapesScripts' pixel-level evaluation with its own file matching."""
+    from cityscapesscripts.evaluation import evalPixelLevelSemanticLabeling as ev
+
+    # cityscapesScripts 2.3.0 calls np.in1d (instance-level scores), which numpy 2.4 removed.
+    monkeypatch.setattr(np, "in1d", getattr(np, "in1d", np.isin), raising=False)
+
+    ev.args.quiet = True
+    ev.args.JSONOutput = False
+    ev.args.evalInstLevelScore = True  # reads our *_gtFine_instanceIds.png
+    ev.args.predictionPath = str(predictions)
+    ev.args.predictionWalk = None
+    gts = sorted(glob.glob(str(cityscapes / "gtFine" / "*" / "*" / "*_gtFine_labelIds.png")))
+    preds = [ev.getPrediction(ev.args, gt) for gt in gts]
+    return ev.evaluateImgLists(preds, gts, ev.args), gts
+
+
+def _predict(cityscapes: Path, out: Path, relabel: dict[int, int]) -> None:
+    out.mkdir()
+    for gt in glob.glob(str(cityscapes / "gtFine" / "*" / "*" / "*_gtFine_labelIds.png")):
+        labels = read_png(gt)
+        for src, dst in relabel.items():
+            labels = np.where(labels == src, dst, labels).astype(np.uint8)
+        name = os.path.basename(gt).replace("_gtFine_labelIds.png", "_pred.png")
+        Image.fromarray(labels).save(out / name)
+
+
+def test_cityscapes_scripts_evaluate_the_export(cityscapes, tmp_path, monkeypatch):
+    from cityscapesscripts.helpers.labels import id2label
+
+    _predict(cityscapes, tmp_path / "perfect", {})
+    result, gts = _evaluate(cityscapes, tmp_path / "perfect", monkeypatch)
+    gt_pixels = np.concatenate([read_png(g).ravel() for g in gts])
+    present = {id2label[int(i)].name for i in np.unique(gt_pixels) if not id2label[int(i)].ignoreInEval}
+    assert {"road", "sidewalk"} <= present
+    scores = result["classScores"]
+    assert all(scores[name] == 1.0 for name in present)
+    assert all(np.isnan(v) for name, v in scores.items() if name not in present)
+    assert result["averageScoreClasses"] == 1.0
+
+    # Relabel every road pixel as sidewalk: road IoU 0, sidewalk IoU S/(S+R).
+    road, sidewalk = 7, 8
+    _predict(cityscapes, tmp_path / "perturbed", {road: sidewalk})
+    result, _ = _evaluate(cityscapes, tmp_path / "perturbed", monkeypatch)
+    n_road, n_sidewalk = int((gt_pixels == road).sum()), int((gt_pixels == sidewalk).sum())
+    sidewalk_iou = n_sidewalk / (n_sidewalk + n_road)
+    assert result["classScores"]["road"] == 0.0
+    assert result["classScores"]["sidewalk"] == pytest.approx(sidewalk_iou)
+    expected = (len(present) - 2 + sidewalk_iou) / len(present)
+    assert result["averageScoreClasses"] == pytest.approx(expected)
+    assert expected < 1.0
+
+
+def test_idda_layout_and_split_files(root, manifest, tmp_path):
+    target = tmp_path / "idda"
+    report = ex.export(ex.ExportConfig(root=str(root), to=str(target), format="idda", files="copy"))
+    assert report.frames == len(manifest) and ex.is_complete(str(target))
+    rows = manifest.to_pylist()
+    for row in rows:
+        stem = f"{row['frame_id']}_{row['scenario']}"
+        jpeg = target / row["scenario"] / "RGB" / f"{stem}.jpg"
+        assert jpeg.read_bytes()[:2] == b"\xff\xd8"
+        rgb = read_png(root / row["rgb_path"]).astype(int)
+        assert np.abs(read_png(jpeg).astype(int) - rgb).mean() < 6  # JPEG quality 95
+        semantic = target / row["scenario"] / "Semantic" / f"{stem}.png"
+        assert semantic.read_bytes() == (root / row["semantic_raw_path"]).read_bytes()
+        assert not os.path.samefile(semantic, root / row["semantic_raw_path"])  # --copy
+    for split in ("train", "val", "test"):
+        listing = json.loads((target / f"{split}.json").read_text())
+        assert sorted(listing) == sorted({r["scenario"] for r in rows})
+        want = {(r["scenario"], r["frame_id"]) for r in rows if r["split"] == split}
+        assert {(s, f) for s, ids in listing.items() for f in ids} == want
+    lines = (target / ex.INDEX).read_text().splitlines()
+    assert lines[0].startswith("frame_id,scenario") and len(lines) == len(rows) + 1
+
+
+def test_query_selects_frames_and_symlinks(root, tmp_path):
+    target = tmp_path / "sub"
+    query = Query(domains="towns=T01 viewpoints=J", per_scenario=1, seed=5)
+    report = ex.export(ex.ExportConfig(root=str(root), to=str(target), format="idda", query=query, files="symlink"))
+    assert report.frames == 2
+    semantic = sorted(target.glob("*/Semantic/*.png"))
+    assert [p.parent.parent.name for p in semantic] == ["T01_CS_J", "T01_HRN_J"]
+    assert all(p.is_symlink() and p.resolve().is_relative_to(root) for p in semantic)
+
+
+def test_refuses_non_empty_target_and_force_replaces(root, tmp_path):
+    target = tmp_path / "busy"
+    target.mkdir()
+    (target / "keep.txt").write_text("user data")
+    config = ex.ExportConfig(root=str(root), to=str(target), format="idda", query=Query(domains="T07_*_*"))
+    with pytest.raises(ValueError, match="not empty; pass --force"):
+        ex.export(config)
+    assert (target / "keep.txt").exists()
+    ex.export(ex.ExportConfig(**{**config.__dict__, "force": True}))
+    assert not (target / "keep.txt").exists() and ex.is_complete(str(target))
+    with pytest.raises(ValueError, match="must not be the source root"):
+        ex.export(ex.ExportConfig(root=str(root), to=str(root), format="idda", force=True))
+    for bad, match in (({"format": "coco"}, "valid formats: cityscapes, idda"), ({"files": "move"}, "valid modes")):
+        with pytest.raises(ValueError, match=match):
+            ex.export(ex.ExportConfig(**{**config.__dict__, **bad}))
+
+
+def test_failed_export_leaves_nothing_behind(root, tmp_path, monkeypatch):
+    calls = []
+
+    def flaky(storage, frame, tmp, place):
+        calls.append(frame)
+        if len(calls) == 3:
+            raise OSError("disk full")
+        return ex._idda_frame(storage, frame, tmp, place)
+
+    monkeypatch.setitem(ex.LAYOUTS, "idda", ex.Layout(flaky, ex._idda_dirs, ex._idda_split_files))
+    target = tmp_path / "out"
+    with pytest.raises(OSError, match="disk full"):
+        ex.export(ex.ExportConfig(root=str(root), to=str(target), format="idda", threads=1))
+    assert not target.exists() and os.listdir(tmp_path) == []
+
+
+def test_cli_export(root, tmp_path):
+    runner = CliRunner()
+    app = cli_app()
+    target = tmp_path / "cli"
+    result = runner.invoke(
+        app, ["export", str(root), "--format", "cityscapes", "--to", str(target), "--domains", "T01_*_A", "--total", "3", "--copy"]
+    )
+    assert result.exit_code == 0, result.output
+    assert "exported 3 frames" in result.output
+    assert len(list(target.glob("leftImg8bit/*/*/*_leftImg8bit.png"))) == 3
+    again = runner.invoke(app, ["export", str(root), "--format", "cityscapes", "--to", str(target)])
+    assert again.exit_code == 2 and "not empty; pass --force" in again.output
+    bad = runner.invoke(app, ["export", str(root), "--format", "kitti", "--to", str(tmp_path / "x")])
+    assert bad.exit_code == 2 and "valid formats: cityscapes, idda" in bad.output
+    bad = runner.invoke(app, ["export", str(root), "--format", "idda", "--to", str(tmp_path / "y"), "--has", "unicorn"])
+    assert bad.exit_code == 2 and "unknown class 'unicorn'" in bad.output
+
+
+def test_export_from_s3_root_downloads(root, manifest, tmp_path, s3_server):  # noqa: F811
+    uri = s3_server.uri("tiny")
+    upload_root(root, uri)
+    target = tmp_path / "from_s3"
+    report = ex.export(ex.ExportConfig(root=uri, to=str(target), format="cityscapes", query=Query(domains="T07_*_*")))
+    assert report.frames == TINY_FRAMES
+    marker = json.loads((target / ex.MARKER).read_text())
+    assert marker["source"] == uri and marker["file_mode"] == "copy"
+    for row in manifest.to_pylist():
+        if row["scenario"] == "T07_HRN_A":
+            name = ex.cityscapes_name(row["scenario"], row["episode"], row["frame"])
+            image = target / "leftImg8bit" / row["split"] / row["scenario"] / f"{name}_leftImg8bit.png"
+            assert image.read_bytes() == (root / row["rgb_path"]).read_bytes()
