@@ -13,7 +13,7 @@ HEIGHT  ?= 270
 SEED    ?= 0
 PRODUCE_ARGS ?=
 
-.PHONY: help venv produce test bench clean
+.PHONY: help venv produce test bench report clean
 
 help: ## list the targets
 	@grep -E '^[a-z]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  make %-9s %s\n", $$1, $$2}'
@@ -39,6 +39,9 @@ test: $(STAMP) ## run the test suite
 
 bench: $(STAMP) ## run the benchmarks; figures go to docs/
 	$(BIN)/python -m benchmarks.run
+
+report: $(STAMP) ## render a 105-scenario sample and write docs/worlds.md (class shares, distances, contact sheets)
+	$(BIN)/python -m benchmarks.worlds_report
 
 clean: ## remove the .venv and caches (never your output)
 	rm -rf $(VENV) .pytest_cache .hypothesis

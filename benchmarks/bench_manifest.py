@@ -18,7 +18,7 @@ from manifests import query as q
 from manifests.catalog import OUTPUTS
 from manifests.reader import compact, manifest_dataset, read_manifest
 from manifests.schema import output_columns
-from manifests.synthetic import episode_rows
+from manifests.synthetic import episode_rows, episode_table
 from manifests.verify import verify
 from manifests.writer import write_part
 from pipeline.planner import PlanConfig, make_plan
@@ -81,7 +81,7 @@ def main(out_dir: str = "docs") -> dict:
         storage = Storage.from_uri(str(tmp / "root"))
         start = time.perf_counter()
         for spec in plan.episodes:
-            write_part(storage, spec.scenario, spec.episode, episode_rows(spec))
+            write_part(storage, spec.scenario, spec.episode, episode_table(spec))
         write_s = time.perf_counter() - start
         parts_size = _dir_size(tmp / "root" / "manifest")
         start = time.perf_counter()

@@ -36,10 +36,13 @@ def part_bytes(table: pa.Table) -> bytes:
     return sink.getvalue()
 
 
-def write_part(storage, scenario: str, episode: int, rows: list[dict]) -> str:
-    """Write an episode's part atomically; returns its relative path."""
+def write_part(storage, scenario: str, episode: int, rows: list[dict] | pa.Table) -> str:
+    """Write an episode's part (rows or a PART_SCHEMA table) atomically; returns its path."""
     rel = part_path(scenario, episode)
-    storage.write_bytes(rel, part_bytes(part_table(rows)))
+    table = rows if isinstance(rows, pa.Table) else part_table(rows)
+    if table.schema != PART_SCHEMA:
+        raise ManifestError(f"part for {scenario} episode {episode} does not have the manifest schema")
+    storage.write_bytes(rel, part_bytes(table))
     return rel
 
 
