@@ -8,11 +8,12 @@
 * moving vehicles ride the world's lane loops. Loops never cross, and every
   actor on a loop keeps the loop's speed, so actors spaced apart at t=0 stay
   apart forever;
-* the ego drives a random loop from a random spawn point; its loop gets the
-  ego's speed, a free slot around the ego, and riders a few dozen metres
-  ahead so the rare classes show up in frames;
-* parked cars sit in the kerbside parking strips, pedestrians walk the
-  sidewalks, mostly near the ego's route.
+* the ego drives a random loop (by length, freeway loops down-weighted by
+  ``FREEWAY_EGO_WEIGHT``) from a random spawn point; its loop gets the ego's
+  speed, no car within about 40 m ahead, and riders 20-60 m ahead so the rare
+  classes show up in frames;
+* parked cars (15-30% of the four-wheelers) sit in the kerbside parking
+  strips, pedestrians walk the sidewalks, mostly near the ego's route.
 """
 
 from __future__ import annotations
@@ -62,6 +63,9 @@ SKIN = [(224, 180, 150), (190, 140, 100), (140, 95, 65), (90, 60, 40)]
 RIDER_SLOT = 2.4  # bicycles and motorcycles occupy this much lane length
 EGO_SPEED = {"A": (10.0, 14.0), "M": (10.0, 14.0), "J": (9.0, 13.0), "V": (8.0, 12.0), "B": (8.0, 11.0)}
 FREEWAY_EGO_SPEED = (16.0, 20.0)
+# The ego starts on a freeway loop less often than the loops' length alone
+# would give: freeway frames show no sidewalk, signals or two-wheelers.
+FREEWAY_EGO_WEIGHT = 0.4
 
 
 # --------------------------------------------------------------------------
@@ -236,7 +240,8 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
     lengths = np.array([lp.path.length for lp in loops])
 
     # the ego: a random loop (longer ones more likely) and spawn point
-    ego_i = int(rng.choice(len(loops), p=lengths / lengths.sum()))
+    ego_w = lengths * np.array([FREEWAY_EGO_WEIGHT if lp.kind == "freeway" else 1.0 for lp in loops])
+    ego_i = int(rng.choice(len(loops), p=ego_w / ego_w.sum()))
     ego_loop = loops[ego_i]
     lo, hi = FREEWAY_EGO_SPEED if ego_loop.kind == "freeway" else EGO_SPEED[vp.code]
     ego_speed = float(rng.uniform(lo, hi))
@@ -247,15 +252,13 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
     speeds[ego_i] = ego_speed
     slots = [_LoopSlots(L) for L in lengths]
     ego_half = 5.5 if vp.code == "B" else 2.4
-    slots[ego_i].take(ego_s + 6.0, ego_half + 12.0)  # free space ahead of and behind the ego
-
     actors: list[Actor] = []
     n_two = min(n_vehicles // 3, max(4, int(round(0.12 * n_vehicles))))
-    n_parked_target = int(round(rng.uniform(0.2, 0.4) * (n_vehicles - n_two)))
+    n_parked_target = int(round(rng.uniform(0.15, 0.3) * (n_vehicles - n_two)))
 
     # riders: some just ahead of the ego, the rest near its route
     near = [i for i in range(len(loops)) if i == ego_i or _min_distance(loops[i].path.points, ego_loop.path.points) < 20]
-    ahead = rng.uniform(28, 75, size=min(3, n_two))
+    ahead = rng.uniform(22, 60, size=min(3, n_two))
     placed_two = 0
     for k in range(n_two):
         motor = bool(k % 2)
@@ -271,6 +274,10 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
         actors.append(Actor("motorcyclist" if motor else "cyclist", rider_parts(rng, motor),
                             loops[i].path, s, float(speeds[i]), lat))
         placed_two += 1
+
+    # free space ahead of and behind the ego (riders may ride in it): no car
+    # closer than about 40 m ahead, on the same loop and at the same speed
+    slots[ego_i].take(ego_s + 12.0, ego_half + 18.0)
 
     # moving vehicles
     n_moving = n_vehicles - n_two - n_parked_target

@@ -138,7 +138,7 @@ def layout(town_code: str, seed: int) -> Layout:
     lane_w = LANE_W_URBAN if urban else LANE_W_RURAL
     parking_w = PARKING_W if urban else 0.0
     hw = t.lanes * lane_w + parking_w
-    sidewalk_w = (3.5 + 0.75 * (t.lanes - 1)) if urban else 0.0
+    sidewalk_w = (5.0 + 1.0 * (t.lanes - 1)) if urban else 0.0
     verge_w = 0.0 if urban else 2.5
 
     fw_lanes = t.lanes + 1
@@ -1235,6 +1235,11 @@ class _Builder:
             self.add("road", v, f, PALETTE["asphalt_fw"], "road", 0.15, 8.0)
             outer = np.stack([xe + (m2 + cw) * np.cos(ang), y + (m2 + cw) * np.sin(ang)], 1)
             self.guard_rail(outer[::1] if xe == x1 else outer[::1])
+            # two tree rows behind the turn-around, so the view from the loop is not an empty plain
+            for rr, step in ((m2 + cw + 8.0, 8.0), (m2 + cw + 16.0, 10.0)):
+                for a in np.radians(np.arange(a0 + 8.0, a0 + 173.0, np.degrees(step / rr))):
+                    p = np.array([xe + rr * np.cos(a), y + rr * np.sin(a)]) + self.rng.uniform(-1.5, 1.5, 2)
+                    self.tree(np.array([*p, OUTER_Z]), self.rng.uniform(1.0, 1.5), conifer=self.rng.random() < 0.3)
         # median: concrete strip with a guard rail; outer guard rails
         v, f = M.grid((x0, y - m2, 0.0), (x1 - x0, 0, 0), (0, 2 * m2, 0), int((x1 - x0) / 6), 4)
         self.add("terrain", v, f, PALETTE["dry_grass"], amount=0.2, tiled=True)

@@ -231,3 +231,26 @@ def test_rare_classes_are_placed_near_the_ego(worlds):
     ego_lane = [a for a in scene.actors if a.path is scene.ego.path]
     assert any(a.kind in ("cyclist", "motorcyclist") for a in ego_lane)
     assert all(a.speed_mps == scene.ego.speed_mps for a in ego_lane)
+
+
+def test_no_car_right_ahead_of_the_ego(worlds):
+    """Cars on the ego's loop keep its speed, so one close ahead would fill every frame."""
+    for code, seed in (("T01", 3), ("T03", 8), ("T07", 5)):
+        scene = populate(worlds[code], "V", seed)
+        ego, length = scene.ego, scene.ego.path.length
+        for a in scene.actors:
+            if a.path is not ego.path or a.kind in ("cyclist", "motorcyclist"):
+                continue
+            ahead = (a.offset_m - ego.offset_m) % length
+            assert ahead > 25.0, f"{code}: {a.kind} {ahead:.1f} m ahead of the ego"
+
+
+def test_ego_prefers_streets_to_the_freeway(worlds):
+    from render_workers.traffic import FREEWAY_EGO_WEIGHT
+
+    loops = W.loops("T04", 0)
+    lengths = np.array([lp.path.length for lp in loops])
+    is_fw = np.array([lp.kind == "freeway" for lp in loops])
+    by_length = lengths[is_fw].sum() / lengths.sum()  # the ego's share if it picked by length only
+    on_fw = np.mean([populate(worlds["T04"], "A", s).extras["ego_loop_kind"] == "freeway" for s in range(40)])
+    assert FREEWAY_EGO_WEIGHT < 1.0 and 0.0 < on_fw < by_length
