@@ -31,6 +31,31 @@ Rules kept in ``render_workers.renderer`` rather than here:
   :func:`set_msaa_samples` makes the sample count a setting (0 = off; the
   renderer then anti-aliases geometry edges in post, ``postfx.antialias``).
 
+Sun shadows (:func:`install_shadow_pass`, :func:`shadow_texture`) override
+private parts of pyrender's inner renderer, on that instance only:
+
+* ``_shadow_mapping_pass`` is replaced. pyrender's version draws every
+  ``is_visible`` mesh node with back faces culled into a map fitted around the
+  whole scene (``_get_light_cam_matrices`` uses the scene's centroid and
+  scale: kilometres for a town, so blurry shadows). The replacement draws the
+  caster nodes the renderer chose for the frame (some are culled from the
+  view but still cast into it), with no face culling and a slope-scaled
+  polygon offset, through the renderer's own light-space matrices;
+* ``_get_light_cam_matrices`` returns those same matrices, so the colour pass
+  (``_bind_lighting`` sets ``directional_lights[i].light_matrix`` from it)
+  samples the map where it was drawn;
+* ``_bind_lighting`` is wrapped to also set the renderer's extra shadow
+  uniforms (``shadow_params``) that pyrender does not know about;
+* the shadow texture is made here rather than by pyrender
+  (``DirectionalLight._generate_shadow_texture`` hard-codes 2048 px, nearest
+  filtering and repeat wrapping): any size, linear filtering and clamped edges,
+  and the pass turns on depth comparison so ``FAST_MESH_FRAG`` samples it as
+  a ``sampler2DShadow`` (hardware 2x2 PCF per tap). pyrender's own PBR shader
+  reads the map as a plain ``sampler2D``, so comparison is off when it is used.
+
+The SEG pass never takes a shadow pass (pyrender skips it for ``SEG``) and
+binds no lights, so class ids and depth do not change with shadows on.
+
 One more pitfall handled here: ``OffscreenRenderer.delete()`` calls
 ``eglTerminate`` on the EGL display, which is shared by every context of the
 process, so deleting one renderer breaks all others. :func:`delete_offscreen`
@@ -43,7 +68,9 @@ import ctypes
 import ctypes.util
 import logging
 import os
+from dataclasses import dataclass, field
 from types import ModuleType
+from typing import Callable
 
 import numpy as np
 
@@ -189,3 +216,101 @@ def delete_offscreen(offscreen) -> None:
         eglDestroyContext(platform._egl_display, platform._egl_context)
     platform._egl_context = platform._egl_display = None
     offscreen._renderer = offscreen._platform = None  # its __del__ then has nothing to free
+
+
+# --------------------------------------------------------------------------
+# Sun shadows
+# --------------------------------------------------------------------------
+SHADOW_POLYGON_OFFSET = (2.0, 4.0)  # glPolygonOffset(factor, units) in the shadow pass
+
+
+@dataclass(eq=False)
+class ShadowFrame:
+    """What the shadow pass of one frame needs (set by the renderer before each render)."""
+
+    view: np.ndarray  # 4x4 world -> light eye space
+    proj: np.ndarray  # 4x4 orthographic light projection
+    casters: list  # mesh nodes drawn into the shadow map, in a fixed order
+    uniforms: dict = field(default_factory=dict)  # extra colour-pass uniforms, name -> value
+
+
+def shadow_texture(size: int):
+    """A square depth texture for a directional light's shadow map (linear filter, clamped)."""
+    pyrender = import_pyrender()
+    from OpenGL.GL import GL_FLOAT
+    from pyrender.constants import GLTF
+
+    if size < 16 or size & (size - 1):
+        raise ValueError(f"shadow map size must be a power of two >= 16, got {size}")
+    sampler = pyrender.Sampler(magFilter=GLTF.LINEAR, minFilter=GLTF.LINEAR,
+                               wrapS=GLTF.CLAMP_TO_EDGE, wrapT=GLTF.CLAMP_TO_EDGE)
+    return pyrender.Texture(sampler=sampler, source_channels="D", width=size, height=size, data_format=GL_FLOAT)
+
+
+def install_shadow_pass(offscreen, current: Callable[[], ShadowFrame], *, depth_compare: bool = True) -> None:
+    """Route pyrender's directional shadow mapping through ``current()`` (see the module notes)."""
+    import_pyrender()
+    from OpenGL import GL
+    from pyrender.constants import ProgramFlags, RenderFlags
+
+    inner = offscreen._renderer
+    original_bind_lighting = inner._bind_lighting
+
+    def light_cam_matrices(scene, light_node, flags):
+        frame = current()
+        return frame.view, frame.proj
+
+    def bind_lighting(scene, program, node, flags):
+        original_bind_lighting(scene, program, node, flags)
+        if flags & RenderFlags.SHADOWS_DIRECTIONAL:
+            for name, value in current().uniforms.items():
+                program.set_uniform(name, value)
+
+    def shadow_pass(scene, light_node, flags):
+        frame = current()
+        texture = light_node.light.shadow_texture
+        inner._configure_shadow_framebuffer()
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, inner._shadow_fb)
+        GL.glActiveTexture(GL.GL_TEXTURE0)
+        texture._bind()
+        texture._bind_as_depth_attachment()
+        compare = GL.GL_COMPARE_REF_TO_TEXTURE if depth_compare else GL.GL_NONE
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_MODE, compare)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_FUNC, GL.GL_LEQUAL)
+        GL.glDrawBuffer(GL.GL_NONE)
+        GL.glReadBuffer(GL.GL_NONE)
+        GL.glViewport(0, 0, texture.width, texture.height)
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDepthMask(GL.GL_TRUE)
+        GL.glDepthFunc(GL.GL_LESS)
+        GL.glDepthRange(0.0, 1.0)
+        GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
+        GL.glDisable(GL.GL_CULL_FACE)
+        GL.glDisable(GL.GL_BLEND)
+        GL.glEnable(GL.GL_POLYGON_OFFSET_FILL)
+        GL.glPolygonOffset(*SHADOW_POLYGON_OFFSET)
+        program = None
+        for node in frame.casters:
+            pose = scene.get_pose(node)
+            for primitive in node.mesh.primitives:
+                program = inner._get_primitive_program(primitive, flags, ProgramFlags.NONE)
+                program._bind()
+                program.set_uniform("V", frame.view)
+                program.set_uniform("P", frame.proj)
+                program.set_uniform("M", pose)
+                primitive._bind()
+                instances = 1 if primitive.poses is None else len(primitive.poses)
+                if primitive.indices is not None:
+                    GL.glDrawElementsInstanced(primitive.mode, primitive.indices.size, GL.GL_UNSIGNED_INT,
+                                               ctypes.c_void_p(0), instances)
+                else:
+                    GL.glDrawArraysInstanced(primitive.mode, 0, len(primitive.positions), instances)
+                primitive._unbind()
+        if program is not None:
+            program._unbind()
+        GL.glDisable(GL.GL_POLYGON_OFFSET_FILL)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+
+    inner._get_light_cam_matrices = light_cam_matrices
+    inner._bind_lighting = bind_lighting
+    inner._shadow_mapping_pass = shadow_pass

@@ -21,6 +21,24 @@ diffuse + normalised Blinn-Phong specular from the material's roughness and
 metallic factors, ambient, emissive, two-sided, gamma 2.2), about 4x cheaper.
 ``Renderer(pbr=True)`` keeps pyrender's own shader.
 
+Shadows (``Renderer(shadows=True)``, the default): the sun casts shadow-mapped
+shadows. Each frame, :func:`fit_shadow_frame` fits an orthographic light
+frustum around what the camera sees up to :data:`SHADOW_FAR_M` (a trapezoid on
+the ground from :data:`SHADOW_BACK_M` behind the camera, up to
+:data:`SHADOW_TOP_M` above the road), aligned with the view direction, so a
+:data:`SHADOW_MAP_PX` map has texels of ~0.1-0.15 m, and picks as casters the
+nodes whose bounding spheres reach into it (including ones culled from the
+view, e.g. a car beside the ego at sunset; the hood casts nothing). The colour
+pass samples the map with a 4-tap hardware PCF (a 3x3-texel tent) and scales
+only the sun's term: ambient and emissive light stay. Shadow strength is
+``1 - cloudiness`` (CN 0.9, CS 0.85); below :data:`MIN_SHADOW_STRENGTH` (HRN:
+0.05, at most ~2 grey levels) the shadow pass is skipped and the light stays
+flat. Shadows fade out between :data:`SHADOW_FADE_M` and :data:`SHADOW_FAR_M`
+from the camera (receivers farther away stay lit).
+The class pass is untouched (no shadow pass, no lights), so class ids and
+depth are identical with shadows on or off. See ``render_workers.compat`` for
+the pyrender internals this overrides.
+
 pyrender rules this module follows are listed in ``render_workers.compat``.
 """
 
@@ -53,11 +71,26 @@ VEHICLE_ID = class_id("vehicle")
 HOOD_MARK = 1  # green channel of the hood's SEG colour
 SKY_DOWNSCALE = 4  # the sky is smooth: compute it at 1/4 size and upscale
 SUN_SCALE = 0.55  # exposure: Weather.light_intensity x this keeps noon albedo from clipping
+SHADOW_MAP_PX = 2048  # shadow map size (square)
+SHADOW_FAR_M = 150.0  # shadows reach this far from the camera ...
+SHADOW_FADE_M = 110.0  # ... fading out from this distance
+SHADOW_BACK_M = 20.0  # the shadow map also covers this much behind and beside the camera
+SHADOW_TOP_M = 30.0  # receivers up to this height above the road
+CASTER_TOP_M = 60.0  # casters up to this height (sets how far towards the sun the depth range reaches)
+MIN_SHADOW_STRENGTH = 0.1  # fainter shadows (overcast: HRN's would be 0.05) are skipped, saving their cost
 
 
 # Drop-in for pyrender's mesh.frag: same inputs and uniform names, cheaper maths.
 FAST_MESH_FRAG = """#version 330 core
-struct DirectionalLight { vec3 color; float intensity; vec3 direction; };
+struct DirectionalLight {
+    vec3 color;
+    float intensity;
+    vec3 direction;
+#ifdef DIRECTIONAL_LIGHT_SHADOWS
+    sampler2DShadow shadow_map;  // depth compare on: each tap is a 2x2 PCF
+    mat4 light_matrix;
+#endif
+};
 struct Material {
     vec3 emissive_factor;
     vec4 base_color_factor;
@@ -78,6 +111,28 @@ in vec4 color_multiplier;
 #endif
 out vec4 frag_color;
 const float PI = 3.141592653589793;
+
+#ifdef DIRECTIONAL_LIGHT_SHADOWS
+uniform vec4 shadow_params;  // strength, normal offset (m), fade start (m), fade end (m)
+
+// Share of the sun that reaches this fragment: 1 lit, 1 - strength in full shadow.
+float sun_visibility(sampler2DShadow map, mat4 light_matrix, vec3 n, float nl)
+{
+    float dist = length(cam_pos - frag_position);
+    if (shadow_params.x <= 0.0 || dist >= shadow_params.w) return 1.0;
+    // normal offset, larger at grazing light, against acne on slopes
+    vec3 p = frag_position + n * (shadow_params.y * (2.0 - nl));
+    vec3 c = (light_matrix * vec4(p, 1.0)).xyz * 0.5 + 0.5;
+    if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return 1.0;
+    vec2 t = 0.5 / vec2(textureSize(map, 0));
+    float lit = 0.25 * (texture(map, vec3(c.xy + vec2(-t.x, -t.y), c.z))
+                      + texture(map, vec3(c.xy + vec2( t.x, -t.y), c.z))
+                      + texture(map, vec3(c.xy + vec2(-t.x,  t.y), c.z))
+                      + texture(map, vec3(c.xy + vec2( t.x,  t.y), c.z)));
+    float fade = clamp((shadow_params.w - dist) / max(shadow_params.w - shadow_params.z, 1e-3), 0.0, 1.0);
+    return 1.0 - shadow_params.x * fade * (1.0 - lit);
+}
+#endif
 
 void main()
 {
@@ -103,9 +158,14 @@ void main()
     for (int i = 0; i < n_directional_lights; i++) {
         vec3 l = normalize(-directional_lights[i].direction);
         float nl = max(dot(n, l), 0.0);
+        if (nl <= 0.0) continue;
         vec3 h = normalize(l + v);
         float spec = pow(max(dot(n, h), 0.0), shininess) * (shininess + 8.0) / (8.0 * PI);
-        color += directional_lights[i].color * directional_lights[i].intensity * nl
+        float sun = 1.0;
+#ifdef DIRECTIONAL_LIGHT_SHADOWS
+        if (i == 0) sun = sun_visibility(directional_lights[0].shadow_map, directional_lights[0].light_matrix, n, nl);
+#endif
+        color += directional_lights[i].color * directional_lights[i].intensity * nl * sun
                  * (diffuse + spec_colour * spec);
     }
     frag_color = vec4(pow(clamp(color, 0.0, 1.0), vec3(1.0 / 2.2)), base.a);
@@ -366,11 +426,15 @@ class Renderer:
     """A long-lived off-screen renderer; call :meth:`load` per episode, then :meth:`render`."""
 
     def __init__(self, *, znear: float = ZNEAR_M, zfar: float = ZFAR_M, cull_m: float = CULL_M,
-                 tile_m: float = TILE_M, pbr: bool = False, msaa: int = 0) -> None:
+                 tile_m: float = TILE_M, pbr: bool = False, msaa: int = 0, shadows: bool = True,
+                 shadow_map_px: int = SHADOW_MAP_PX) -> None:
         if not 0 < znear < zfar:
             raise ValueError(f"need 0 < znear < zfar, got {znear}, {zfar}")
         self.znear, self.zfar, self.cull_m, self.tile_m = znear, zfar, cull_m, tile_m
         self.pbr = pbr
+        self.shadows = shadows  # may be toggled between frames
+        self.shadow_map_px = shadow_map_px
+        self._shadow_frame: compat.ShadowFrame | None = None
         # 0: no multisampling (half the colour pass on llvmpipe); edges are
         # anti-aliased in post instead (postfx.antialias).
         compat.set_msaa_samples(msaa)
@@ -406,6 +470,7 @@ class Renderer:
             self._offscreen = compat.offscreen_renderer(width, height)
             if not self.pbr:
                 self._shader_dir = _install_fast_shaders(self._offscreen)
+            compat.install_shadow_pass(self._offscreen, lambda: self._shadow_frame, depth_compare=not self.pbr)
             # pyrender sorts nodes by distance and breaks ties in set (id) order,
             # so coplanar faces could resolve differently from run to run: draw
             # the visible nodes in the fixed order load() built them instead.
@@ -458,8 +523,10 @@ class Renderer:
         sun = sun_direction(weather.sun_elevation_deg, weather.sun_azimuth_deg)
         light = pr.DirectionalLight(color=np.asarray(weather.light_color),
                                     intensity=weather.light_intensity * SUN_SCALE)
+        light.shadow_texture = compat.shadow_texture(self.shadow_map_px)
         prs.add(light, pose=_look_along(-sun))
         self._sun = sun
+        self._shadow_strength = shadow_strength(weather)
         self._scene = prs
 
     def _build_static(self, parts: tuple[Part, ...]) -> _NodeSet:
@@ -525,7 +592,27 @@ class Renderer:
                 world_centres[i] = pose[:3, :3] @ self._actors.centres[i] + pose[:3, 3]
             for node, on in zip(self._actors.nodes, self._visible(world_centres, self._actors.radii, cam)):
                 node.mesh.is_visible = bool(on)
+        else:
+            world_centres = np.empty((0, 3))
+        if self._shadows_on():
+            self._shadow_frame = self._fit_shadows(cam, world_centres)
         return cam
+
+    def _shadows_on(self) -> bool:
+        return self.shadows and self._shadow_strength >= MIN_SHADOW_STRENGTH
+
+    def _fit_shadows(self, cam: np.ndarray, actor_centres: np.ndarray) -> compat.ShadowFrame:
+        view, proj, box = fit_shadow_frame(self._sun, cam, self.rig)
+        casters = set()
+        for nodes, centres, radii in ((self._static.nodes, self._static.centres, self._static.radii),
+                                      (self._actors.nodes, actor_centres, self._actors.radii)):
+            if nodes:
+                hits = _in_light_box(centres, radii, view, box)
+                casters.update(node for node, hit in zip(nodes, hits) if hit)
+        ordered = [node for node in self._draw_list if node in casters]  # fixed order
+        texel = max(box[1] - box[0], box[3] - box[2]) / self.shadow_map_px
+        params = np.array([self._shadow_strength, 1.5 * texel, SHADOW_FADE_M, SHADOW_FAR_M], np.float32)
+        return compat.ShadowFrame(view=view, proj=proj, casters=ordered, uniforms={"shadow_params": params})
 
     def render(self, t: float) -> RenderResult:
         """Render the loaded episode at simulated time ``t`` (seconds)."""
@@ -537,6 +624,8 @@ class Renderer:
 
         start = time.perf_counter()
         flags = pr.RenderFlags.RGBA | pr.RenderFlags.SKIP_CULL_FACES
+        if self._shadows_on():
+            flags |= pr.RenderFlags.SHADOWS_DIRECTIONAL
         color, _ = self._offscreen.render(self._scene, flags=flags)
         sky = sky_image(self.weather, self.rig, cam, self._clouds)
         rgb = np.ascontiguousarray(color[..., :3])
@@ -567,6 +656,65 @@ class Renderer:
             return None
         x, y = self.rig.project(sun_cam[None, :])[0]
         return float(x), float(y)
+
+
+def shadow_strength(weather: Weather) -> float:
+    """Share of the sun's light a shadow takes away: clear skies crisp, overcast nearly none."""
+    if weather.sun_elevation_deg <= 0.0:
+        return 0.0
+    return float(np.clip(1.0 - weather.cloudiness, 0.0, 1.0))
+
+
+def fit_shadow_frame(sun: np.ndarray, cam: np.ndarray, rig: CameraRig) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """Light view and orthographic projection covering what the camera sees within SHADOW_FAR_M.
+
+    The light frame looks along ``-sun`` with its y axis along the camera's
+    forward direction projected across the sun, so the covered ground
+    trapezoid fills the map. Returns (view, proj, box) with box =
+    (x0, x1, y0, y1, z0, z1) in light eye coordinates (z towards the sun).
+    """
+    z = np.asarray(sun, np.float64) / np.linalg.norm(sun)
+    forward = -cam[:3, 2].copy()
+    forward[2] = 0.0
+    if np.linalg.norm(forward) < 1e-6:
+        forward = cam[:3, 1].copy()
+        forward[2] = 0.0
+    forward /= np.linalg.norm(forward)
+    y = forward - (forward @ z) * z
+    if np.linalg.norm(y) < 1e-6:  # sun straight ahead on the horizon: any axis will do
+        y = np.cross(z, [0.0, 0.0, 1.0]) if abs(z[2]) < 0.99 else np.array([0.0, 1.0, 0.0])
+    y /= np.linalg.norm(y)
+    x = np.cross(y, z)
+    rot = np.stack([x, y, z], axis=1)  # light -> world
+    origin = cam[:3, 3]
+    right = np.array([forward[1], -forward[0], 0.0])
+    ground = origin[2] - rig.viewpoint.camera_height_m
+    far_half = SHADOW_FAR_M * rig.tan_half_h
+    ahead = np.array([-SHADOW_BACK_M, -SHADOW_BACK_M, SHADOW_FAR_M, SHADOW_FAR_M])
+    across = np.array([-SHADOW_BACK_M, SHADOW_BACK_M, -far_half, far_half])
+    xy = origin[:2] + ahead[:, None] * forward[:2] + across[:, None] * right[:2]
+    points = np.array([[px, py, ground + h] for px, py in xy for h in (-2.0, SHADOW_TOP_M)])
+    q = (points - origin) @ rot
+    x0, y0, z0 = q.min(axis=0) - 1.0
+    x1, y1, z1 = q.max(axis=0) + 1.0
+    z1 += CASTER_TOP_M / max(z[2], 0.05)  # casters sit towards the sun
+    view = np.eye(4)
+    view[:3, :3] = rot.T
+    view[:3, 3] = -rot.T @ origin
+    near, far = -z1, -z0  # distances along the light's -z
+    proj = np.eye(4)
+    proj[0, 0], proj[0, 3] = 2.0 / (x1 - x0), -(x1 + x0) / (x1 - x0)
+    proj[1, 1], proj[1, 3] = 2.0 / (y1 - y0), -(y1 + y0) / (y1 - y0)
+    proj[2, 2], proj[2, 3] = -2.0 / (far - near), -(far + near) / (far - near)
+    return view, proj, (x0, x1, y0, y1, z0, z1)
+
+
+def _in_light_box(centres: np.ndarray, radii: np.ndarray, view: np.ndarray, box: tuple) -> np.ndarray:
+    """Bounding spheres that overlap the light box (they can cast into the shadow map)."""
+    q = centres @ view[:3, :3].T + view[:3, 3]
+    lo = np.array([box[0], box[2], box[4]])
+    hi = np.array([box[1], box[3], box[5]])
+    return ((q + radii[:, None] >= lo) & (q - radii[:, None] <= hi)).all(axis=1)
 
 
 def _look_along(direction: np.ndarray) -> np.ndarray:
