@@ -283,7 +283,8 @@ def distances(root: str, images: Path) -> dict:
 def world_timings(stats: list[dict]) -> dict:
     """Fresh build_world and populate times per town (this process), and the sample's render times."""
     from manifests.catalog import TOWNS
-    from pipeline.planner import EPISODE_FRAMES, town_seed
+    from manifests.spec import town_seed
+    from pipeline.planner import EPISODE_FRAMES
     from render_workers import traffic, world
 
     out = {}

@@ -7,6 +7,26 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
+from manifests.catalog import TOWNS, Scenario, Town
+
+FRAME_PERIOD_S = 3.0  # one frame every 3 s of simulated time
+_EPISODE_STREAM = 2  # rng stream ids keep seeds of different uses apart
+_TOWN_STREAM = 3
+
+
+def town_seed(run_seed: int, town: Town) -> int:
+    """Seed of a town's static world: shared by all its weathers and viewpoints."""
+    rng = np.random.default_rng([run_seed, _TOWN_STREAM, TOWNS.index(town)])
+    return int(rng.integers(0, 2**63 - 1))
+
+
+def episode_seed(run_seed: int, scenario: Scenario, episode: int) -> int:
+    """Seed of one episode (traffic, spawn point); independent of the selection."""
+    rng = np.random.default_rng([run_seed, _EPISODE_STREAM, *scenario.key, episode])
+    return int(rng.integers(0, 2**63 - 1))
+
 
 @dataclass(frozen=True)
 class EpisodeSpec:

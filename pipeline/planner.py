@@ -18,18 +18,15 @@ import numpy as np
 
 from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Scenario, Town
 from manifests.selection import parse_selection
-from manifests.spec import EpisodeSpec
+from manifests.spec import EpisodeSpec, episode_seed
 
 PAPER_TOTAL_FRAMES = 1_006_800
-FRAME_PERIOD_S = 3.0  # one frame every 3 s of simulated time
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
 MIN_SIZE, MAX_SIZE = 32, 8192  # accepted image width / height in pixels
 SPLITS = ("train", "val", "test")
 SPLIT_SHARES = (0.8, 0.1, 0.1)
 
-_SPLIT_STREAM = 1  # rng stream ids keep seeds of different uses apart
-_EPISODE_STREAM = 2
-_TOWN_STREAM = 3
+_SPLIT_STREAM = 1  # rng stream ids keep seeds of different uses apart (2, 3: manifests.spec)
 
 
 def _largest_remainder(total: int, weights: list[float]) -> list[int]:
@@ -61,12 +58,6 @@ def split_episodes(frames: int, target: int) -> list[int]:
     n = max(1, round(frames / target), math.ceil(frames / EPISODE_FRAMES[1]))
     base, extra = divmod(frames, n)
     return [base + (1 if i < extra else 0) for i in range(n)]
-
-
-def town_seed(run_seed: int, town: Town) -> int:
-    """Seed of a town's static world: shared by all its weathers and viewpoints."""
-    rng = np.random.default_rng([run_seed, _TOWN_STREAM, TOWNS.index(town)])
-    return int(rng.integers(0, 2**63 - 1))
 
 
 @dataclass(frozen=True)
@@ -136,11 +127,6 @@ def _splits(config: PlanConfig, scenario: Scenario, n: int) -> list[str]:
     labels = ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
     rng = np.random.default_rng([config.seed, _SPLIT_STREAM, *scenario.key])
     return [labels[i] for i in rng.permutation(n)]
-
-
-def episode_seed(run_seed: int, scenario: Scenario, episode: int) -> int:
-    rng = np.random.default_rng([run_seed, _EPISODE_STREAM, *scenario.key, episode])
-    return int(rng.integers(0, 2**63 - 1))
 
 
 def make_plan(config: PlanConfig) -> Plan:

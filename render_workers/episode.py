@@ -11,6 +11,8 @@ from the town seed (world), so the same spec gives byte-identical PNGs.
 
 from __future__ import annotations
 
+import atexit
+
 import functools
 import importlib
 import logging
@@ -22,7 +24,7 @@ import numpy as np
 
 from manifests.catalog import NUM_CLASSES, OUTPUTS, scenario as lookup_scenario
 from manifests.spec import EpisodeSpec
-from pipeline.planner import FRAME_PERIOD_S, town_seed
+from manifests.spec import FRAME_PERIOD_S, town_seed
 from render_workers import postfx
 from render_workers.camera import measured_hood_fraction
 from manifests.encoding import encode_outputs, encode_png
@@ -81,8 +83,13 @@ def cached_world(world: str, town_code: str, seed: int) -> World:
 
 @functools.lru_cache(maxsize=1)
 def process_renderer() -> Renderer:
-    """The worker process's long-lived renderer (its first frame compiles shaders)."""
-    return Renderer()
+    """The worker process's long-lived renderer (its first frame compiles shaders).
+
+    It is closed at interpreter exit, while PyOpenGL can still free it cleanly.
+    """
+    renderer = Renderer()
+    atexit.register(renderer.close)
+    return renderer
 
 
 @dataclass(frozen=True)

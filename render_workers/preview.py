@@ -18,7 +18,7 @@ import numpy as np
 
 from manifests.catalog import OUTPUTS, TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario
 from manifests.spec import EpisodeSpec
-from pipeline.planner import episode_seed
+from manifests.spec import episode_seed
 from manifests.encoding import encode_png
 from render_workers.episode import DEFAULT_WORLD, render_episode
 from render_workers.renderer import Renderer

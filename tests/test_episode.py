@@ -7,7 +7,7 @@ import pytest
 
 from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE
 from manifests.spec import EpisodeSpec
-from pipeline.planner import FRAME_PERIOD_S
+from manifests.spec import FRAME_PERIOD_S
 from render_workers import episode, testworld
 from manifests.encoding import decode_depth_raw, decode_png
 from render_workers.renderer import Renderer
