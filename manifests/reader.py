@@ -113,6 +113,8 @@ def compact(root, scenarios: list[str] | None = None) -> list[str]:
         index = indexes.get(scenario)
         if index is not None and index_episodes(storage, index) == set(episodes):
             continue
+        index_dir, _, index_name = index_path(scenario).rpartition("/")
+        storage.remove_stale_temp(index_dir, index_name)  # from a compaction that was killed
         table = pa.concat_tables([read_part(storage, scenario, e) for e in episodes])
         meta = {INDEX_EPISODES_KEY: json.dumps(episodes).encode()}
         sink = io.BytesIO()

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from manifests.catalog import LABELS, OUTPUTS
-from manifests.schema import STATS_DIR, frame_id, frame_path, output_columns
+from manifests.schema import STATS_DIR, frame_id, frame_path, output_columns, part_path
 from manifests.spec import EpisodeSpec
 from manifests.writer import write_part
 
@@ -101,6 +101,8 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural") -> Episod
     start = time.perf_counter()
     for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
         storage.remove_stale_temp(f"{spec.scenario}/{output}", f"{spec.episode:04d}_")
+    part_dir, _, part_name = part_path(spec.scenario, spec.episode).rpartition("/")
+    storage.remove_stale_temp(part_dir, part_name)
     rows: list[dict] = []
     kill_after = _fault_after()
 

@@ -113,20 +113,23 @@ def test_cli_status_verify_query_stats(reference, tmp_path):
     assert "sky" in result.output and chart.read_bytes()[:4] == b"\x89PNG"
 
 
-def _ray_sessions() -> set[str]:
-    base = Path("/tmp/ray")
-    return {p.name for p in base.glob("session_2*")} if base.exists() else set()
-
-
-def _wait_for_session_exit(names: set[str], timeout: float = 120) -> None:
-    """Wait until no process of these Ray sessions (gcs_server, raylet) is left."""
-    deadline = time.time() + timeout
-    while time.time() < deadline:
-        alive = [n for n in names if subprocess.run(["pgrep", "-f", n], capture_output=True).returncode == 0]
-        if not alive:
-            return
-        time.sleep(0.5)
-    raise AssertionError(f"Ray session(s) {names} still running {timeout} s after the driver was killed")
+def _descendants(pid: int) -> list[int]:
+    """All processes below ``pid`` (Ray's GCS, raylet and workers run in their own
+    sessions, so killing the driver's process group does not reach them)."""
+    parents = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    parents[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+    found, frontier = [], [pid]
+    while frontier:
+        children = [c for c, parent in parents.items() if parent in frontier]
+        found += children
+        frontier = children
+    return found
 
 
 def test_killed_driver_resumes_to_identical_output(reference, tmp_path):
@@ -135,7 +138,6 @@ def test_killed_driver_resumes_to_identical_output(reference, tmp_path):
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "pipeline.cli", "produce", *ARGS, "--out", str(out), "--workers", "1"]
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    sessions_before = _ray_sessions()
     proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
     deadline = time.time() + 240
     storage = Storage.from_uri(str(out))
@@ -144,14 +146,18 @@ def test_killed_driver_resumes_to_identical_output(reference, tmp_path):
             break
         time.sleep(0.2)
     assert proc.poll() is None, f"driver ended before it could be killed: {proc.stderr.read().decode()[-2000:]}"
-    os.killpg(proc.pid, signal.SIGKILL)
+    # Kill everything at once: the driver and its whole local Ray cluster, so
+    # the worker busy with the next episode dies mid-write too.
+    victims = [proc.pid, *_descendants(proc.pid)]
+    for pid in victims:
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
     proc.wait()
-    done_at_kill = len(done_episodes(storage))
-    # The worker busy at that moment may still finish its episode (nothing is
-    # lost); the killed session's Ray processes then exit on their own.
-    _wait_for_session_exit(_ray_sessions() - sessions_before)
+    time.sleep(1.0)
     done_before = len(done_episodes(storage))
-    assert 1 <= done_at_kill <= done_before < len(make_plan(PLAN).episodes)
+    assert 1 <= done_before < len(make_plan(PLAN).episodes)
     # Run again (a fresh driver and a fresh local Ray), to the end.
     result = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
