@@ -26,6 +26,7 @@ $(STAMP): pyproject.toml
 	# its pins (its real dependencies are listed in pyproject.toml).
 	$(BIN)/pip install --quiet --no-deps pyrender==0.1.45
 	$(BIN)/pip install --quiet -e '.[test]'
+	@echo "note: pip's warning that pyrender wants PyOpenGL==3.1.0 is expected; newer PyOpenGL is what makes EGL work"
 	@touch $(STAMP)
 
 venv: $(STAMP) ## create .venv with the project and its dependencies
