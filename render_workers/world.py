@@ -19,7 +19,7 @@ traffic that keeps one speed per loop can never collide.
 
 Static geometry is merged into one Part per (200 m tile, class, material).
 ``layout(town_code, seed)`` exposes the plan (loops, parking spans, building
-footprints) that ``render_workers.traffic`` and the tests use.
+footprints, zebra crossings) that ``render_workers.traffic`` and the tests use.
 """
 
 from __future__ import annotations
@@ -42,6 +42,7 @@ LANE_W_URBAN, LANE_W_RURAL = 3.5, 3.0
 PARKING_W = 2.2  # parking strip between the outer lane and the kerb (urban)
 FREEWAY_LANE_W = 3.6
 FREEWAY_MEDIAN = 30.0  # wide, planted median: lets buses take the turn-around loops
+ZEBRA_FROM, ZEBRA_LEN = 0.6, 3.0  # zebra stripes: distance of their near end from the kerb line, length
 
 
 # --------------------------------------------------------------------------
@@ -59,6 +60,16 @@ class Loop:
     parking_lateral_m: float  # lateral offset of parked cars (negative = right)
     kerb_lateral_m: float  # lateral offset for riders at the lane's right edge
     lane_sep_m: float = 3.5  # distance to the nearest lane centre of another loop or lane
+
+
+@dataclass(frozen=True, eq=False)
+class Crosswalk:
+    """A zebra crossing on one approach of a junction (sidewalk towns only)."""
+
+    centre: np.ndarray  # (2,) middle of the zebra, on the street's centre line
+    across: np.ndarray  # (2,) unit vector across the street
+    half_road: float  # centre line to kerb
+    reach: tuple[float, float]  # straight sidewalk beyond the kerb on the -across / +across side
 
 
 @dataclass(frozen=True, eq=False)
@@ -303,6 +314,42 @@ def loops(town_code: str, seed: int) -> tuple[Loop, ...]:
     return _loops(layout(town_code, seed))
 
 
+def _crosswalks(lay: Layout) -> tuple[Crosswalk, ...]:
+    """Every zebra crossing: one per junction approach, where there are sidewalks."""
+    if not lay.sidewalk_w:
+        return ()
+    xs, ys, hw, w = lay.xs, lay.ys, lay.hw, lay.sidewalk_w
+    out = []
+    for i, x in enumerate(xs):
+        for j, y in enumerate(ys):
+            c = np.array([x, y])
+            # the streets leaving this junction: direction -> distance to the next junction
+            streets = {}
+            if j + 1 < len(ys):
+                streets[(0, 1)] = ys[j + 1] - y
+            if j > 0:
+                streets[(0, -1)] = y - ys[j - 1]
+            if i + 1 < len(xs):
+                streets[(1, 0)] = xs[i + 1] - x
+            if i > 0:
+                streets[(-1, 0)] = x - xs[i - 1]
+            for d in streets:
+                n = (-d[1], d[0])
+                # beyond a kerb the crossing line runs down the sidewalk of the
+                # cross street, if there is one; else only across the sidewalk
+                reach = tuple(float(streets[e] - 2 * hw - 4.0) if e in streets else float(w - 1.0)
+                              for e in ((-n[0], -n[1]), n))
+                centre = c + np.array(d, float) * (hw + ZEBRA_FROM + ZEBRA_LEN / 2)
+                out.append(Crosswalk(centre, np.array(n, float), float(hw), reach))
+    return tuple(out)
+
+
+@lru_cache(maxsize=16)
+def crosswalks(town_code: str, seed: int) -> tuple[Crosswalk, ...]:
+    """The town's zebra crossings (empty for countryside towns)."""
+    return _crosswalks(layout(town_code, seed))
+
+
 def _walkways(lay: Layout) -> tuple[Path, ...]:
     xs, ys, hw = lay.xs, lay.ys, lay.hw
     w = lay.sidewalk_w or lay.verge_w
@@ -314,11 +361,9 @@ def _walkways(lay: Layout) -> tuple[Path, ...]:
             out.append(Path(pts, closed=True))
     e = hw + w / 2
     out.append(Path(rounded_rect(xs[0] - e, ys[0] - e, xs[-1] + e, ys[-1] + e, 0.5, clockwise=False), closed=True))
-    if lay.sidewalk_w:  # zebra crossings, walked back and forth
-        for x in xs:
-            for y in ys[:-1]:
-                c = np.array([[x - hw - 0.5, y + hw + 1.5, 0], [x + hw + 0.5, y + hw + 1.5, 0]])
-                out.append(Path(c, closed=False))
+    for cw in _crosswalks(lay):  # zebra crossings, kerb to kerb plus half a metre
+        ends = [cw.centre - cw.across * (hw + 0.5), cw.centre + cw.across * (hw + 0.5)]
+        out.append(Path(np.array([[*p, 0.0] for p in ends]), closed=False))
     return tuple(out)
 
 
@@ -458,8 +503,8 @@ class _Builder:
             if lay.sidewalk_w:
                 stripes = np.arange(-hw + 0.4, hw - 0.4, 1.1)
                 for s in stripes:
-                    p = c + d * (hw + 0.6) + n * s
-                    p0s.append([*p, MARK_Z]); us.append([*(d * 3.0), 0]); vs.append([*(n * 0.55), 0])
+                    p = c + d * (hw + ZEBRA_FROM) + n * s
+                    p0s.append([*p, MARK_Z]); us.append([*(d * ZEBRA_LEN), 0]); vs.append([*(n * 0.55), 0])
             if (i, j) in lay.signals or (not lay.sidewalk_w and self.rng.random() < 0.5):
                 # stop line across the incoming half (right-hand traffic: incoming on -n side)
                 p = c + d * (hw + 4.2) - n * (lay.town.lanes * lay.lane_w)

@@ -254,3 +254,48 @@ def test_ego_prefers_streets_to_the_freeway(worlds):
     by_length = lengths[is_fw].sum() / lengths.sum()  # the ego's share if it picked by length only
     on_fw = np.mean([populate(worlds["T04"], "A", s).extras["ego_loop_kind"] == "freeway" for s in range(40)])
     assert FREEWAY_EGO_WEIGHT < 1.0 and 0.0 < on_fw < by_length
+
+
+def _boxes_at(actors, t, local):
+    """Like _box, with each actor's local footprint (centre, half extents) given."""
+    out = []
+    for a, (c, h) in zip(actors, local):
+        pose = a.pose(t)
+        out.append(((pose @ np.array([c[0], c[1], 0.0, 1.0]))[:2], h, pose[:2, :2]))
+    return out
+
+
+@pytest.mark.parametrize("code,seed", [("T01", 0), ("T02", 4), ("T06", 3)])
+def test_crossing_pedestrians_keep_clear_of_traffic(worlds, code, seed):
+    """Pedestrians walk over zebras in the gaps: no vehicle, rider or the ego meets one in any frame."""
+    for vp in ("A", "B"):
+        scene = populate(worlds[code], vp, seed)
+        crossing = [a for a in scene.actors if a.kind == "pedestrian" and not a.path.closed]
+        assert len(crossing) == scene.extras["crossing_pedestrians"]
+        if scene.n_pedestrians >= 20:
+            assert crossing, "no one crosses the street"
+        movers = [a for a in scene.actors if a.kind != "pedestrian"] + [scene.ego]
+        local = []
+        for a in movers + crossing:
+            if a.parts:
+                verts = np.concatenate([p.mesh.vertices[:, :2] for p in a.parts])
+                lo, hi = verts.min(axis=0), verts.max(axis=0)
+                local.append(((lo + hi) / 2, (hi - lo) / 2))
+            else:  # the ego: not drawn, but it has a size
+                local.append((np.zeros(2), np.array(scene.extras["ego_size_m"]) / 2))
+        on_road = 0
+        for t in np.arange(0.0, 240.0 + 1e-9, 3.0):
+            boxes = _boxes_at(movers, t, local[:len(movers)])
+            centres = np.array([b[0] for b in boxes])
+            for pb, p in zip(_boxes_at(crossing, t, local[len(movers):]), crossing):
+                on_road += abs(p.pose(t)[2, 3]) < 1e-9
+                for i in np.flatnonzero(np.linalg.norm(centres - pb[0], axis=1) < 8.0):
+                    assert not _overlap(pb, boxes[i], shrink=-0.2), f"{movers[i].kind} meets a pedestrian at t={t}"
+        assert not crossing or on_road > 0  # they do step onto the road
+
+
+def test_town_traffic_has_buses(worlds):
+    """Buses stop at the kerb in towns whose corners are too tight for them to drive."""
+    for code in ("T01", "T02"):
+        kinds = [a.kind for s in range(6) for a in populate(worlds[code], "A", s).actors]
+        assert "bus" in kinds and "truck" in kinds, code
