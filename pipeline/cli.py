@@ -212,6 +212,9 @@ def format_produce_report(report) -> str:
         lines.append(f"{'scenario':<10} {'episodes':>8} {'frames':>8} {'worker s/frame':>15}")
         for code, row in sorted(report.per_scenario.items()):
             lines.append(f"{code:<10} {row['episodes']:>8} {row['frames']:>8} {row['seconds'] / max(row['frames'], 1):>15.2f}")
+    if not report.rendered_episodes and not report.failed:
+        lines.append(f"{report.out}: nothing to render; all {report.planned_episodes:,} planned episodes are done")
+        return "\n".join(lines)
     rate = report.rendered_frames / report.seconds if report.seconds else 0.0
     lines.append(
         f"{report.out}: rendered {report.rendered_frames:,} frames in {report.rendered_episodes:,} episodes "

@@ -91,6 +91,8 @@ def test_rerun_skips_everything(ray_local, reference, tmp_path):
     report = produce(config(copy))
     assert report.rendered_episodes == 0 and report.skipped_episodes == report.planned_episodes
     assert tree_digest(copy) == before
+    result = runner.invoke(app, ["produce", *ARGS, "--out", str(copy)])
+    assert result.exit_code == 0 and "nothing to render; all 4 planned episodes are done" in result.output
 
 
 def test_cli_status_verify_query_stats(reference, tmp_path):
