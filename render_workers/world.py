@@ -474,14 +474,7 @@ class _Builder:
                 p0s.append([*(base + si * d), MARK_Z])
                 us.append([*(d * li), 0])
                 vs.append([*(n * w), 0])
-        if p0s:
-            p0, u, v = np.array(p0s), np.array(us), np.array(vs)
-            # make every quad face up
-            flip = np.cross(u, v)[:, 2] < 0
-            p0[flip] += v[flip]
-            v[flip] = -v[flip]
-            vv, ff = M.quads(p0, u, v)
-            self.add("road line", vv, ff, PALETTE["marking"], "matte", 0.06, 2.0)
+        self.road_marks(p0s, us, vs)
 
     def junction_marks(self, i: int, j: int) -> None:
         """Zebra crossings and stop lines on every approach of a junction."""
@@ -509,13 +502,18 @@ class _Builder:
                 # stop line across the incoming half (right-hand traffic: incoming on -n side)
                 p = c + d * (hw + 4.2) - n * (lay.town.lanes * lay.lane_w)
                 p0s.append([*p, MARK_Z]); us.append([*(d * 0.4), 0]); vs.append([*(n * lay.town.lanes * lay.lane_w), 0])
-        if p0s:
-            p0, u, v = np.array(p0s), np.array(us), np.array(vs)
-            flip = np.cross(u, v)[:, 2] < 0
-            p0[flip] += v[flip]
-            v[flip] = -v[flip]
-            vv, ff = M.quads(p0, u, v)
-            self.add("road line", vv, ff, PALETTE["marking"], "matte", 0.06, 2.0)
+        self.road_marks(p0s, us, vs)
+
+    def road_marks(self, p0s: list, us: list, vs: list) -> None:
+        """Add painted quads (corner p0, edges u, v) as road line, every quad facing up."""
+        if not p0s:
+            return
+        p0, u, v = np.array(p0s), np.array(us), np.array(vs)
+        flip = np.cross(u, v)[:, 2] < 0
+        p0[flip] += v[flip]
+        v[flip] = -v[flip]
+        vv, ff = M.quads(p0, u, v)
+        self.add("road line", vv, ff, PALETTE["marking"], "matte", 0.06, 2.0)
 
     def roundabout(self, x: float, y: float) -> None:
         lay = self.lay
