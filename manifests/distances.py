@@ -49,6 +49,7 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario
+from manifests.encoding import decode_png
 
 IMAGE_SIZE = (72, 128)  # (height, width) every frame is resized to
 VAR_FLOOR = 1e-12
@@ -370,8 +371,6 @@ def first_frames(table: pa.Table, samples: int) -> dict[str, list[str]]:
 
 def domain_features(storage, paths: dict[str, list[str]], bank: FilterBank, threads: int = 4) -> dict[str, np.ndarray]:
     """Feature arrays per domain for the given RGB files."""
-    from manifests.encoding import decode_png
-
     def one(rel: str) -> np.ndarray:
         return bank(decode_png(storage.read_bytes(rel), name=storage.join(rel)))
 

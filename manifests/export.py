@@ -58,6 +58,7 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
+from manifests.encoding import decode_png
 from manifests.query import SPLITS, Query, run_query
 
 MARKER = "EXPORT.json"  # written last: its presence means the export is complete
@@ -157,8 +158,6 @@ def _jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
 
 
 def _decode(storage, rel: str) -> np.ndarray:
-    from manifests.encoding import decode_png
-
     return decode_png(storage.read_bytes(rel), name=storage.join(rel))
 
 

@@ -39,7 +39,9 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.catalog import CITYSCAPES_ID_LUT, OUTPUTS, TRAIN_ID_LUT
+from manifests.encoding import decode_depth_raw, decode_png
 from manifests.query import Query, run_query
+from manifests.reader import as_storage, read_manifest
 from manifests.schema import output_columns
 
 # Per-frame metadata returned with the arrays.
@@ -51,8 +53,6 @@ def _first_channel(image: np.ndarray) -> np.ndarray:
 
 
 def _depth_metres(image: np.ndarray) -> np.ndarray:
-    from manifests.encoding import decode_depth_raw
-
     return decode_depth_raw(image).astype(np.float32)
 
 
@@ -90,17 +90,9 @@ def _check_options(outputs: tuple[str, ...], labels: str) -> None:
         raise ValueError(f"unknown label map {labels!r}; valid label maps: {', '.join(LABEL_MAPS)}")
 
 
-def _as_storage(root):
-    from storage import Storage
-
-    return root if isinstance(root, Storage) else Storage.from_uri(str(root))
-
-
 def select_frames(root, query: Query | None = None) -> pa.Table:
     """Manifest rows of the query's frames (all frames without a query)."""
-    from manifests.reader import read_manifest
-
-    table = read_manifest(_as_storage(root))
+    table = read_manifest(as_storage(root))
     return table if query is None else run_query(table, query).table
 
 
@@ -109,8 +101,6 @@ def load_output(storage, rel: str, output: str, decode: bool = True, labels: str
     data = storage.read_bytes(rel)
     if not decode:
         return data
-    from manifests.encoding import decode_png
-
     array = DECODERS[output].decode(decode_png(data, name=storage.join(rel)))
     lut = LABEL_MAPS[labels]
     if output == "semantic_raw" and lut is not None:
@@ -141,7 +131,7 @@ class FrameDataset:
     ) -> None:
         outputs = tuple(outputs)
         _check_options(outputs, labels)
-        storage = _as_storage(root)
+        storage = as_storage(root)
         table = select_frames(storage, query)
         columns = list(META_COLUMNS) + [output_columns(o)[0] for o in outputs]
         self._table = table.select(columns).combine_chunks()
@@ -227,7 +217,7 @@ def ray_dataset(
         import ray.data
     except ImportError as exc:
         raise ImportError("ray_dataset needs Ray Data: pip install 'ray[data]'") from exc
-    storage = _as_storage(root)
+    storage = as_storage(root)
     table = select_frames(storage, query)
     columns = list(META_COLUMNS) + [output_columns(o)[0] for o in outputs]
     table = table.select(columns).combine_chunks()

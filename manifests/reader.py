@@ -30,7 +30,8 @@ _PART_RE = re.compile(
 )
 
 
-def _as_storage(root):
+def as_storage(root):
+    """A Storage for a root given as a Storage, a local path or an s3:// URI."""
     from storage import Storage
 
     return root if isinstance(root, Storage) else Storage.from_uri(str(root))
@@ -52,7 +53,7 @@ def _listing(storage) -> tuple[dict[str, dict[int, str]], dict[str, str]]:
 
 def done_episodes(root) -> set[tuple[str, int]]:
     """(scenario, episode) of every manifest part present under ``root``."""
-    parts, _ = _listing(_as_storage(root))
+    parts, _ = _listing(as_storage(root))
     return {(scenario, episode) for scenario, eps in parts.items() for episode in eps}
 
 
@@ -69,7 +70,7 @@ def index_episodes(storage, rel: str) -> set[int] | None:
 def manifest_files(root) -> list[str]:
     """The files that hold the manifest now: a scenario's index where it covers
     exactly the parts present, else the scenario's parts (relative paths)."""
-    storage = _as_storage(root)
+    storage = as_storage(root)
     parts, indexes = _listing(storage)
     files = []
     for scenario in sorted(parts):
@@ -82,13 +83,16 @@ def manifest_files(root) -> list[str]:
 
 
 def manifest_dataset(root) -> ds.Dataset:
-    """A hive-partitioned pyarrow dataset over the manifest (lazy, filterable)."""
-    storage = _as_storage(root)
+    """A hive-partitioned pyarrow dataset over the manifest (lazy, filterable).
+
+    A root with no parts yet gives an empty dataset with the full schema.
+    """
+    storage = as_storage(root)
     return ds.dataset(
         [storage.path(rel) for rel in manifest_files(storage)],
         filesystem=storage.filesystem,
         format="parquet",
-        schema=pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA)),
+        schema=MANIFEST_SCHEMA,
         partitioning=ds.partitioning(PARTITION_SCHEMA, flavor="hive"),
         partition_base_dir=storage.path(MANIFEST_DIR),
     )
@@ -103,7 +107,7 @@ def compact(root, scenarios: list[str] | None = None) -> list[str]:
     """
     from manifests.writer import read_part
 
-    storage = _as_storage(root)
+    storage = as_storage(root)
     parts, indexes = _listing(storage)
     for scenario in set(indexes) - set(parts):  # every part of it was removed
         storage.delete(indexes[scenario])
@@ -125,15 +129,7 @@ def compact(root, scenarios: list[str] | None = None) -> list[str]:
 
 
 def read_manifest(root, filter: ds.Expression | None = None, columns: list[str] | None = None) -> pa.Table:
-    """Read the manifest (optionally filtered), sorted by scenario, episode, frame.
-
-    An output root with no parts yet gives an empty table with the full schema.
-    """
-    storage = _as_storage(root)
-    if not manifest_files(storage):
-        table = MANIFEST_SCHEMA.empty_table()
-        return table.select(columns) if columns else table
-    table = manifest_dataset(storage).to_table(filter=filter, columns=columns)
+    """Read the manifest (optionally filtered), sorted by scenario, episode, frame."""
+    table = manifest_dataset(root).to_table(filter=filter, columns=columns)
     sort_keys = [(k, "ascending") for k in ("scenario", "episode", "frame") if k in table.column_names]
-    table = table.sort_by(sort_keys) if sort_keys else table
-    return table.select(columns) if columns else table.select(MANIFEST_SCHEMA.names)
+    return table.sort_by(sort_keys) if sort_keys else table

@@ -5,15 +5,16 @@ from __future__ import annotations
 import re
 import time
 from concurrent.futures import ThreadPoolExecutor
-
-import pyarrow as pa
 from dataclasses import dataclass, field
 from typing import Callable
 
+import pyarrow as pa
+
 from manifests.catalog import OUTPUTS, SCENARIO_BY_CODE
-from manifests.reader import done_episodes, read_manifest
+from manifests.reader import as_storage, done_episodes, read_manifest
 from manifests.schema import output_columns, part_path
 from manifests.writer import read_part
+from storage import sha256_bytes
 
 _FRAME_FILE = re.compile(r"^(T\d\d_\w+_\w)/(\w+)/(\d{4})_(\d{3})_(T\d\d_\w+_\w)\.png$")
 
@@ -65,9 +66,7 @@ def verify(root, threads: int = 8, progress: Callable[[int, int], None] | None =
 
     ``progress(files_done, files_total)`` is called as files are checked.
     """
-    from manifests.reader import _as_storage
-
-    storage = _as_storage(root)
+    storage = as_storage(root)
     start = time.perf_counter()
     report = VerifyReport()
 
@@ -99,8 +98,6 @@ def verify(root, threads: int = 8, progress: Callable[[int, int], None] | None =
             data = storage.read_bytes(rel)
         except FileNotFoundError:
             return Problem("missing", rel, scenario, episode)
-        from storage import sha256_bytes
-
         if len(data) != size or sha256_bytes(data) != sha:
             return Problem("corrupt", rel, scenario, episode, f"{len(data)} bytes, expected {size}")
         return len(data)
