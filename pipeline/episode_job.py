@@ -18,9 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from manifests.catalog import LABELS, OUTPUTS
+from manifests.encoding import encode_png
 from manifests.schema import STATS_DIR, frame_id, frame_path, output_columns, part_path
 from manifests.spec import EpisodeSpec
 from manifests.writer import write_part
+from storage import sha256_bytes
 
 log = logging.getLogger(__name__)
 
@@ -55,11 +57,9 @@ def _fault_after() -> int | None:
     return int(count)
 
 
-def frame_row(spec: EpisodeSpec, frame, storage, n_vehicles: int, n_pedestrians: int) -> dict:
-    """Encode and write one frame's six images; return its manifest row."""
-    from manifests.encoding import encode_png
-    from storage import sha256_bytes
-
+def frame_row(spec: EpisodeSpec, frame, storage) -> dict:
+    """Encode and write one frame's six images; return its manifest row
+    (without the episode's traffic counts, known only when it ends)."""
     fid = frame_id(spec.episode, frame.index)
     row = {
         "frame_id": fid,
@@ -69,8 +69,6 @@ def frame_row(spec: EpisodeSpec, frame, storage, n_vehicles: int, n_pedestrians:
         "sim_time_s": float(frame.sim_time_s),
         "split": spec.split,
         "seed": spec.seed,
-        "n_vehicles": n_vehicles,
-        "n_pedestrians": n_pedestrians,
         "camera_height_m": float(frame.camera_height_m),
         "hood_fraction": float(frame.hood_fraction),
         "ego_speed_mps": float(frame.ego_speed_mps),
@@ -107,14 +105,14 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural") -> Episod
     kill_after = _fault_after()
 
     def sink(frame) -> None:
-        rows.append(frame_row(spec, frame, storage, 0, 0))
+        rows.append(frame_row(spec, frame, storage))
         if kill_after is not None and len(rows) >= kill_after:
             os._exit(17)
 
     # The process keeps one renderer alive across episodes (render_workers.episode).
     info = render_episode(spec, sink, world=world)
     for row in rows:  # the episode's traffic counts come with the episode info
-        row["n_vehicles"], row["n_pedestrians"] = info.n_vehicles, info.n_pedestrians
+        row.update(n_vehicles=info.n_vehicles, n_pedestrians=info.n_pedestrians)
     if len(rows) != spec.frames:
         raise RuntimeError(f"{spec.key}: rendered {len(rows)} frames, expected {spec.frames}")
     seconds = time.perf_counter() - start
