@@ -290,14 +290,18 @@ def _sphere(positions: np.ndarray) -> tuple[np.ndarray, float]:
     return centre.astype(np.float64), float(np.linalg.norm(hi - lo) / 2)
 
 
+def _part_triangles(parts: tuple[Part, ...]):
+    """(part, (triangles, normals, colours)) for every non-empty part; checks its material."""
+    for part in parts:
+        if len(part.mesh.faces):
+            look(part.material)
+            yield part, _triangles(part.mesh)
+
+
 def static_groups(parts: tuple[Part, ...], tile_m: float) -> dict[tuple, _Soup]:
     """Static triangles grouped by (tile x, tile y, class id, material), by face centroid."""
     groups: dict[tuple, _Soup] = {}
-    for part in parts:
-        if len(part.mesh.faces) == 0:
-            continue
-        look(part.material)
-        tri, normals, colors = _triangles(part.mesh)
+    for part, (tri, normals, colors) in _part_triangles(parts):
         tiles = np.floor(tri.mean(axis=1)[:, :2] / tile_m).astype(np.int64)
         keys, inverse = np.unique(tiles, axis=0, return_inverse=True)
         inverse = inverse.ravel()
@@ -311,11 +315,7 @@ def static_groups(parts: tuple[Part, ...], tile_m: float) -> dict[tuple, _Soup]:
 def part_groups(parts: tuple[Part, ...]) -> dict[tuple, _Soup]:
     """An actor's triangles grouped by (class id, material)."""
     groups: dict[tuple, _Soup] = {}
-    for part in parts:
-        if len(part.mesh.faces) == 0:
-            continue
-        look(part.material)
-        tri, normals, colors = _triangles(part.mesh)
+    for part, (tri, normals, colors) in _part_triangles(parts):
         groups.setdefault((part.class_id, part.material), _Soup()).add(
             tri.reshape(-1, 3), normals.reshape(-1, 3), colors.reshape(-1, 4)
         )

@@ -115,6 +115,17 @@ def _split_segment(p0, p1, max_len: float) -> list:
     return [(pts[k], pts[k + 1]) for k in range(n)]
 
 
+def _line_pieces(p0, p1):
+    """Pieces of a wall, fence or hedge line as (p0, p1, length, yaw): lines over
+    45 m are cut into pieces of at most 40 m, and pieces under 1 m are dropped."""
+    long = np.linalg.norm(np.asarray(p1) - np.asarray(p0)) > 45.0
+    for a, b in _split_segment(p0, p1, 40.0) if long else [(p0, p1)]:
+        d = b - a
+        length = float(np.linalg.norm(d))
+        if length >= 1:
+            yield a, b, length, float(np.arctan2(d[1], d[0]))
+
+
 def _freeway_length(fw: dict | None) -> float:
     if fw is None:
         return 0.0
@@ -1008,31 +1019,18 @@ class _Builder:
                            self.pick([(140, 110, 80), (110, 120, 140), (160, 150, 120)]))
 
     def wall_line(self, p0, p1, z, h):
-        if np.linalg.norm(np.asarray(p1) - np.asarray(p0)) > 45.0:
-            for a, b in _split_segment(p0, p1, 40.0):
-                self.wall_line(a, b, z, h)
-            return
-        d = p1 - p0
-        L = float(np.linalg.norm(d))
-        if L < 1:
-            return
-        yaw = float(np.arctan2(d[1], d[0]))
-        mid = (p0 + p1) / 2
-        v, f = M.boxes(np.array([[mid[0], mid[1], z]]), np.array([[L, 0.3, h]]), yaw)
-        # subdivide visually via colour only (walls are short)
-        self.add("wall", v, f, self.pick(WALLS), amount=0.15, scale=1.0)
+        for p0, p1, L, yaw in _line_pieces(p0, p1):
+            mid = (p0 + p1) / 2
+            v, f = M.boxes(np.array([[mid[0], mid[1], z]]), np.array([[L, 0.3, h]]), yaw)
+            # subdivide visually via colour only (walls are short)
+            self.add("wall", v, f, self.pick(WALLS), amount=0.15, scale=1.0)
 
     def fence_line(self, p0, p1, z, h, metal=False):
-        if np.linalg.norm(np.asarray(p1) - np.asarray(p0)) > 45.0:
-            for a, b in _split_segment(p0, p1, 40.0):
-                self.fence_line(a, b, z, h, metal)
-            return
-        d = p1 - p0
-        L = float(np.linalg.norm(d))
-        if L < 1:
-            return
-        yaw = float(np.arctan2(d[1], d[0]))
-        e = d / L
+        for p0, p1, L, yaw in _line_pieces(p0, p1):
+            self._fence_piece(p0, p1, L, yaw, z, h, metal)
+
+    def _fence_piece(self, p0, p1, L, yaw, z, h, metal):
+        e = (p1 - p0) / L
         col = PALETTE["pole"] if metal else self.pick(FENCES)
         n_posts = int(L / 2.5) + 1
         s = np.linspace(0, L, n_posts)
@@ -1045,15 +1043,10 @@ class _Builder:
             self.add("fence", v, f, col, "metal" if metal else "matte", 0.15, 0.6, fine=0.2)
 
     def hedge_line(self, p0, p1, z):
-        if np.linalg.norm(np.asarray(p1) - np.asarray(p0)) > 45.0:
-            for a, b in _split_segment(p0, p1, 40.0):
-                self.hedge_line(a, b, z)
-            return
-        d = p1 - p0
-        L = float(np.linalg.norm(d))
-        if L < 1:
-            return
-        yaw = float(np.arctan2(d[1], d[0]))
+        for p0, p1, L, yaw in _line_pieces(p0, p1):
+            self._hedge_piece(p0, p1, L, yaw, z)
+
+    def _hedge_piece(self, p0, p1, L, yaw, z):
         mid = (p0 + p1) / 2
         h = self.rng.uniform(0.9, 1.8)
         v, f = M.grid((-L / 2, -0.5, h), (L, 0, 0), (0, 1.0, 0), max(1, int(L / 1.5)), 1)
