@@ -11,7 +11,11 @@ from typing import Iterator, Optional
 import typer
 
 from manifests.selection import SELECTION_HELP
+from manifests.writer import ManifestError
+from pipeline import cli_data
 from pipeline.planner import PlanConfig, make_plan
+from pipeline.runmeta import RunConfigError
+from storage import StorageError
 
 app = typer.Typer(
     help="Produce large multi-domain synthetic driving datasets (IDDA-style).\n\n"
@@ -31,10 +35,6 @@ def _root() -> None:
 DOMAINS_HELP = SELECTION_HELP
 
 
-class UserError(Exception):
-    """An error the user can fix; shown as one line."""
-
-
 @contextlib.contextmanager
 def user_errors() -> Iterator[None]:
     """Turn expected failures into one readable line and exit code 2."""
@@ -42,27 +42,9 @@ def user_errors() -> Iterator[None]:
         yield
     except typer.Exit:
         raise
-    except (ValueError, UserError, OSError, ImportError) as exc:
+    except (ValueError, OSError, ImportError, StorageError, ManifestError, RunConfigError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
-    except Exception as exc:  # storage and Ray errors arrive as their own types
-        if type(exc).__name__ in {"StorageError", "ManifestError", "RunConfigError"}:
-            typer.echo(f"error: {exc}", err=True)
-            raise typer.Exit(code=2) from None
-        raise
-
-
-def _plan_config(
-    domains: str, scale: Optional[float], frames_per_scenario: Optional[int], width: int, height: int, seed: int
-) -> PlanConfig:
-    return PlanConfig(
-        domains=domains,
-        scale=scale,
-        frames_per_scenario=frames_per_scenario,
-        width=width,
-        height=height,
-        seed=seed,
-    )
 
 
 def format_plan_table(plan) -> str:
@@ -109,7 +91,7 @@ def plan(
     scenarios hold the paper's 1,006,800 frames.
     """
     with user_errors():
-        the_plan = make_plan(_plan_config(domains, scale, frames_per_scenario, width, height, seed))
+        the_plan = make_plan(PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width, height=height, seed=seed))
         typer.echo(format_plan_table(the_plan))
         if out is not None:
             from pipeline.planio import write_plan
@@ -152,7 +134,7 @@ def produce(
     with user_errors():
         if scale is None and frames_per_scenario is None:
             frames_per_scenario = 2
-        plan_cfg = _plan_config(domains, scale, frames_per_scenario, width, height, seed)
+        plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width, height=height, seed=seed)
         config = ProduceConfig(
             run=RunConfig(plan=plan_cfg, world=world),
             out=out,
@@ -163,7 +145,6 @@ def produce(
             extend=extend,
             repair=repair,
         )
-        _check_world(world)
         bar = _ProgressBar()
         try:
             report = run_produce(config, progress=bar.update)
@@ -172,13 +153,6 @@ def produce(
         typer.echo(format_produce_report(report))
         if not report.ok:
             raise typer.Exit(code=1)
-
-
-def _check_world(world: str) -> None:
-    from render_workers.episode import WORLDS
-
-    if world not in WORLDS:
-        raise ValueError(f"unknown world {world!r}; valid worlds: {', '.join(WORLDS)}")
 
 
 class _ProgressBar:
@@ -295,15 +269,12 @@ def query(
 ) -> None:
     """Filter frames and draw seeded stratified samples, e.g. --preset best-case."""
     from manifests import query as q
-    from manifests.reader import manifest_dataset, read_manifest
+    from manifests.reader import manifest_dataset
 
     with user_errors():
-        from pipeline.cli_data import build_query
-
-        the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
+        the_query = cli_data.build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
         storage = _storage(root)
-        source = manifest_dataset(storage) if storage.list_files("manifest/", suffix=".parquet") else read_manifest(storage)
-        result = q.run_query(source, the_query)
+        result = q.run_query(manifest_dataset(storage), the_query)
         chosen = tuple(o.strip() for o in outputs.split(",") if o.strip())
         if out is not None:
             fmt = fmt or q.FORMAT_BY_SUFFIX.get(out.suffix)
@@ -379,11 +350,12 @@ def preview(
     """Render one frame per scenario into a contact sheet (rows = viewpoints,
     columns = towns, one sheet per weather) plus one frame's six outputs."""
     from manifests.selection import parse_selection
+    from render_workers.episode import check_world
     from render_workers.preview import write_preview
 
     with user_errors():
         PlanConfig(domains=domains, width=width, height=height, seed=seed, frames_per_scenario=1).validate()
-        _check_world(world)
+        check_world(world)
         out.mkdir(parents=True, exist_ok=True)
         codes = [s.code for s in parse_selection(domains)]
         paths = write_preview(out, codes, width, height, seed, world=world)
@@ -391,9 +363,7 @@ def preview(
             typer.echo(f"wrote {path}")
 
 
-from pipeline import cli_data  # noqa: E402  (export, distances, card)
-
-cli_data.register(app)
+cli_data.register(app)  # export, distances, card
 
 
 def main() -> None:

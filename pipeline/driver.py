@@ -42,7 +42,10 @@ class ProduceConfig:
     repair: bool = False
 
     def validate(self) -> None:
+        from render_workers.episode import check_world
+
         self.run.plan.validate()
+        check_world(self.run.world)  # here, not in each of the Ray tasks
         if self.workers is not None and self.workers < 1:
             raise ValueError(f"workers must be at least 1, got {self.workers}")
         if self.cpus_per_task <= 0:
@@ -131,6 +134,65 @@ def _repair(storage, plan) -> list[str]:
     return touched
 
 
+def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
+                   progress: Callable[[Progress], None] | None, start: float) -> None:
+    """Run one task per pending episode, at most ``limit`` in flight; fills ``report``."""
+    ray = _import_ray()
+    started = _connect(ray, config)
+    try:
+        slots = max(1, int(ray.cluster_resources().get("CPU", 1) // config.cpus_per_task))
+        report.workers = slots
+        limit = config.max_in_flight or 2 * slots
+        options = dict(
+            num_cpus=config.cpus_per_task,
+            max_retries=config.max_retries,
+            retry_exceptions=True,
+        )
+        if config.gpus_per_task:
+            options["num_gpus"] = config.gpus_per_task
+        env = {k: os.environ[k] for k in _FORWARDED_ENV if k in os.environ}
+        if env:  # per task, so it also reaches workers of an existing cluster
+            options["runtime_env"] = {"env_vars": env}
+        task = ray.remote(_episode_task).options(**options)
+        storage_ref = ray.put(storage)
+        queue, in_flight = deque(todo), {}
+        frames_total = sum(e.frames for e in todo)
+        while queue or in_flight:
+            while queue and len(in_flight) < limit:
+                spec = queue.popleft()
+                in_flight[task.remote(spec, storage_ref, config.run.world)] = spec
+            ready, _ = ray.wait(list(in_flight), num_returns=1)
+            for ref in ready:
+                spec = in_flight.pop(ref)
+                try:
+                    result = ray.get(ref)
+                except Exception as exc:  # RayTaskError, WorkerCrashedError, NodeDiedError...
+                    message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+                    report.failed.append((spec.key, message))
+                    log.error("episode %s failed after %d retries: %s", spec.key, config.max_retries, message)
+                    continue
+                report.rendered_frames += result.frames
+                report.rendered_episodes += 1
+                row = report.per_scenario.setdefault(spec.scenario, {"frames": 0, "episodes": 0, "seconds": 0.0})
+                row["frames"] += result.frames
+                row["episodes"] += 1
+                row["seconds"] += result.seconds
+            if progress is not None:
+                progress(
+                    Progress(
+                        frames_done=report.rendered_frames,
+                        frames_total=frames_total,
+                        episodes_done=report.rendered_episodes,
+                        episodes_total=len(todo),
+                        failed=len(report.failed),
+                        elapsed_s=time.perf_counter() - start,
+                    )
+                )
+    finally:
+        if started:
+            ray.shutdown()
+
+
 def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None) -> ProduceReport:
     """Render every pending episode of the plan into ``config.out``."""
     from storage import Storage
@@ -153,65 +215,8 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     todo = [e for e in plan.episodes if (e.scenario, e.episode) not in done]
     report.skipped_episodes = len(plan.episodes) - len(todo)
     start = time.perf_counter()
-    frames_total = sum(e.frames for e in todo)
-    if not todo:
-        return report
-
-    ray = _import_ray()
-    started = _connect(ray, config)
-    try:
-        slots = max(1, int(ray.cluster_resources().get("CPU", 1) // config.cpus_per_task))
-        report.workers = slots
-        limit = config.max_in_flight or 2 * slots
-        options = dict(
-            num_cpus=config.cpus_per_task,
-            max_retries=config.max_retries,
-            retry_exceptions=True,
-        )
-        if config.gpus_per_task:
-            options["num_gpus"] = config.gpus_per_task
-        env = {k: os.environ[k] for k in _FORWARDED_ENV if k in os.environ}
-        if env:  # per task, so it also reaches workers of an existing cluster
-            options["runtime_env"] = {"env_vars": env}
-        task = ray.remote(_episode_task).options(**options)
-        storage_ref = ray.put(storage)
-        queue, in_flight = deque(todo), {}
-        frames_done = 0
-        while queue or in_flight:
-            while queue and len(in_flight) < limit:
-                spec = queue.popleft()
-                in_flight[task.remote(spec, storage_ref, config.run.world)] = spec
-            ready, _ = ray.wait(list(in_flight), num_returns=1)
-            for ref in ready:
-                spec = in_flight.pop(ref)
-                try:
-                    result = ray.get(ref)
-                except Exception as exc:  # RayTaskError, WorkerCrashedError, NodeDiedError...
-                    message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-                    report.failed.append((spec.key, message))
-                    log.error("episode %s failed after %d retries: %s", spec.key, config.max_retries, message)
-                    continue
-                frames_done += result.frames
-                report.rendered_frames += result.frames
-                report.rendered_episodes += 1
-                row = report.per_scenario.setdefault(spec.scenario, {"frames": 0, "episodes": 0, "seconds": 0.0})
-                row["frames"] += result.frames
-                row["episodes"] += 1
-                row["seconds"] += result.seconds
-            if progress is not None:
-                progress(
-                    Progress(
-                        frames_done=frames_done,
-                        frames_total=frames_total,
-                        episodes_done=report.rendered_episodes,
-                        episodes_total=len(todo),
-                        failed=len(report.failed),
-                        elapsed_s=time.perf_counter() - start,
-                    )
-                )
-    finally:
-        if started:
-            ray.shutdown()
+    if todo:
+        _render_on_ray(config, storage, todo, report, progress, start)
     compact(storage)  # one index file per scenario, also for scenarios an earlier (killed) run finished
     report.seconds = time.perf_counter() - start
     if report.rendered_frames and report.seconds > 0:

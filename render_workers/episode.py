@@ -66,12 +66,16 @@ def _function(module_name: str, fn: str, world: str) -> Callable:
     return function
 
 
+def check_world(name: str) -> None:
+    """ValueError naming the valid worlds unless ``name`` is registered."""
+    if name not in WORLDS:
+        raise ValueError(f"unknown world {name!r}; valid worlds: {', '.join(WORLDS)}")
+
+
 def world_builder(name: str) -> WorldBuilder:
     """The world registered as ``name``; ValueError for unknown names, ImportError if missing."""
-    try:
-        build_module, populate_module = WORLDS[name]
-    except KeyError:
-        raise ValueError(f"unknown world {name!r}; valid worlds: {', '.join(WORLDS)}") from None
+    check_world(name)
+    build_module, populate_module = WORLDS[name]
     return WorldBuilder(_function(build_module, "build_world", name), _function(populate_module, "populate", name))
 
 
