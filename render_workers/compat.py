@@ -58,8 +58,12 @@ binds no lights, so class ids and depth do not change with shadows on.
 
 One more pitfall handled here: ``OffscreenRenderer.delete()`` calls
 ``eglTerminate`` on the EGL display, which is shared by every context of the
-process, so deleting one renderer breaks all others. :func:`delete_offscreen`
-terminates the display only with the last live renderer.
+process, so deleting one renderer breaks all others; and pyrender's inner
+renderer frees its framebuffers again from ``__del__`` in whatever context is
+current when the garbage collector runs, which can be another renderer's (same
+object names in every context). :func:`delete_offscreen` frees everything once,
+in the renderer's own context, and terminates the display only with the last
+live renderer.
 """
 
 from __future__ import annotations
@@ -201,21 +205,41 @@ def offscreen_renderer(width: int, height: int):
 
 
 def delete_offscreen(offscreen) -> None:
-    """Free an OffscreenRenderer without terminating the EGL display other renderers use."""
-    global _live_renderers
-    _live_renderers = max(0, _live_renderers - 1)
-    platform = getattr(offscreen, "_platform", None)
-    if _live_renderers == 0 or not hasattr(platform, "_egl_display"):
-        offscreen.delete()
-        return
-    from OpenGL.EGL import eglDestroyContext
+    """Free an OffscreenRenderer's OpenGL objects and context, once, in its own context.
 
+    pyrender's ``delete()`` would terminate the EGL display every context of
+    the process shares, and its inner renderer frees its buffers a second time
+    from ``__del__``, in whatever context is current when the garbage
+    collector gets to it: that deleted the shadow framebuffer of a renderer
+    still in use. Here the display is terminated only with the last live
+    renderer, the inner renderer's later ``__del__`` frees nothing, and the
+    context is released so that it is really destroyed.
+    """
+    global _live_renderers
+    inner, platform = getattr(offscreen, "_renderer", None), getattr(offscreen, "_platform", None)
+    if inner is None or platform is None:
+        return  # already freed
+    _live_renderers = max(0, _live_renderers - 1)
     platform.make_current()
-    offscreen._renderer.delete()
-    if platform._egl_context is not None:
-        eglDestroyContext(platform._egl_display, platform._egl_context)
-    platform._egl_context = platform._egl_display = None
-    offscreen._renderer = offscreen._platform = None  # its __del__ then has nothing to free
+    inner.delete()
+    inner.delete = _freed  # pyrender's __del__ calls self.delete()
+    if hasattr(platform, "_egl_display"):
+        from OpenGL import EGL
+
+        display = platform._egl_display
+        EGL.eglMakeCurrent(display, EGL.EGL_NO_SURFACE, EGL.EGL_NO_SURFACE, EGL.EGL_NO_CONTEXT)
+        if platform._egl_context is not None:
+            EGL.eglDestroyContext(display, platform._egl_context)
+        if _live_renderers == 0:
+            EGL.eglTerminate(display)
+        platform._egl_context = platform._egl_display = None
+    else:
+        platform.delete_context()
+    offscreen._renderer = offscreen._platform = None  # its own __del__ then has nothing to free
+
+
+def _freed() -> None:
+    """Stands in for ``delete`` on an inner renderer whose objects are already freed."""
 
 
 # --------------------------------------------------------------------------

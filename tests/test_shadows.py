@@ -137,3 +137,24 @@ def test_same_spec_gives_identical_pngs_with_shadows(renderer):
             episode.render_episode(spec, frames.append, world="test", renderer=r)
         runs.append([episode.encode_frame(f) for f in frames])
     assert runs[0] == runs[1]
+
+
+def test_closing_one_renderer_leaves_another_intact():
+    """A closed renderer's leftovers, collected later, must not free GL objects of the renderer in use.
+
+    pyrender's inner renderer frees its buffers again from ``__del__``, in
+    whatever context is current then; CI once lost the shadow framebuffer of a
+    live renderer that way (GLError on glBindFramebuffer) when the garbage
+    collector ran mid-test.
+    """
+    import gc
+
+    scene = flat_scene((_box(20.0, 0.0),))
+    with Renderer() as kept:
+        before = _render(kept, scene, "CN", True).rgb
+        with Renderer() as other:
+            _render(other, scene, "CN", True)
+        _render(kept, scene, "CN", True)  # the kept renderer's context is current again
+        gc.collect()  # the closed renderer's leftovers go now, while that context is current
+        after = _render(kept, scene, "CN", True).rgb
+    assert np.array_equal(before, after)
