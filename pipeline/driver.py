@@ -15,6 +15,7 @@ import os
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable
 
 from manifests.reader import compact, done_episodes
@@ -89,7 +90,42 @@ class ProduceReport:
         return not self.failed
 
 
-def _import_ray():
+RAY_AUTH_MODE = "RAY_AUTH_MODE"
+_AUTH_HINT = (
+    "if the cluster uses token authentication (`ray start` turns it on where ~/.ray/auth_token exists), "
+    "put the head's token in ~/.ray/auth_token or RAY_AUTH_TOKEN on this machine, or set RAY_AUTH_MODE=token"
+)
+
+
+def ray_token_available(environ=os.environ) -> bool:
+    """Whether this machine has a Ray auth token where Ray looks for one."""
+    if environ.get("RAY_AUTH_TOKEN"):
+        return True
+    path = environ.get("RAY_AUTH_TOKEN_PATH") or Path.home() / ".ray" / "auth_token"
+    try:
+        return Path(path).is_file() and Path(path).stat().st_size > 0
+    except OSError:
+        return False
+
+
+def prepare_cluster_auth(address: str | None, environ=os.environ) -> bool:
+    """Send this machine's token when attaching to a cluster; True if token mode was switched on.
+
+    Ray >= 2.59 starts a cluster with token authentication when a token
+    exists on the head (``ray start`` checks ~/.ray/auth_token), but a driver
+    attaching by address sends its token only with ``RAY_AUTH_MODE=token``,
+    which Ray reads once, at import. So, before Ray is imported: with an
+    address, a token at hand and no mode chosen by the user, choose token
+    mode (a cluster without authentication accepts such a driver too).
+    """
+    if not address or RAY_AUTH_MODE in environ or not ray_token_available(environ):
+        return False
+    environ[RAY_AUTH_MODE] = "token"
+    return True
+
+
+def _import_ray(address: str | None = None):
+    prepare_cluster_auth(address)
     try:
         import ray
     except ImportError as exc:  # pragma: no cover - ray is a dependency
@@ -97,14 +133,21 @@ def _import_ray():
     return ray
 
 
+def _address(config: ProduceConfig) -> str | None:
+    return config.address or os.environ.get("RAY_ADDRESS")
+
+
 def _connect(ray, config: ProduceConfig) -> bool:
     """Start or attach to Ray. Returns True when this call started it."""
     if ray.is_initialized():
         return False
-    address = config.address or os.environ.get("RAY_ADDRESS")
+    address = _address(config)
     common = dict(log_to_driver=False, logging_level=logging.WARNING)
     if address:
-        ray.init(address=address, **common)
+        try:
+            ray.init(address=address, **common)
+        except ConnectionError as exc:
+            raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc}); {_AUTH_HINT}") from exc
     else:
         ray.init(num_cpus=config.workers or os.cpu_count(), include_dashboard=False, **common)
     return True
@@ -137,7 +180,7 @@ def _repair(storage, plan) -> list[str]:
 def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
                    progress: Callable[[Progress], None] | None, start: float) -> None:
     """Run one task per pending episode, at most ``limit`` in flight; fills ``report``."""
-    ray = _import_ray()
+    ray = _import_ray(_address(config))
     started = _connect(ray, config)
     try:
         slots = max(1, int(ray.cluster_resources().get("CPU", 1) // config.cpus_per_task))

@@ -9,6 +9,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -322,3 +323,81 @@ def test_s3_end_to_end(reference, tmp_path):
         result = runner.invoke(app, ["status", uri])
         assert result.exit_code == 0 and "16 of 16 frames done" in result.output
         assert "secret" not in result.output
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_cli_attaches_to_a_ray_start_cluster_with_token_auth(reference, tmp_path):
+    """`ray start --head` turns token authentication on where a token exists;
+    `idda produce` with RAY_ADDRESS (and no RAY_AUTH_MODE) must still attach."""
+    import ray
+    import socket
+    import uuid
+
+    if ray.is_initialized():
+        ray.shutdown()
+    home = tmp_path / "home"
+    (home / ".ray").mkdir(parents=True)
+    (home / ".ray" / "auth_token").write_text(uuid.uuid4().hex)
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}
+    env.update(HOME=str(home), PYTHONPATH=str(Path(__file__).resolve().parents[1]))
+    port = _free_port()
+    # Its own temp dir: ray_current_cluster there, so a later local ray.init()
+    # in this test session does not try to attach to this (stopped) head.
+    temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Unix socket paths live under it
+    head_cmd = [str(Path(sys.executable).with_name("ray")), "start", "--head", f"--port={port}", "--num-cpus=2",
+                "--include-dashboard=false", "--disable-usage-stats", f"--ray-client-server-port={_free_port()}",
+                f"--temp-dir={temp_dir}", "--block"]
+    head = subprocess.Popen(head_cmd, env=env, start_new_session=True, stdout=subprocess.PIPE,
+                            stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline and head.poll() is None:
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.3)
+        out = tmp_path / "attached"
+        cmd = [sys.executable, "-m", "pipeline.cli", "produce", *ARGS, "--out", str(out)]
+        result = subprocess.run(cmd, env={**env, "RAY_ADDRESS": f"127.0.0.1:{port}"},
+                                capture_output=True, text=True, timeout=300)
+    finally:
+        head.send_signal(signal.SIGTERM)  # --block: the head stops what it started
+        try:
+            head_log, _ = head.communicate(timeout=90)
+        except subprocess.TimeoutExpired:
+            for pid in [head.pid, *_descendants(head.pid)]:
+                try:
+                    os.kill(pid, signal.SIGKILL)
+                except ProcessLookupError:
+                    pass
+            head_log, _ = head.communicate()
+        shutil.rmtree(temp_dir, ignore_errors=True)
+    assert "Token authentication is enabled" in head_log, head_log[-2000:]
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "rendered 16 frames in 4 episodes" in result.stdout
+    assert tree_digest(out) == tree_digest(reference)
+
+
+def test_token_mode_only_when_attaching_with_a_token(tmp_path, monkeypatch):
+    from pipeline.driver import prepare_cluster_auth
+
+    monkeypatch.setenv("HOME", str(tmp_path))  # no ~/.ray/auth_token here
+    assert not prepare_cluster_auth("10.0.0.1:6379", env := {}) and env == {}
+    token = tmp_path / "token"
+    token.write_text("abc")
+    assert not prepare_cluster_auth(None, env := {"RAY_AUTH_TOKEN_PATH": str(token)})
+    assert "RAY_AUTH_MODE" not in env  # a local cluster: Ray decides
+    assert not prepare_cluster_auth("10.0.0.1:6379", env := {"RAY_AUTH_TOKEN": "abc", "RAY_AUTH_MODE": "disabled"})
+    assert env["RAY_AUTH_MODE"] == "disabled"  # the user's choice stands
+    assert prepare_cluster_auth("10.0.0.1:6379", env := {"RAY_AUTH_TOKEN_PATH": str(token)})
+    assert env["RAY_AUTH_MODE"] == "token"
+    (tmp_path / ".ray").mkdir()
+    (tmp_path / ".ray" / "auth_token").write_text("abc")
+    assert prepare_cluster_auth("auto", env := {}) and env["RAY_AUTH_MODE"] == "token"
