@@ -106,6 +106,17 @@ def _storage(root: str):
     return Storage.from_uri(root)
 
 
+def _output_root(root: str):
+    """The storage of a root that ``idda produce`` wrote to; ValueError for any other path."""
+    from manifests.reader import manifest_files
+    from manifests.schema import RUN_FILE
+
+    storage = _storage(root)
+    if not storage.exists(RUN_FILE) and not manifest_files(storage):
+        raise ValueError(f"{storage.uri} is not an output root (no run.json, no manifest); run `idda produce` first")
+    return storage
+
+
 @app.command()
 def produce(
     domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
@@ -235,7 +246,7 @@ def verify(
     from manifests.verify import verify as run_verify
 
     with user_errors():
-        report = run_verify(_storage(root), threads=threads)
+        report = run_verify(_output_root(root), threads=threads)
         for p in report.problems[:50]:
             typer.echo(f"{p.kind:<8} {p.path}" + (f"  ({p.detail})" if p.detail else ""))
         if len(report.problems) > 50:
@@ -273,7 +284,7 @@ def query(
 
     with user_errors():
         the_query = cli_data.build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
-        storage = _storage(root)
+        storage = _output_root(root)
         result = q.run_query(manifest_dataset(storage), the_query)
         chosen = tuple(o.strip() for o in outputs.split(",") if o.strip())
         if out is not None:

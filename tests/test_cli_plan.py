@@ -54,3 +54,12 @@ def test_help_lists_commands():
     assert "plan" in result.output
     result = runner.invoke(app, ["plan", "--help"])
     assert "--frames-per-scenario" in result.output and "--domains" in result.output
+
+
+def test_read_commands_refuse_a_path_that_is_not_an_output_root(tmp_path):
+    (tmp_path / "notes.txt").write_text("not a dataset")
+    for command in (["verify"], ["query"], ["status"], ["query", "--preset", "best-case"]):
+        for root in (tmp_path, tmp_path / "missing"):
+            result = runner.invoke(app, [command[0], str(root), *command[1:]])
+            assert result.exit_code == 2, (command, root, result.output)
+            assert result.output.count("\n") == 1 and "is not an output root" in result.output
