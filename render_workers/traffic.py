@@ -14,9 +14,10 @@
   classes show up in frames;
 * parked cars (15-30% of the four-wheelers, now and then a van, truck or a
   bus at a stop) sit in the kerbside parking strips;
-* pedestrians walk the sidewalks, mostly near the ego's route, and 20-40% of
-  them walk back and forth over a zebra crossing (again mostly on the ego's
-  route). Every vehicle's motion is known, so a crossing pedestrian is only
+* pedestrians walk the sidewalks, mostly near the ego's route, in lanes
+  ``WALK_LANE_M`` apart with one pace per lane, so they never walk through
+  one another; 20-40% of them walk back and forth over a zebra crossing
+  (again mostly on the ego's route). Every vehicle's motion is known, so a crossing pedestrian is only
   placed if, sampled every ``CROSSING_DT`` s over ``[0, CROSSING_HORIZON_S]``
   (the frames' times included), it keeps ``CROSSING_CLEAR`` m from every
   vehicle, rider and the ego: people cross in the gaps between cars.
@@ -87,6 +88,12 @@ WALKER_RADIUS = 0.6  # a walker's footprint (and its motion over a check step) f
 CROSSING_CLEAR = 0.5  # kept between a crossing pedestrian and any vehicle's box, m
 CROSSING_TRIES = 20  # candidate (zebra, walk) draws per crossing pedestrian
 OFFSET_BIN = 0.05  # resolution of the free start offsets, m
+# Pedestrians on sidewalks keep to lanes WALK_LANE_M apart (from the walkway
+# line towards the kerb-far side), one pace per lane and loop, each holding a
+# WALK_SLOT_M stretch of it: they never walk through one another.
+WALK_LANE_M = 0.7
+WALK_SLOT_M = 1.0
+WALK_TRIES = 10
 
 
 # --------------------------------------------------------------------------
@@ -609,13 +616,28 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
         near_w = np.array([_min_distance(p.points, ego_loop.path.points) < 25 for p in walk_loops], float)
         wts = np.array([p.length for p in walk_loops]) * (1.0 + 8.0 * near_w)
         wts /= wts.sum()
-        half_w = 0.5 * W.layout(world.town, world.seed).sidewalk_w or 1.25
+        lay = W.layout(world.town, world.seed)
+        half_w = 0.5 * lay.sidewalk_w or 1.25
+        lanes = [W.walkway_loops(lay, k * WALK_LANE_M) for k in range(1 + int(max(0.0, half_w - 0.5) // WALK_LANE_M))]
+        if len(lanes[0]) != len(walk_loops):
+            raise RuntimeError("walkway lanes do not match the world's walkways")
+        lane_speed: dict[tuple[int, int], float] = {}
+        lane_slots: dict[tuple[int, int], _LoopSlots] = {}
         for _ in range(n_sidewalk):
-            p = walk_loops[int(rng.choice(len(walk_loops), p=wts))]
-            speed = 0.0 if rng.random() < 0.2 else float(rng.uniform(0.8, 1.6))
-            lat = -float(rng.uniform(0.0, max(0.1, half_w - 0.5)))
-            actors.append(Actor("pedestrian", pedestrian_parts(rng), p,
-                                float(rng.uniform(0, p.length)), speed, lat))
+            i = int(rng.choice(len(walk_loops), p=wts))
+            key = (i, int(rng.integers(len(lanes))))
+            path = lanes[key[1]][i]
+            if key not in lane_speed:  # one pace per lane: nobody walks into the back of another
+                lane_speed[key] = 0.0 if rng.random() < 0.2 else float(rng.uniform(0.8, 1.6))
+                lane_slots[key] = _LoopSlots(path.length)
+            parts = pedestrian_parts(rng)
+            slots = lane_slots[key]
+            for _try in range(WALK_TRIES):
+                s = float(rng.uniform(0, slots.length))
+                if slots.free(s, WALK_SLOT_M / 2, 0.0):
+                    slots.take(s, WALK_SLOT_M / 2)
+                    actors.append(Actor("pedestrian", parts, path, s, lane_speed[key], 0.0))
+                    break
 
     return EpisodeScene(
         world=world,

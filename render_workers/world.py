@@ -361,17 +361,24 @@ def crosswalks(town_code: str, seed: int) -> tuple[Crosswalk, ...]:
     return _crosswalks(layout(town_code, seed))
 
 
-def _walkways(lay: Layout) -> tuple[Path, ...]:
+def walkway_loops(lay: Layout, inset: float = 0.0) -> tuple[Path, ...]:
+    """The closed walkways along the middle of the sidewalks (verges), one per
+    block plus the town's outer edge, moved ``inset`` metres away from the road
+    (towards the buildings). Each loop keeps the road on its left."""
     xs, ys, hw = lay.xs, lay.ys, lay.hw
-    w = lay.sidewalk_w or lay.verge_w
+    e = hw + (lay.sidewalk_w or lay.verge_w) / 2 + inset
     out = []
     for i in range(len(xs) - 1):
         for j in range(len(ys) - 1):
-            e = hw + w / 2
             pts = rounded_rect(xs[i] + e, ys[j] + e, xs[i + 1] - e, ys[j + 1] - e, 0.5, clockwise=True)
             out.append(Path(pts, closed=True))
-    e = hw + w / 2
     out.append(Path(rounded_rect(xs[0] - e, ys[0] - e, xs[-1] + e, ys[-1] + e, 0.5, clockwise=False), closed=True))
+    return tuple(out)
+
+
+def _walkways(lay: Layout) -> tuple[Path, ...]:
+    hw = lay.hw
+    out = list(walkway_loops(lay))
     for cw in _crosswalks(lay):  # zebra crossings, kerb to kerb plus half a metre
         ends = [cw.centre - cw.across * (hw + 0.5), cw.centre + cw.across * (hw + 0.5)]
         out.append(Path(np.array([[*p, 0.0] for p in ends]), closed=False))

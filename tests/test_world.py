@@ -294,6 +294,26 @@ def test_crossing_pedestrians_keep_clear_of_traffic(worlds, code, seed):
         assert not crossing or on_road > 0  # they do step onto the road
 
 
+@pytest.mark.parametrize("code,seed", [("T01", 0), ("T02", 1), ("T05", 2), ("T07", 3)])
+def test_sidewalk_pedestrians_never_walk_through_each_other(worlds, code, seed):
+    """One pace per sidewalk lane, lanes apart, corners included: no two walkers' footprints meet."""
+    scene = populate(worlds[code], "A", seed)
+    walkers = [a for a in scene.actors if a.kind == "pedestrian" and a.path.closed]
+    assert len(walkers) >= 2
+    local = []
+    for a in walkers:
+        verts = np.concatenate([p.mesh.vertices[:, :2] for p in a.parts])
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        local.append(((lo + hi) / 2, (hi - lo) / 2))
+    assert any(a.speed_mps > 0 for a in walkers) and len({round(a.speed_mps, 6) for a in walkers}) > 1
+    for t in np.arange(0.0, 240.0 + 1e-9, 1.5):
+        boxes = _boxes_at(walkers, t, local)
+        centres = np.array([b[0] for b in boxes])
+        for i in range(len(walkers)):
+            for j in np.flatnonzero(np.linalg.norm(centres[i + 1:] - centres[i], axis=1) < 3.0) + i + 1:
+                assert not _overlap(boxes[i], boxes[j], shrink=0.0), f"two pedestrians meet at t={t}"
+
+
 def test_town_traffic_has_buses(worlds):
     """Buses stop at the kerb in towns whose corners are too tight for them to drive."""
     for code in ("T01", "T02"):
