@@ -47,6 +47,11 @@ def user_errors() -> Iterator[None]:
         raise typer.Exit(code=2) from None
 
 
+def _count(n: int, noun: str) -> str:
+    """'1 frame', '2 frames', '1,000 frames'."""
+    return f"{n:,} {noun}" + ("" if n == 1 else "s")
+
+
 def format_plan_table(plan) -> str:
     """One line per scenario (episodes, frames), then totals."""
     rows = [("scenario", "episodes", "frames", "frames/episode")]
@@ -202,8 +207,9 @@ def format_produce_report(report) -> str:
         return "\n".join(lines)
     rate = report.rendered_frames / report.seconds if report.seconds else 0.0
     lines.append(
-        f"{report.out}: rendered {report.rendered_frames:,} frames in {report.rendered_episodes:,} episodes "
-        f"({format_duration(report.seconds)}, {rate:.2f} frames/s on {report.workers or '-'} workers); "
+        f"{report.out}: rendered {_count(report.rendered_frames, 'frame')} in "
+        f"{_count(report.rendered_episodes, 'episode')} "
+        f"({format_duration(report.seconds)}, {rate:.2f} frames/s on {_count(report.workers, 'worker')}); "
         f"{report.skipped_episodes:,} of {report.planned_episodes:,} episodes were already done"
     )
     for key, error in report.failed:

@@ -91,6 +91,7 @@ class ProduceReport:
 
 
 RAY_AUTH_MODE = "RAY_AUTH_MODE"
+_RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 _AUTH_HINT = (
     "if the cluster uses token authentication (`ray start` turns it on where ~/.ray/auth_token exists), "
     "put the head's token in ~/.ray/auth_token or RAY_AUTH_TOKEN on this machine, or set RAY_AUTH_MODE=token"
@@ -149,6 +150,9 @@ def _connect(ray, config: ProduceConfig) -> bool:
         except ConnectionError as exc:
             raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc}); {_AUTH_HINT}") from exc
     else:
+        # A private cluster for this run: Ray's notice that it turned token
+        # authentication on is not something the user has to act on.
+        logging.getLogger(_RAY_TOKEN_LOGGER).setLevel(logging.ERROR)
         ray.init(num_cpus=config.workers or os.cpu_count(), include_dashboard=False, **common)
     return True
 
