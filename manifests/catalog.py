@@ -87,11 +87,7 @@ del _label
 
 def class_id(name: str) -> int:
     """Class id for a class name; raises ValueError listing valid names."""
-    try:
-        return NAME2LABEL[name].id
-    except KeyError:
-        valid = ", ".join(label.name for label in LABELS)
-        raise ValueError(f"unknown class {name!r}; valid classes: {valid}") from None
+    return lookup(NAME2LABEL, name, "class", "classes").id
 
 
 # --------------------------------------------------------------------------
@@ -205,24 +201,25 @@ WEATHER_BY_CODE = {w.code: w for w in WEATHERS}
 VIEWPOINT_BY_CODE = {v.code: v for v in VIEWPOINTS}
 
 
-def _lookup(table: dict, code: str, axis: str):
+def lookup(table: dict, key: str, what: str, plural: str | None = None):
+    """``table[key]``; an unknown key raises ValueError naming the valid keys."""
     try:
-        return table[code]
+        return table[key]
     except KeyError:
         valid = ", ".join(table)
-        raise ValueError(f"unknown {axis} {code!r}; valid {axis}s: {valid}") from None
+        raise ValueError(f"unknown {what} {key!r}; valid {plural or what + 's'}: {valid}") from None
 
 
 def town(code: str) -> Town:
-    return _lookup(TOWN_BY_CODE, code, "town")
+    return lookup(TOWN_BY_CODE, code, "town")
 
 
 def weather(code: str) -> Weather:
-    return _lookup(WEATHER_BY_CODE, code, "weather")
+    return lookup(WEATHER_BY_CODE, code, "weather")
 
 
 def viewpoint(code: str) -> Viewpoint:
-    return _lookup(VIEWPOINT_BY_CODE, code, "viewpoint")
+    return lookup(VIEWPOINT_BY_CODE, code, "viewpoint")
 
 
 # --------------------------------------------------------------------------

@@ -25,7 +25,7 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE
+from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE, lookup
 
 FAR_M = 1000.0  # depth far limit; sky and background count as this
 DEPTH_LEVELS = 256**3 - 1
@@ -132,10 +132,7 @@ if tuple(ENCODERS) != OUTPUTS:  # one encoder per catalog output, in catalog ord
 
 def encoder(name: str) -> Encoder:
     """The registered encoder for an output; ValueError lists the valid names."""
-    try:
-        return ENCODERS[name]
-    except KeyError:
-        raise ValueError(f"unknown output {name!r}; valid outputs: {', '.join(ENCODERS)}") from None
+    return lookup(ENCODERS, name, "output")
 
 
 def encode_outputs(

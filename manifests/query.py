@@ -18,7 +18,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
-from manifests.catalog import ALL_SCENARIOS, NAME2LABEL, OUTPUTS, class_id
+from manifests.catalog import ALL_SCENARIOS, NAME2LABEL, OUTPUTS, class_id, lookup
 from manifests.schema import output_columns
 from manifests.selection import parse_selection
 
@@ -65,10 +65,7 @@ PRESETS: dict[str, Query] = {
 
 
 def preset(name: str, **overrides) -> Query:
-    try:
-        base = PRESETS[name]
-    except KeyError:
-        raise ValueError(f"unknown preset {name!r}; valid presets: {', '.join(PRESETS)}") from None
+    base = lookup(PRESETS, name, "preset")
     return replace(base, **{k: v for k, v in overrides.items() if v is not None})
 
 

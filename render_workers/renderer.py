@@ -55,7 +55,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from manifests.catalog import Viewpoint, Weather, class_id
+from manifests.catalog import Viewpoint, Weather, class_id, lookup
 from render_workers import compat
 from render_workers.camera import CameraRig, hood_mesh, sun_direction
 from render_workers.scene import MATERIALS, EpisodeScene, Part
@@ -216,10 +216,7 @@ if set(LOOKS) != set(MATERIALS):
 
 
 def look(material: str) -> Look:
-    try:
-        return LOOKS[material]
-    except KeyError:
-        raise ValueError(f"unknown material {material!r}; valid: {', '.join(LOOKS)}") from None
+    return lookup(LOOKS, material, "material")
 
 
 def pyrender_material(material: str):
