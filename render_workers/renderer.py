@@ -419,6 +419,21 @@ class _NodeSet:
     radii: np.ndarray  # (N,)
 
 
+def _node_set(items) -> tuple[_NodeSet, list[int]]:
+    """One mesh node per (class id, material, triangle soup), with its bounding
+    sphere, in the given order; and the class id of each node."""
+    pr = compat.import_pyrender()
+    nodes, centres, radii, keys = [], [], [], []
+    for cls, material, soup in items:
+        mesh, positions = _pyrender_mesh(soup, material)
+        centre, radius = _sphere(positions)
+        nodes.append(pr.Node(mesh=mesh, matrix=np.eye(4)))
+        centres.append(centre)
+        radii.append(radius)
+        keys.append(cls)
+    return _NodeSet(nodes, np.array(centres).reshape(-1, 3), np.array(radii)), keys
+
+
 class Renderer:
     """A long-lived off-screen renderer; call :meth:`load` per episode, then :meth:`render`."""
 
@@ -527,33 +542,19 @@ class Renderer:
         self._scene = prs
 
     def _build_static(self, parts: tuple[Part, ...]) -> _NodeSet:
-        pr = compat.import_pyrender()
-        nodes, centres, radii, keys = [], [], [], []
-        for (tx, ty, cls, material), soup in sorted(static_groups(parts, self.tile_m).items()):
-            mesh, positions = _pyrender_mesh(soup, material)
-            centre, radius = _sphere(positions)
-            nodes.append(pr.Node(mesh=mesh, matrix=np.eye(4)))
-            centres.append(centre)
-            radii.append(radius)
-            keys.append(cls)
-        self._static_keys = keys
-        log.debug("static scene: %d nodes from %d parts", len(nodes), len(parts))
-        return _NodeSet(nodes, np.array(centres).reshape(-1, 3), np.array(radii))
+        groups = sorted(static_groups(parts, self.tile_m).items())
+        node_set, self._static_keys = _node_set((cls, material, soup) for (_, _, cls, material), soup in groups)
+        log.debug("static scene: %d nodes from %d parts", len(node_set.nodes), len(parts))
+        return node_set
 
     def _build_actors(self, scene: EpisodeScene) -> tuple[_NodeSet, list[int]]:
-        pr = compat.import_pyrender()
-        nodes, centres, radii, keys, actor_of = [], [], [], [], []
+        items, actor_of = [], []
         for index, actor in enumerate(scene.actors):
             for (cls, material), soup in sorted(part_groups(actor.parts).items()):
-                mesh, positions = _pyrender_mesh(soup, material)
-                centre, radius = _sphere(positions)
-                nodes.append(pr.Node(mesh=mesh, matrix=np.eye(4)))
-                centres.append(centre)
-                radii.append(radius)
-                keys.append(cls)
+                items.append((cls, material, soup))
                 actor_of.append(index)
-        self._actor_keys = keys
-        return _NodeSet(nodes, np.array(centres).reshape(-1, 3), np.array(radii)), actor_of
+        node_set, self._actor_keys = _node_set(items)
+        return node_set, actor_of
 
     def _draw_order(self, scene) -> list:
         """Replacement for pyrender's ``_sorted_mesh_nodes``: a fixed, deterministic order."""
