@@ -16,18 +16,20 @@ import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from manifests.schema import (
+    INDEX_DIR,
     INDEX_EPISODES_KEY,
-    INDEX_NAME,
+    LEGACY_INDEX_NAME,
     MANIFEST_DIR,
     MANIFEST_SCHEMA,
+    PARTITION_KEYS,
     PARTITION_SCHEMA,
-    PART_SCHEMA,
     index_path,
 )
 
 _PART_RE = re.compile(
     r"^manifest/town=(T\d\d)/weather=(\w+)/viewpoint=(\w)/((T\d\d)_(\w+)_(\w))_e(\d{4})\.parquet$"
 )
+_INDEX_RE = re.compile(r"^" + INDEX_DIR + r"/((T\d\d)_(\w+)_(\w))\.parquet$")
 
 
 def as_storage(root):
@@ -37,23 +39,29 @@ def as_storage(root):
     return root if isinstance(root, Storage) else Storage.from_uri(str(root))
 
 
-def _listing(storage) -> tuple[dict[str, dict[int, str]], dict[str, str]]:
-    """Parts per scenario ({episode: path}) and index files per scenario."""
+def _parts(storage) -> dict[str, dict[int, str]]:
+    """Parts per scenario: {scenario: {episode: relative path}}."""
     parts: dict[str, dict[int, str]] = defaultdict(dict)
-    indexes: dict[str, str] = {}
     for rel in storage.list_files(MANIFEST_DIR + "/", suffix=".parquet"):
         match = _PART_RE.match(rel)
         if match:
             parts[match.group(4)][int(match.group(8))] = rel
-        elif rel.endswith("/" + INDEX_NAME):
-            town, weather, viewpoint = (seg.split("=", 1)[1] for seg in rel.split("/")[1:4])
-            indexes[f"{town}_{weather}_{viewpoint}"] = rel
-    return parts, indexes
+    return parts
+
+
+def _indexes(storage) -> dict[str, str]:
+    """Index files per scenario: {scenario: relative path}."""
+    indexes = {}
+    for rel in storage.list_files(INDEX_DIR + "/", suffix=".parquet"):
+        match = _INDEX_RE.match(rel)
+        if match:
+            indexes[match.group(1)] = rel
+    return indexes
 
 
 def done_episodes(root) -> set[tuple[str, int]]:
     """(scenario, episode) of every manifest part present under ``root``."""
-    parts, _ = _listing(as_storage(root))
+    parts = _parts(as_storage(root))
     return {(scenario, episode) for scenario, eps in parts.items() for episode in eps}
 
 
@@ -71,7 +79,7 @@ def manifest_files(root) -> list[str]:
     """The files that hold the manifest now: a scenario's index where it covers
     exactly the parts present, else the scenario's parts (relative paths)."""
     storage = as_storage(root)
-    parts, indexes = _listing(storage)
+    parts, indexes = _parts(storage), _indexes(storage)
     files = []
     for scenario in sorted(parts):
         index = indexes.get(scenario)
@@ -83,19 +91,55 @@ def manifest_files(root) -> list[str]:
 
 
 def manifest_dataset(root) -> ds.Dataset:
-    """A hive-partitioned pyarrow dataset over the manifest (lazy, filterable).
-
-    A root with no parts yet gives an empty dataset with the full schema.
+    """A pyarrow dataset over the manifest (lazy, filterable): hive-partitioned
+    parts under manifest/ and indexes under _index/ (which carry the partition
+    columns themselves). A root with no parts yet gives an empty dataset with
+    the full schema.
     """
     storage = as_storage(root)
-    return ds.dataset(
-        [storage.path(rel) for rel in manifest_files(storage)],
-        filesystem=storage.filesystem,
-        format="parquet",
-        schema=MANIFEST_SCHEMA,
+    files = manifest_files(storage)
+    parts = [storage.path(rel) for rel in files if rel.startswith(MANIFEST_DIR + "/")]
+    indexes = [storage.path(rel) for rel in files if rel.startswith(INDEX_DIR + "/")]
+    common = dict(filesystem=storage.filesystem, format="parquet", schema=MANIFEST_SCHEMA)
+    part_ds = ds.dataset(
+        parts,
         partitioning=ds.partitioning(PARTITION_SCHEMA, flavor="hive"),
         partition_base_dir=storage.path(MANIFEST_DIR),
+        **common,
     )
+    if not indexes:
+        return part_ds
+    return ds.dataset([part_ds, ds.dataset(indexes, **common)])
+
+
+def index_table(parts: list[pa.Table], scenario: str, episodes: list[int]) -> pa.Table:
+    """A scenario's index: its parts' rows with the partition columns, and the
+    covered episodes in the footer."""
+    table = pa.concat_tables(parts)
+    for key, value in zip(PARTITION_KEYS, scenario.split("_")):
+        table = table.append_column(key, pa.array([value] * len(table), pa.string()))
+    meta = {INDEX_EPISODES_KEY: json.dumps(episodes).encode()}
+    return table.cast(MANIFEST_SCHEMA).replace_schema_metadata(meta)
+
+
+def index_bytes(table: pa.Table) -> bytes:
+    """Serialise an index deterministically: the same parts give the same bytes."""
+    sink = io.BytesIO()
+    pq.write_table(table, sink, compression="zstd", row_group_size=1 << 16)
+    return sink.getvalue()
+
+
+def build_index(storage, scenario: str, episodes: list[int]) -> bytes:
+    """The bytes of ``scenario``'s index over ``episodes``, built from its parts."""
+    from manifests.writer import read_part
+
+    return index_bytes(index_table([read_part(storage, scenario, e) for e in episodes], scenario, episodes))
+
+
+def _remove_legacy_indexes(storage) -> None:
+    """Indexes that older versions wrote inside manifest/ (they doubled rows for glob readers)."""
+    for rel in storage.list_files(MANIFEST_DIR + "/", suffix="/" + LEGACY_INDEX_NAME):
+        storage.delete(rel)
 
 
 def compact(root, scenarios: list[str] | None = None) -> list[str]:
@@ -105,10 +149,9 @@ def compact(root, scenarios: list[str] | None = None) -> list[str]:
     only used while it covers exactly the parts present. Returns the scenarios
     whose index was (re)written.
     """
-    from manifests.writer import read_part
-
     storage = as_storage(root)
-    parts, indexes = _listing(storage)
+    _remove_legacy_indexes(storage)
+    parts, indexes = _parts(storage), _indexes(storage)
     for scenario in set(indexes) - set(parts):  # every part of it was removed
         storage.delete(indexes[scenario])
     written = []
@@ -119,11 +162,7 @@ def compact(root, scenarios: list[str] | None = None) -> list[str]:
             continue
         index_dir, _, index_name = index_path(scenario).rpartition("/")
         storage.remove_stale_temp(index_dir, index_name)  # from a compaction that was killed
-        table = pa.concat_tables([read_part(storage, scenario, e) for e in episodes])
-        meta = {INDEX_EPISODES_KEY: json.dumps(episodes).encode()}
-        sink = io.BytesIO()
-        pq.write_table(table.replace_schema_metadata(meta), sink, compression="zstd", row_group_size=1 << 16)
-        storage.write_bytes(index_path(scenario), sink.getvalue())
+        storage.write_bytes(index_path(scenario), build_index(storage, scenario, episodes))
         written.append(scenario)
     return written
 

@@ -77,13 +77,17 @@ def frame_path(scenario: str, output: str, fid: str) -> str:
     return f"{scenario}/{output}/{fid}_{scenario}.png"
 
 
-INDEX_NAME = "_index.parquet"  # per-scenario compaction of its parts (see manifests.reader.compact)
+# Per-scenario compaction of its parts (see manifests.reader.compact). Indexes
+# live OUTSIDE manifest/, so a reader that globs manifest/**/*.parquet (DuckDB,
+# Polars, HF datasets) sees exactly one row per frame. An index holds the full
+# MANIFEST_SCHEMA, partition columns included.
+INDEX_DIR = "_index"  # <root>/_index/<scenario>.parquet
 INDEX_EPISODES_KEY = b"idda.index_episodes"  # footer metadata: episodes the index covers
+LEGACY_INDEX_NAME = "_index.parquet"  # where older versions put indexes (inside manifest/); compaction removes them
 
 
 def index_path(scenario: str) -> str:
-    town, weather, viewpoint = scenario.split("_")
-    return f"{MANIFEST_DIR}/town={town}/weather={weather}/viewpoint={viewpoint}/{INDEX_NAME}"
+    return f"{INDEX_DIR}/{scenario}.parquet"
 
 
 def part_path(scenario: str, episode: int) -> str:

@@ -146,6 +146,7 @@ def test_compaction_is_used_only_while_it_matches_the_parts(root, tmp_path):
     import shutil
 
     from manifests.reader import compact, manifest_files
+    from manifests.schema import index_path
 
     storage, plan = root
     copy = Storage.from_uri(str(tmp_path / "copy"))
@@ -154,14 +155,41 @@ def test_compaction_is_used_only_while_it_matches_the_parts(root, tmp_path):
     assert compact(copy) == sorted(plan.scenarios())
     assert compact(copy) == []  # nothing stale
     files = manifest_files(copy)
-    assert len(files) == 12 and all(f.endswith("/_index.parquet") for f in files)
+    assert files == [index_path(s) for s in sorted(plan.scenarios())]
     assert read_manifest(copy).equals(before)
     # A part removed (as --repair does) makes that scenario's index stale.
     spec = plan.episodes[0]
     copy.delete(part_path(spec.scenario, spec.episode))
     files = manifest_files(copy)
-    assert not any(f.startswith(f"manifest/town={spec.town}/weather={spec.weather}/viewpoint={spec.viewpoint}/_index") for f in files)
+    assert index_path(spec.scenario) not in files
     assert len(read_manifest(copy)) == len(before) - spec.frames
     assert compact(copy) == []  # that scenario has no parts left: its index goes
-    assert not copy.exists(f"manifest/town={spec.town}/weather={spec.weather}/viewpoint={spec.viewpoint}/_index.parquet")
+    assert not copy.exists(index_path(spec.scenario))
     assert len(read_manifest(copy)) == len(before) - spec.frames
+
+
+def test_manifest_dir_holds_one_row_per_frame_after_compaction(root, tmp_path):
+    """Readers that glob manifest/** (DuckDB, Polars, HF) must not see an index
+    there; pyarrow over the directory, without our reader, counts each frame once."""
+    import shutil
+
+    import pyarrow.dataset as ds
+
+    from manifests.reader import compact
+
+    storage, plan = root
+    copy = Storage.from_uri(str(tmp_path / "copy"))
+    shutil.copytree(storage.path(), copy.path(), dirs_exist_ok=True)
+    # A root compacted by an older version: the index inside manifest/ goes.
+    legacy = "manifest/town=T01/weather=CN/viewpoint=A/_index.parquet"
+    copy.write_bytes(legacy, copy.read_bytes(part_path(plan.episodes[0].scenario, plan.episodes[0].episode)))
+    compact(copy)
+    assert not copy.exists(legacy)
+    files = copy.list_files("manifest/")
+    assert files and all(f.rsplit("/", 1)[1].startswith(("T0", "T1")) for f in files)
+    rows = pq.ParquetDataset(copy.path("manifest"), partitioning="hive").read().num_rows
+    assert rows == plan.total_frames
+    # ignore_prefixes=[] switches off pyarrow's underscore rule, like a plain glob
+    dataset = ds.dataset(copy.path("manifest"), format="parquet", partitioning="hive", ignore_prefixes=[])
+    assert dataset.count_rows() == plan.total_frames
+    assert len(read_manifest(copy)) == plan.total_frames
