@@ -60,8 +60,9 @@ import pyarrow as pa
 from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
 from manifests.encoding import decode_png
 from manifests.query import SPLITS, Query, run_query
+from manifests.root import EXPORT_MARKER, check_export_target
 
-MARKER = "EXPORT.json"  # written last: its presence means the export is complete
+MARKER = EXPORT_MARKER  # written last: its presence means the export is complete
 INDEX = "frames.csv"
 JPEG_QUALITY = 95
 
@@ -298,14 +299,6 @@ def _target_dir(to: str) -> str:
     return storage.path()
 
 
-def check_target(target: str, force: bool) -> None:
-    """Refuse a target that is a file, or a non-empty directory without ``force``."""
-    if os.path.lexists(target) and not os.path.isdir(target):
-        raise ValueError(f"export target {target} exists and is not a directory")
-    if os.path.isdir(target) and os.listdir(target) and not force:
-        raise ValueError(f"export target {target} is not empty; pass --force to replace it")
-
-
 def _is_within(path: str, directory: str) -> bool:
     path, directory = os.path.realpath(path), os.path.realpath(directory)
     return os.path.commonpath([path, directory]) == directory
@@ -347,7 +340,7 @@ def export(config: ExportConfig) -> ExportReport:
     start = time.perf_counter()
     storage = Storage.from_uri(config.root)
     target = _target_dir(config.to)
-    check_target(target, config.force)
+    check_export_target(target, config.force)  # never inside or over an output root
     if storage.is_local and _is_within(storage.path(), target):
         raise ValueError(f"export target {target} must not be the source root {storage.uri} or contain it")
     result = run_query(read_manifest(storage), config.query)

@@ -214,14 +214,44 @@ def test_refuses_non_empty_target_and_force_replaces(root, tmp_path):
     config = ex.ExportConfig(root=str(root), to=str(target), format="idda", query=Query(domains="T07_*_*"))
     with pytest.raises(ValueError, match="not empty; pass --force"):
         ex.export(config)
-    assert (target / "keep.txt").exists()
-    ex.export(ex.ExportConfig(**{**config.__dict__, "force": True}))
-    assert not (target / "keep.txt").exists() and ex.is_complete(str(target))
-    with pytest.raises(ValueError, match="must not be the source root"):
+    # --force replaces only an earlier export of ours, never the user's files
+    with pytest.raises(ValueError, match="not an earlier export"):
+        ex.export(ex.ExportConfig(**{**config.__dict__, "force": True}))
+    assert (target / "keep.txt").read_text() == "user data"
+    (target / "keep.txt").unlink()
+    ex.export(config)
+    ex.export(ex.ExportConfig(**{**config.__dict__, "force": True, "format": "cityscapes"}))
+    assert ex.is_complete(str(target)) and (target / "gtFine").is_dir() and not (target / "T07_CN_A").exists()
+    with pytest.raises(ValueError, match="is an output root"):
         ex.export(ex.ExportConfig(root=str(root), to=str(root), format="idda", force=True))
     for bad, match in (({"format": "coco"}, "valid formats: cityscapes, idda"), ({"files": "move"}, "valid modes")):
         with pytest.raises(ValueError, match=match):
             ex.export(ex.ExportConfig(**{**config.__dict__, **bad}))
+
+
+def test_export_never_touches_an_output_root(root, tmp_path):
+    """Issue 10.1: a target inside a root (its manifest/, a scenario folder, an
+    empty new folder) or holding one is refused, with or without --force."""
+    from manifests.verify import verify
+
+    copy = tmp_path / "root"
+    shutil.copytree(root, copy)
+    before = sorted(p.relative_to(copy).as_posix() for p in copy.rglob("*"))
+    app = cli_app()
+    runner = CliRunner()
+    for inside in ("manifest", "T01_CS_A", "T01_CS_A/rgb", "new_folder"):
+        result = runner.invoke(app, ["export", str(copy), "--format", "cityscapes", "--to", str(copy / inside), "--force"])
+        assert result.exit_code == 2 and "inside the output root" in result.output, result.output
+        assert len(result.output.strip().splitlines()) == 1
+    holder = tmp_path
+    result = runner.invoke(app, ["export", str(copy), "--format", "idda", "--to", str(holder), "--force"])
+    assert result.exit_code == 2 and "holds the output root" in result.output, result.output
+    other = tmp_path / "other_root"
+    shutil.copytree(root, other)
+    result = runner.invoke(app, ["export", str(copy), "--format", "idda", "--to", str(other), "--force"])
+    assert result.exit_code == 2 and "is an output root" in result.output, result.output
+    assert sorted(p.relative_to(copy).as_posix() for p in copy.rglob("*")) == before
+    assert verify(str(copy)).ok and verify(str(other)).ok
 
 
 def test_failed_export_leaves_nothing_behind(root, tmp_path, monkeypatch):
