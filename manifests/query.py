@@ -8,7 +8,6 @@ over scenarios in proportion to what each has. Presets give the paper's
 
 from __future__ import annotations
 
-import csv
 import io
 import math
 from dataclasses import dataclass, field, replace
@@ -163,14 +162,12 @@ def _file_list(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
 
 
 def _csv(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
-    names = ["frame_id", "scenario", "town", "weather", "viewpoint", "episode", "frame", "split"]
-    names += [output_columns(o)[0] for o in outputs]
-    buf = io.StringIO()
-    writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(names)
-    cols = [table.column(n).to_pylist() for n in names]
-    writer.writerows(zip(*cols))
-    return buf.getvalue().encode()
+    """Every manifest column, as in Parquet (``outputs`` only shapes file lists)."""
+    import pyarrow.csv as pcsv
+
+    sink = io.BytesIO()
+    pcsv.write_csv(table, sink, pcsv.WriteOptions(quoting_style="needed"))
+    return sink.getvalue()
 
 
 def _parquet(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
@@ -186,8 +183,8 @@ FORMAT_BY_SUFFIX = {".txt": "list", ".lst": "list", ".csv": "csv", ".parquet": "
 
 
 def encode_result(table: pa.Table, fmt: str, outputs: tuple[str, ...] = ("rgb", "semantic_raw")) -> bytes:
-    """Serialise a query result: a file list (root-relative paths, one frame
-    per line), CSV, or Parquet (all manifest columns)."""
+    """Serialise a query result: a file list (the ``outputs``' root-relative
+    paths, one frame per line), or CSV / Parquet (all manifest columns)."""
     if fmt not in WRITERS:
         raise ValueError(f"unknown output format {fmt!r}; valid formats: {', '.join(WRITERS)}")
     for o in outputs:

@@ -2,6 +2,7 @@
 reader, then queried and summarised."""
 
 import numpy as np
+import pyarrow.csv as pv
 import pyarrow.parquet as pq
 import pytest
 
@@ -120,7 +121,11 @@ def test_writers(root, tmp_path):
     lines = q.encode_result(table, "list").decode().splitlines()
     assert len(lines) == 7 and lines[0].split()[0].endswith(".png") and "/semantic_raw/" in lines[0].split()[1]
     csv_text = q.encode_result(table, "csv").decode().splitlines()
-    assert csv_text[0].startswith("frame_id,scenario,town") and len(csv_text) == 8
+    assert csv_text[0].replace('"', "").split(",") == table.column_names and len(csv_text) == 8
+    (tmp_path / "s.csv").write_bytes(q.encode_result(table, "csv"))
+    back = pv.read_csv(tmp_path / "s.csv")
+    assert back.column("frame_id").to_pylist() == table.column("frame_id").to_pylist()
+    assert back.column("px_sky").to_pylist() == table.column("px_sky").to_pylist()
     (tmp_path / "s.parquet").write_bytes(q.encode_result(table, "parquet"))
     assert pq.read_table(tmp_path / "s.parquet").equals(table)
     with pytest.raises(ValueError, match="valid formats: list, csv, parquet"):
