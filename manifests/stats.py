@@ -76,30 +76,36 @@ def format_share_table(shares: pa.Table) -> str:
 
 def bar_chart_png(shares: pa.Table, title: str = "Class pixel shares") -> bytes:
     """Log-scale bars per class in palette colours, with the paper's shares as
-    markers (like the paper's Fig. "pixeldistr"). Uses the first scenario group."""
+    markers (like the paper's Fig. "pixeldistr"): one panel per scenario group
+    of ``shares`` (one panel for an overall table, one per scenario for
+    ``share_table(..., by_scenario=True)``)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    first = shares.column("scenario")[0].as_py()
-    rows = [r for r in shares.to_pylist() if r["scenario"] == first]
-    names = [r["class"] + ("" if LABELS[r["class_id"]].evaluated else "*") for r in rows]
-    ours = np.array([100 * r["share"] for r in rows])
-    paper = np.array([100 * r["paper_share"] for r in rows])
-    colors = [np.array(LABELS[r["class_id"]].color) / 255.0 for r in rows]
-    fig, ax = plt.subplots(figsize=(12, 4.8), dpi=110)
-    x = np.arange(len(rows))
+    groups: dict[str, list[dict]] = {}
+    for row in shares.to_pylist():
+        groups.setdefault(row["scenario"], []).append(row)
+    if not groups:
+        raise ValueError("no class shares to chart")
+    fig, axes = plt.subplots(len(groups), 1, figsize=(12, 4.8 * len(groups)), dpi=110, squeeze=False)
     floor = 1e-4
-    ax.bar(x, np.maximum(ours, floor), color=colors, edgecolor="black", linewidth=0.5, label="this dataset")
-    ax.scatter(x, paper, marker="_", s=300, color="black", linewidths=2, label="IDDA paper", zorder=3)
-    ax.set_yscale("log")
-    ax.set_ylim(floor, 100)
-    ax.set_ylabel("share of pixels (%)")
-    ax.set_xticks(x, names, rotation=60, ha="right")
-    ax.set_title(f"{title} ({first})")
-    ax.legend(loc="upper left")
-    ax.grid(axis="y", which="major", alpha=0.3)
+    for ax, (group, rows) in zip(axes[:, 0], groups.items()):
+        names = [r["class"] + ("" if LABELS[r["class_id"]].evaluated else "*") for r in rows]
+        ours = np.array([100 * r["share"] for r in rows])
+        paper = np.array([100 * r["paper_share"] for r in rows])
+        colors = [np.array(LABELS[r["class_id"]].color) / 255.0 for r in rows]
+        x = np.arange(len(rows))
+        ax.bar(x, np.maximum(ours, floor), color=colors, edgecolor="black", linewidth=0.5, label="this dataset")
+        ax.scatter(x, paper, marker="_", s=300, color="black", linewidths=2, label="IDDA paper", zorder=3)
+        ax.set_yscale("log")
+        ax.set_ylim(floor, 100)
+        ax.set_ylabel("share of pixels (%)")
+        ax.set_xticks(x, names, rotation=60, ha="right")
+        ax.set_title(f"{title} ({group})")
+        ax.legend(loc="upper left")
+        ax.grid(axis="y", which="major", alpha=0.3)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", metadata={"Software": None})

@@ -175,7 +175,7 @@ def _usage_section(uri: str) -> list[str]:
         f"idda query {uri} --domains 'towns=T01 weathers=CN' --split train --has rider --total 100 --out sample.csv",
         f"idda export {uri} --format cityscapes --to export/cityscapes --split val",
         f"idda export {uri} --format idda --to export/idda",
-        f"idda distances {uri} --plot domains.png",
+        f"idda distances {uri} --chart domains.png",
         "```",
         "",
         "In Python (numpy arrays; works with `torch.utils.data.DataLoader`, or Ray Data "

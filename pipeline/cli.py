@@ -20,16 +20,30 @@ from storage import StorageError
 app = typer.Typer(
     help="Produce large multi-domain synthetic driving datasets (IDDA-style).\n\n"
     "Domains are selected with one grammar everywhere: 'all'; scenario codes such as "
-    "T01_CS_A,T07_HRN_* ; or axis filters such as 'towns=T01-T06 weathers=CN viewpoints=A,M'.",
+    "T01_CS_A,T07_HRN_* ; or axis filters such as 'towns=T01-T06 weathers=CN viewpoints=A,M'.\n\n"
+    "Exit codes: 0 done; 1 the data has a problem (verify found damage, episodes failed); "
+    "2 a usage error, including a selection that matches no frames.",
     no_args_is_help=True,
-    add_completion=False,
+    context_settings={"help_option_names": ["-h", "--help"]},
     pretty_exceptions_enable=False,
     rich_markup_mode=None,
 )
 
 
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        typer.echo(f"idda {version('idda-pipeline')}")
+        raise typer.Exit()
+
+
 @app.callback()
-def _root() -> None:
+def _root(
+    version: bool = typer.Option(
+        False, "--version", "-V", callback=_print_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
     """Produce large multi-domain synthetic driving datasets (IDDA-style)."""
 
 DOMAINS_HELP = SELECTION_HELP
@@ -282,7 +296,7 @@ def query(
     seed: Optional[int] = typer.Option(None, help="Sampling seed (default 0)."),
     out: Optional[Path] = typer.Option(None, help="Write the frames: .txt/.lst (file list), .csv or .parquet."),
     fmt: Optional[str] = typer.Option(None, "--format", help="list, csv or parquet (default: from --out's suffix)."),
-    outputs: str = typer.Option("rgb,semantic_raw", help="Outputs listed per frame in file lists and CSV."),
+    outputs: str = typer.Option("rgb,semantic_raw", help="Outputs listed per frame in file lists (CSV and Parquet hold every manifest column)."),
 ) -> None:
     """Filter frames and draw seeded stratified samples, e.g. --preset best-case."""
     from manifests import query as q
@@ -292,6 +306,8 @@ def query(
         the_query = cli_data.build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
         storage = _output_root(root)
         result = q.run_query(manifest_dataset(storage), the_query)
+        if len(result.table) == 0:
+            raise ValueError(f"no frames in {storage.uri} match the query ({result.matched:,} match the filters)")
         chosen = tuple(o.strip() for o in outputs.split(",") if o.strip())
         if out is not None:
             fmt = fmt or q.FORMAT_BY_SUFFIX.get(out.suffix)
@@ -327,7 +343,7 @@ def _write_local(path: Path, data: bytes) -> None:
 def stats(
     root: str = typer.Argument(..., help="Output root (path or s3:// URI)."),
     domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
-    per_scenario: bool = typer.Option(False, "--per-scenario", help="One table per scenario instead of overall."),
+    per_scenario: bool = typer.Option(False, "--per-scenario", help="One table and one chart panel per scenario instead of overall."),
     chart: Optional[Path] = typer.Option(None, help="Write a log-scale bar chart PNG (default: <root>/class_shares.png for local roots)."),
 ) -> None:
     """Class pixel shares as a table and a log-scale bar chart (paper's Fig. pixeldistr)."""
@@ -342,7 +358,7 @@ def stats(
             raise ValueError(f"{storage.uri} has no frames for {domains!r} yet")
         shares = share_table(table, by_scenario=per_scenario)
         typer.echo(format_share_table(shares))
-        png = bar_chart_png(share_table(table), title=f"Class pixel shares, {len(table):,} frames")
+        png = bar_chart_png(shares, title=f"Class pixel shares, {len(table):,} frames")
         if chart is None:
             if not storage.is_local:
                 typer.echo("(pass --chart FILE.png to save the chart for an s3:// root)")

@@ -112,7 +112,7 @@ def distances(
     components: int = typer.Option(50, help="PCA components kept (the paper keeps 50)."),
     domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP + " Sampled and embedded."),
     split: list[str] = typer.Option([], help="Sample only frames of this split; repeatable."),
-    plot: Optional[Path] = typer.Option(None, help="Write a 2-D embedding of all sampled domains to this PNG."),
+    chart: Optional[Path] = typer.Option(None, "--chart", help="Write a 2-D embedding of all sampled domains to this PNG."),
     seed: int = typer.Option(0, help="Seed of the feature extractor's random filters."),
     threads: int = typer.Option(4, help="Images read and featurised in parallel."),
 ) -> None:
@@ -129,9 +129,9 @@ def distances(
         )
         report = domain_distances(config)
         typer.echo(format_distance_table(report))
-        if plot is not None:
-            cli._write_local(plot, embedding_png(report))
-            typer.echo(f"plot: {plot}")
+        if chart is not None:
+            cli._write_local(chart, embedding_png(report))
+            typer.echo(f"chart: {chart}")
 
 
 def card(

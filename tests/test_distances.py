@@ -121,7 +121,7 @@ def test_distances_command_end_to_end(tmp_path_factory, tmp_path):
     root = make_tiny_root(tmp_path_factory)
     plot = tmp_path / "domains.png"
     result = CliRunner().invoke(
-        cli_app(), ["distances", str(root), "--samples", "2", "--plot", str(plot), "--pairs", "T01_CS_A:T07_HRN_A"]
+        cli_app(), ["distances", str(root), "--samples", "2", "--chart", str(plot), "--pairs", "T01_CS_A:T07_HRN_A"]
     )
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()

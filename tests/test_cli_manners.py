@@ -1,0 +1,78 @@
+"""The idda command's manners: --version, -h, shell completion, one exit-code
+rule, the same --chart option everywhere, per-scenario charts."""
+
+import os
+import subprocess
+import sys
+from importlib.metadata import version
+
+import pytest
+from PIL import Image
+from typer.testing import CliRunner
+
+from manifests.synthetic import episode_rows
+from manifests.writer import write_part
+from pipeline.cli import app
+from pipeline.planner import PlanConfig, make_plan
+from storage import Storage
+
+runner = CliRunner()
+
+
+@pytest.fixture(scope="module")
+def root(tmp_path_factory):
+    path = tmp_path_factory.mktemp("manners")
+    storage = Storage.from_uri(str(path))
+    plan = make_plan(PlanConfig(domains="T01_CN_A,T01_CN_J,T07_HRN_B", frames_per_scenario=4, width=64, height=36))
+    for spec in plan.episodes:
+        write_part(storage, spec.scenario, spec.episode, episode_rows(spec))
+    return path
+
+
+def test_version_and_short_help():
+    for flag in ("--version", "-V"):
+        result = runner.invoke(app, [flag])
+        assert result.exit_code == 0 and result.output.strip() == f"idda {version('idda-pipeline')}"
+    top = runner.invoke(app, ["-h"])
+    assert top.exit_code == 0 and "produce" in top.output and "Exit codes" in top.output
+    sub = runner.invoke(app, ["query", "-h"])
+    assert sub.exit_code == 0 and "--preset" in sub.output
+
+
+IDDA = os.path.join(os.path.dirname(sys.executable), "idda")  # the installed entry point
+
+
+def test_shell_completion_script_and_completions():
+    script = subprocess.run([IDDA, "--show-completion", "bash"], capture_output=True, text=True, timeout=60)
+    assert script.returncode == 0 and "complete -o default -F _idda_completion idda" in script.stdout, script.stderr
+    # What that script asks the program at a <TAB>: the entry point answers with the commands.
+    env = dict(os.environ, _IDDA_COMPLETE="complete_bash", COMP_WORDS="idda ex", COMP_CWORD="1")
+    done = subprocess.run([IDDA], env=env, capture_output=True, text=True, timeout=60)
+    assert done.returncode == 0 and done.stdout.split() == ["export"], (done.stdout, done.stderr)
+
+
+def test_empty_selection_exits_2_for_query_export_and_stats(root, tmp_path):
+    empty = "T01_CN_A"
+    for args in (
+        ["query", str(root), "--domains", empty, "--has", "rider", "--min-share", "rider=0.99"],
+        ["export", str(root), "--format", "idda", "--to", str(tmp_path / "x"), "--domains", "T05_CN_A"],
+        ["stats", str(root), "--domains", "T05_CN_A"],
+    ):
+        result = runner.invoke(app, args)
+        assert result.exit_code == 2, (args, result.output)
+        assert "error:" in result.output and "Traceback" not in result.output
+    ok = runner.invoke(app, ["query", str(root), "--domains", empty])
+    assert ok.exit_code == 0 and "4 frames selected" in ok.output
+
+
+def test_stats_and_distances_share_the_chart_option(root, tmp_path):
+    overall, per = tmp_path / "all.png", tmp_path / "per.png"
+    assert runner.invoke(app, ["stats", str(root), "--chart", str(overall)]).exit_code == 0
+    result = runner.invoke(app, ["stats", str(root), "--per-scenario", "--chart", str(per)])
+    assert result.exit_code == 0, result.output
+    # One panel per scenario: three panels stacked, each as tall as the single one.
+    w1, h1 = Image.open(overall).size
+    w3, h3 = Image.open(per).size
+    assert w1 == w3 and h3 == 3 * h1
+    assert "--chart" in runner.invoke(app, ["distances", "-h"]).output
+    assert "--plot" not in runner.invoke(app, ["distances", "-h"]).output
