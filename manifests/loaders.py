@@ -46,6 +46,9 @@ from manifests.schema import output_columns
 
 # Per-frame metadata returned with the arrays.
 META_COLUMNS = ("frame_id", "scenario", "town", "weather", "viewpoint", "episode", "frame", "split", "width", "height")
+# The numeric ones: what ray_dataset keeps by default, because Ray's
+# iter_torch_batches turns every column into a tensor and strings cannot be.
+NUMERIC_META = ("episode", "frame", "width", "height")
 
 
 def _first_channel(image: np.ndarray) -> np.ndarray:
@@ -182,9 +185,9 @@ class FrameDataset:
         return f"FrameDataset({self.root!r}, {len(self)} frames, outputs={self.outputs})"
 
 
-def _read_batch(batch: dict, storage, outputs: tuple[str, ...], labels: str) -> dict:
-    """Ray Data map_batches function: add the decoded arrays to a batch of rows."""
-    out = {name: batch[name] for name in META_COLUMNS}
+def _read_batch(batch: dict, storage, outputs: tuple[str, ...], labels: str, metadata: tuple[str, ...]) -> dict:
+    """Ray Data map_batches function: the batch's metadata and decoded arrays."""
+    out = {name: batch[name] for name in metadata}
     for output in outputs:
         paths = batch[output_columns(output)[0]]
         arrays = [load_output(storage, str(rel), output, True, labels) for rel in paths]
@@ -199,18 +202,25 @@ def ray_dataset(
     labels: str = "idda",
     rows_per_block: int = 64,
     batch_size: int = 16,
+    metadata: tuple[str, ...] = NUMERIC_META,
 ):
     """A ``ray.data.Dataset`` of the query's frames with decoded arrays.
 
-    Rows carry ``META_COLUMNS`` and one array column per output (keys as in
-    ``DECODERS``). The manifest rows are split into blocks of
-    ``rows_per_block`` frames so that reading and decoding spread over the
-    cluster; every task reads through ``storage``, so s3:// roots work from
-    any node. Needs Ray (installed with this project) and a running or
-    auto-started Ray instance.
+    Rows carry the ``metadata`` columns and one array column per output (keys
+    as in ``DECODERS``). The default metadata is numeric only (``NUMERIC_META``),
+    so ``iter_torch_batches()`` yields a tensor for every column as is; pass
+    ``metadata=META_COLUMNS`` to also get the string columns (scenario,
+    frame_id, split, ...) for ``iter_batches`` / ``take``. The manifest rows are
+    split into blocks of ``rows_per_block`` frames so that reading and decoding
+    spread over the cluster; every task reads through ``storage``, so s3://
+    roots work from any node. Needs Ray (installed with this project) and a
+    running or auto-started Ray instance.
     """
-    outputs = tuple(outputs)
+    outputs, metadata = tuple(outputs), tuple(metadata)
     _check_options(outputs, labels)
+    for name in metadata:
+        if name not in META_COLUMNS:
+            raise ValueError(f"unknown metadata column {name!r}; valid columns: {', '.join(META_COLUMNS)}")
     if rows_per_block < 1 or batch_size < 1:
         raise ValueError(f"rows_per_block and batch_size must be at least 1, got {rows_per_block}, {batch_size}")
     try:
@@ -219,7 +229,7 @@ def ray_dataset(
         raise ImportError("ray_dataset needs Ray Data: pip install 'ray[data]'") from exc
     storage = as_storage(root)
     table = select_frames(storage, query)
-    columns = list(META_COLUMNS) + [output_columns(o)[0] for o in outputs]
+    columns = list(metadata) + [output_columns(o)[0] for o in outputs]
     table = table.select(columns).combine_chunks()
     if table.num_rows == 0:
         raise ValueError(f"no frames in {storage.uri} match the query")
@@ -228,5 +238,5 @@ def ray_dataset(
         _read_batch,
         batch_format="numpy",
         batch_size=batch_size,
-        fn_kwargs={"storage": copy.copy(storage), "outputs": outputs, "labels": labels},
+        fn_kwargs={"storage": copy.copy(storage), "outputs": outputs, "labels": labels, "metadata": metadata},
     )

@@ -118,8 +118,14 @@ def test_ray_dataset_gives_the_pixels_on_disk(root, rows):
 
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
     try:
-        ds = ray_dataset(root, QUERY, outputs=("rgb", "semantic_raw", "depth_raw"), rows_per_block=2, batch_size=2)
+        ds = ray_dataset(root, QUERY, outputs=("rgb", "semantic_raw", "depth_raw"), rows_per_block=2, batch_size=2,
+                         metadata=META_COLUMNS)
         got = {(r["scenario"], r["frame_id"]): r for r in ds.take_all()}
+        # As is, into torch: every column a tensor, the pixels those on disk.
+        import torch
+
+        batches = list(ray_dataset(root, QUERY, outputs=("rgb", "semantic_raw", "depth_raw"), rows_per_block=2)
+                       .iter_torch_batches(batch_size=2))
     finally:
         ray.shutdown()
     assert sorted(got) == [(r["scenario"], r["frame_id"]) for r in rows]
@@ -127,5 +133,15 @@ def test_ray_dataset_gives_the_pixels_on_disk(root, rows):
         sample = got[(row["scenario"], row["frame_id"])]
         sample = {k: (v.item() if isinstance(v, np.generic) else v) for k, v in sample.items()}
         assert_sample(sample, root, row, ["rgb", "semantic", "depth"])
+    assert [len(b["rgb"]) for b in batches] == [2] * (len(rows) // 2) + [1] * (len(rows) % 2)
+    assert all(isinstance(v, torch.Tensor) for b in batches for v in b.values())
+    assert sorted(batches[0]) == ["depth", "episode", "frame", "height", "rgb", "semantic", "width"]
+    flat = {k: torch.cat([b[k] for b in batches]).numpy() for k in ("rgb", "semantic", "depth")}
+    for key, dtype in (("rgb", np.uint8), ("semantic", np.uint8), ("depth", np.float32)):
+        assert flat[key].dtype == dtype
+        got_frames = sorted(a.tobytes() for a in flat[key])
+        assert got_frames == sorted(on_disk(root, r)[key].tobytes() for r in rows), key
     with pytest.raises(ValueError, match="valid outputs"):
         ray_dataset(root, outputs=("flow",))
+    with pytest.raises(ValueError, match="valid columns"):
+        ray_dataset(root, metadata=("seed",))
