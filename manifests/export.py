@@ -51,7 +51,7 @@ import shutil
 import time
 import uuid
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Callable
 
 import numpy as np
@@ -96,8 +96,9 @@ _missing = sorted({label.cityscapes_id for label in LABELS} - set(CITYSCAPES_COL
 if _missing:
     raise RuntimeError(f"no Cityscapes colour for label ids {_missing}")
 # IDDA class id -> colour of its Cityscapes label (256 entries, unknown ids black).
-CITYSCAPES_COLOR_LUT = np.zeros((256, 3), dtype=np.uint8)
-CITYSCAPES_COLOR_LUT[: len(CITYSCAPES_ID_LUT)] = [CITYSCAPES_COLORS.get(int(i), (0, 0, 0)) for i in CITYSCAPES_ID_LUT]
+# RGBA with opaque alpha: Cityscapes' colour images are RGBA PNGs.
+CITYSCAPES_COLOR_LUT = np.full((256, 4), 255, dtype=np.uint8)
+CITYSCAPES_COLOR_LUT[: len(CITYSCAPES_ID_LUT), :3] = [CITYSCAPES_COLORS.get(int(i), (0, 0, 0)) for i in CITYSCAPES_ID_LUT]
 
 
 # ------------------------------------------------------------ file modes ----
@@ -138,11 +139,12 @@ FILE_MODES: dict[str, Callable[[object, str, str], None]] = {
 
 # ---------------------------------------------------------------- images ----
 def _png(image: np.ndarray) -> bytes:
-    """Lossless PNG of an HxW (uint8 or uint16) or HxWx3 uint8 RGB array."""
+    """Lossless PNG of an HxW (uint8 or uint16), HxWx3 RGB or HxWx4 RGBA uint8 array."""
     import cv2
 
     if image.ndim == 3:
-        image = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR)
+        to_bgr = cv2.COLOR_RGBA2BGRA if image.shape[2] == 4 else cv2.COLOR_RGB2BGR
+        image = cv2.cvtColor(np.ascontiguousarray(image), to_bgr)
     ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), [cv2.IMWRITE_PNG_COMPRESSION, 1])
     if not ok:
         raise ValueError(f"PNG encoding failed for an array of shape {image.shape}")
@@ -168,7 +170,7 @@ def cityscapes_targets(classes: np.ndarray) -> dict[str, np.ndarray]:
     return {
         "labelIds": label_ids,
         "labelTrainIds": TRAIN_ID_LUT[classes],
-        "color": CITYSCAPES_COLOR_LUT[classes],
+        "color": CITYSCAPES_COLOR_LUT[classes],  # RGBA, as Cityscapes' *_gtFine_color.png
         "instanceIds": label_ids.astype(np.uint16),
     }
 
@@ -176,7 +178,7 @@ def cityscapes_targets(classes: np.ndarray) -> dict[str, np.ndarray]:
 # --------------------------------------------------------------- layouts ----
 def cityscapes_name(scenario: str, episode: int, frame: int) -> str:
     """``T01-CS-A_000003_000012``: a file stem cityscapesScripts can parse."""
-    return f"{scenario.replace('_', '-')}_{episode:06d}_{frame:06d}"
+    return f"{cityscapes_city(scenario)}_{episode:06d}_{frame:06d}"
 
 
 @dataclass(frozen=True)
@@ -188,12 +190,18 @@ class _Frame:
     split: str
     rgb_path: str
     semantic_raw_path: str
+    depth_raw_path: str
+
+
+def cityscapes_city(scenario: str) -> str:
+    """``T01-CS-A``: the city folder, equal to the file names' city prefix."""
+    return scenario.replace("_", "-")
 
 
 def _cityscapes_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]:
     name = cityscapes_name(frame.scenario, frame.episode, frame.frame)
-    image_dir = f"leftImg8bit/{frame.split}/{frame.scenario}"
-    gt_dir = f"gtFine/{frame.split}/{frame.scenario}"
+    image_dir = f"leftImg8bit/{frame.split}/{cityscapes_city(frame.scenario)}"
+    gt_dir = f"gtFine/{frame.split}/{cityscapes_city(frame.scenario)}"
     rgb_rel = f"{image_dir}/{name}_leftImg8bit.png"
     place(storage, frame.rgb_path, os.path.join(tmp, rgb_rel))
     classes = _decode(storage, frame.semantic_raw_path)[..., 0]
@@ -210,23 +218,30 @@ def _idda_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]:
     rgb_rel = f"{frame.scenario}/RGB/{stem}.jpg"
     sem_rel = f"{frame.scenario}/Semantic/{stem}.png"
     _write(os.path.join(tmp, rgb_rel), _jpeg(_decode(storage, frame.rgb_path)))
-    place(storage, frame.semantic_raw_path, os.path.join(tmp, sem_rel))
+    _write(os.path.join(tmp, sem_rel), _png(_decode(storage, frame.semantic_raw_path)[..., 0]))
     return {"image": rgb_rel, "semantic": sem_rel}
 
 
 def _cityscapes_dirs(frames: list[_Frame]) -> set[str]:
-    return {f"{top}/{f.split}/{f.scenario}" for f in frames for top in ("leftImg8bit", "gtFine")}
+    return {f"{top}/{f.split}/{cityscapes_city(f.scenario)}" for f in frames for top in ("leftImg8bit", "gtFine")}
 
 
 def _idda_dirs(frames: list[_Frame]) -> set[str]:
     return {f"{f.scenario}/{sub}" for f in frames for sub in ("RGB", "Semantic")}
 
 
-def _no_extras(frames: list[_Frame], tmp: str) -> list[str]:
+def _no_extras(frames: list[_Frame], tmp: str, config: "ExportConfig") -> list[str]:
     return []
 
 
-def _idda_split_files(frames: list[_Frame], tmp: str) -> list[str]:
+def _json(tmp: str, rel: str, body) -> str:
+    os.makedirs(os.path.dirname(os.path.join(tmp, rel)), exist_ok=True)
+    _write(os.path.join(tmp, rel), (json.dumps(body, indent=1, sort_keys=True) + "\n").encode())
+    return rel
+
+
+def _scenario_split_files(frames: list[_Frame], tmp: str, config: "ExportConfig") -> list[str]:
+    """train/val/test.json: {scenario: [frame ids]}, every scenario in every file."""
     scenarios = sorted({f.scenario for f in frames})
     written = []
     for split in SPLITS:
@@ -234,23 +249,137 @@ def _idda_split_files(frames: list[_Frame], tmp: str) -> list[str]:
         for f in frames:
             if f.split == split:
                 listing[f.scenario].append(f.frame_id)
-        body = {s: sorted(ids) for s, ids in listing.items()}
-        _write(os.path.join(tmp, f"{split}.json"), (json.dumps(body, indent=1, sort_keys=True) + "\n").encode())
-        written.append(f"{split}.json")
+        written.append(_json(tmp, f"{split}.json", {s: sorted(ids) for s, ids in listing.items()}))
     return written
 
 
-@dataclass(frozen=True)
-class Layout:
-    frame: Callable  # (storage, _Frame, tmp dir, place) -> {kind: exported rel path}
-    directories: Callable[[list[_Frame]], set[str]]  # directories the frames need
-    extras: Callable[[list[_Frame], str], list[str]]  # files written once per export
+# FedDrive's test users (its IDDA settings): frames of the training domains,
+# and frames of the held-out domains.
+FEDDRIVE_SAME_DOMAIN = "test_user_same_domain"
+FEDDRIVE_DIFF_DOMAIN = "test_user_diff_domain"
 
 
-LAYOUTS: dict[str, Layout] = {
-    "cityscapes": Layout(_cityscapes_frame, _cityscapes_dirs, _no_extras),
-    "idda": Layout(_idda_frame, _idda_dirs, _idda_split_files),
+def _leaf(users: dict[str, list[_Frame]]) -> dict:
+    """LEAF-style split: users, num_samples, user_data {user: {x: RGB paths, y: Semantic paths}}."""
+    names = [u for u, fs in users.items() if fs]
+    data = {}
+    for user in names:
+        ordered = sorted(users[user], key=lambda f: (f.scenario, f.episode, f.frame))
+        stems = [(f.scenario, f"{f.frame_id}_{f.scenario}") for f in ordered]
+        data[user] = {
+            "x": [f"{code}/RGB/{stem}.jpg" for code, stem in stems],
+            "y": [f"{code}/Semantic/{stem}.png" for code, stem in stems],
+        }
+    return {"users": names, "num_samples": [len(data[u]["x"]) for u in names], "user_data": data}
+
+
+def _feddrive_split_files(frames: list[_Frame], tmp: str, config: "ExportConfig") -> list[str]:
+    """FedDrive's federated IDDA splits, one client per training scenario (its
+    "heterogeneous" setting): ``feddrive/train/idda_train_clients.json`` holds
+    the train frames per scenario; ``feddrive/test/idda_test_clients.json``
+    holds ``test_user_same_domain`` (test frames of the training scenarios)
+    and, with ``holdout``, ``test_user_diff_domain`` (every frame of the
+    held-out scenarios); ``feddrive/val/idda_val_clients.json`` the val
+    frames of the training scenarios. Paths are relative to the export root."""
+    from manifests.selection import parse_selection
+
+    held = {s.code for s in parse_selection(config.holdout)} if config.holdout else set()
+    train: dict[str, list[_Frame]] = {}
+    val: list[_Frame] = []
+    same: list[_Frame] = []
+    diff: list[_Frame] = []
+    for f in frames:
+        if f.scenario in held:
+            diff.append(f)
+        elif f.split == "train":
+            train.setdefault(f.scenario, []).append(f)
+        else:
+            (val if f.split == "val" else same).append(f)
+    return [
+        _json(tmp, "feddrive/train/idda_train_clients.json", _leaf(dict(sorted(train.items())))),
+        _json(tmp, "feddrive/val/idda_val_clients.json", _leaf({FEDDRIVE_SAME_DOMAIN: val})),
+        _json(tmp, "feddrive/test/idda_test_clients.json", _leaf({FEDDRIVE_SAME_DOMAIN: same, FEDDRIVE_DIFF_DOMAIN: diff})),
+    ]
+
+
+SPLIT_FILES: dict[str, Callable] = {
+    "scenario": _scenario_split_files,  # train/val/test.json, {scenario: [frame ids]}
+    "feddrive": _feddrive_split_files,  # FedDrive's LEAF-style federated splits
 }
+
+
+def _idda_split_files(frames: list[_Frame], tmp: str, config: "ExportConfig") -> list[str]:
+    return SPLIT_FILES[config.splits](frames, tmp, config)
+
+
+def _per_frame(frame: Callable, directories: Callable, extras: Callable) -> Callable:
+    """A layout builder that writes each frame's files, then the per-export files."""
+
+    def build(storage, frames: list[_Frame], tmp: str, config: "ExportConfig"):
+        for rel in sorted(directories(frames)):
+            os.makedirs(os.path.join(tmp, rel), exist_ok=True)
+        place = FILE_MODES[config.files]
+        with ThreadPoolExecutor(max_workers=config.threads) as pool:
+            exported = list(pool.map(lambda f: frame(storage, f, tmp, place), frames))
+        return exported, extras(frames, tmp, config)
+
+    return build
+
+
+def _hf_build(storage, frames: list[_Frame], tmp: str, config: "ExportConfig"):
+    from manifests.hf import write_hf
+
+    return write_hf(storage, frames, tmp, threads=config.threads)
+
+
+LAYOUTS: dict[str, Callable] = {
+    # (storage, frames, tmp dir, config) -> ([{kind: exported rel path}] per frame, [per-export files])
+    "cityscapes": _per_frame(_cityscapes_frame, _cityscapes_dirs, _no_extras),
+    "idda": _per_frame(_idda_frame, _idda_dirs, _idda_split_files),
+    "hf": _hf_build,
+}
+
+
+# Scenarios with fewer episodes than this get their splits by frame blocks
+# inside the episodes (exports only; the manifest keeps per-episode splits).
+MIN_EPISODES_FOR_SPLITS = 3
+SPLIT_SHARES = (0.8, 0.1, 0.1)  # train, val, test: as the planner splits episodes
+
+
+def block_splits(n: int) -> list[str]:
+    """Splits of ``n`` consecutive frames: a train block, then val, then test
+    (at least one frame each from 3 frames on)."""
+    if n < len(SPLITS):
+        return ["train"] * n
+    n_val = max(1, round(SPLIT_SHARES[1] * n))
+    n_test = max(1, round(SPLIT_SHARES[2] * n))
+    return ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
+
+
+def few_episode_scenarios(table: pa.Table) -> list[str]:
+    """Scenarios with fewer than ``MIN_EPISODES_FOR_SPLITS`` episodes in ``table``."""
+    episodes: dict[str, set] = {}
+    for code, episode in zip(table.column("scenario").to_pylist(), table.column("episode").to_pylist()):
+        episodes.setdefault(code, set()).add(episode)
+    return sorted(code for code, eps in episodes.items() if len(eps) < MIN_EPISODES_FOR_SPLITS)
+
+
+def export_splits(table: pa.Table) -> pa.Table:
+    """The manifest with the splits exports use: unchanged for scenarios with
+    at least ``MIN_EPISODES_FOR_SPLITS`` episodes; by frame blocks in
+    (episode, frame) order for the others, so small runs have frames in every split."""
+    few = set(few_episode_scenarios(table))
+    if not few:
+        return table
+    scenarios = table.column("scenario").to_pylist()
+    keys = list(zip(table.column("episode").to_pylist(), table.column("frame").to_pylist()))
+    splits = table.column("split").to_pylist()
+    for code in few:
+        rows = sorted((i for i, s in enumerate(scenarios) if s == code), key=lambda i: keys[i])
+        for i, split in zip(rows, block_splits(len(rows))):
+            splits[i] = split
+    index = table.column_names.index("split")
+    return table.set_column(index, table.field("split"), pa.array(splits, type=table.field("split").type))
 
 
 # ---------------------------------------------------------------- export ----
@@ -263,10 +392,25 @@ class ExportConfig:
     files: str = "hardlink"  # a key of FILE_MODES; s3 sources are always copied
     force: bool = False  # replace a non-empty target
     threads: int = 8  # frames converted in parallel
+    as_split: str | None = None  # put every exported frame in this split
+    splits: str = "scenario"  # idda layout: a key of SPLIT_FILES
+    holdout: str | None = None  # feddrive splits: domains for test_user_diff_domain
 
     def validate(self) -> None:
         if self.format not in LAYOUTS:
             raise ValueError(f"unknown export format {self.format!r}; valid formats: {', '.join(LAYOUTS)}")
+        if self.as_split is not None and self.as_split not in SPLITS:
+            raise ValueError(f"unknown split {self.as_split!r}; valid splits: {', '.join(SPLITS)}")
+        if self.splits not in SPLIT_FILES:
+            raise ValueError(f"unknown split files {self.splits!r}; valid: {', '.join(SPLIT_FILES)}")
+        if self.splits != "scenario" and self.format != "idda":
+            raise ValueError(f"split files {self.splits!r} are for the idda format, not {self.format!r}")
+        if self.holdout is not None:
+            from manifests.selection import parse_selection
+
+            if self.splits != "feddrive":
+                raise ValueError("a holdout selection needs --splits feddrive")
+            parse_selection(self.holdout)
         if self.files not in FILE_MODES:
             raise ValueError(f"unknown file mode {self.files!r}; valid modes: {', '.join(FILE_MODES)}")
         if "://" in self.to and not self.to.startswith("file://"):
@@ -343,23 +487,22 @@ def export(config: ExportConfig) -> ExportReport:
     check_export_target(target, config.force)  # never inside or over an output root
     if storage.is_local and _is_within(storage.path(), target):
         raise ValueError(f"export target {target} must not be the source root {storage.uri} or contain it")
-    result = run_query(read_manifest(storage), config.query)
+    manifest = read_manifest(storage)
+    few = few_episode_scenarios(manifest)
+    result = run_query(export_splits(manifest), config.query)
     if len(result.table) == 0:
         raise ValueError(f"no frames in {storage.uri} match the query; nothing to export")
     frames = _frames(result.table)
-    layout = LAYOUTS[config.format]
-    place = FILE_MODES[config.files]
+    if config.as_split is not None:
+        frames = [replace(f, split=config.as_split) for f in frames]
+    build = LAYOUTS[config.format]
 
     parent = os.path.dirname(target)
     os.makedirs(parent, exist_ok=True)
     tmp = os.path.join(parent, f".{os.path.basename(target)}.{uuid.uuid4().hex}.tmp")
     os.makedirs(tmp)
     try:
-        for rel in sorted(layout.directories(frames)):
-            os.makedirs(os.path.join(tmp, rel), exist_ok=True)
-        with ThreadPoolExecutor(max_workers=config.threads) as pool:
-            exported = list(pool.map(lambda f: layout.frame(storage, f, tmp, place), frames))
-        extras = layout.extras(frames, tmp)
+        exported, extras = build(storage, frames, tmp, config)
         _write(os.path.join(tmp, INDEX), _index_csv(frames, exported))
         per_split = {s: sum(f.split == s for f in frames) for s in SPLITS}
         per_scenario: dict[str, int] = {}
@@ -375,6 +518,8 @@ def export(config: ExportConfig) -> ExportReport:
             "file_mode": config.files if storage.is_local else "copy",
             "per_split": per_split,
             "per_scenario": per_scenario,
+            "block_split_scenarios": [] if config.as_split else sorted(set(few) & set(per_scenario)),
+            "as_split": config.as_split,
         }
         _write(os.path.join(tmp, MARKER), (json.dumps(marker, indent=2, sort_keys=True) + "\n").encode())
         _commit(tmp, target)

@@ -17,6 +17,8 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 from manifests.catalog import LABELS, SCENARIO_BY_CODE
+from manifests.export import MIN_EPISODES_FOR_SPLITS, SPLIT_SHARES, few_episode_scenarios
+from manifests.hf import card_header, citation_section
 from manifests.query import SPLITS
 
 CARD_FILE = "README.md"
@@ -67,6 +69,15 @@ def _domain_section(table: pa.Table) -> list[str]:
     totals = {split: sum(row[split] for row in counts.values()) for split in SPLITS}
     cells = " | ".join(f"**{totals[split]:,}**" for split in SPLITS)
     lines.append(f"| **total** ({len(counts)} scenarios) | | | | {cells} | **{sum(totals.values()):,}** |")
+    lines += ["", "Splits are by episode: all frames of an episode share its split (above)."]
+    few = few_episode_scenarios(table)
+    if few:
+        shares = "/".join(f"{round(100 * x)}" for x in SPLIT_SHARES)
+        lines.append(
+            f"{len(few)} scenario(s) have fewer than {MIN_EPISODES_FOR_SPLITS} episodes ({', '.join(few)}): "
+            f"`idda export` splits their frames by frame blocks instead, {shares} % train/val/test in frame "
+            "order, so that every split has frames (`--as-split` puts an export in one split)."
+        )
     return lines
 
 
@@ -211,6 +222,7 @@ def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list
         "(Alberti et al., 2020) by idda-pipeline; every frame is listed with checksums and per-class "
         "pixel counts in the Parquet manifest under `manifest/`.",
     ]
+    header = card_header({"frames": len(table)}, {"frames": "manifest/**/*.parquet"}, config="manifest")
     sections = [
         intro,
         _domain_section(table),
@@ -219,8 +231,9 @@ def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list
         _encoding_section(table),
         _provenance_section(record),
         _usage_section(uri),
+        [citation_section()],
     ]
-    return "\n\n".join("\n".join(s) for s in sections) + "\n"
+    return header + "\n" + "\n\n".join("\n".join(s) for s in sections)
 
 
 # --------------------------------------------------------------- writing ----

@@ -1,4 +1,4 @@
-"""CLI commands for the people who train on a dataset: export, distances, card.
+"""CLI commands for the people who train on a dataset: export, evaluate, distances, card.
 
 ``register(app)`` adds them to the ``idda`` typer app (``pipeline.cli`` calls
 it at its bottom); it is idempotent. Like every command, each one parses its
@@ -63,7 +63,7 @@ def build_query(
 
 def export(
     root: str = typer.Argument(..., help=ROOT_HELP),
-    fmt: str = typer.Option(..., "--format", "-f", help="Layout: cityscapes or idda."),
+    fmt: str = typer.Option(..., "--format", "-f", help="Layout: cityscapes, idda or hf (HuggingFace Parquet shards)."),
     to: Path = typer.Option(..., "--to", help="Target directory (local); must be empty or absent unless --force."),
     preset: Optional[str] = typer.Option(None, help="Ready-made subset: best-case or worst-case (the paper's)."),
     domains: Optional[str] = typer.Option(None, "--domains", "-d", help=DOMAINS_HELP),
@@ -77,12 +77,17 @@ def export(
     symlink: bool = typer.Option(False, "--symlink", help="Symlink files instead of hard-linking them."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty target directory."),
     threads: int = typer.Option(8, help="Frames converted in parallel."),
+    as_split: Optional[str] = typer.Option(None, "--as-split", help="Put every exported frame in this split (train, val or test)."),
+    splits: str = typer.Option("scenario", "--splits", help="idda split files: scenario (train/val/test.json) or feddrive (FedDrive's federated splits)."),
+    holdout: Optional[str] = typer.Option(None, help="With --splits feddrive: domains whose frames form test_user_diff_domain, e.g. 'towns=T07'."),
 ) -> None:
-    """Export a query's frames as a Cityscapes or IDDA layout (links, never re-renders).
+    """Export a query's frames as a Cityscapes, IDDA or HuggingFace layout (never re-renders).
 
-    cityscapes: leftImg8bit/ and gtFine/ (labelIds, labelTrainIds, color,
-    instanceIds) that cityscapesScripts evaluates. idda: <scenario>/RGB/*.jpg,
-    <scenario>/Semantic/*.png and train/val/test.json split files.
+    cityscapes: leftImg8bit/ and gtFine/ (labelIds, labelTrainIds, RGBA color,
+    instanceIds) that cityscapesScripts and torchvision read. idda:
+    <scenario>/RGB/*.jpg, <scenario>/Semantic/*.png (class ids) and split
+    files. hf: Parquet shards with embedded images and a card. Scenarios with
+    fewer than 3 episodes are split by frame blocks (80/10/10 in frame order).
     """
     from manifests.export import ExportConfig, export as run_export
 
@@ -94,6 +99,7 @@ def export(
         config = ExportConfig(
             root=root, to=str(to), format=fmt, query=query,
             files="copy" if copy else "symlink" if symlink else "hardlink", force=force, threads=threads,
+            as_split=as_split, splits=splits, holdout=holdout,
         )
         report = run_export(config)
         for code, missing in sorted(report.shortfall.items()):
@@ -103,6 +109,23 @@ def export(
             f"exported {report.frames:,} frames ({splits}) as {report.format} to {report.target}: "
             f"{report.files:,} files in {report.seconds:.1f} s"
         )
+
+
+def evaluate(
+    export: Path = typer.Argument(..., help="A Cityscapes export (idda export --format cityscapes)."),
+    predictions: Path = typer.Option(..., "--predictions", "-p", help="Directory of <city>_<seq>_<frame>*.png label-id predictions."),
+    split: str = typer.Option("val", help="Ground-truth split: train, val or test."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write cityscapesScripts' result JSON here."),
+) -> None:
+    """Score predictions on a Cityscapes export with cityscapesScripts' pixel-level
+    evaluation (its instance part, broken on numpy 2.4, is off)."""
+    from manifests.evaluate import EvaluateConfig, evaluate as run_evaluate, format_report
+
+    cli = _cli()
+    with cli.user_errors():
+        config = EvaluateConfig(export=str(export), predictions=str(predictions), split=split,
+                                json_out=str(json_out) if json_out else None)
+        typer.echo(format_report(run_evaluate(config)))
 
 
 def distances(
@@ -149,7 +172,7 @@ def card(
             typer.echo(f"linked preview {rel}")
 
 
-COMMANDS = {"export": export, "distances": distances, "card": card}
+COMMANDS = {"export": export, "evaluate": evaluate, "distances": distances, "card": card}
 
 
 def register(app: typer.Typer) -> None:

@@ -47,7 +47,7 @@ def test_card_numbers_match_the_manifest(root):
     text = (root / "README.md").read_text()
     table = read_manifest(str(root))
     assert result.frames == len(table) and result.card == str(root / "README.md")
-    assert text.startswith("# IDDA-style synthetic driving dataset")
+    assert text.startswith("---\n") and "\n---\n\n# IDDA-style synthetic driving dataset" in text
     assert f"{len(table):,} frames in 5 episodes over 5 scenarios" in text and "at 64x36" in text
 
     rows = table_rows(text, "scenario")
@@ -72,6 +72,23 @@ def test_card_numbers_match_the_manifest(root):
     run = json.loads((root / "run.json").read_text())
     assert run["git_revision"] in text and json.dumps(run["config"], indent=2, sort_keys=True) in text
     assert "No preview in this root yet" in text
+    # One episode per scenario here: the card says exports split those by frame blocks.
+    assert "5 scenario(s) have fewer than 3 episodes" in text and "80/10/10 % train/val/test" in text
+
+
+def test_card_header_parses_with_huggingface_hub(root):
+    from huggingface_hub import DatasetCard
+
+    card_mod.write_card(card_mod.CardConfig(root=str(root)))
+    card = DatasetCard.load(root / "README.md")
+    data = card.data.to_dict()
+    assert data["license"] == "cc-by-4.0" and "image-segmentation" in data["task_categories"]
+    assert data["configs"] == [{"config_name": "manifest", "data_files": [{"split": "frames", "path": "manifest/**/*.parquet"}]}]
+    assert data["dataset_info"]["splits"] == [{"name": "frames", "num_examples": len(read_manifest(str(root)))}]
+    assert card.text.lstrip().startswith("# IDDA-style synthetic driving dataset")
+    bibtex = re.search(r"```bibtex\n(.*?)```", card.text, re.S).group(1)
+    assert bibtex.startswith("@article{alberti2020idda,") and "Robotics and Automation Letters" in bibtex
+    assert "Alberti, Emanuele and Tavera, Antonio and Masone, Carlo and Caputo, Barbara" in bibtex
 
 
 def test_card_depth_snippet_decodes_depth(root, monkeypatch):

@@ -97,45 +97,43 @@ def test_cityscapes_layout_and_label_images(root, manifest, cityscapes):
     assert ex.is_complete(str(cityscapes))
     marker = json.loads((cityscapes / ex.MARKER).read_text())
     assert marker["frames"] == len(manifest) and marker["format"] == "cityscapes"
+    split_of = {(r["frame_id"], r["scenario"]): r["split"] for r in ex.export_splits(manifest).to_pylist()}
     for row in manifest.to_pylist():
         name = ex.cityscapes_name(row["scenario"], row["episode"], row["frame"])
         info = getCsFileInfo(f"{name}_gtFine_labelIds.png")
         assert (info.city, info.sequenceNb, info.frameNb) == (
             row["scenario"].replace("_", "-"), f"{row['episode']:06d}", f"{row['frame']:06d}"
         )
-        image = cityscapes / "leftImg8bit" / row["split"] / row["scenario"] / f"{name}_leftImg8bit.png"
+        city = row["scenario"].replace("_", "-")  # the folder is the file names' city
+        image = cityscapes / "leftImg8bit" / split_of[row["frame_id"], row["scenario"]] / city / f"{name}_leftImg8bit.png"
         assert os.path.samefile(image, root / row["rgb_path"])  # hard link, not a re-render
-        gt = cityscapes / "gtFine" / row["split"] / row["scenario"]
+        gt = cityscapes / "gtFine" / split_of[row["frame_id"], row["scenario"]] / city
         classes = read_png(root / row["semantic_raw_path"])[..., 0]
         label_ids = read_png(gt / f"{name}_gtFine_labelIds.png")
         assert label_ids.dtype == np.uint8 and label_ids.shape == classes.shape
         assert np.array_equal(label_ids, CITYSCAPES_ID_LUT[classes])
         assert np.array_equal(read_png(gt / f"{name}_gtFine_labelTrainIds.png"), TRAIN_ID_LUT[classes])
         assert np.array_equal(read_png(gt / f"{name}_gtFine_instanceIds.png"), label_ids)
-        color = read_png(gt / f"{name}_gtFine_color.png")
-        expected = np.array([id2label[int(i)].color for i in label_ids.ravel()], dtype=np.uint8).reshape(color.shape)
-        assert np.array_equal(color, expected)  # cityscapesScripts' own colours
+        color = Image.open(gt / f"{name}_gtFine_color.png")
+        assert color.mode == "RGBA"  # as Cityscapes' own colour images
+        color = np.array(color)
+        expected = np.array([id2label[int(i)].color for i in label_ids.ravel()], dtype=np.uint8)
+        assert np.array_equal(color[..., :3], expected.reshape(color.shape[:2] + (3,)))  # cityscapesScripts' colours
+        assert (color[..., 3] == 255).all()
     # Excluded classes land on labels that Cityscapes ignores in evaluation.
     for label in LABELS:
         assert id2label[label.cityscapes_id].ignoreInEval == (not label.evaluated)
         assert (label.train_id == 255) == (not label.evaluated)
 
 
-def _evaluate(cityscapes: Path, predictions: Path, monkeypatch):
-    """Run cityscapesScripts' pixel-level evaluation with its own file matching."""
-    from cityscapesscripts.evaluation import evalPixelLevelSemanticLabeling as ev
+def _evaluate(cityscapes: Path, predictions: Path):
+    """cityscapesScripts' pixel-level evaluation through ``idda evaluate``'s API (val split)."""
+    from manifests.evaluate import EvaluateConfig, evaluate
 
-    # cityscapesScripts 2.3.0 calls np.in1d (instance-level scores), which numpy 2.4 removed.
-    monkeypatch.setattr(np, "in1d", getattr(np, "in1d", np.isin), raising=False)
-
-    ev.args.quiet = True
-    ev.args.JSONOutput = False
-    ev.args.evalInstLevelScore = True  # reads our *_gtFine_instanceIds.png
-    ev.args.predictionPath = str(predictions)
-    ev.args.predictionWalk = None
-    gts = sorted(glob.glob(str(cityscapes / "gtFine" / "*" / "*" / "*_gtFine_labelIds.png")))
-    preds = [ev.getPrediction(ev.args, gt) for gt in gts]
-    return ev.evaluateImgLists(preds, gts, ev.args), gts
+    report = evaluate(EvaluateConfig(export=str(cityscapes), predictions=str(predictions), split="val"))
+    gts = sorted(glob.glob(str(cityscapes / "gtFine" / "val" / "*" / "*_gtFine_labelIds.png")))
+    assert report.images == len(gts)
+    return {"classScores": report.class_iou, "averageScoreClasses": report.miou}, gts
 
 
 def _predict(cityscapes: Path, out: Path, relabel: dict[int, int]) -> None:
@@ -148,11 +146,14 @@ def _predict(cityscapes: Path, out: Path, relabel: dict[int, int]) -> None:
         Image.fromarray(labels).save(out / name)
 
 
-def test_cityscapes_scripts_evaluate_the_export(cityscapes, tmp_path, monkeypatch):
+def test_cityscapes_scripts_evaluate_the_export(root, tmp_path):
     from cityscapesscripts.helpers.labels import id2label
 
+    cityscapes = tmp_path / "as_val"  # every frame in val, where the evaluation looks
+    ex.export(ex.ExportConfig(root=str(root), to=str(cityscapes), format="cityscapes", as_split="val"))
+    assert not (cityscapes / "gtFine" / "train").exists()
     _predict(cityscapes, tmp_path / "perfect", {})
-    result, gts = _evaluate(cityscapes, tmp_path / "perfect", monkeypatch)
+    result, gts = _evaluate(cityscapes, tmp_path / "perfect")
     gt_pixels = np.concatenate([read_png(g).ravel() for g in gts])
     present = {id2label[int(i)].name for i in np.unique(gt_pixels) if not id2label[int(i)].ignoreInEval}
     assert {"road", "sidewalk"} <= present
@@ -164,7 +165,7 @@ def test_cityscapes_scripts_evaluate_the_export(cityscapes, tmp_path, monkeypatc
     # Relabel every road pixel as sidewalk: road IoU 0, sidewalk IoU S/(S+R).
     road, sidewalk = 7, 8
     _predict(cityscapes, tmp_path / "perturbed", {road: sidewalk})
-    result, _ = _evaluate(cityscapes, tmp_path / "perturbed", monkeypatch)
+    result, _ = _evaluate(cityscapes, tmp_path / "perturbed")
     n_road, n_sidewalk = int((gt_pixels == road).sum()), int((gt_pixels == sidewalk).sum())
     sidewalk_iou = n_sidewalk / (n_sidewalk + n_road)
     assert result["classScores"]["road"] == 0.0
@@ -178,7 +179,7 @@ def test_idda_layout_and_split_files(root, manifest, tmp_path):
     target = tmp_path / "idda"
     report = ex.export(ex.ExportConfig(root=str(root), to=str(target), format="idda", files="copy"))
     assert report.frames == len(manifest) and ex.is_complete(str(target))
-    rows = manifest.to_pylist()
+    rows = ex.export_splits(manifest).to_pylist()
     for row in rows:
         stem = f"{row['frame_id']}_{row['scenario']}"
         jpeg = target / row["scenario"] / "RGB" / f"{stem}.jpg"
@@ -186,8 +187,8 @@ def test_idda_layout_and_split_files(root, manifest, tmp_path):
         rgb = read_png(root / row["rgb_path"]).astype(int)
         assert np.abs(read_png(jpeg).astype(int) - rgb).mean() < 6  # JPEG quality 95
         semantic = target / row["scenario"] / "Semantic" / f"{stem}.png"
-        assert semantic.read_bytes() == (root / row["semantic_raw_path"]).read_bytes()
-        assert not os.path.samefile(semantic, root / row["semantic_raw_path"])  # --copy
+        assert Image.open(semantic).mode == "L"  # single-channel class ids, as IDDA's labels
+        assert np.array_equal(read_png(semantic), read_png(root / row["semantic_raw_path"])[..., 0])
     for split in ("train", "val", "test"):
         listing = json.loads((target / f"{split}.json").read_text())
         assert sorted(listing) == sorted({r["scenario"] for r in rows})
@@ -204,7 +205,10 @@ def test_query_selects_frames_and_symlinks(root, tmp_path):
     assert report.frames == 2
     semantic = sorted(target.glob("*/Semantic/*.png"))
     assert [p.parent.parent.name for p in semantic] == ["T01_CS_J", "T01_HRN_J"]
-    assert all(p.is_symlink() and p.resolve().is_relative_to(root) for p in semantic)
+    cs = tmp_path / "cs"
+    ex.export(ex.ExportConfig(root=str(root), to=str(cs), format="cityscapes", query=query, files="symlink"))
+    images = sorted(cs.glob("leftImg8bit/*/*/*.png"))
+    assert len(images) == 2 and all(p.is_symlink() and p.resolve().is_relative_to(root) for p in images)
 
 
 def test_refuses_non_empty_target_and_force_replaces(root, tmp_path):
@@ -263,7 +267,7 @@ def test_failed_export_leaves_nothing_behind(root, tmp_path, monkeypatch):
             raise OSError("disk full")
         return ex._idda_frame(storage, frame, tmp, place)
 
-    monkeypatch.setitem(ex.LAYOUTS, "idda", ex.Layout(flaky, ex._idda_dirs, ex._idda_split_files))
+    monkeypatch.setitem(ex.LAYOUTS, "idda", ex._per_frame(flaky, ex._idda_dirs, ex._idda_split_files))
     target = tmp_path / "out"
     with pytest.raises(OSError, match="disk full"):
         ex.export(ex.ExportConfig(root=str(root), to=str(target), format="idda", threads=1))
@@ -296,8 +300,8 @@ def test_export_from_s3_root_downloads(root, manifest, tmp_path, s3_server):  # 
     assert report.frames == TINY_FRAMES
     marker = json.loads((target / ex.MARKER).read_text())
     assert marker["source"] == uri and marker["file_mode"] == "copy"
-    for row in manifest.to_pylist():
+    for row in ex.export_splits(manifest).to_pylist():
         if row["scenario"] == "T07_HRN_A":
             name = ex.cityscapes_name(row["scenario"], row["episode"], row["frame"])
-            image = target / "leftImg8bit" / row["split"] / row["scenario"] / f"{name}_leftImg8bit.png"
+            image = target / "leftImg8bit" / row["split"] / "T07-HRN-A" / f"{name}_leftImg8bit.png"
             assert image.read_bytes() == (root / row["rgb_path"]).read_bytes()
