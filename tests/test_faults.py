@@ -84,3 +84,30 @@ def test_fault_is_found_and_repaired_to_a_clean_root(ray_local, clean, tmp_path,
     after = verify(str(root))
     assert after.ok, after.problems
     assert whole_tree(root) == whole_tree(clean)
+
+
+def test_s3_damaged_part_and_index_are_repaired(clean):
+    """The same on an s3:// root (moto): a flipped part and a truncated index."""
+    import ray
+
+    from storage import Storage
+    from tests.s3_server import local_s3_server
+
+    if ray.is_initialized():
+        ray.shutdown()  # produce starts its own cluster, which inherits the S3 settings
+    with local_s3_server() as server:
+        uri = server.uri("faults")
+        storage = Storage.from_uri(uri)
+        for path in sorted(clean.rglob("*")):
+            if path.is_file():
+                storage.write_bytes(path.relative_to(clean).as_posix(), path.read_bytes())
+        part, index = part_path("T07_CN_A", 0), index_path("T01_HRN_A")
+        data = bytearray(storage.read_bytes(part))
+        data[len(data) // 2] ^= 0x5A
+        storage.write_bytes(part, bytes(data))
+        storage.write_bytes(index, storage.read_bytes(index)[:100])
+        assert verify(storage).counts() == {"bad-part": 1, "bad-index": 1, "extra": 24}
+        assert produce(config(uri, repair=True)).rendered_episodes == 1
+        assert verify(storage).ok
+        for rel, digest in whole_tree(clean).items():
+            assert storage.sha256(rel) == digest, rel
