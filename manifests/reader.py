@@ -8,9 +8,12 @@ from __future__ import annotations
 
 import io
 import json
+import logging
 import re
 from collections import defaultdict
+from concurrent.futures import ThreadPoolExecutor
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
@@ -31,6 +34,8 @@ _PART_RE = re.compile(
 )
 _INDEX_RE = re.compile(r"^" + INDEX_DIR + r"/((T\d\d)_(\w+)_(\w))\.parquet$")
 
+log = logging.getLogger(__name__)
+
 
 def as_storage(root):
     """A Storage for a root given as a Storage, a local path or an s3:// URI."""
@@ -39,7 +44,7 @@ def as_storage(root):
     return root if isinstance(root, Storage) else Storage.from_uri(str(root))
 
 
-def _parts(storage) -> dict[str, dict[int, str]]:
+def part_files(storage) -> dict[str, dict[int, str]]:
     """Parts per scenario: {scenario: {episode: relative path}}."""
     parts: dict[str, dict[int, str]] = defaultdict(dict)
     for rel in storage.list_files(MANIFEST_DIR + "/", suffix=".parquet"):
@@ -49,7 +54,7 @@ def _parts(storage) -> dict[str, dict[int, str]]:
     return parts
 
 
-def _indexes(storage) -> dict[str, str]:
+def index_files(storage) -> dict[str, str]:
     """Index files per scenario: {scenario: relative path}."""
     indexes = {}
     for rel in storage.list_files(INDEX_DIR + "/", suffix=".parquet"):
@@ -61,7 +66,7 @@ def _indexes(storage) -> dict[str, str]:
 
 def done_episodes(root) -> set[tuple[str, int]]:
     """(scenario, episode) of every manifest part present under ``root``."""
-    parts = _parts(as_storage(root))
+    parts = part_files(as_storage(root))
     return {(scenario, episode) for scenario, eps in parts.items() for episode in eps}
 
 
@@ -79,7 +84,7 @@ def manifest_files(root) -> list[str]:
     """The files that hold the manifest now: a scenario's index where it covers
     exactly the parts present, else the scenario's parts (relative paths)."""
     storage = as_storage(root)
-    parts, indexes = _parts(storage), _indexes(storage)
+    parts, indexes = part_files(storage), index_files(storage)
     files = []
     for scenario in sorted(parts):
         index = indexes.get(scenario)
@@ -97,7 +102,10 @@ def manifest_dataset(root) -> ds.Dataset:
     the full schema.
     """
     storage = as_storage(root)
-    files = manifest_files(storage)
+    return _dataset(storage, manifest_files(storage))
+
+
+def _dataset(storage, files: list[str]) -> ds.Dataset:
     parts = [storage.path(rel) for rel in files if rel.startswith(MANIFEST_DIR + "/")]
     indexes = [storage.path(rel) for rel in files if rel.startswith(INDEX_DIR + "/")]
     common = dict(filesystem=storage.filesystem, format="parquet", schema=MANIFEST_SCHEMA)
@@ -110,6 +118,41 @@ def manifest_dataset(root) -> ds.Dataset:
     if not indexes:
         return part_ds
     return ds.dataset([part_ds, ds.dataset(indexes, **common)])
+
+
+def episode_frames(root) -> dict[tuple[str, int], int]:
+    """Frames held by each done episode's part: {(scenario, episode): rows}.
+
+    Read from a scenario's index where it covers exactly the parts present (one
+    column), else from each part's footer.
+    """
+    storage = as_storage(root)
+    parts, indexes = part_files(storage), index_files(storage)
+    counts: dict[tuple[str, int], int] = {}
+    unindexed: list[tuple[tuple[str, int], str]] = []
+    for scenario, episodes in parts.items():
+        index = indexes.get(scenario)
+        if index is not None and index_episodes(storage, index) == set(episodes):
+            try:
+                with storage.filesystem.open_input_file(storage.path(index)) as f:
+                    column = pq.read_table(f, columns=["episode"]).column("episode").to_numpy()
+                found = dict(zip(*(v.tolist() for v in np.unique(column, return_counts=True))))
+                counts.update(((scenario, e), found.get(e, 0)) for e in episodes)
+                continue
+            except Exception:  # a damaged index: fall back to the parts
+                pass
+        unindexed.extend(((scenario, episode), rel) for episode, rel in episodes.items())
+
+    def rows(rel: str) -> int:
+        try:
+            with storage.filesystem.open_input_file(storage.path(rel)) as f:
+                return pq.read_metadata(f).num_rows
+        except Exception:
+            return 0  # unreadable: not done
+
+    with ThreadPoolExecutor(max_workers=16) as pool:  # one small read per part: many at once on S3
+        counts.update(zip((key for key, _ in unindexed), pool.map(rows, [rel for _, rel in unindexed])))
+    return counts
 
 
 def index_table(parts: list[pa.Table], scenario: str, episodes: list[int]) -> pa.Table:
@@ -125,7 +168,7 @@ def index_table(parts: list[pa.Table], scenario: str, episodes: list[int]) -> pa
 def index_bytes(table: pa.Table) -> bytes:
     """Serialise an index deterministically: the same parts give the same bytes."""
     sink = io.BytesIO()
-    pq.write_table(table, sink, compression="zstd", row_group_size=1 << 16)
+    pq.write_table(table, sink, compression="zstd", row_group_size=1 << 16, write_page_checksum=True)
     return sink.getvalue()
 
 
@@ -136,7 +179,7 @@ def build_index(storage, scenario: str, episodes: list[int]) -> bytes:
     return index_bytes(index_table([read_part(storage, scenario, e) for e in episodes], scenario, episodes))
 
 
-def _remove_legacy_indexes(storage) -> None:
+def _remove_legacyindex_files(storage) -> None:
     """Indexes that older versions wrote inside manifest/ (they doubled rows for glob readers)."""
     for rel in storage.list_files(MANIFEST_DIR + "/", suffix="/" + LEGACY_INDEX_NAME):
         storage.delete(rel)
@@ -150,8 +193,8 @@ def compact(root, scenarios: list[str] | None = None) -> list[str]:
     whose index was (re)written.
     """
     storage = as_storage(root)
-    _remove_legacy_indexes(storage)
-    parts, indexes = _parts(storage), _indexes(storage)
+    _remove_legacyindex_files(storage)
+    parts, indexes = part_files(storage), index_files(storage)
     for scenario in set(indexes) - set(parts):  # every part of it was removed
         storage.delete(indexes[scenario])
     written = []
@@ -167,8 +210,45 @@ def compact(root, scenarios: list[str] | None = None) -> list[str]:
     return written
 
 
+def _readable_files(storage, files: list[str]) -> list[str]:
+    """``files`` with each unreadable index swapped for its scenario's parts;
+    ManifestError naming an unreadable part."""
+    from manifests.writer import ManifestError, read_part_file
+
+    parts = part_files(storage)
+    out = []
+    for rel in files:
+        try:
+            read_part_file(storage, rel)
+            out.append(rel)
+        except (ManifestError, FileNotFoundError) as exc:
+            if not rel.startswith(INDEX_DIR + "/"):
+                raise ManifestError(f"{exc}; run `idda verify` and `idda produce --repair`") from None
+            scenario = _INDEX_RE.match(rel).group(1)
+            log.warning("ignoring the damaged index %s (%s); reading its parts", storage.join(rel), exc)
+            out.extend(parts[scenario][e] for e in sorted(parts.get(scenario, {})))
+    return out
+
+
+def scan_manifest(root, scan):
+    """``scan(dataset)`` over the manifest. If the scan fails on a damaged file,
+    a damaged index is skipped (its parts are read instead) and a damaged part
+    raises ManifestError naming it: never an anonymous Arrow error."""
+    from manifests.writer import ManifestError
+
+    storage = as_storage(root)
+    try:
+        return scan(manifest_dataset(storage))
+    except (pa.ArrowException, OSError) as exc:
+        files = manifest_files(storage)
+        good = _readable_files(storage, files)
+        if good == files:
+            raise ManifestError(f"cannot read the manifest of {storage.uri}: {exc}") from exc
+        return scan(_dataset(storage, good))
+
+
 def read_manifest(root, filter: ds.Expression | None = None, columns: list[str] | None = None) -> pa.Table:
     """Read the manifest (optionally filtered), sorted by scenario, episode, frame."""
-    table = manifest_dataset(root).to_table(filter=filter, columns=columns)
+    table = scan_manifest(root, lambda dataset: dataset.to_table(filter=filter, columns=columns))
     sort_keys = [(k, "ascending") for k in ("scenario", "episode", "frame") if k in table.column_names]
     return table.sort_by(sort_keys) if sort_keys else table

@@ -63,12 +63,13 @@ def is_our_root(storage) -> bool:
 
 
 def claim_root(storage) -> None:
-    """Mark ``storage`` as ours before anything is written into it.
+    """Mark ``storage`` as ours before anything is written into it (creating it).
 
     An empty (or absent) root, or one of ours, is fine; anything else raises
-    RootError and nothing is written.
+    RootError and nothing is written. StorageError if it is not writable.
     """
     if storage.exists(ROOT_MARKER):
+        storage.ensure_writable()
         return
     entries = root_entries(storage)
     if entries and not is_our_root(storage):
@@ -77,6 +78,7 @@ def claim_root(storage) -> None:
             f"{storage.uri} is not empty ({shown}) and is not an idda output root (no {ROOT_MARKER}); "
             "use a new or empty directory as --out"
         )
+    storage.ensure_writable()
     storage.create_exclusive(ROOT_MARKER, ROOT_MARKER_BODY)
 
 

@@ -1,27 +1,40 @@
-"""Check an output root against its manifest: missing, corrupt and extra files."""
+"""Check an output root: its manifest (parts, indexes, run.json) and every
+file the manifest lists: missing, corrupt and extra files.
+
+The parts are the source of truth. Each one is read whole with its page
+checksums verified, re-encoded and compared byte for byte (when this pyarrow
+wrote it), and its rows are checked against its name and against run.json
+(resolution, seeds). Each index is rebuilt from its parts and compared byte
+for byte. run.json carries a checksum of itself.
+"""
 
 from __future__ import annotations
 
-import re
+import io
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
 import pyarrow as pa
+import pyarrow.parquet as pq
 
 from manifests.catalog import OUTPUTS, SCENARIO_BY_CODE
-from manifests.reader import as_storage, done_episodes, read_manifest
-from manifests.schema import output_columns, part_path
-from manifests.writer import read_part
-from storage import sha256_bytes
+from manifests.reader import as_storage, build_index, index_episodes, index_files, part_files
+from manifests.root import FRAME_FILE_RE
+from manifests.runrecord import RunRecordError, read_record
+from manifests.schema import PART_SCHEMA, RUN_FILE, frame_id, frame_path, output_columns
+from manifests.spec import episode_seed
+from manifests.writer import ManifestError, part_bytes, read_part_file
+from storage import StorageError, sha256_bytes
 
-_FRAME_FILE = re.compile(r"^(T\d\d_\w+_\w)/(\w+)/(\d{4})_(\d{3})_(T\d\d_\w+_\w)\.png$")
+# Problem kinds: missing | corrupt | extra (frame files), bad-part | bad-index | bad-run (the manifest)
+EPISODE_KINDS = ("missing", "corrupt", "bad-part")  # the episode must be rendered again
 
 
 @dataclass(frozen=True)
 class Problem:
-    kind: str  # missing | corrupt | extra | bad-part
+    kind: str
     path: str  # relative to the output root
     scenario: str | None
     episode: int | None
@@ -41,11 +54,7 @@ class VerifyReport:
 
     def affected_episodes(self) -> set[tuple[str, int]]:
         """Episodes whose files or part must be rendered again."""
-        return {
-            (p.scenario, p.episode)
-            for p in self.problems
-            if p.scenario is not None and p.episode is not None and p.kind != "extra"
-        }
+        return {(p.scenario, p.episode) for p in self.problems if p.kind in EPISODE_KINDS and p.episode is not None}
 
     def counts(self) -> dict[str, int]:
         out: dict[str, int] = {}
@@ -55,42 +64,117 @@ class VerifyReport:
 
 
 def _episode_of(path: str) -> tuple[str | None, int | None]:
-    match = _FRAME_FILE.match(path)
+    match = FRAME_FILE_RE.match(path)
     if not match:
         return None, None
-    return match.group(1), int(match.group(3))
+    return match.group("scenario"), int(match.group("episode"))
+
+
+_CREATED_BY: list[str] = []
+
+
+def _this_writer() -> str:
+    """``created_by`` of the Parquet files this pyarrow writes."""
+    if not _CREATED_BY:
+        _CREATED_BY.append(pq.read_metadata(io.BytesIO(part_bytes(PART_SCHEMA.empty_table()))).created_by)
+    return _CREATED_BY[0]
+
+
+def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | None) -> str | None:
+    """Why a part's rows do not belong to its name (or to run.json's config), or None."""
+    n = len(table)
+    if n == 0:
+        return "no rows"
+    col = {name: table.column(name).to_pylist() for name in ("scenario", "episode", "frame", "frame_id", "seed", "width", "height")}
+    if set(col["scenario"]) != {scenario} or set(col["episode"]) != {episode}:
+        return "rows of another scenario or episode"
+    if col["frame"] != list(range(n)) or col["frame_id"] != [frame_id(episode, i) for i in range(n)]:
+        return "frames are not numbered 0.." + str(n - 1)
+    for output in OUTPUTS:
+        if table.column(output_columns(output)[0]).to_pylist() != [frame_path(scenario, output, f) for f in col["frame_id"]]:
+            return f"{output} paths do not follow the layout"
+    if len(set(col["seed"])) != 1 or len(set(zip(col["width"], col["height"]))) != 1:
+        return "mixed seeds or resolutions"
+    if config is not None:
+        if (col["width"][0], col["height"][0]) != (config["width"], config["height"]):
+            return f"frames are {col['width'][0]}x{col['height'][0]}, run.json says {config['width']}x{config['height']}"
+        if col["seed"][0] != episode_seed(config["seed"], SCENARIO_BY_CODE[scenario], episode):
+            return f"episode seed does not derive from run.json's seed {config['seed']}"
+    return None
+
+
+def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | None) -> tuple[pa.Table | None, Problem | None]:
+    try:
+        data = storage.read_bytes(rel)
+        table = read_part_file(storage, rel, PART_SCHEMA, data=data)
+    except (ManifestError, StorageError, OSError) as exc:
+        return None, Problem("bad-part", rel, scenario, episode, str(exc))
+    detail = part_problem(table, scenario, episode, config)
+    if detail is None and pq.read_metadata(io.BytesIO(data)).created_by == _this_writer() and part_bytes(table) != data:
+        detail = "its bytes differ from its own rows re-encoded (damaged metadata)"
+    if detail is not None:
+        return None, Problem("bad-part", rel, scenario, episode, detail)
+    return table, None
+
+
+def _check_index(storage, rel: str, scenario: str, episodes: dict[int, str] | None, good: set) -> Problem | None:
+    """An index is damaged if it is unreadable, or covers the parts present but
+    differs from the index rebuilt from them (a stale index is only unused)."""
+    if not episodes:
+        return Problem("bad-index", rel, scenario, None, "its scenario has no parts")
+    covered = index_episodes(storage, rel)
+    if covered is None:
+        return Problem("bad-index", rel, scenario, None, "unreadable footer")
+    if covered != set(episodes) or not all((scenario, e) in good for e in episodes):
+        return None  # stale (or its parts are being repaired): readers ignore it, compaction rewrites it
+    try:
+        same = storage.read_bytes(rel) == build_index(storage, scenario, sorted(episodes))
+    except (ManifestError, StorageError, OSError) as exc:
+        return Problem("bad-index", rel, scenario, None, str(exc))
+    return None if same else Problem("bad-index", rel, scenario, None, "differs from the index rebuilt from its parts")
 
 
 def verify(root, threads: int = 8, progress: Callable[[int, int], None] | None = None) -> VerifyReport:
-    """Recompute every checksum the manifest lists and look for strays.
+    """Check the manifest itself, recompute every checksum it lists, look for strays.
 
     ``progress(files_done, files_total)`` is called as files are checked.
     """
     storage = as_storage(root)
     start = time.perf_counter()
     report = VerifyReport()
+    parts = part_files(storage)
 
-    # Parts that cannot be read are problems in themselves.
+    config = None
     try:
-        table = read_manifest(storage)
-    except Exception:
-        good = []
-        for scenario, episode in sorted(done_episodes(storage)):
-            try:
-                good.append(read_part(storage, scenario, episode))
-            except Exception as exc:
-                report.problems.append(Problem("bad-part", part_path(scenario, episode), scenario, episode, str(exc)))
-        table = pa.concat_tables(good) if good else None
+        record = read_record(storage)
+        if record is None and parts:
+            report.problems.append(Problem("bad-run", RUN_FILE, None, None, "missing"))
+        config = record["config"] if record else None
+    except RunRecordError as exc:
+        report.problems.append(Problem("bad-run", RUN_FILE, None, None, str(exc)))
+
+    tables = []
+    good = set()
+    for scenario in sorted(parts):
+        for episode, rel in sorted(parts[scenario].items()):
+            table, problem = _check_part(storage, rel, scenario, episode, config)
+            if problem is not None:
+                report.problems.append(problem)
+            else:
+                tables.append(table)
+                good.add((scenario, episode))
+    for scenario, rel in sorted(index_files(storage).items()):
+        problem = _check_index(storage, rel, scenario, parts.get(scenario), good)
+        if problem is not None:
+            report.problems.append(problem)
+
     expected: list[tuple[str, int, str, str, int]] = []
-    if table is not None:
-        cols = {name: table.column(name).to_pylist() for name in ("scenario", "episode")}
+    for table in tables:
+        scenarios, episodes = table.column("scenario").to_pylist(), table.column("episode").to_pylist()
         for output in OUTPUTS:
             path_col, bytes_col, sha_col = output_columns(output)
-            paths = table.column(path_col).to_pylist()
-            sizes = table.column(bytes_col).to_pylist()
-            shas = table.column(sha_col).to_pylist()
-            for i, rel in enumerate(paths):
-                expected.append((rel, sizes[i], shas[i], cols["scenario"][i], cols["episode"][i]))
+            rows = zip(*(table.column(c).to_pylist() for c in (path_col, bytes_col, sha_col)), scenarios, episodes)
+            expected.extend(rows)
 
     def check(item) -> Problem | int:
         rel, size, sha, scenario, episode = item
@@ -98,6 +182,8 @@ def verify(root, threads: int = 8, progress: Callable[[int, int], None] | None =
             data = storage.read_bytes(rel)
         except FileNotFoundError:
             return Problem("missing", rel, scenario, episode)
+        except (StorageError, OSError) as exc:  # a directory or a FIFO in its place, an I/O error
+            return Problem("corrupt", rel, scenario, episode, str(exc))
         if len(data) != size or sha256_bytes(data) != sha:
             return Problem("corrupt", rel, scenario, episode, f"{len(data)} bytes, expected {size}")
         return len(data)
@@ -115,7 +201,7 @@ def verify(root, threads: int = 8, progress: Callable[[int, int], None] | None =
 
     listed = {item[0] for item in expected}
     for rel in storage.list_files():
-        if rel.split("/", 1)[0] in SCENARIO_BY_CODE and rel not in listed:
+        if rel.split("/", 1)[0] in SCENARIO_BY_CODE and rel not in listed and FRAME_FILE_RE.match(rel):
             s, e = _episode_of(rel)
             report.problems.append(Problem("extra", rel, s, e, "not in the manifest"))
     report.seconds = time.perf_counter() - start

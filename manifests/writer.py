@@ -32,7 +32,8 @@ def part_table(rows: list[dict]) -> pa.Table:
 def part_bytes(table: pa.Table) -> bytes:
     """Serialise deterministically: the same rows give the same bytes."""
     sink = io.BytesIO()
-    pq.write_table(table, sink, compression="zstd", write_statistics=True, store_schema=True)
+    # Page checksums let readers (and verify) detect flipped bytes in the data.
+    pq.write_table(table, sink, compression="zstd", write_statistics=True, store_schema=True, write_page_checksum=True)
     return sink.getvalue()
 
 
@@ -47,10 +48,19 @@ def write_part(storage, scenario: str, episode: int, rows: list[dict] | pa.Table
 
 
 def read_part(storage, scenario: str, episode: int) -> pa.Table:
-    rel = part_path(scenario, episode)
+    return read_part_file(storage, part_path(scenario, episode), PART_SCHEMA)
+
+
+def read_part_file(storage, rel: str, schema: pa.Schema | None = None, data: bytes | None = None) -> pa.Table:
+    """Read a whole manifest file (a part or an index; ``data`` if already read),
+    page checksums verified; ManifestError naming the file if it is damaged."""
     try:
-        return pq.read_table(io.BytesIO(storage.read_bytes(rel)), schema=PART_SCHEMA)
+        data = storage.read_bytes(rel) if data is None else data
     except FileNotFoundError:
         raise
+    except Exception as exc:  # a directory, a FIFO, an I/O error
+        raise ManifestError(f"manifest file {storage.join(rel)} is unreadable: {exc}") from exc
+    try:
+        return pq.read_table(io.BytesIO(data), schema=schema, page_checksum_verification=True)
     except Exception as exc:  # pyarrow raises several types for a damaged file
-        raise ManifestError(f"manifest part {rel} is unreadable: {exc}") from exc
+        raise ManifestError(f"manifest file {storage.join(rel)} is unreadable: {exc}") from exc

@@ -25,6 +25,13 @@ CARD_FILE = "README.md"
 CHART_FILE = "class_shares.png"
 PREVIEW_DIR = "preview"
 PREVIEW_MAX_WIDTH = 480  # contact-sheet frames are rendered at most this wide
+CARD_MARK = "<!-- written by idda card: it replaces this file when run again -->"
+_OUR_CARD_SIGNS = (CARD_MARK.encode(), b"# IDDA-style synthetic driving dataset")  # the second: cards before the mark
+
+
+def is_our_card(data: bytes) -> bool:
+    """True if a README.md was written by ``idda card`` (so it may be replaced)."""
+    return any(sign in data for sign in _OUR_CARD_SIGNS)
 
 
 @dataclass(frozen=True)
@@ -233,7 +240,7 @@ def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list
         _usage_section(uri),
         [citation_section()],
     ]
-    return header + "\n" + "\n\n".join("\n".join(s) for s in sections)
+    return header + "\n" + "\n\n".join("\n".join(s) for s in sections) + "\n" + CARD_MARK + "\n"
 
 
 # --------------------------------------------------------------- writing ----
@@ -272,6 +279,9 @@ def write_card(config: CardConfig) -> CardResult:
     from storage import Storage
 
     storage = Storage.from_uri(config.root)
+    if storage.exists(CARD_FILE) and not is_our_card(storage.read_bytes(CARD_FILE)):
+        raise ValueError(f"{storage.join(CARD_FILE)} exists and was not written by `idda card`; move it away first")
+    storage.ensure_writable()  # the card goes into the root: say so before any work if it cannot
     table = read_manifest(storage)
     if len(table) == 0:
         raise ValueError(f"{storage.uri} has no frames yet; produce some before writing its card")

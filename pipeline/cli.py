@@ -10,6 +10,7 @@ from typing import Iterator, Optional
 
 import typer
 
+from manifests.lease import LeaseError
 from manifests.selection import SELECTION_HELP
 from manifests.writer import ManifestError
 from pipeline import cli_data
@@ -56,9 +57,12 @@ def user_errors() -> Iterator[None]:
         yield
     except typer.Exit:
         raise
-    except (ValueError, OSError, ImportError, StorageError, ManifestError, RunConfigError) as exc:
+    except (ValueError, OSError, ImportError, StorageError, ManifestError, RunConfigError, LeaseError) as exc:
         typer.echo(f"error: {exc}", err=True)
         raise typer.Exit(code=2) from None
+    except KeyboardInterrupt:
+        typer.echo("interrupted", err=True)
+        raise typer.Exit(code=130) from None
 
 
 def _count(n: int, noun: str) -> str:
@@ -158,7 +162,7 @@ def produce(
     Re-running the same command skips finished episodes: kill it at any time
     and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
     """
-    from pipeline.driver import ProduceConfig, produce as run_produce
+    from pipeline.driver import ProduceConfig, ProduceInterrupted, produce as run_produce
     from pipeline.runmeta import RunConfig
 
     with user_errors():
@@ -178,6 +182,10 @@ def produce(
         bar = _ProgressBar()
         try:
             report = run_produce(config, progress=bar.update)
+        except ProduceInterrupted as stop:
+            bar.close()
+            typer.echo(format_interrupted(stop.report), err=True)
+            raise typer.Exit(code=130) from None
         finally:
             bar.close()
         typer.echo(format_produce_report(report))
@@ -203,6 +211,15 @@ class _ProgressBar:
     def close(self) -> None:
         if self._bar is not None:
             self._bar.close()
+
+
+def format_interrupted(report) -> str:
+    """What an interrupted run did, and how to go on."""
+    return (
+        f"interrupted: {report.out} gained {_count(report.rendered_frames, 'frame')} in "
+        f"{_count(report.rendered_episodes, 'episode')} this run; run the same command again to resume "
+        "(finished episodes are kept, the rest render again)"
+    )
 
 
 def format_produce_report(report) -> str:
@@ -300,12 +317,12 @@ def query(
 ) -> None:
     """Filter frames and draw seeded stratified samples, e.g. --preset best-case."""
     from manifests import query as q
-    from manifests.reader import manifest_dataset
+    from manifests.reader import scan_manifest
 
     with user_errors():
         the_query = cli_data.build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
         storage = _output_root(root)
-        result = q.run_query(manifest_dataset(storage), the_query)
+        result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
         if len(result.table) == 0:
             raise ValueError(f"no frames in {storage.uri} match the query ({result.matched:,} match the filters)")
         chosen = tuple(o.strip() for o in outputs.split(",") if o.strip())
@@ -324,6 +341,15 @@ def query(
             typer.echo(f"{code:<10} {n:>8}")
         where = f"; wrote {out}" if out is not None else ""
         typer.echo(f"{len(result.table):,} frames selected of {result.matched:,} matching the filters{where}")
+
+
+def _writable(storage) -> bool:
+    """Whether files can be written into a root (checked before any output)."""
+    try:
+        storage.ensure_writable()
+        return True
+    except StorageError:
+        return False
 
 
 def _write_local(path: Path, data: bytes) -> None:
@@ -353,6 +379,7 @@ def stats(
 
     with user_errors():
         storage = _storage(root)
+        chart_in_root = chart is None and storage.is_local and _writable(storage)
         table = q.filter_frames(read_manifest(storage), q.Query(domains=domains))
         if len(table) == 0:
             raise ValueError(f"{storage.uri} has no frames for {domains!r} yet")
@@ -360,8 +387,8 @@ def stats(
         typer.echo(format_share_table(shares))
         png = bar_chart_png(shares, title=f"Class pixel shares, {len(table):,} frames")
         if chart is None:
-            if not storage.is_local:
-                typer.echo("(pass --chart FILE.png to save the chart for an s3:// root)")
+            if not chart_in_root:
+                typer.echo("(pass --chart FILE.png to save the chart: the root is read-only or on s3://)")
                 return
             storage.write_bytes("class_shares.png", png)
             chart_where = storage.join("class_shares.png")

@@ -18,10 +18,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from manifests.reader import compact, done_episodes
-from manifests.schema import STATS_DIR, part_path
+from manifests.reader import compact, episode_frames
+from manifests.schema import STATS_DIR, index_path, part_path
 from pipeline.planner import make_plan
-from pipeline.runmeta import RunConfig, prepare_root
+from pipeline.runmeta import RunConfig, RunConfigError, prepare_root
 
 log = logging.getLogger(__name__)
 
@@ -90,6 +90,21 @@ class ProduceReport:
         return not self.failed
 
 
+class ProduceInterrupted(Exception):
+    """The run was interrupted (Ctrl-C); ``report`` says what was done."""
+
+    def __init__(self, report: ProduceReport) -> None:
+        super().__init__(f"interrupted after {report.rendered_episodes} episode(s)")
+        self.report = report
+
+
+@dataclass(frozen=True)
+class _Fatal:
+    """A worker's error that retrying cannot fix (full disk, read-only root)."""
+
+    message: str
+
+
 RAY_AUTH_MODE = "RAY_AUTH_MODE"
 _RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 _AUTH_HINT = (
@@ -134,6 +149,17 @@ def _import_ray(address: str | None = None):
     return ray
 
 
+# Ray's own options that make a local cluster die with its driver: GCS and
+# raylet already share the driver's fate (PR_SET_PDEATHSIG); with these the
+# agents notice the raylet's death at once through a pipe (instead of after
+# polling for up to a minute or two), and each worker runs in its own process
+# group that the raylet kills with it.
+_LOCAL_CLUSTER_ENV = {
+    "RAY_enable_pipe_based_agent_to_parent_health_check": "true",
+    "RAY_process_group_cleanup_enabled": "true",
+}
+
+
 def _address(config: ProduceConfig) -> str | None:
     return config.address or os.environ.get("RAY_ADDRESS")
 
@@ -153,18 +179,29 @@ def _connect(ray, config: ProduceConfig) -> bool:
         # A private cluster for this run: Ray's notice that it turned token
         # authentication on is not something the user has to act on.
         logging.getLogger(_RAY_TOKEN_LOGGER).setLevel(logging.ERROR)
+        for name, value in _LOCAL_CLUSTER_ENV.items():  # read by the raylet and agents it starts
+            os.environ.setdefault(name, value)
         ray.init(num_cpus=config.workers or os.cpu_count(), include_dashboard=False, **common)
     return True
 
 
 def _episode_task(spec, storage, world):
     from pipeline.episode_job import run_episode
+    from storage import StorageError
 
-    return run_episode(spec, storage, world=world)
+    try:
+        return run_episode(spec, storage, world=world)
+    except StorageError as exc:
+        if exc.fatal:  # returned, not raised: Ray would retry it
+            return _Fatal(str(exc))
+        raise
 
 
 def _repair(storage, plan) -> list[str]:
-    """Drop the parts of episodes with bad files (and stray files), so they re-render."""
+    """Drop what verify finds broken so the run rebuilds it: the parts of
+    episodes with bad files or a bad part (they re-render), stray frame files
+    (our naming only) and damaged indexes (compaction rewrites them). A damaged
+    run.json is rewritten by ``prepare_root``."""
     from manifests.verify import verify
 
     report = verify(storage)
@@ -172,12 +209,17 @@ def _repair(storage, plan) -> list[str]:
     touched = []
     for scenario, episode in sorted(report.affected_episodes()):
         storage.delete(part_path(scenario, episode))
+        storage.delete(index_path(scenario))
         if (scenario, episode) not in planned:
             log.warning("%s_e%04d is damaged but not in the current plan; it stays pending", scenario, episode)
         touched.append(f"{scenario}/e{episode:04d}")
     for problem in report.problems:
-        if problem.kind == "extra":
+        if problem.kind in ("extra", "bad-index"):
             storage.delete(problem.path)
+            if problem.kind == "bad-index":
+                touched.append(problem.path)
+        elif problem.kind == "bad-run":
+            touched.append(problem.path)
     return touched
 
 
@@ -185,8 +227,14 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                    progress: Callable[[Progress], None] | None, start: float) -> None:
     """Run one task per pending episode, at most ``limit`` in flight; fills ``report``."""
     ray = _import_ray(_address(config))
-    started = _connect(ray, config)
+    started = not ray.is_initialized()
+    reaper = None
     try:
+        _connect(ray, config)
+        if started and not _address(config):  # our own local cluster: it dies with this process
+            from pipeline.reaper import Reaper
+
+            reaper = Reaper()
         slots = max(1, int(ray.cluster_resources().get("CPU", 1) // config.cpus_per_task))
         report.workers = slots
         limit = config.max_in_flight or 2 * slots
@@ -218,6 +266,12 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                     report.failed.append((spec.key, message))
                     log.error("episode %s failed after %d retries: %s", spec.key, config.max_retries, message)
                     continue
+                if isinstance(result, _Fatal):
+                    from storage import StorageError
+
+                    for other in in_flight:
+                        ray.cancel(other, force=True)
+                    raise StorageError(f"{result.message}; stopped the run (retrying cannot help)", fatal=True)
                 report.rendered_frames += result.frames
                 report.rendered_episodes += 1
                 row = report.per_scenario.setdefault(spec.scenario, {"frames": 0, "episodes": 0, "seconds": 0.0})
@@ -235,20 +289,44 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                         elapsed_s=time.perf_counter() - start,
                     )
                 )
-    finally:
-        if started:
+    finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
+        if started and ray.is_initialized():
             ray.shutdown()
+        if reaper is not None:
+            reaper.stop()
+
+
+def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
+    """Planned episodes whose part does not hold the frames the plan asks of
+    them: absent, or shorter (an --extend to more frames renders the episode
+    again; the same seed gives the same first frames, byte for byte).
+    RunConfigError if a part holds more frames than planned (that would drop frames)."""
+    todo = []
+    for spec in plan.episodes:
+        have = frames.get((spec.scenario, spec.episode))
+        if have is not None and have > spec.frames:
+            raise RunConfigError(
+                f"{spec.scenario} episode {spec.episode} holds {have} frames, the plan asks for {spec.frames}; "
+                "a root never shrinks: ask for at least as many frames, or use a new --out"
+            )
+        if have != spec.frames:
+            todo.append(spec)
+    return todo
+
+
+COMPACT_WAIT_S = 120.0  # how long compaction waits for another holder of the root's exclusive lease
 
 
 def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None) -> ProduceReport:
     """Render every pending episode of the plan into ``config.out``."""
+    from manifests.lease import LeaseError, acquire_exclusive, describe, exclusive_holder, live_producers, register_producer
+    from manifests.root import claim_root
     from storage import Storage
 
     config.validate()
     plan = make_plan(config.run.plan)
     storage = Storage.from_uri(config.out)
-    storage.ensure_writable()
-    prepare_root(storage, config.run, extend=config.extend)
+    claim_root(storage)  # refuses a non-empty directory that is not ours; creates and marks the root
 
     report = ProduceReport(
         out=storage.uri,
@@ -256,20 +334,46 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
         planned_frames=plan.total_frames,
         skipped_episodes=0,
     )
-    if config.repair:
-        report.repaired = _repair(storage, plan)
-    done = done_episodes(storage)
-    todo = [e for e in plan.episodes if (e.scenario, e.episode) not in done]
-    report.skipped_episodes = len(plan.episodes) - len(todo)
-    start = time.perf_counter()
-    if todo:
-        _render_on_ray(config, storage, todo, report, progress, start)
-    compact(storage)  # one index file per scenario, also for scenarios an earlier (killed) run finished
-    report.seconds = time.perf_counter() - start
-    if report.rendered_frames and report.seconds > 0:
-        driver_stats = {
-            "workers": report.workers,
-            "frames_per_s": round(report.rendered_frames / report.seconds, 4),
-        }
-        storage.write_bytes(f"{STATS_DIR}/driver.json", json.dumps(driver_stats).encode())
+    producer = register_producer(storage)
+    try:
+        holder = exclusive_holder(storage)
+        if holder is not None and holder.get("purpose") == "repair":
+            raise LeaseError(f"{storage.uri} is being repaired ({describe(holder)}); run again when it is done")
+        if config.repair:
+            with acquire_exclusive(storage, "repair", owner=producer.owner):
+                others = live_producers(storage, except_owner=producer.owner)
+                if others:
+                    raise LeaseError(
+                        f"{storage.uri} is being written by another producer ({describe(others[0])}); "
+                        "repair when it has finished"
+                    )
+                report.repaired = _repair(storage, plan)
+                prepare_root(storage, config.run, extend=config.extend, repair=True)
+        held = episode_frames(storage)
+        todo = pending_episodes(plan, held)
+        if not config.repair:
+            prepare_root(storage, config.run, extend=config.extend)
+        for scenario in sorted({e.scenario for e in todo if (e.scenario, e.episode) in held}):
+            storage.delete(index_path(scenario))  # its parts will be rewritten: the index goes stale
+        report.skipped_episodes = len(plan.episodes) - len(todo)
+        start = time.perf_counter()
+        try:
+            if todo:
+                _render_on_ray(config, storage, todo, report, progress, start)
+        except KeyboardInterrupt:
+            raise ProduceInterrupted(report) from None
+        try:  # one index file per scenario, also for scenarios an earlier (killed) run finished
+            with acquire_exclusive(storage, "compaction", owner=producer.owner, wait_s=COMPACT_WAIT_S):
+                compact(storage)
+        except LeaseError as exc:
+            log.warning("indexes not rebuilt this time (%s); readers use the parts meanwhile", exc)
+        report.seconds = time.perf_counter() - start
+        if report.rendered_frames and report.seconds > 0:
+            driver_stats = {
+                "workers": report.workers,
+                "frames_per_s": round(report.rendered_frames / report.seconds, 4),
+            }
+            storage.write_bytes(f"{STATS_DIR}/driver.json", json.dumps(driver_stats).encode())
+    finally:
+        producer.release()
     return report

@@ -8,6 +8,7 @@ rendered again (same spec, same bytes).
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -23,13 +24,21 @@ from manifests.schema import STATS_DIR, frame_id, frame_path, output_columns, pa
 from manifests.spec import EpisodeSpec
 from manifests.writer import write_part
 from storage import sha256_bytes
+from storage.errors import storage_error
 
 log = logging.getLogger(__name__)
 
-# Test hook: "kill-after:<frames>:<marker path>" makes the worker process die
-# abruptly (os._exit) after writing that many frames, once per marker file.
-# It lets the test suite kill a real worker mid-episode; unset in normal runs.
+# Test hooks, unset in normal runs:
+# "kill-after:<frames>:<marker path>" makes the worker process die abruptly
+# (os._exit) after writing that many frames, once per marker file, so the test
+# suite can kill a real worker mid-episode; "enospc-after:<frames>" makes the
+# next write fail as a full disk does (the StorageError storage raises for ENOSPC).
 FAULT_ENV = "IDDA_FAULT_INJECT"
+
+
+def _enospc_after() -> int | None:
+    spec = os.environ.get(FAULT_ENV, "")
+    return int(spec.split(":")[1]) if spec.startswith("enospc-after:") else None
 
 
 @dataclass(frozen=True)
@@ -102,9 +111,11 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural") -> Episod
     part_dir, _, part_name = part_path(spec.scenario, spec.episode).rpartition("/")
     storage.remove_stale_temp(part_dir, part_name)
     rows: list[dict] = []
-    kill_after = _fault_after()
+    kill_after, full_after = _fault_after(), _enospc_after()
 
     def sink(frame) -> None:
+        if full_after is not None and len(rows) >= full_after:
+            raise storage_error("write", storage.join(spec.scenario), OSError(errno.ENOSPC, "No space left on device"))
         rows.append(frame_row(spec, frame, storage))
         if kill_after is not None and len(rows) >= kill_after:
             os._exit(17)

@@ -26,6 +26,11 @@ MIN_SIZE, MAX_SIZE = 32, 8192  # accepted image width / height in pixels
 SPLITS = ("train", "val", "test")
 SPLIT_SHARES = (0.8, 0.1, 0.1)
 
+# Upper bound on --frames-per-scenario: 100 times the paper's largest scenario
+# (T01 at full scale). A plan holds one small record per episode, so this
+# keeps a typo such as 10**10 from exhausting memory; real runs are far below.
+MAX_SCALE_FACTOR = 100
+
 _SPLIT_STREAM = 1  # rng stream ids keep seeds of different uses apart (2, 3: manifests.spec)
 
 
@@ -43,6 +48,11 @@ def full_scale_frames(town: Town) -> int:
     per_town_column = PAPER_TOTAL_FRAMES // (len(WEATHERS) * len(VIEWPOINTS))
     counts = _largest_remainder(per_town_column, [t.road_km for t in TOWNS])
     return counts[TOWNS.index(town)]
+
+
+def max_frames_per_scenario() -> int:
+    """The largest --frames-per-scenario accepted (see MAX_SCALE_FACTOR)."""
+    return MAX_SCALE_FACTOR * max(full_scale_frames(t) for t in TOWNS)
 
 
 def episode_target(town: Town) -> int:
@@ -79,6 +89,11 @@ class PlanConfig:
         if self.frames_per_scenario is not None and self.frames_per_scenario < 1:
             raise ValueError(
                 f"frames per scenario must be at least 1, got {self.frames_per_scenario}"
+            )
+        if self.frames_per_scenario is not None and self.frames_per_scenario > max_frames_per_scenario():
+            raise ValueError(
+                f"frames per scenario must be at most {max_frames_per_scenario():,} "
+                f"({MAX_SCALE_FACTOR} times the paper's largest scenario), got {self.frames_per_scenario:,}"
             )
         for name, value in (("width", self.width), ("height", self.height)):
             if not (MIN_SIZE <= value <= MAX_SIZE):

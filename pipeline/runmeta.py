@@ -8,19 +8,24 @@ never change within one root, since frames would no longer match each other.
 
 from __future__ import annotations
 
-import json
+import logging
+import os
 import platform
 import subprocess
 from dataclasses import asdict, dataclass
 from importlib import metadata
 from pathlib import Path
 
+from manifests.runrecord import RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE
 from pipeline.planner import PlanConfig
 
 # Changing these would make new frames inconsistent with the ones on disk.
 FRAME_DEFINING = ("seed", "width", "height", "world")
 _PACKAGES = ("idda-pipeline", "numpy", "pyrender", "PyOpenGL", "trimesh", "ray", "pyarrow", "opencv-python-headless")
+
+
+log = logging.getLogger(__name__)
 
 
 class RunConfigError(Exception):
@@ -63,38 +68,82 @@ def git_revision() -> str:
 
 
 def read_run(storage) -> dict | None:
-    if not storage.exists(RUN_FILE):
-        return None
+    """The root's run record, None if it has none; RunConfigError if it is damaged."""
     try:
-        return json.loads(storage.read_bytes(RUN_FILE))
-    except ValueError as exc:
-        raise RunConfigError(f"{storage.join(RUN_FILE)} is not valid JSON: {exc}") from None
+        return read_record(storage)
+    except RunRecordError as exc:
+        raise RunConfigError(f"{exc}; `idda produce --repair` with the run's options rewrites it") from None
 
 
 def _differences(old: dict, new: dict) -> list[str]:
     return [f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in sorted(new) if old.get(k) != new.get(k)]
 
 
-def prepare_root(storage, config: RunConfig, extend: bool = False) -> dict:
+def check_rows(storage, config: RunConfig) -> None:
+    """Frames already in the root must have this run's resolution and seeds
+    (run.json can be lost or rewritten; the manifest rows cannot lie)."""
+    from manifests.catalog import SCENARIO_BY_CODE
+    from manifests.reader import read_manifest
+    from manifests.spec import episode_seed
+
+    table = read_manifest(storage, columns=["scenario", "episode", "seed", "width", "height"])
+    if len(table) == 0:
+        return
+    plan = config.plan
+    sizes = set(zip(table.column("width").to_pylist(), table.column("height").to_pylist()))
+    if sizes != {(plan.width, plan.height)}:
+        found = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))
+        raise RunConfigError(
+            f"{storage.uri} holds frames at {found}, this run asks for {plan.width}x{plan.height}; "
+            "frames would not match: use a new --out"
+        )
+    episodes = set(zip(*(table.column(c).to_pylist() for c in ("scenario", "episode", "seed"))))
+    for scenario, episode, seed in sorted(episodes):
+        if episode_seed(plan.seed, SCENARIO_BY_CODE[scenario], episode) != seed:
+            raise RunConfigError(
+                f"{storage.uri} holds frames made with another run seed than {plan.seed} "
+                f"({scenario} episode {episode}); frames would not match: use a new --out"
+            )
+
+
+def _fresh_record(new: dict, history: list[dict] | None = None) -> dict:
+    return {
+        "config": new,
+        "history": (history or []) + [new],
+        "versions": package_versions(),
+        "git_revision": git_revision(),
+    }
+
+
+def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool = False) -> dict:
     """Record the run in ``run.json``, or check it matches the recorded one.
 
+    The manifest rows are checked too (resolution and seeds). With ``repair``
+    a damaged run.json is rewritten from ``config`` when the rows agree.
     Returns the record now in force. Raises RunConfigError on a mismatch.
     """
     new = config.to_dict()
-    record = read_run(storage)
+    try:
+        record = read_record(storage)
+    except RunRecordError as exc:
+        if not repair:
+            raise RunConfigError(f"{exc}; `idda produce --repair` with the run's options rewrites it") from None
+        if storage.is_local and not os.path.isfile(storage.path(RUN_FILE)):
+            raise RunConfigError(f"{exc}; move it away, then run again") from None
+        log.warning("rewriting the damaged %s from this run's options", storage.join(RUN_FILE))
+        check_rows(storage, config)
+        storage.write_bytes(RUN_FILE, record_bytes(_fresh_record(new)))
+        return read_record(storage)
     if record is None:
-        record = {
-            "config": new,
-            "history": [new],
-            "versions": package_versions(),
-            "git_revision": git_revision(),
-        }
-        body = (json.dumps(record, indent=2, sort_keys=True) + "\n").encode()
-        if not storage.create_exclusive(RUN_FILE, body):
-            return prepare_root(storage, config, extend)  # another driver was first
-        return record
+        check_rows(storage, config)
+        if storage.create_exclusive(RUN_FILE, record_bytes(_fresh_record(new))):
+            return read_record(storage)
+        record = read_run(storage)  # another driver was first: compare with its record
+        if record is None:
+            raise RunConfigError(f"cannot create {storage.join(RUN_FILE)}")
     old = record["config"]
     if old == new:
+        check_rows(storage, config)
         return record
     diffs = _differences(old, new)
     fixed = [k for k in FRAME_DEFINING if old.get(k) != new.get(k)]
@@ -108,14 +157,9 @@ def prepare_root(storage, config: RunConfig, extend: bool = False) -> dict:
             f"{storage.uri} was produced with another config ({'; '.join(diffs)}); "
             "pass --extend to add to it, or use a new --out"
         )
-    record = {
-        **record,
-        "config": new,
-        "history": record.get("history", [old]) + [new],
-        "versions": package_versions(),
-        "git_revision": git_revision(),
-    }
-    storage.write_bytes(RUN_FILE, (json.dumps(record, indent=2, sort_keys=True) + "\n").encode())
+    check_rows(storage, config)
+    record = _fresh_record(new, record.get("history", [old]))
+    storage.write_bytes(RUN_FILE, record_bytes(record))
     return record
 
 

@@ -5,10 +5,11 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 
-from manifests.reader import done_episodes
+from manifests.reader import episode_frames
 from manifests.schema import STATS_DIR
 from pipeline.planner import make_plan
 from pipeline.runmeta import read_run, recorded_config
+from storage import StorageError
 
 
 @dataclass
@@ -49,24 +50,28 @@ def root_status(storage) -> RootStatus:
         raise ValueError(f"{storage.uri} is not an output root (no run.json); run `idda produce` first")
     config = recorded_config(record)
     plan = make_plan(config.plan)
-    done = done_episodes(storage)
+    held = episode_frames(storage)  # frames each part holds: done only if all the plan asks
     status = RootStatus(uri=storage.uri, config=record["config"])
     planned = set()
     for code, episodes in plan.by_scenario().items():
-        finished = [e for e in episodes if (e.scenario, e.episode) in done]
+        have = [min(held.get((e.scenario, e.episode), 0), e.frames) for e in episodes]
         planned.update((e.scenario, e.episode) for e in episodes)
         status.scenarios.append(
             ScenarioStatus(
                 scenario=code,
-                episodes_done=len(finished),
+                episodes_done=sum(n == e.frames for n, e in zip(have, episodes)),
                 episodes_total=len(episodes),
-                frames_done=sum(e.frames for e in finished),
+                frames_done=sum(have),
                 frames_total=sum(e.frames for e in episodes),
             )
         )
-    status.extra_episodes = len(done - planned)
+    status.extra_episodes = len(set(held) - planned)
     if storage.exists(f"{STATS_DIR}/driver.json"):
-        status.frames_per_s = json.loads(storage.read_bytes(f"{STATS_DIR}/driver.json")).get("frames_per_s")
+        try:
+            rate = json.loads(storage.read_bytes(f"{STATS_DIR}/driver.json")).get("frames_per_s")
+            status.frames_per_s = float(rate) if isinstance(rate, (int, float)) and rate > 0 else None
+        except (ValueError, AttributeError, OSError, StorageError):  # a damaged or odd driver.json: no rate
+            status.frames_per_s = None
     return status
 
 

@@ -24,6 +24,10 @@ _ERRNO_CAUSES = {
 }
 if hasattr(errno, "EDQUOT"):  # not on every platform
     _ERRNO_CAUSES[errno.EDQUOT] = "disk quota exceeded"
+# Not transient: retrying cannot help, so a run stops at the first one.
+FATAL_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM} | (
+    {errno.EDQUOT} if hasattr(errno, "EDQUOT") else set()
+)
 
 # Substrings of pyarrow's S3 error texts -> human cause.
 _S3_CAUSES = {
@@ -38,12 +42,21 @@ _S3_CAUSES = {
 class StorageError(Exception):
     """An output root cannot be used: bad URI, permissions, full disk, missing bucket.
 
-    ``cause`` is the short reason alone (e.g. "no space left on device (ENOSPC)").
+    ``cause`` is the short reason alone (e.g. "no space left on device (ENOSPC)");
+    ``fatal`` says retrying cannot help (full disk, read-only, permissions).
     """
 
-    def __init__(self, message: str, *, cause: str | None = None) -> None:
+    def __init__(self, message: str, *, cause: str | None = None, fatal: bool = False) -> None:
         super().__init__(message)
         self.cause = cause or message
+        self.fatal = fatal
+
+    def __reduce__(self):  # keeps cause and fatal across processes (Ray workers)
+        return (_rebuild, (str(self), self.cause, self.fatal))
+
+
+def _rebuild(message: str, cause: str, fatal: bool) -> StorageError:
+    return StorageError(message, cause=cause, fatal=fatal)
 
 
 def redact(text: str) -> str:
@@ -72,4 +85,5 @@ def describe(exc: BaseException) -> str:
 def storage_error(action: str, target: str, exc: BaseException) -> StorageError:
     """``StorageError("cannot <action> <target>: <cause>")``; raise it ``from exc``."""
     cause = describe(exc)
-    return StorageError(f"cannot {action} {redact(target)}: {cause}", cause=cause)
+    fatal = getattr(exc, "errno", None) in FATAL_ERRNOS
+    return StorageError(f"cannot {action} {redact(target)}: {cause}", cause=cause, fatal=fatal)

@@ -5,6 +5,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import os
+import stat
 import uuid
 from typing import Callable
 
@@ -259,6 +260,10 @@ class Storage:
             raise storage_error(action, self.join(rel), exc) from exc
 
     def _open_input(self, rel: str):
+        if self.is_local:  # open only regular files: a FIFO would block, a directory fail obscurely
+            mode = self._guard("stat", rel, lambda: os.stat(self.path(rel))).st_mode
+            if not stat.S_ISREG(mode):
+                raise StorageError(f"cannot read {self.join(rel)}: not a regular file", cause="not a regular file")
         return self._guard("open", rel, lambda: self.filesystem.open_input_stream(self.path(rel)))
 
     def _info(self, rel: str) -> pafs.FileInfo:

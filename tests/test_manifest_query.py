@@ -198,3 +198,24 @@ def test_manifest_dir_holds_one_row_per_frame_after_compaction(root, tmp_path):
     dataset = ds.dataset(copy.path("manifest"), format="parquet", partitioning="hive", ignore_prefixes=[])
     assert dataset.count_rows() == plan.total_frames
     assert len(read_manifest(copy)) == plan.total_frames
+
+
+def test_what_is_in_the_files_and_what_in_the_paths(root, tmp_path):
+    """As the README says: a part holds PART_SCHEMA (town / weather / viewpoint
+    only in its hive path); an index holds them inside, matching ``scenario``."""
+    import shutil
+
+    from manifests.reader import compact
+    from manifests.schema import PARTITION_KEYS, index_path
+
+    storage, plan = root
+    copy = Storage.from_uri(str(tmp_path / "copy"))
+    shutil.copytree(storage.path(), copy.path(), dirs_exist_ok=True)
+    compact(copy)
+    spec = plan.episodes[0]
+    part = pq.read_table(copy.path(part_path(spec.scenario, spec.episode)))
+    assert part.schema.names == PART_SCHEMA.names and not set(PARTITION_KEYS) & set(part.schema.names)
+    index = pq.read_table(copy.path(index_path(spec.scenario)))
+    assert index.schema.names == MANIFEST_SCHEMA.names
+    for key, value in zip(PARTITION_KEYS, spec.scenario.split("_")):
+        assert set(index.column(key).to_pylist()) == {value}

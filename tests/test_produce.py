@@ -41,11 +41,12 @@ def config(out, **kw) -> ProduceConfig:
 
 
 def tree_digest(root: Path) -> dict[str, str]:
-    """sha256 of every dataset file (frames and manifest parts) under root."""
+    """sha256 of every dataset file (frames and manifest parts) under root;
+    leases (a killed driver leaves its own until it expires) are not data."""
     out = {}
     for path in sorted(root.rglob("*")):
         rel = path.relative_to(root).as_posix()
-        if path.is_file() and not rel.startswith("_stats/") and rel != "run.json":
+        if path.is_file() and not rel.startswith(("_stats/", "_lease/")) and rel != "run.json":
             out[rel] = hashlib.sha256(path.read_bytes()).hexdigest()
     return out
 

@@ -1,0 +1,113 @@
+"""Make a local Ray cluster die with its driver, however the driver dies.
+
+Ray ties its GCS and raylet to the driver that started them
+(PR_SET_PDEATHSIG), and ``RAY_enable_pipe_based_agent_to_parent_health_check``
+makes its agents notice the raylet's death at once; but an agent then spends
+up to 60 s (a timeout fixed in Ray) trying to report that death to the dead
+GCS, and a worker may keep writing for a moment. SIGKILL cannot be caught,
+so this small watcher runs beside the driver in its own session: it records
+the driver's Ray descendants while the cluster runs and, if the driver's pipe
+closes without a "stop" line (the driver died), kills those still alive.
+Every write is atomic, so what a killed worker leaves behind is a temp file
+that the next run removes. Linux only (/proc); elsewhere nothing is started.
+"""
+
+from __future__ import annotations
+
+import os
+import select
+import signal
+import subprocess
+import sys
+
+POLL_S = 0.5
+STOP = b"stop\n"
+
+
+def _proc_table() -> dict[int, tuple[int, str]]:
+    """{pid: (parent pid, start time)} of every process."""
+    table = {}
+    for entry in os.listdir("/proc"):
+        if entry.isdigit():
+            try:
+                with open(f"/proc/{entry}/stat") as f:
+                    fields = f.read().rsplit(")", 1)[1].split()
+                table[int(entry)] = (int(fields[1]), fields[19])
+            except (OSError, IndexError, ValueError):
+                continue
+    return table
+
+
+def _is_ray(pid: int) -> bool:
+    try:
+        with open(f"/proc/{pid}/cmdline", "rb") as f:
+            return b"ray" in f.read()
+    except OSError:
+        return False
+
+
+def descendants(pid: int, table: dict[int, tuple[int, str]]) -> dict[int, str]:
+    """{pid: start time} of every process below ``pid``."""
+    found, frontier = {}, {pid}
+    while frontier:
+        children = {p for p, (parent, _) in table.items() if parent in frontier and p not in found}
+        found.update((p, table[p][1]) for p in children)
+        frontier = children
+    return found
+
+
+def watch(driver: int) -> None:
+    """Record ``driver``'s Ray descendants until stdin says stop or closes; on close, kill them."""
+    seen: dict[int, str] = {}
+    stdin = sys.stdin.buffer
+    while True:
+        table = _proc_table()
+        seen.update((p, start) for p, start in descendants(driver, table).items() if p not in seen and _is_ray(p))
+        ready, _, _ = select.select([stdin], [], [], POLL_S)
+        if ready:
+            line = stdin.readline()
+            if line == STOP:
+                return
+            if line:
+                continue
+            break  # EOF without "stop": the driver is gone
+    table = _proc_table()
+    for pid, start in seen.items():
+        if pid in table and table[pid][1] == start:  # the same process, not a reused pid
+            try:
+                os.kill(pid, signal.SIGKILL)
+            except ProcessLookupError:
+                pass
+
+
+class Reaper:
+    """The watcher process of one driver; ``stop()`` when the cluster was shut down cleanly."""
+
+    def __init__(self) -> None:
+        self._proc = None
+        if os.path.isdir("/proc") and sys.platform.startswith("linux"):
+            self._proc = subprocess.Popen(
+                [sys.executable, "-m", "pipeline.reaper", str(os.getpid())],
+                stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                start_new_session=True,  # a kill of the driver's process group spares it
+                env={**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)},
+            )
+
+    def stop(self) -> None:
+        if self._proc is None:
+            return
+        try:
+            self._proc.stdin.write(STOP)
+            self._proc.stdin.close()
+        except OSError:
+            pass
+        try:
+            self._proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+        self._proc = None
+
+
+if __name__ == "__main__":
+    watch(int(sys.argv[1]))
