@@ -179,7 +179,7 @@ def produce(
             extend=extend,
             repair=repair,
         )
-        bar = _ProgressBar()
+        bar = ProgressDisplay()
         try:
             report = run_produce(config, progress=bar.update)
         except ProduceInterrupted as stop:
@@ -193,24 +193,50 @@ def produce(
             raise typer.Exit(code=1)
 
 
-class _ProgressBar:
-    """tqdm bar on stderr: frames done / total, frames per second and ETA."""
+def format_progress(p) -> str:
+    """One progress line: frames, the run's true average rate, ETA, episodes."""
+    from pipeline.status import format_duration
 
-    def __init__(self) -> None:
-        self._bar = None
+    share = 100 * p.frames_done / p.frames_total if p.frames_total else 100.0
+    rate = f"{p.rate:,.2f}" if p.rate < 100 else f"{p.rate:,.0f}"
+    eta = format_duration(p.eta_s) if p.eta_s is not None else "?"
+    line = (
+        f"rendering {p.frames_done:,}/{p.frames_total:,} frames ({share:.0f}%), {rate} frame/s, ETA {eta}, "
+        f"episodes {p.episodes_done:,}/{p.episodes_total:,}, {format_duration(p.elapsed_s)} elapsed"
+    )
+    return line + (f", {p.failed} failed" if p.failed else "")
+
+
+class ProgressDisplay:
+    """Produce's progress on ``stream`` (stderr): on a terminal one line,
+    redrawn at every frame the workers report; otherwise (a log file, CI) one
+    line per finished episode."""
+
+    def __init__(self, stream=None) -> None:
+        import sys
+
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._finished = 0
+        self._width = 0
 
     def update(self, p) -> None:
-        if self._bar is None:
-            from tqdm import tqdm
-
-            self._bar = tqdm(total=p.frames_total, unit="frame", desc="rendering", dynamic_ncols=True)
-        self._bar.n = p.frames_done
-        self._bar.set_postfix(episodes=f"{p.episodes_done}/{p.episodes_total}", failed=p.failed, refresh=False)
-        self._bar.refresh()
+        text = format_progress(p)
+        if self.tty:
+            self.stream.write("\r" + text.ljust(self._width))
+            self._width = len(text)
+        elif p.episodes_done + p.failed > self._finished:
+            self._finished = p.episodes_done + p.failed
+            self.stream.write(text + "\n")
+        else:
+            return
+        self.stream.flush()
 
     def close(self) -> None:
-        if self._bar is not None:
-            self._bar.close()
+        if self.tty and self._width:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._width = 0
 
 
 def format_interrupted(report) -> str:

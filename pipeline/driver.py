@@ -61,14 +61,25 @@ class ProduceConfig:
 
 @dataclass(frozen=True)
 class Progress:
-    """Sent to the progress callback after each finished episode."""
+    """Sent to the progress callback when rendering starts, after every frame
+    the workers write and after each finished episode."""
 
-    frames_done: int
+    frames_done: int  # frames written so far (finished and running episodes)
     frames_total: int
     episodes_done: int
     episodes_total: int
     failed: int
-    elapsed_s: float
+    elapsed_s: float  # since produce() started
+
+    @property
+    def rate(self) -> float:
+        """Frames per second over the whole run so far (0 before the first frame)."""
+        return self.frames_done / self.elapsed_s if self.elapsed_s > 0 else 0.0
+
+    @property
+    def eta_s(self) -> float | None:
+        """Seconds left at ``rate``; None before the first frame."""
+        return (self.frames_total - self.frames_done) / self.rate if self.rate > 0 else None
 
 
 @dataclass
@@ -185,12 +196,55 @@ def _connect(ray, config: ProduceConfig) -> bool:
     return True
 
 
-def _episode_task(spec, storage, world):
+class _FrameCounter:
+    """Ray actor the render tasks report each written frame to.
+
+    Keeps the highest count per episode, so a retried episode is not counted
+    twice; ``wait_total`` returns as soon as the total moves (or after
+    ``timeout``), which lets the driver wake once per frame."""
+
+    def __init__(self) -> None:
+        import asyncio
+
+        self._done: dict[str, int] = {}
+        self._total = 0
+        self._moved = asyncio.Event()
+
+    async def frame(self, key: str, n: int) -> None:
+        if n > self._done.get(key, 0):
+            self._total += n - self._done.get(key, 0)
+            self._done[key] = n
+            self._moved.set()
+
+    async def forget(self, key: str) -> None:
+        self._total -= self._done.pop(key, 0)
+        self._moved.set()
+
+    async def wait_total(self, seen: int, timeout: float) -> int:
+        import asyncio
+
+        if self._total == seen:
+            self._moved.clear()
+            try:
+                await asyncio.wait_for(self._moved.wait(), timeout)
+            except asyncio.TimeoutError:
+                pass
+        return self._total
+
+
+PROGRESS_WAIT_S = 5.0  # longest the driver waits for a frame before it looks again
+
+
+def _episode_task(spec, storage, world, counter=None):
     from pipeline.episode_job import run_episode
     from storage import StorageError
 
+    on_frame = None
+    if counter is not None:
+        def on_frame(n: int) -> None:  # fire and forget: progress never slows rendering
+            counter.frame.remote(spec.key, n)
     try:
-        return run_episode(spec, storage, world=world)
+        return run_episode(spec, storage, world=world, on_frame=on_frame)
     except StorageError as exc:
         if exc.fatal:  # returned, not raised: Ray would retry it
             return _Fatal(str(exc))
@@ -250,13 +304,38 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
             options["runtime_env"] = {"env_vars": env}
         task = ray.remote(_episode_task).options(**options)
         storage_ref = ray.put(storage)
+        counter = ray.remote(num_cpus=0)(_FrameCounter).remote() if progress is not None else None
         queue, in_flight = deque(todo), {}
         frames_total = sum(e.frames for e in todo)
+        frames_seen, watch = 0, None
+
+        def report_progress() -> None:
+            if progress is not None:
+                progress(
+                    Progress(
+                        frames_done=max(frames_seen, report.rendered_frames),
+                        frames_total=frames_total,
+                        episodes_done=report.rendered_episodes,
+                        episodes_total=len(todo),
+                        failed=len(report.failed),
+                        elapsed_s=time.perf_counter() - start,
+                    )
+                )
+
+        report_progress()  # at once: the display starts with the work, not after an episode
         while queue or in_flight:
             while queue and len(in_flight) < limit:
                 spec = queue.popleft()
-                in_flight[task.remote(spec, storage_ref, config.run.world)] = spec
-            ready, _ = ray.wait(list(in_flight), num_returns=1)
+                in_flight[task.remote(spec, storage_ref, config.run.world, counter)] = spec
+            if counter is not None and watch is None:
+                watch = counter.wait_total.remote(frames_seen, PROGRESS_WAIT_S)
+            ready, _ = ray.wait(list(in_flight) + ([watch] if watch is not None else []), num_returns=1)
+            if watch is not None and watch in ready:
+                ready = [ref for ref in ready if ref != watch]
+                frames_seen, watch = ray.get(watch), None
+                if not ready:
+                    report_progress()
+                    continue
             for ref in ready:
                 spec = in_flight.pop(ref)
                 try:
@@ -265,6 +344,8 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                     message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
                     report.failed.append((spec.key, message))
                     log.error("episode %s failed after %d retries: %s", spec.key, config.max_retries, message)
+                    if counter is not None:  # its frames are not part of the run
+                        ray.get(counter.forget.remote(spec.key))
                     continue
                 if isinstance(result, _Fatal):
                     from storage import StorageError
@@ -278,17 +359,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                 row["frames"] += result.frames
                 row["episodes"] += 1
                 row["seconds"] += result.seconds
-            if progress is not None:
-                progress(
-                    Progress(
-                        frames_done=report.rendered_frames,
-                        frames_total=frames_total,
-                        episodes_done=report.rendered_episodes,
-                        episodes_total=len(todo),
-                        failed=len(report.failed),
-                        elapsed_s=time.perf_counter() - start,
-                    )
-                )
+            report_progress()
     finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
         if started and ray.is_initialized():
             ray.shutdown()

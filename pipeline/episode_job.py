@@ -15,6 +15,7 @@ import os
 import socket
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -101,8 +102,12 @@ def frame_row(spec: EpisodeSpec, frame, storage) -> dict:
     return row
 
 
-def run_episode(spec: EpisodeSpec, storage, world: str = "procedural") -> EpisodeResult:
-    """Render ``spec`` into ``storage`` and mark it done; returns timings."""
+def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
+                on_frame: Callable[[int], None] | None = None) -> EpisodeResult:
+    """Render ``spec`` into ``storage`` and mark it done; returns timings.
+
+    ``on_frame(n)``, if given, is called after each frame's files are written
+    with the number of frames written so far (the driver's progress)."""
     from render_workers.episode import render_episode
 
     start = time.perf_counter()
@@ -117,6 +122,8 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural") -> Episod
         if full_after is not None and len(rows) >= full_after:
             raise storage_error("write", storage.join(spec.scenario), OSError(errno.ENOSPC, "No space left on device"))
         rows.append(frame_row(spec, frame, storage))
+        if on_frame is not None:
+            on_frame(len(rows))
         if kill_after is not None and len(rows) >= kill_after:
             os._exit(17)
 
