@@ -23,7 +23,7 @@ app = typer.Typer(
     "Domains are selected with one grammar everywhere: 'all'; scenario codes such as "
     "T01_CS_A,T07_HRN_* ; or axis filters such as 'towns=T01-T06 weathers=CN viewpoints=A,M'.\n\n"
     "Exit codes: 0 done; 1 the data has a problem (verify found damage, episodes failed); "
-    "2 a usage error, including a selection that matches no frames.",
+    "2 a usage error, including a selection that matches no frames; 130 interrupted.",
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
     pretty_exceptions_enable=False,
