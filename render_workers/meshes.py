@@ -129,6 +129,23 @@ def cylinders(bases, heights, radii, sides: int = 6) -> tuple[np.ndarray, np.nda
     return verts, faces
 
 
+def cones(bases, heights, radii, sides: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Vertical cones (no base cap) standing on ``bases``: conifer tiers, silo tops."""
+    b = np.atleast_2d(np.asarray(bases, dtype=np.float64))
+    n = len(b)
+    h = np.broadcast_to(np.asarray(heights, float), (n,))
+    r = np.broadcast_to(np.asarray(radii, float), (n,))
+    ang = np.linspace(0, 2 * np.pi, sides + 1)
+    ring = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], 1)
+    rim = b[:, None] + r[:, None, None] * ring[None]  # (N, S+1, 3)
+    apex = b + np.stack([np.zeros(n), np.zeros(n), h], 1)
+    verts = np.concatenate([rim, apex[:, None]], axis=1).reshape(-1, 3)
+    k = np.arange(sides)
+    f = np.stack([k, k + 1, np.full(sides, sides + 1)], 1)
+    faces = (f[None] + (sides + 2) * np.arange(n)[:, None, None]).reshape(-1, 3)
+    return verts, faces
+
+
 def _icosphere() -> tuple[np.ndarray, np.ndarray]:
     ico = trimesh.creation.icosphere(subdivisions=1)
     return np.asarray(ico.vertices), np.asarray(ico.faces, dtype=np.int64)

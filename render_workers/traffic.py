@@ -15,7 +15,7 @@
 * parked cars (15-30% of the four-wheelers, now and then a van, truck or a
   bus at a stop) sit in the kerbside parking strips;
 * pedestrians walk the sidewalks, mostly near the ego's route, in lanes
-  ``WALK_LANE_M`` apart with one pace per lane, so they never walk through
+  ``town_plan.WALK_LANE_M`` apart with one pace per lane, so they never walk through
   one another; 20-40% of them walk back and forth over a zebra crossing
   (again mostly on the ego's route). Every vehicle's motion is known, so a
   crossing pedestrian is only placed if, sampled every ``CROSSING_DT`` s over
@@ -32,12 +32,10 @@ from functools import lru_cache
 import numpy as np
 import trimesh
 
-from manifests.catalog import LABELS, viewpoint as viewpoint_row
+from manifests.catalog import class_id, viewpoint as viewpoint_row
 from render_workers import meshes as M
-from render_workers import world as W
-from render_workers.scene import Actor, EpisodeScene, Part, Path, World
+from render_workers.scene import Actor, EpisodeScene, Loop, Part, Path, World
 
-ID = {label.name: label.id for label in LABELS}
 
 
 @dataclass(frozen=True)
@@ -89,12 +87,11 @@ WALKER_RADIUS = 0.6  # a walker's footprint (and its motion over a check step) f
 CROSSING_CLEAR = 0.5  # kept between a crossing pedestrian and any vehicle's box, m
 CROSSING_TRIES = 20  # candidate (zebra, walk) draws per crossing pedestrian
 OFFSET_BIN = 0.05  # resolution of the free start offsets, m
-# Pedestrians on sidewalks keep to lanes WALK_LANE_M apart (from the middle of
-# the sidewalk towards the buildings), one pace per lane and loop, each holding
+# Pedestrians on sidewalks keep to the World's walking lanes (town_plan.WALK_LANE_M
+# apart, from the middle of the sidewalk towards the buildings), one pace per lane and loop, each holding
 # a WALK_SLOT_M stretch of it: they never walk through one another. A walker
 # that finds no free stretch in WALK_TRIES draws is left out (none in 11,081
 # pedestrians over 210 episodes of the seven towns).
-WALK_LANE_M = 0.7
 WALK_SLOT_M = 1.0
 WALK_TRIES = 10
 
@@ -142,7 +139,7 @@ def _part(cls: str, geom, color, material: str, amount: float = 0.04) -> Part:
     v, f = geom
     cols = M.noisy_colors(v, color, amount, 0.7, seed=int(sum(color)) % 97)
     mesh = trimesh.Trimesh(vertices=v, faces=f, vertex_colors=cols, process=False)
-    return Part(ID[cls], mesh, material)
+    return Part(class_id(cls), mesh, material)
 
 
 def vehicle_parts(name: str, paint) -> tuple[Part, ...]:
@@ -181,7 +178,7 @@ def pedestrian_parts(rng) -> tuple[Part, ...]:
     cols[:n_top] = M.flat_colors(n_top, CLOTHES[int(rng.integers(len(CLOTHES)))])
     cols[n_top:n_top + n_bot] = M.flat_colors(n_bot, CLOTHES[int(rng.integers(len(CLOTHES)))])
     cols[n_top + n_bot:] = M.flat_colors(len(v) - n_top - n_bot, SKIN[int(rng.integers(len(SKIN)))])
-    return (Part(ID["pedestrian"], trimesh.Trimesh(v, f, vertex_colors=cols, process=False), "matte"),)
+    return (Part(class_id("pedestrian"), trimesh.Trimesh(v, f, vertex_colors=cols, process=False), "matte"),)
 
 
 def rider_parts(rng, motor: bool) -> tuple[Part, ...]:
@@ -205,9 +202,9 @@ def rider_parts(rng, motor: bool) -> tuple[Part, ...]:
     cols = M.flat_colors(len(v), CLOTHES[int(rng.integers(len(CLOTHES)))])
     n_h = len(head[0])
     cols[-n_h:] = M.flat_colors(n_h, (40, 40, 45) if motor else SKIN[int(rng.integers(len(SKIN)))])
-    rider = Part(ID["rider"], trimesh.Trimesh(v, body[1], vertex_colors=cols, process=False), "matte")
+    rider = Part(class_id("rider"), trimesh.Trimesh(v, body[1], vertex_colors=cols, process=False), "matte")
     fv, ff = frame
-    bike = Part(ID[vcls], trimesh.Trimesh(fv, ff, vertex_colors=M.flat_colors(len(fv), vcol), process=False),
+    bike = Part(class_id(vcls), trimesh.Trimesh(fv, ff, vertex_colors=M.flat_colors(len(fv), vcol), process=False),
                 "glossy" if motor else "metal")
     return bike, rider
 
@@ -233,7 +230,7 @@ class _LoopSlots:
         self.taken.append((s % self.length, half))
 
 
-def _allowed_kinds(loop: W.Loop) -> list[str]:
+def _allowed_kinds(loop: Loop) -> list[str]:
     """Long vehicles only where corners are wide enough to keep them in lane."""
     kinds = []
     for name, k in VEHICLE_KINDS.items():
@@ -282,15 +279,6 @@ def _along(path: Path, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pos, heading
 
 
-def track(actor: Actor, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vectorised ``Actor.pose``: ground positions (T, 3) and headings (T,)."""
-    times = np.asarray(times, np.float64)
-    pos, heading = _along(actor.path, actor.offset_m + actor.speed_mps * times)
-    if actor.lateral_m:
-        pos = pos + actor.lateral_m * np.stack([-np.sin(heading), np.cos(heading), np.zeros(heading.shape)], -1)
-    return pos, heading
-
-
 def footprint(parts) -> tuple[np.ndarray, np.ndarray]:
     """Centre (2,) and half extents (2,) of the parts' box in the actor frame."""
     verts = np.concatenate([p.mesh.vertices[:, :2] for p in parts])
@@ -299,10 +287,10 @@ def footprint(parts) -> tuple[np.ndarray, np.ndarray]:
 
 
 @lru_cache(maxsize=16)
-def _loop_samples(town_code: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def _loop_samples(world: World) -> tuple[np.ndarray, np.ndarray]:
     """Points every metre or so along each lane loop, and their loop index."""
     pts, ids = [], []
-    for k, lp in enumerate(W.loops(town_code, seed)):
+    for k, lp in enumerate(world.loops):
         ring = np.vstack([lp.path.points, lp.path.points[:1]])[:, :2]
         for a, b in zip(ring[:-1], ring[1:]):
             n = max(1, int(np.ceil(np.linalg.norm(b - a))))
@@ -328,7 +316,7 @@ class _CrossingPlanner:
 
     def __init__(self, world: World, loops, vehicles: list[tuple[Actor, np.ndarray, np.ndarray]]) -> None:
         self.world = world
-        self.crosswalks = W.crosswalks(world.town, world.seed)
+        self.crosswalks = world.crosswalks
         self.times = np.arange(0.0, CROSSING_HORIZON_S + CROSSING_DT / 2, CROSSING_DT)
         loop_of = {id(lp.path): k for k, lp in enumerate(loops)}
         self.by_loop: dict[int, list[int]] = {}
@@ -357,7 +345,7 @@ class _CrossingPlanner:
 
     def near_loops(self, k: int) -> np.ndarray:
         """Loops that pass near crossing k."""
-        return _crosswalk_loops(self.world.town, self.world.seed)[k]
+        return _crosswalk_loops(self.world)[k]
 
     def events(self, k: int) -> tuple:
         """(time index, position, forward, centre, grown half extents) of every
@@ -460,7 +448,7 @@ class _CrossingPlanner:
         along = np.array([-cw.across[1], cw.across[0]])
         shift = float(rng.uniform(-CROSSING_SHIFT, CROSSING_SHIFT))
         c = cw.centre + along * shift
-        hw, z = cw.half_road, W.CURB_H
+        hw, z = cw.half_road, cw.kerb_h
         stops = [(-hw - a0, z), (-hw, z), (-hw + 0.2, 0.0), (hw - 0.2, 0.0), (hw, z), (hw + a1, z)]
         if rng.random() < 0.5:  # start from either side
             stops = [(-u, h) for u, h in stops[::-1]]
@@ -487,11 +475,11 @@ class _CrossingPlanner:
 
 
 @lru_cache(maxsize=16)
-def _crosswalk_loops(town_code: str, seed: int) -> tuple[np.ndarray, ...]:
+def _crosswalk_loops(world: World) -> tuple[np.ndarray, ...]:
     """For each crossing, the loops whose vehicles can come near a walker on it."""
-    pts, ids = _loop_samples(town_code, seed)
+    pts, ids = _loop_samples(world)
     out = []
-    for cw in W.crosswalks(town_code, seed):
+    for cw in world.crosswalks:
         half = cw.half_road + CROSSING_APPROACH[1]
         a, b = cw.centre - cw.across * half, cw.centre + cw.across * half
         # a vehicle's box reaches at most ~6 m from its centre, parked ones sit 3 m off their loop
@@ -510,9 +498,9 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
     rng = np.random.default_rng(episode_seed)
     n_vehicles = int(rng.integers(20, 151))
     n_pedestrians = int(rng.integers(0, 101))
-    loops = W.loops(world.town, world.seed)
-    if len(loops) != len(world.lanes):
-        raise ValueError(f"world {world.town} seed {world.seed} does not match its lane plan")
+    loops = world.loops
+    if not loops or len(loops) != len(world.lanes):
+        raise ValueError(f"world {world.town} seed {world.seed} carries no lane loops matching its lanes")
     lengths = np.array([lp.path.length for lp in loops])
 
     # the ego: a random loop (longer ones more likely) and spawn point
@@ -602,7 +590,7 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
     # pedestrians on zebra crossings, in the gaps of the traffic, most of them
     # on the ego's route
     crossing: list[Actor] = []
-    cws = W.crosswalks(world.town, world.seed)
+    cws = world.crosswalks
     if cws and n_pedestrians:
         vehicles = [(a, *footprint(a.parts)) for a in actors]  # no pedestrians yet
         vehicles.append((ego, np.zeros(2), np.array(ego_size) / 2))
@@ -619,10 +607,8 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
         near_w = np.array([_min_distance(p.points, ego_loop.path.points) < 25 for p in walk_loops], float)
         wts = np.array([p.length for p in walk_loops]) * (1.0 + 8.0 * near_w)
         wts /= wts.sum()
-        lay = W.layout(world.town, world.seed)
-        half_w = 0.5 * lay.sidewalk_w or 1.25
-        lanes = [W.walkway_loops(lay, k * WALK_LANE_M) for k in range(1 + int(max(0.0, half_w - 0.5) // WALK_LANE_M))]
-        if len(lanes[0]) != len(walk_loops):
+        lanes = world.walk_lanes
+        if not lanes or len(lanes[0]) != len(walk_loops):
             raise RuntimeError("walkway lanes do not match the world's walkways")
         lane_speed: dict[tuple[int, int], float] = {}
         lane_slots: dict[tuple[int, int], _LoopSlots] = {}
