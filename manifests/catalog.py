@@ -125,35 +125,44 @@ class Surface:
     noise: float  # 0..1, strength of the large-scale colour variation
     scale_m: float  # size of that variation
     look: str = "matte"  # renderer material (render_workers.scene.MATERIALS)
+    texture: str = ""  # procedural texture (TEXTURE_NAMES) multiplied in; "" = none
+
+    def __post_init__(self) -> None:
+        if self.texture:
+            lookup(dict.fromkeys(TEXTURE_NAMES), self.texture, "texture")
+
+
+# render_workers.textures makes these; each is grey and multiplies a surface's colour
+TEXTURE_NAMES = ("asphalt", "brick", "paving", "plaster", "concrete", "glass", "grass", "crop", "soil", "gravel")
 
 
 SURFACES: tuple[Surface, ...] = (
     # road and roadside
-    Surface("asphalt dark", (56, 57, 61), 0.16, 6.0, "road"),
-    Surface("asphalt grey", (84, 84, 86), 0.14, 6.0, "road"),
-    Surface("asphalt blue-grey", (70, 74, 82), 0.12, 7.0, "road"),
-    Surface("asphalt patched", (96, 90, 80), 0.26, 4.0, "road"),
-    Surface("asphalt freeway", (80, 80, 84), 0.15, 8.0, "road"),
+    Surface("asphalt dark", (56, 57, 61), 0.16, 6.0, "road", texture="asphalt"),
+    Surface("asphalt grey", (84, 84, 86), 0.14, 6.0, "road", texture="asphalt"),
+    Surface("asphalt blue-grey", (70, 74, 82), 0.12, 7.0, "road", texture="asphalt"),
+    Surface("asphalt patched", (96, 90, 80), 0.26, 4.0, "road", texture="asphalt"),
+    Surface("asphalt freeway", (80, 80, 84), 0.15, 8.0, "road", texture="asphalt"),
     Surface("marking white", (226, 226, 220), 0.06, 2.0),
     Surface("marking yellow", (214, 178, 58), 0.06, 2.0),
     Surface("kerb granite", (176, 174, 168), 0.08, 1.0),
     Surface("kerb concrete", (198, 196, 190), 0.06, 1.0),
-    Surface("paving grey", (150, 146, 140), 0.10, 1.3),
-    Surface("paving red", (162, 118, 104), 0.10, 1.3),
-    Surface("paving buff", (190, 176, 146), 0.10, 1.3),
-    Surface("concrete slabs", (172, 172, 170), 0.08, 2.0),
-    Surface("gravel", (146, 136, 118), 0.20, 1.5),
-    Surface("dirt", (118, 94, 64), 0.22, 2.5),
+    Surface("paving grey", (150, 146, 140), 0.10, 1.3, texture="paving"),
+    Surface("paving red", (162, 118, 104), 0.10, 1.3, texture="paving"),
+    Surface("paving buff", (190, 176, 146), 0.10, 1.3, texture="paving"),
+    Surface("concrete slabs", (172, 172, 170), 0.08, 2.0, texture="concrete"),
+    Surface("gravel", (146, 136, 118), 0.20, 1.5, texture="gravel"),
+    Surface("dirt", (118, 94, 64), 0.22, 2.5, texture="soil"),
     # ground and vegetation
-    Surface("lawn", (72, 112, 44), 0.25, 3.0),
-    Surface("meadow", (104, 124, 56), 0.28, 8.0),
-    Surface("dry grass", (140, 136, 80), 0.25, 6.0),
-    Surface("alpine grass", (78, 106, 58), 0.25, 10.0),
-    Surface("rock", (118, 114, 108), 0.25, 12.0),
+    Surface("lawn", (72, 112, 44), 0.25, 3.0, texture="grass"),
+    Surface("meadow", (104, 124, 56), 0.28, 8.0, texture="grass"),
+    Surface("dry grass", (140, 136, 80), 0.25, 6.0, texture="grass"),
+    Surface("alpine grass", (78, 106, 58), 0.25, 10.0, texture="grass"),
+    Surface("rock", (118, 114, 108), 0.25, 12.0, texture="soil"),
     Surface("snow", (232, 236, 242), 0.05, 10.0),
-    Surface("soil", (104, 78, 54), 0.18, 5.0),
-    Surface("wheat", (196, 170, 92), 0.16, 6.0),
-    Surface("young crop", (110, 142, 52), 0.18, 6.0),
+    Surface("soil", (104, 78, 54), 0.18, 5.0, texture="soil"),
+    Surface("wheat", (196, 170, 92), 0.16, 6.0, texture="crop"),
+    Surface("young crop", (110, 142, 52), 0.18, 6.0, texture="crop"),
     Surface("canopy green", (58, 96, 38), 0.25, 1.2),
     Surface("canopy light", (96, 128, 46), 0.25, 1.2),
     Surface("canopy dark", (34, 62, 36), 0.22, 1.2),
@@ -162,26 +171,26 @@ SURFACES: tuple[Surface, ...] = (
     Surface("bark", (84, 64, 44), 0.20, 0.5),
     Surface("birch bark", (206, 204, 196), 0.15, 0.5),
     # facades and roofs
-    Surface("brick red", (152, 74, 54), 0.10, 4.0),
-    Surface("brick brown", (118, 70, 54), 0.10, 4.0),
-    Surface("plaster cream", (214, 200, 166), 0.08, 4.0),
-    Surface("plaster ochre", (206, 160, 96), 0.08, 4.0),
-    Surface("plaster pink", (206, 164, 150), 0.08, 4.0),
-    Surface("plaster white", (226, 224, 214), 0.06, 4.0),
-    Surface("concrete light", (188, 184, 176), 0.08, 4.0),
-    Surface("concrete dark", (118, 118, 116), 0.08, 4.0),
-    Surface("glass blue", (64, 96, 130), 0.10, 6.0, "glass"),
-    Surface("glass teal", (58, 104, 104), 0.10, 6.0, "glass"),
-    Surface("glass bronze", (110, 92, 70), 0.10, 6.0, "glass"),
+    Surface("brick red", (152, 74, 54), 0.10, 4.0, texture="brick"),
+    Surface("brick brown", (118, 70, 54), 0.10, 4.0, texture="brick"),
+    Surface("plaster cream", (214, 200, 166), 0.08, 4.0, texture="plaster"),
+    Surface("plaster ochre", (206, 160, 96), 0.08, 4.0, texture="plaster"),
+    Surface("plaster pink", (206, 164, 150), 0.08, 4.0, texture="plaster"),
+    Surface("plaster white", (226, 224, 214), 0.06, 4.0, texture="plaster"),
+    Surface("concrete light", (188, 184, 176), 0.08, 4.0, texture="concrete"),
+    Surface("concrete dark", (118, 118, 116), 0.08, 4.0, texture="concrete"),
+    Surface("glass blue", (64, 96, 130), 0.10, 6.0, "glass", texture="glass"),
+    Surface("glass teal", (58, 104, 104), 0.10, 6.0, "glass", texture="glass"),
+    Surface("glass bronze", (110, 92, 70), 0.10, 6.0, "glass", texture="glass"),
     Surface("siding grey", (150, 154, 156), 0.06, 3.0, "metal"),
     Surface("siding blue", (70, 98, 136), 0.06, 3.0, "metal"),
     Surface("siding beige", (196, 184, 156), 0.06, 3.0),
     Surface("timber dark", (92, 62, 40), 0.12, 2.0),
     Surface("barn red", (150, 46, 36), 0.12, 3.0),
-    Surface("stone wall", (150, 142, 128), 0.18, 1.5),
-    Surface("roof terracotta", (156, 72, 48), 0.10, 2.0),
+    Surface("stone wall", (150, 142, 128), 0.18, 1.5, texture="gravel"),
+    Surface("roof terracotta", (156, 72, 48), 0.10, 2.0, texture="brick"),
     Surface("roof slate", (70, 72, 80), 0.08, 2.0),
-    Surface("roof flat", (110, 108, 104), 0.10, 4.0),
+    Surface("roof flat", (110, 108, 104), 0.10, 4.0, texture="concrete"),
     Surface("roof metal", (128, 132, 136), 0.06, 3.0, "metal"),
     Surface("roof green metal", (70, 96, 80), 0.06, 3.0, "metal"),
     Surface("silo metal", (182, 184, 182), 0.06, 2.0, "metal"),
@@ -335,7 +344,7 @@ TOWNS: tuple[Town, ...] = (
     Town("T04", "Town04", 6.0, "mountain town", 2, 110.0, (7.0, 16.0), 0.60, 0.50, 0.8, False, True, True, False, True),
     Town("T05", "Town05", 3.9, "glass city", 2, 90.0, (18.0, 60.0), 0.85, 0.25, 0.9, False, True, True, True, True),
     Town("T06", "Town06", 5.2, "suburban industrial", 2, 120.0, (5.0, 12.0), 0.65, 0.40, 0.8, False, True, False, True, True),
-    Town("T07", "Town07", 11.0, "farmland", 1, 150.0, (4.0, 9.0), 0.15, 0.85, 0.15, False, True, False, False, False),
+    Town("T07", "Town07", 11.0, "farmland", 1, 150.0, (4.0, 9.0), 0.15, 0.65, 0.15, False, True, False, False, False),
 )
 for _town in TOWNS:
     style(_town.style)  # every town names a known style

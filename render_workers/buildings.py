@@ -88,7 +88,7 @@ def house(kit: Kit, lot: Lot, s0: float, s1: float, setback: float, depth: float
         faces_info.append((p, edge / L, L, k == 0))
     verts, faces = np.concatenate(vs), np.concatenate(fs)
     s = surface(facade)
-    base = np.array(s.color, float) * rng.uniform(0.92, 1.08)
+    base = kit.base_color(s) * rng.uniform(0.92, 1.08)
     cols = M.noisy_colors(verts, base, s.noise, s.scale_m, seed=int(rng.integers(1 << 16)), fine=0.04)
     if s.look != "glass":  # darker plinth
         plinth = verts[:, 2] - z < 0.05
@@ -96,7 +96,7 @@ def house(kit: Kit, lot: Lot, s0: float, s1: float, setback: float, depth: float
     if top_facade and floors > 1:
         top = verts[:, 2] > z + (floors - 1) * floor_m + 0.3
         cols[top, :3] = np.array(surface(top_facade).color, np.uint8)
-    kit.add_colored("building", verts, faces, cols, s.look)
+    kit.add_colored("building", verts, faces, cols, s.look, texture=s.texture)
     rc = np.array([*mid, z + h])
     r = surface(roof)
     if roof_kind in ("gable", "steep"):

@@ -17,7 +17,7 @@ from manifests.catalog import surface
 from render_workers import meshes as M
 from render_workers.kit import Kit
 
-MOUNTAIN_BAND_M = 700.0  # depth of the mountain backdrop beyond the town's bounds
+MOUNTAIN_BAND_M = 500.0  # depth of the mountain backdrop beyond the town's bounds
 MOUNTAIN_CELL_M = 35.0
 
 
@@ -50,12 +50,12 @@ def countryside(kit: Kit, rect, z) -> None:
     for q0, q1 in [((x0, y0), (x1, y0)), ((x1, y1), (x0, y1)), ((x0, y1), (x0, y0)), ((x1, y0), (x1, y1))]:
         q0, q1 = np.array(q0), np.array(q1)
         u = rng.random()
-        if u < 0.55:
-            kit.hedge_line(q0, q1, z, height=(1.4, 2.6))
-        elif u < 0.75:
-            kit.fence_line(q0, q1, z, 1.2)
-        elif u < 0.9:
-            kit.wall_line(q0, q1, z, 1.0, color=surface("stone wall").color)
+        if u < 0.3:
+            kit.hedge_line(q0, q1, z, height=(1.0, 1.7))
+        elif u < 0.55:
+            kit.fence_line(q0, q1, z, 1.1)
+        elif u < 0.7:
+            kit.wall_line(q0, q1, z, 0.8, color=surface("stone wall").color)
     # tree rows along the block edges
     n_trees = int(t.vegetation_density * (2 * (x1 - x0) + 2 * (y1 - y0)) / 16)
     row = kit.species()
@@ -84,12 +84,12 @@ def field(kit: Kit, rect, z) -> None:
     nx = int(np.ceil((x1 - x0) / (row if not along_x else 8.0)))
     ny = int(np.ceil((y1 - y0) / (row if along_x else 8.0)))
     v, f = M.grid((x0, y0, z), (x1 - x0, 0, 0), (0, y1 - y0, 0), nx, ny)
-    col = M.noisy_colors(v, np.array(crop.color, float) * rng.uniform(0.92, 1.08), crop.noise, crop.scale_m,
+    col = M.noisy_colors(v, kit.base_color(crop) * rng.uniform(0.92, 1.08), crop.noise, crop.scale_m,
                          seed=int(rng.integers(1 << 16)))
     k = np.round((v[:, 1] - y0) / row if along_x else (v[:, 0] - x0) / row).astype(int)
     dark = k % 2 == 0
     col[dark, :3] = (col[dark, :3] * 0.72).astype(np.uint8)
-    kit.add_colored("terrain", v, f, col, tiled=True)
+    kit.add_colored("terrain", v, f, col, tiled=True, texture=crop.texture)
 
 
 def farmyard(kit: Kit, rect, z) -> None:
@@ -177,10 +177,10 @@ def outskirts(kit: Kit) -> None:
     v, f = M.quads(p0, np.stack([X1 - X0, 0 * X0, 0 * X0], 1), np.stack([0 * X0, Y1 - Y0, 0 * X0], 1))
     v[:, 2] = kit.ground_z(v[:, :2])
     ground = surface(kit.style.ground)
-    col = M.noisy_colors(v, ground.color, ground.noise, 18.0, seed=lay.seed % 1000, fine=0.08)
+    col = M.noisy_colors(v, kit.base_color(ground), ground.noise, 18.0, seed=lay.seed % 1000, fine=0.08)
     dirt = M.value_noise(v * np.array([1, 1, 0]), 40.0, 5) > 0.68
     col[dirt, :3] = np.array(surface("dirt").color, np.uint8)
-    kit.add_colored("terrain", v, M.orient_up(v, f), col, tiled=True)
+    kit.add_colored("terrain", v, M.orient_up(v, f), col, tiled=True, texture=ground.texture)
     # woods: clusters of trees, denser with vegetation_density
     n_clusters = int(6 + 20 * t.vegetation_density)
     for _ in range(n_clusters):
@@ -214,10 +214,10 @@ def mountains(kit: Kit) -> None:
                    np.stack([0 * X0, Y1 - Y0, 0 * X0], 1))
     dx = np.maximum(np.maximum(bx0 - v[:, 0], 0), v[:, 0] - bx1)
     dy = np.maximum(np.maximum(by0 - v[:, 1], 0), v[:, 1] - by1)
-    ramp = np.clip(np.hypot(dx, dy) / 320.0, 0, 1)
+    ramp = np.clip(np.hypot(dx, dy) / 200.0, 0, 1)
     flat = v * np.array([1, 1, 0])
     ridges = 0.45 + 0.55 * M.value_noise(flat, 260.0, 41) + 0.25 * (M.value_noise(flat, 70.0, 43) - 0.5)
-    v[:, 2] = kit.ground_z(v[:, :2]) + peak * ramp ** 1.3 * ridges
+    v[:, 2] = kit.ground_z(v[:, :2]) + peak * ramp * ridges
     frac = (v[:, 2] / peak) + 0.15 * (M.value_noise(flat, 50.0, 47) - 0.5)
     col = M.noisy_colors(v, surface(kit.style.ground).color, 0.25, 30.0, seed=53)
     rock = M.noisy_colors(v, surface("rock").color, 0.25, 20.0, seed=59)

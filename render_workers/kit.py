@@ -19,6 +19,7 @@ import numpy as np
 
 from manifests.catalog import class_id, surface
 from render_workers import meshes as M
+from render_workers.textures import TEXTURE_MEAN
 from render_workers.town_plan import CURB_H, FREEWAY_MEDIAN, OUTER_Z, Layout
 
 # Street furniture shared by every style.
@@ -86,22 +87,26 @@ class Kit:
 
     # ---- adding geometry ------------------------------------------------
     def add(self, cls: str, verts, faces, base, material="matte", amount=0.12, scale=3.0,
-            tiled=False, fine=0.05):
+            tiled=False, fine=0.05, texture=""):
         self._cseed += 1
         colors = M.noisy_colors(verts, base, amount, scale, seed=self._cseed % 9973, fine=fine)
-        self.add_colored(cls, verts, faces, colors, material, tiled)
+        self.add_colored(cls, verts, faces, colors, material, tiled, texture)
 
     def paint(self, cls: str, verts, faces, name: str, tiled=False, fine=0.05, tint: float = 1.0):
-        """Add geometry in one of the catalog's surfaces (colour, variation, material)."""
+        """Add geometry in one of the catalog's surfaces (colour, variation, material, texture)."""
         s = surface(name)
-        base = np.clip(np.array(s.color, float) * tint, 0, 255)
-        self.add(cls, verts, faces, base, s.look, s.noise, s.scale_m, tiled, fine)
+        self.add(cls, verts, faces, self.base_color(s) * tint, s.look, s.noise, s.scale_m, tiled, fine, s.texture)
 
-    def add_colored(self, cls, verts, faces, colors, material="matte", tiled=False):
+    @staticmethod
+    def base_color(s) -> np.ndarray:
+        """A surface's vertex colour: brighter where its texture will darken it."""
+        return np.clip(np.array(s.color, float) / (TEXTURE_MEAN if s.texture else 1.0), 0, 255)
+
+    def add_colored(self, cls, verts, faces, colors, material="matte", tiled=False, texture=""):
         if tiled:
-            self.batch.add_tiled(class_id(cls), material, verts, faces, colors)
+            self.batch.add_tiled(class_id(cls), material, verts, faces, colors, texture)
         else:
-            self.batch.add(class_id(cls), material, verts, faces, colors)
+            self.batch.add(class_id(cls), material, verts, faces, colors, texture=texture)
 
     def pick(self, options):
         return options[int(self.rng.integers(len(options)))]

@@ -59,6 +59,7 @@ from manifests.catalog import Viewpoint, Weather, class_id, lookup
 from render_workers import compat
 from render_workers.camera import CameraRig, hood_mesh, sun_direction
 from render_workers.scene import MATERIALS, EpisodeScene, Part
+from render_workers.textures import box_uv, texture_kind
 
 log = logging.getLogger(__name__)
 
@@ -96,6 +97,9 @@ struct Material {
     vec4 base_color_factor;
     float metallic_factor;
     float roughness_factor;
+#ifdef HAS_BASE_COLOR_TEX
+    sampler2D base_color_texture;
+#endif
 };
 uniform Material material;
 uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
@@ -108,6 +112,9 @@ in vec3 frag_normal;
 #endif
 #ifdef COLOR_0_LOC
 in vec4 color_multiplier;
+#endif
+#ifdef TEXCOORD_0_LOC
+in vec2 uv_0;
 #endif
 out vec4 frag_color;
 const float PI = 3.141592653589793;
@@ -139,6 +146,11 @@ void main()
     vec4 base = material.base_color_factor;
 #ifdef COLOR_0_LOC
     base *= color_multiplier;
+#endif
+#ifdef HAS_BASE_COLOR_TEX
+#ifdef TEXCOORD_0_LOC
+    base.rgb *= texture(material.base_color_texture, uv_0).rgb;  // grey detail texture, a linear factor
+#endif
 #endif
     vec3 v = normalize(cam_pos - frag_position);
 #ifdef NORMAL_LOC
@@ -219,11 +231,12 @@ def look(material: str) -> Look:
     return lookup(LOOKS, material, "material")
 
 
-def pyrender_material(material: str):
-    """A pyrender ``MetallicRoughnessMaterial`` for a ``Part.material`` key."""
+def pyrender_material(material: str, texture=None):
+    """A pyrender ``MetallicRoughnessMaterial`` for a ``Part.material`` key (and a pyrender Texture)."""
     pr = compat.import_pyrender()
     lk = look(material)
     return pr.MetallicRoughnessMaterial(
+        baseColorTexture=texture,
         baseColorFactor=[1.0, 1.0, 1.0, 1.0],
         metallicFactor=lk.metallic,
         roughnessFactor=lk.roughness,
@@ -238,22 +251,26 @@ def pyrender_material(material: str):
 # --------------------------------------------------------------------------
 @dataclass
 class _Soup:
-    """Unindexed triangles: positions, normals and linear RGBA colours, float32."""
+    """Unindexed triangles: positions, normals, linear RGBA colours and texture coordinates, float32."""
 
     positions: list = field(default_factory=list)
     normals: list = field(default_factory=list)
     colors: list = field(default_factory=list)
+    uvs: list = field(default_factory=list)  # empty for untextured soups
 
-    def add(self, positions: np.ndarray, normals: np.ndarray, colors: np.ndarray) -> None:
+    def add(self, positions: np.ndarray, normals: np.ndarray, colors: np.ndarray, uvs=None) -> None:
         self.positions.append(positions)
         self.normals.append(normals)
         self.colors.append(colors)
+        if uvs is not None:
+            self.uvs.append(uvs)
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray | None]:
         return (
             np.concatenate(self.positions).astype(np.float32),
             np.concatenate(self.normals).astype(np.float32),
             np.concatenate(self.colors).astype(np.float32),
+            np.concatenate(self.uvs).astype(np.float32) if self.uvs else None,
         )
 
 
@@ -296,16 +313,19 @@ def _part_triangles(parts: tuple[Part, ...]):
 
 
 def static_groups(parts: tuple[Part, ...], tile_m: float) -> dict[tuple, _Soup]:
-    """Static triangles grouped by (tile x, tile y, class id, material), by face centroid."""
+    """Static triangles grouped by (tile x, tile y, class id, material, texture), by face centroid;
+    textured ones get box-mapped texture coordinates from their world positions."""
     groups: dict[tuple, _Soup] = {}
     for part, (tri, normals, colors) in _part_triangles(parts):
+        uv = box_uv(tri, normals[:, 0], texture_kind(part.texture).size_m) if part.texture else None
         tiles = np.floor(tri.mean(axis=1)[:, :2] / tile_m).astype(np.int64)
         keys, inverse = np.unique(tiles, axis=0, return_inverse=True)
         inverse = inverse.ravel()
         for k, (tx, ty) in enumerate(keys):
             sel = inverse == k
-            soup = groups.setdefault((int(tx), int(ty), part.class_id, part.material), _Soup())
-            soup.add(tri[sel].reshape(-1, 3), normals[sel].reshape(-1, 3), colors[sel].reshape(-1, 4))
+            soup = groups.setdefault((int(tx), int(ty), part.class_id, part.material, part.texture), _Soup())
+            soup.add(tri[sel].reshape(-1, 3), normals[sel].reshape(-1, 3), colors[sel].reshape(-1, 4),
+                     None if uv is None else uv[sel].reshape(-1, 2))
     return groups
 
 
@@ -319,11 +339,12 @@ def part_groups(parts: tuple[Part, ...]) -> dict[tuple, _Soup]:
     return groups
 
 
-def _pyrender_mesh(soup: _Soup, material: str):
+def _pyrender_mesh(soup: _Soup, material: str, texture=None):
     pr = compat.import_pyrender()
-    positions, normals, colors = soup.arrays()
+    positions, normals, colors, uvs = soup.arrays()
     primitive = pr.Primitive(
-        positions=positions, normals=normals, color_0=colors, material=pyrender_material(material), mode=4
+        positions=positions, normals=normals, color_0=colors, texcoord_0=uvs if texture is not None else None,
+        material=pyrender_material(material, texture), mode=4
     )
     return pr.Mesh(primitives=[primitive]), positions
 
@@ -424,8 +445,8 @@ def _node_set(items) -> tuple[_NodeSet, list[int]]:
     sphere, in the given order; and the class id of each node."""
     pr = compat.import_pyrender()
     nodes, centres, radii, keys = [], [], [], []
-    for cls, material, soup in items:
-        mesh, positions = _pyrender_mesh(soup, material)
+    for cls, material, soup, texture in items:
+        mesh, positions = _pyrender_mesh(soup, material, texture)
         centre, radius = _sphere(positions)
         nodes.append(pr.Node(mesh=mesh, matrix=np.eye(4)))
         centres.append(centre)
@@ -503,7 +524,7 @@ class Renderer:
         self._clouds = _cloud_texture(sky_seed)
 
         if self._static_world is not scene.world:
-            self._static = self._build_static(scene.world.static)
+            self._static = self._build_static(scene.world)
             self._static_world = scene.world
         self._actors, self._actor_of = self._build_actors(scene)
 
@@ -541,17 +562,23 @@ class Renderer:
         self._shadow_strength = shadow_strength(weather)
         self._scene = prs
 
-    def _build_static(self, parts: tuple[Part, ...]) -> _NodeSet:
-        groups = sorted(static_groups(parts, self.tile_m).items())
-        node_set, self._static_keys = _node_set((cls, material, soup) for (_, _, cls, material), soup in groups)
-        log.debug("static scene: %d nodes from %d parts", len(node_set.nodes), len(parts))
+    def _build_static(self, world) -> _NodeSet:
+        pr = compat.import_pyrender()
+        textures = {}
+        for name in sorted({p.texture for p in world.static if p.texture}):
+            image = lookup(world.textures, name, "texture")
+            textures[name] = pr.Texture(source=image, source_channels="RGB")
+        groups = sorted(static_groups(world.static, self.tile_m).items())
+        node_set, self._static_keys = _node_set((cls, material, soup, textures.get(tex))
+                                                for (_, _, cls, material, tex), soup in groups)
+        log.debug("static scene: %d nodes from %d parts", len(node_set.nodes), len(world.static))
         return node_set
 
     def _build_actors(self, scene: EpisodeScene) -> tuple[_NodeSet, list[int]]:
         items, actor_of = [], []
         for index, actor in enumerate(scene.actors):
             for (cls, material), soup in sorted(part_groups(actor.parts).items()):
-                items.append((cls, material, soup))
+                items.append((cls, material, soup, None))
                 actor_of.append(index)
         node_set, self._actor_keys = _node_set(items)
         return node_set, actor_of

@@ -15,14 +15,14 @@ def asphalt(kit: Kit, v, f, tiled: bool = False) -> None:
     """Road surface in the style's asphalt, with patches and worn spots by its wear."""
     s = surface(kit.style.asphalt)
     kit._cseed += 1
-    col = M.noisy_colors(v, s.color, s.noise, s.scale_m, seed=kit._cseed % 9973, fine=0.06)
+    col = M.noisy_colors(v, kit.base_color(s), s.noise, s.scale_m, seed=kit._cseed % 9973, fine=0.06)
     wear = kit.style.asphalt_wear
     if wear > 0:
         patch = M.value_noise(v, 9.0, 17) > 1.0 - 0.28 * wear
         worn = M.value_noise(v, 2.5, 29) > 1.0 - 0.22 * wear
         col[patch, :3] = (col[patch, :3] * 0.78).astype(np.uint8)
         col[worn, :3] = np.clip(col[worn, :3].astype(int) + 22, 0, 255).astype(np.uint8)
-    kit.add_colored("road", v, f, col, s.look, tiled)
+    kit.add_colored("road", v, f, col, s.look, tiled, s.texture)
 
 
 def markings(kit, start: np.ndarray, d: np.ndarray, length: float) -> None:

@@ -29,6 +29,7 @@ class Part:
     class_id: int
     mesh: trimesh.Trimesh  # vertex colours hold the albedo
     material: str = "matte"
+    texture: str = ""  # name of a World texture multiplied into the colours (static parts); "" = none
 
     def __post_init__(self) -> None:
         if self.material not in MATERIALS:
@@ -148,6 +149,7 @@ class World:
     loops: tuple[Loop, ...] = ()  # the lanes with their kind, parking spans and kerb offsets (same order)
     crosswalks: tuple[Crosswalk, ...] = ()  # zebra crossings
     walk_lanes: tuple[tuple[Path, ...], ...] = ()  # per lane: the closed walkways moved k lanes off the road
+    textures: dict = field(default_factory=dict)  # texture name -> (px, px, 3) uint8, for Part.texture
 
 
 @dataclass(frozen=True, eq=False)

@@ -15,6 +15,8 @@ from render_workers.kit import PALETTE, Kit
 from render_workers.roadway import asphalt, markings, road_marks
 from render_workers.town_plan import CURB_H, MARK_Z, OUTER_Z, ZEBRA_FROM, ZEBRA_LEN, corner_offset
 
+VERGE_LAP = 0.2  # verges reach this far over the road edge
+
 
 def streets(kit: Kit) -> None:
     lay, hw = kit.lay, kit.lay.hw
@@ -180,15 +182,16 @@ def sidewalks(kit: Kit) -> None:
             for j in range(len(ys) - 1):
                 sidewalk_ring(kit, xs[i] + hw, ys[j] + hw, xs[i + 1] - hw, ys[j + 1] - hw, w, False)
         sidewalk_ring(kit, xs[0] - hw, ys[0] - hw, xs[-1] + hw, ys[-1] + hw, w, True, gaps)
-    else:  # verges: grass strips level with the road edge
+    else:  # verges level with the road, lapping VERGE_LAP over its edge (no seam to see the sky through)
+        lap = VERGE_LAP
         for i in range(len(xs) - 1):
             for j in range(len(ys) - 1):
-                verge_ring(kit, xs[i] + hw, ys[j] + hw, xs[i + 1] - hw, ys[j + 1] - hw, w)
-        e = hw + w
-        for (a0, b0, a1, b1) in [(xs[0] - e, ys[0] - e, xs[-1] + e, ys[0] - hw),
-                                 (xs[0] - e, ys[-1] + hw, xs[-1] + e, ys[-1] + e),
-                                 (xs[0] - e, ys[0] - hw, xs[0] - hw, ys[-1] + hw),
-                                 (xs[-1] + hw, ys[0] - hw, xs[-1] + e, ys[-1] + hw)]:
+                verge_ring(kit, xs[i] + hw - lap, ys[j] + hw - lap, xs[i + 1] - hw + lap, ys[j + 1] - hw + lap, w + lap)
+        e, g = hw + w, hw - lap
+        for (a0, b0, a1, b1) in [(xs[0] - e, ys[0] - e, xs[-1] + e, ys[0] - g),
+                                 (xs[0] - e, ys[-1] + g, xs[-1] + e, ys[-1] + e),
+                                 (xs[0] - e, ys[0] - g, xs[0] - g, ys[-1] + g),
+                                 (xs[-1] + g, ys[0] - g, xs[-1] + e, ys[-1] + g)]:
             v, f = M.ground_rect(a0, b0, a1, b1, 0.02, 3.0)
             kit.paint("terrain", v, f, kit.style.verge, tiled=True)
 
