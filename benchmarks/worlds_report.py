@@ -11,6 +11,8 @@ episode per scenario at reduced resolution, frames 3 s apart), then writes
   urban towns T01-T06;
 * the paper's three domain distances (``manifests.distances``) and a 2-D
   embedding of all domains;
+* the paper's domain-shift table (``benchmarks.shifts_report``: ``idda shifts``
+  on its five domains, 150 frames each);
 * one contact sheet per weather (7 towns x 5 viewpoints): frame 0 of episode 0
   of every scenario, i.e. exactly what ``render_workers.preview.write_preview``
   renders for the same seed and size;
@@ -28,6 +30,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from benchmarks import shifts_report
 
 SAMPLE_ROOT = "/tmp/idda-worlds-sample"  # outside git; rebuilt on every run
 FRAMES = 8  # per scenario: one episode of 8 frames (21 s of driving)
@@ -487,6 +491,7 @@ def markdown(result: dict) -> str:
             lines.append(f"| {kind} | {d['n_pairs_by_change'][kind]} | {'-' if m is None else f'{m:.3f}'} |")
         lines += ["", "![domain embedding](images/worlds_domain_embedding.png)", ""]
         lines += _distance_notes(order, d)
+    lines += shifts_report.markdown(result["shifts"])
     tm = result["timings"]
     lines += [
         "",
@@ -594,6 +599,9 @@ def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height
     except ImportError as exc:  # manifests.distances not available
         dist = {"error": f"manifests.distances unavailable ({exc})"}
 
+    log.info("domain shift table")
+    shifts = shifts_report.measure(workers=workers)
+
     log.info("build_world / populate timings")
     timings = world_timings(episode_stats(root))
 
@@ -602,6 +610,7 @@ def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height
         "stats": stats,
         "checks": checks(stats),
         "distances": dist,
+        "shifts": shifts,
         "timings": timings,
         "contact_sheets": [str(Path(p).relative_to(docs)) for p in sheets],
         "town_sheet": str(Path(towns).relative_to(docs)),
