@@ -222,30 +222,34 @@ def urban_towns() -> tuple[str, ...]:
     return tuple(t.code for t in TOWNS if t.urban)
 
 
-def town_sheet(root: str, table, out_dir: Path, cell_width: int = TOWN_SHEET_CELL) -> str:
-    """One ClearNoon frame per town (viewpoint A, episode 0, the episode's middle frame), labelled with its style."""
+def town_sheet(root: str, table, out_dir: Path, cell_width: int = TOWN_SHEET_CELL, per_row: int = 4) -> str:
+    """One ClearNoon frame per town (viewpoint A, episode 0, the episode's middle frame), each captioned with
+    its code and style name, ``per_row`` to a row."""
     import cv2
     import pyarrow.compute as pc
 
     from manifests.catalog import TOWNS
     from manifests.encoding import decode_png
-    from render_workers.preview import contact_sheet
 
     frames = sorted(set(table.column("frame").to_pylist()))
     middle = frames[len(frames) // 2]
     sel = table.filter(pc.and_(pc.equal(table.column("episode"), 0), pc.equal(table.column("frame"), middle)))
     paths = dict(zip(sel.column("scenario").to_pylist(), sel.column("rgb_path").to_pylist()))
-    cells, cols = {}, []
-    for k, t in enumerate(TOWNS):
+    band = 30
+    cells = []
+    for t in TOWNS:
         rel = paths.get(f"{t.code}_CN_A")
         if rel is None:
             continue
         image = decode_png(Path(root, rel).read_bytes(), name=rel)
         h = round(image.shape[0] * cell_width / image.shape[1])
-        label = f"{t.code}: {t.style}"
-        cells[("", label)] = cv2.resize(image, (cell_width, h), interpolation=cv2.INTER_AREA)
-        cols.append(label)
-    sheet = contact_sheet(cells, [""], cols, title=f"ClearNoon, viewpoint A, frame {middle} of episode 0: one frame per town")
+        cell = np.full((band + h, cell_width, 3), 24, np.uint8)
+        cell[band:] = cv2.resize(image, (cell_width, h), interpolation=cv2.INTER_AREA)
+        cv2.putText(cell, f"{t.code}: {t.style}", (8, band - 9), cv2.FONT_HERSHEY_SIMPLEX, 0.65, (235, 235, 235), 1,
+                    cv2.LINE_AA)
+        cells.append(cell)
+    cells += [np.full_like(cells[0], 24)] * (-len(cells) % per_row)
+    sheet = np.vstack([np.hstack(cells[k:k + per_row]) for k in range(0, len(cells), per_row)])
     path = out_dir / "towns_CN.png"
     path.write_bytes(small_png(sheet))
     return str(path)
@@ -399,6 +403,8 @@ def markdown(result: dict) -> str:
         "markings, architecture kit, tree species, crops, relief); the builder never reads a town's code.",
         "",
         f"![towns](images/{Path(result['town_sheet']).name})",
+        "",
+        "*One ClearNoon frame per town (viewpoint A, the middle frame of episode 0), captioned with its style.*",
         "",
         "| town | style | architecture | road edge | lane m | markings | trees | crops | hills m | mountains m |",
         "|---|---|---|---|---:|---|---|---|---:|---:|",
