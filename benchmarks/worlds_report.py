@@ -11,6 +11,8 @@ episode per scenario at reduced resolution, frames 3 s apart), then writes
   urban towns T01-T06;
 * the paper's three domain distances (``manifests.distances``) and a 2-D
   embedding of all domains;
+* the paper's domain-shift table (``benchmarks.shifts_report``: ``idda shifts``
+  on its five domains, 150 frames each);
 * one contact sheet per weather (7 towns x 5 viewpoints): frame 0 of episode 0
   of every scenario, i.e. exactly what ``render_workers.preview.write_preview``
   renders for the same seed and size;
@@ -29,6 +31,8 @@ from pathlib import Path
 
 import numpy as np
 
+from benchmarks import shifts_report
+
 SAMPLE_ROOT = "/tmp/idda-worlds-sample"  # outside git; rebuilt on every run
 FRAMES = 8  # per scenario: one episode of 8 frames (21 s of driving)
 WIDTH, HEIGHT = 320, 180
@@ -38,7 +42,7 @@ CELL_WIDTH = 320  # contact sheet cell width (px)
 MAX_PNG_BYTES = 300_000
 LARGE = ("sky", "road", "vegetation", "building", "vehicle", "sidewalk", "terrain")
 RARE = ("bicycle", "motorcycle", "rider", "traffic light", "traffic sign", "pedestrian")
-URBAN_TOWNS = ("T01", "T02", "T03", "T04", "T05", "T06")
+TOWN_SHEET_CELL = 480  # the one-frame-per-town sheet's cell width (px)
 
 log = logging.getLogger(__name__)
 
@@ -89,7 +93,7 @@ def class_tables(table) -> dict:
     from manifests.stats import PAPER_SHARES, class_pixels, class_presence
 
     towns = pc.utf8_slice_codeunits(table.column("scenario"), 0, 3)
-    urban = table.filter(pc.is_in(towns, value_set=pa.array(URBAN_TOWNS)))
+    urban = table.filter(pc.is_in(towns, value_set=pa.array(urban_towns())))
     overall = _shares(class_pixels(table))
     out = {
         "frames": len(table),
@@ -211,6 +215,46 @@ def small_png(image: np.ndarray, limit: int = MAX_PNG_BYTES) -> bytes:
     return buf.getvalue()
 
 
+def urban_towns() -> tuple[str, ...]:
+    """Towns with sidewalks and buildings (the catalog's ``Town.urban``): the rare-class presence target's frames."""
+    from manifests.catalog import TOWNS
+
+    return tuple(t.code for t in TOWNS if t.urban)
+
+
+def town_sheet(root: str, table, out_dir: Path, cell_width: int = TOWN_SHEET_CELL, per_row: int = 4) -> str:
+    """One ClearNoon frame per town (viewpoint A, episode 0, the episode's middle frame), each captioned with
+    its code and style name, ``per_row`` to a row."""
+    import cv2
+    import pyarrow.compute as pc
+
+    from manifests.catalog import TOWNS
+    from manifests.encoding import decode_png
+
+    frames = sorted(set(table.column("frame").to_pylist()))
+    middle = frames[len(frames) // 2]
+    sel = table.filter(pc.and_(pc.equal(table.column("episode"), 0), pc.equal(table.column("frame"), middle)))
+    paths = dict(zip(sel.column("scenario").to_pylist(), sel.column("rgb_path").to_pylist()))
+    band = 30
+    cells = []
+    for t in TOWNS:
+        rel = paths.get(f"{t.code}_CN_A")
+        if rel is None:
+            continue
+        image = decode_png(Path(root, rel).read_bytes(), name=rel)
+        h = round(image.shape[0] * cell_width / image.shape[1])
+        cell = np.full((band + h, cell_width, 3), 24, np.uint8)
+        cell[band:] = cv2.resize(image, (cell_width, h), interpolation=cv2.INTER_AREA)
+        cv2.putText(cell, f"{t.code}: {t.style}", (8, band - 9), cv2.FONT_HERSHEY_SIMPLEX, 0.65, (235, 235, 235), 1,
+                    cv2.LINE_AA)
+        cells.append(cell)
+    cells += [np.full_like(cells[0], 24)] * (-len(cells) % per_row)
+    sheet = np.vstack([np.hstack(cells[k:k + per_row]) for k in range(0, len(cells), per_row)])
+    path = out_dir / "towns_CN.png"
+    path.write_bytes(small_png(sheet))
+    return str(path)
+
+
 def contact_sheets(root: str, table, out_dir: Path, cell_width: int) -> list[str]:
     """One sheet per weather: rows viewpoints, columns towns; frame 0 of episode 0 per scenario."""
     import cv2
@@ -289,8 +333,7 @@ def world_timings(stats: list[dict]) -> dict:
 
     out = {}
     for t in TOWNS:
-        world.layout.cache_clear()
-        world.loops.cache_clear()
+        world.plan.cache_clear()
         world._built.cache_clear()
         start = time.perf_counter()
         static = world.build_world(t.code, town_seed(SEED, t))
@@ -332,6 +375,15 @@ def _pct(x: float, digits: int = 2) -> str:
     return f"{100 * x:.{digits}f}"
 
 
+def _styles() -> dict:
+    from manifests.catalog import TOWNS
+
+    return {t.code: {"name": t.look.name, "architecture": t.look.architecture, "road_edge": t.look.road_edge,
+                     "lane_w_m": t.look.lane_w_m, "markings": t.look.markings,
+                     "trees": [sp for sp, _ in t.look.trees], "crops": list(t.look.crops),
+                     "relief_m": t.look.relief_m, "mountains_m": t.look.mountains_m} for t in TOWNS}
+
+
 def markdown(result: dict) -> str:
     st, ck = result["stats"], result["checks"]
     names = st["classes"]
@@ -344,6 +396,24 @@ def markdown(result: dict) -> str:
         f"{s['episodes']} scenarios, at {s['width']}x{s['height']}, world `procedural`, run seed {SEED}, "
         f"{s['workers']} Ray workers, {s['seconds']:.0f} s wall ({s['frames'] / max(s['seconds'], 1e-9):.2f} frames/s). "
         f"Overall verdict: **{'all targets met' if ck['all_ok'] else 'some targets missed (see below)'}**.",
+        "",
+        "## Towns by style",
+        "",
+        "Each town is built from its style row in `manifests/catalog.py` (surfaces, road edge, lane width, "
+        "markings, architecture kit, tree species, crops, relief); the builder never reads a town's code.",
+        "",
+        f"![towns](images/{Path(result['town_sheet']).name})",
+        "",
+        "*One ClearNoon frame per town (viewpoint A, the middle frame of episode 0), captioned with its style.*",
+        "",
+        "| town | style | architecture | road edge | lane m | markings | trees | crops | hills m | mountains m |",
+        "|---|---|---|---|---:|---|---|---|---:|---:|",
+    ]
+    for code, row in result["styles"].items():
+        lines.append(f"| {code} | {row['name']} | {row['architecture']} | {row['road_edge']} | {row['lane_w_m']} | "
+                     f"{row['markings']} | {', '.join(row['trees'])} | {', '.join(row['crops']) or '-'} | "
+                     f"{row['relief_m']:.0f} | {row['mountains_m']:.0f} |")
+    lines += [
         "",
         "## Contact sheets",
         "",
@@ -427,6 +497,7 @@ def markdown(result: dict) -> str:
             lines.append(f"| {kind} | {d['n_pairs_by_change'][kind]} | {'-' if m is None else f'{m:.3f}'} |")
         lines += ["", "![domain embedding](images/worlds_domain_embedding.png)", ""]
         lines += _distance_notes(order, d)
+    lines += shifts_report.markdown(result["shifts"])
     tm = result["timings"]
     lines += [
         "",
@@ -526,12 +597,16 @@ def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height
 
     log.info("contact sheets")
     sheets = contact_sheets(root, table, images, CELL_WIDTH)
+    towns = town_sheet(root, table, images)
 
     log.info("domain distances")
     try:
         dist = distances(root, images)
     except ImportError as exc:  # manifests.distances not available
         dist = {"error": f"manifests.distances unavailable ({exc})"}
+
+    log.info("domain shift table")
+    shifts = shifts_report.measure(workers=workers)
 
     log.info("build_world / populate timings")
     timings = world_timings(episode_stats(root))
@@ -541,8 +616,11 @@ def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height
         "stats": stats,
         "checks": checks(stats),
         "distances": dist,
+        "shifts": shifts,
         "timings": timings,
         "contact_sheets": [str(Path(p).relative_to(docs)) for p in sheets],
+        "town_sheet": str(Path(towns).relative_to(docs)),
+        "styles": _styles(),
         "bench_render": _bench_summary(bench_render(docs)),
         "report_seconds": None,
     }

@@ -1,4 +1,4 @@
-"""CLI commands for the people who train on a dataset: export, evaluate, distances, card.
+"""CLI commands for the people who train on a dataset: export, evaluate, distances, card, shifts.
 
 ``register(app)`` adds them to the ``idda`` typer app (``pipeline.cli`` calls
 it at its bottom); it is idempotent. Like every command, each one parses its
@@ -172,7 +172,43 @@ def card(
             typer.echo(f"linked preview {rel}")
 
 
-COMMANDS = {"export": export, "evaluate": evaluate, "distances": distances, "card": card}
+def shifts(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    cases: str = typer.Option("viewpoint,weather,city", help="Which of the paper's cases to run, comma-separated."),
+    steps: int = typer.Option(1500, help="Training steps per case."),
+    batch_size: int = typer.Option(8, help="Frames per training step."),
+    width: int = typer.Option(160, help="Network input width (multiple of 16)."),
+    height: int = typer.Option(96, help="Network input height (multiple of 16)."),
+    max_frames: Optional[int] = typer.Option(None, help="Use only the first N frames of each domain."),
+    seed: int = typer.Option(0, help="Seed of the weights, batch order and flips."),
+    threads: int = typer.Option(2, help="torch CPU threads."),
+    device: str = typer.Option("auto", help="auto (a CUDA GPU when torch sees one), cpu or cuda."),
+    json_out: Path = typer.Option(Path("shifts.json"), "--json", help="Write the full results (per-class IoU) here."),
+) -> None:
+    """The paper's domain-shift table: train a small segmentation net from scratch
+    on each source domain (T01_CS_A, T01_CS_J, T01_HRN_A), score it on held-out
+    source frames and on the target (T01_CS_J, T01_HRN_J, T07_HRN_A), and print the
+    share of mIoU kept next to the paper's. Needs PyTorch: pip install -e '.[analysis]'."""
+    import json
+
+    cli = _cli()
+    with cli.user_errors():
+        from training.shifts import ShiftConfig, format_shift_table, run_shifts
+
+        config = ShiftConfig(
+            root=root, cases=tuple(c.strip() for c in cases.split(",") if c.strip()), steps=steps,
+            batch_size=batch_size, width=width, height=height, max_frames=max_frames, seed=seed,
+            threads=threads, device=device,
+        )
+        if not json_out.parent.is_dir():  # fail before minutes of training, not after
+            raise ValueError(f"cannot write {json_out}: directory {json_out.parent} does not exist")
+        report = run_shifts(config)
+        typer.echo(format_shift_table(report))
+        cli._write_local(json_out, (json.dumps(report.to_json(), indent=1) + "\n").encode())
+        typer.echo(f"wrote {json_out}")
+
+
+COMMANDS = {"export": export, "evaluate": evaluate, "distances": distances, "card": card, "shifts": shifts}
 
 
 def register(app: typer.Typer) -> None:

@@ -23,7 +23,7 @@ Rules kept in ``render_workers.renderer`` rather than here:
 * pyrender draws mesh nodes sorted by distance with ties broken in set (id)
   order, so coplanar faces could differ between runs; the renderer replaces
   the inner renderer's ``_sorted_mesh_nodes`` with a fixed order, and it swaps
-  in a cheaper ``mesh.frag`` (see ``renderer.FAST_MESH_FRAG``);
+  in a cheaper ``mesh.frag`` (see ``shaders.FAST_MESH_FRAG``);
 * the first render in a process costs ~1.5 s (context, shader compiling), so a
   renderer is kept alive per worker process;
 * the colour pass always rasterises into a 4x multisampled framebuffer. On

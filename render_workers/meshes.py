@@ -8,7 +8,7 @@ flat where it should.
 Colours are computed from positions with a hashed value noise, never from a
 random generator, so the same geometry always gets the same bytes.
 
-``MeshBatch`` collects primitives per key ``(tile, class_id, material)`` and
+``MeshBatch`` collects primitives per key ``(tile, class_id, material, texture)`` and
 turns them into a few large :class:`render_workers.scene.Part` objects.
 """
 
@@ -129,6 +129,23 @@ def cylinders(bases, heights, radii, sides: int = 6) -> tuple[np.ndarray, np.nda
     return verts, faces
 
 
+def cones(bases, heights, radii, sides: int = 8) -> tuple[np.ndarray, np.ndarray]:
+    """Vertical cones (no base cap) standing on ``bases``: conifer tiers, silo tops."""
+    b = np.atleast_2d(np.asarray(bases, dtype=np.float64))
+    n = len(b)
+    h = np.broadcast_to(np.asarray(heights, float), (n,))
+    r = np.broadcast_to(np.asarray(radii, float), (n,))
+    ang = np.linspace(0, 2 * np.pi, sides + 1)
+    ring = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], 1)
+    rim = b[:, None] + r[:, None, None] * ring[None]  # (N, S+1, 3)
+    apex = b + np.stack([np.zeros(n), np.zeros(n), h], 1)
+    verts = np.concatenate([rim, apex[:, None]], axis=1).reshape(-1, 3)
+    k = np.arange(sides)
+    f = np.stack([k, k + 1, np.full(sides, sides + 1)], 1)
+    faces = (f[None] + (sides + 2) * np.arange(n)[:, None, None]).reshape(-1, 3)
+    return verts, faces
+
+
 def _icosphere() -> tuple[np.ndarray, np.ndarray]:
     ico = trimesh.creation.icosphere(subdivisions=1)
     return np.asarray(ico.vertices), np.asarray(ico.faces, dtype=np.int64)
@@ -246,23 +263,23 @@ def flat_colors(n: int, base) -> np.ndarray:
 # Batching into Parts
 # --------------------------------------------------------------------------
 class MeshBatch:
-    """Collects geometry per (tile, class_id, material) and merges it."""
+    """Collects geometry per (tile, class_id, material, texture) and merges it."""
 
     def __init__(self, tile_m: float = TILE_M) -> None:
         self.tile_m = tile_m
         self._chunks: dict[tuple, list] = defaultdict(list)
 
     def add(self, class_id: int, material: str, verts: np.ndarray, faces: np.ndarray,
-            colors: np.ndarray, anchor=None) -> None:
+            colors: np.ndarray, anchor=None, texture: str = "") -> None:
         """Add one piece; it goes to the tile of ``anchor`` (default: its centre)."""
         if len(faces) == 0:
             return
         if anchor is None:
             anchor = 0.5 * (verts.min(axis=0) + verts.max(axis=0))
         tile = (int(np.floor(anchor[0] / self.tile_m)), int(np.floor(anchor[1] / self.tile_m)))
-        self._chunks[(tile, class_id, material)].append((verts, faces, colors))
+        self._chunks[(tile, class_id, material, texture)].append((verts, faces, colors))
 
-    def add_tiled(self, class_id: int, material: str, verts, faces, colors) -> None:
+    def add_tiled(self, class_id: int, material: str, verts, faces, colors, texture: str = "") -> None:
         """Add a piece that may span tiles: each face goes to its centroid's tile."""
         cen = verts[faces].mean(axis=1)
         tiles = np.floor(cen[:, :2] / self.tile_m).astype(np.int64)
@@ -270,16 +287,16 @@ class MeshBatch:
         for k, key in enumerate(keys):
             sel = faces[inverse.ravel() == k]
             used, remap = np.unique(sel, return_inverse=True)
-            self._chunks[((int(key[0]), int(key[1])), class_id, material)].append(
+            self._chunks[((int(key[0]), int(key[1])), class_id, material, texture)].append(
                 (verts[used], remap.reshape(-1, 3), colors[used]))
 
     def parts(self) -> tuple[Part, ...]:
         out = []
         for key in sorted(self._chunks):
-            _, class_id, material = key
+            _, class_id, material, texture = key
             chunks = self._chunks[key]
             verts, faces = _concat([(v, f) for v, f, _ in chunks])
             colors = np.concatenate([c for _, _, c in chunks])
             mesh = trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=colors, process=False)
-            out.append(Part(class_id=class_id, mesh=mesh, material=material))
+            out.append(Part(class_id=class_id, mesh=mesh, material=material, texture=texture))
         return tuple(out)

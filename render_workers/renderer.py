@@ -16,7 +16,7 @@ Each :meth:`Renderer.render` makes two passes:
   metric depth (background -> 1000 m), both free of MSAA blending.
 
 Lighting: pyrender's PBR fragment shader costs ~1 s per 1920x1080 frame on
-llvmpipe, so by default the colour pass swaps in :data:`FAST_MESH_FRAG` (Lambert
+llvmpipe, so by default the colour pass swaps in :data:`render_workers.shaders.FAST_MESH_FRAG` (Lambert
 diffuse + normalised Blinn-Phong specular from the material's roughness and
 metallic factors, ambient, emissive, two-sided, gamma 2.2), about 4x cheaper.
 ``Renderer(pbr=True)`` keeps pyrender's own shader.
@@ -44,21 +44,21 @@ pyrender rules this module follows are listed in ``render_workers.compat``.
 
 from __future__ import annotations
 
-import atexit
 import logging
 import math
 import shutil
-import tempfile
 import time
 from pathlib import Path as FilePath
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
 from manifests.catalog import Viewpoint, Weather, class_id, lookup
 from render_workers import compat
 from render_workers.camera import CameraRig, hood_mesh, sun_direction
-from render_workers.scene import MATERIALS, EpisodeScene, Part
+from render_workers.scene import EpisodeScene
+from render_workers.shaders import _install_fast_shaders
+from render_workers.soups import _pyrender_mesh, _Soup, _sphere, _triangles, part_groups, static_groups
 
 log = logging.getLogger(__name__)
 
@@ -78,254 +78,6 @@ SHADOW_BACK_M = 20.0  # the shadow map also covers this much behind and beside t
 SHADOW_TOP_M = 30.0  # receivers up to this height above the road
 CASTER_TOP_M = 60.0  # casters up to this height (sets how far towards the sun the depth range reaches)
 MIN_SHADOW_STRENGTH = 0.1  # fainter shadows (overcast: HRN's would be 0.05) are skipped, saving their cost
-
-
-# Drop-in for pyrender's mesh.frag: same inputs and uniform names, cheaper maths.
-FAST_MESH_FRAG = """#version 330 core
-struct DirectionalLight {
-    vec3 color;
-    float intensity;
-    vec3 direction;
-#ifdef DIRECTIONAL_LIGHT_SHADOWS
-    sampler2DShadow shadow_map;  // depth compare on: each tap is a 2x2 PCF
-    mat4 light_matrix;
-#endif
-};
-struct Material {
-    vec3 emissive_factor;
-    vec4 base_color_factor;
-    float metallic_factor;
-    float roughness_factor;
-};
-uniform Material material;
-uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
-uniform int n_directional_lights;
-uniform vec3 cam_pos;
-uniform vec3 ambient_light;
-in vec3 frag_position;
-#ifdef NORMAL_LOC
-in vec3 frag_normal;
-#endif
-#ifdef COLOR_0_LOC
-in vec4 color_multiplier;
-#endif
-out vec4 frag_color;
-const float PI = 3.141592653589793;
-
-#ifdef DIRECTIONAL_LIGHT_SHADOWS
-uniform vec4 shadow_params;  // strength, normal offset (m), fade start (m), fade end (m)
-
-// Share of the sun that reaches this fragment: 1 lit, 1 - strength in full shadow.
-float sun_visibility(sampler2DShadow map, mat4 light_matrix, vec3 n, float nl)
-{
-    float dist = length(cam_pos - frag_position);
-    if (shadow_params.x <= 0.0 || dist >= shadow_params.w) return 1.0;
-    // normal offset, larger at grazing light, against acne on slopes
-    vec3 p = frag_position + n * (shadow_params.y * (2.0 - nl));
-    vec3 c = (light_matrix * vec4(p, 1.0)).xyz * 0.5 + 0.5;
-    if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return 1.0;
-    vec2 t = 0.5 / vec2(textureSize(map, 0));
-    float lit = 0.25 * (texture(map, vec3(c.xy + vec2(-t.x, -t.y), c.z))
-                      + texture(map, vec3(c.xy + vec2( t.x, -t.y), c.z))
-                      + texture(map, vec3(c.xy + vec2(-t.x,  t.y), c.z))
-                      + texture(map, vec3(c.xy + vec2( t.x,  t.y), c.z)));
-    float fade = clamp((shadow_params.w - dist) / max(shadow_params.w - shadow_params.z, 1e-3), 0.0, 1.0);
-    return 1.0 - shadow_params.x * fade * (1.0 - lit);
-}
-#endif
-
-void main()
-{
-    vec4 base = material.base_color_factor;
-#ifdef COLOR_0_LOC
-    base *= color_multiplier;
-#endif
-    vec3 v = normalize(cam_pos - frag_position);
-#ifdef NORMAL_LOC
-    vec3 n = normalize(frag_normal);
-#else
-    vec3 n = v;
-#endif
-    if (dot(n, v) < 0.0) n = -n;  // two-sided
-    float rough = clamp(material.roughness_factor, 0.04, 1.0);
-    float metal = clamp(material.metallic_factor, 0.0, 1.0);
-    vec3 diffuse = base.rgb * (1.0 - metal) / PI;
-    vec3 f0 = mix(vec3(0.04), base.rgb, metal);
-    float shininess = clamp(2.0 / (rough * rough * rough * rough) - 2.0, 1.0, 2048.0);
-    float fresnel = pow(1.0 - max(dot(n, v), 0.0), 5.0);
-    vec3 spec_colour = f0 + (1.0 - f0) * fresnel;
-    vec3 color = base.rgb * ambient_light + material.emissive_factor * base.rgb;
-    for (int i = 0; i < n_directional_lights; i++) {
-        vec3 l = normalize(-directional_lights[i].direction);
-        float nl = max(dot(n, l), 0.0);
-        if (nl <= 0.0) continue;
-        vec3 h = normalize(l + v);
-        float spec = pow(max(dot(n, h), 0.0), shininess) * (shininess + 8.0) / (8.0 * PI);
-        float sun = 1.0;
-#ifdef DIRECTIONAL_LIGHT_SHADOWS
-        if (i == 0) sun = sun_visibility(directional_lights[0].shadow_map, directional_lights[0].light_matrix, n, nl);
-#endif
-        color += directional_lights[i].color * directional_lights[i].intensity * nl * sun
-                 * (diffuse + spec_colour * spec);
-    }
-    frag_color = vec4(pow(clamp(color, 0.0, 1.0), vec3(1.0 / 2.2)), base.a);
-}
-"""
-
-
-def _install_fast_shaders(offscreen) -> FilePath:
-    """Point the context's shader cache at a copy of pyrender's shaders with FAST_MESH_FRAG."""
-    pr = compat.import_pyrender()
-    from pyrender.shader_program import ShaderProgramCache
-
-    shader_dir = FilePath(tempfile.mkdtemp(prefix="idda-shaders-"))
-    atexit.register(shutil.rmtree, shader_dir, True)  # also when a renderer is never closed
-    source = FilePath(pr.__file__).parent / "shaders"
-    for path in source.iterdir():
-        shutil.copy(path, shader_dir / path.name)
-    (shader_dir / "mesh.frag").write_text(FAST_MESH_FRAG)
-    renderer = offscreen._renderer  # pyrender keeps its shader cache on the inner renderer
-    renderer._program_cache.clear()
-    renderer._program_cache = ShaderProgramCache(shader_dir=str(shader_dir))
-    return shader_dir
-
-
-# --------------------------------------------------------------------------
-# Materials
-# --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Look:
-    """pyrender MetallicRoughnessMaterial settings for one ``Part.material``."""
-
-    metallic: float
-    roughness: float
-    emissive: float = 0.0  # emissive factor; vertex colours tint it
-
-
-LOOKS: dict[str, Look] = {
-    "matte": Look(0.0, 0.95),
-    "glossy": Look(0.05, 0.45),
-    "metal": Look(0.6, 0.35),
-    "glass": Look(0.3, 0.12),
-    "emissive": Look(0.0, 0.9, emissive=1.5),
-    "road": Look(0.0, 0.85),
-    "water": Look(0.2, 0.08),
-}
-if set(LOOKS) != set(MATERIALS):
-    raise RuntimeError(f"material looks {sorted(LOOKS)} do not match scene.MATERIALS {sorted(MATERIALS)}")
-
-
-def look(material: str) -> Look:
-    return lookup(LOOKS, material, "material")
-
-
-def pyrender_material(material: str):
-    """A pyrender ``MetallicRoughnessMaterial`` for a ``Part.material`` key."""
-    pr = compat.import_pyrender()
-    lk = look(material)
-    return pr.MetallicRoughnessMaterial(
-        baseColorFactor=[1.0, 1.0, 1.0, 1.0],
-        metallicFactor=lk.metallic,
-        roughnessFactor=lk.roughness,
-        emissiveFactor=[lk.emissive] * 3,
-        alphaMode="OPAQUE",
-        doubleSided=True,
-    )
-
-
-# --------------------------------------------------------------------------
-# Geometry -> flat-shaded triangle soups
-# --------------------------------------------------------------------------
-@dataclass
-class _Soup:
-    """Unindexed triangles: positions, normals and linear RGBA colours, float32."""
-
-    positions: list = field(default_factory=list)
-    normals: list = field(default_factory=list)
-    colors: list = field(default_factory=list)
-
-    def add(self, positions: np.ndarray, normals: np.ndarray, colors: np.ndarray) -> None:
-        self.positions.append(positions)
-        self.normals.append(normals)
-        self.colors.append(colors)
-
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        return (
-            np.concatenate(self.positions).astype(np.float32),
-            np.concatenate(self.normals).astype(np.float32),
-            np.concatenate(self.colors).astype(np.float32),
-        )
-
-
-_SRGB_TO_LINEAR = (np.arange(256, dtype=np.float64) / 255.0) ** 2.2
-
-
-def _corner_colors(mesh) -> np.ndarray:
-    """(F, 3, 4) linear RGBA per triangle corner from a trimesh's vertex/face colours."""
-    faces = mesh.faces
-    kind = mesh.visual.kind if mesh.visual.defined else None
-    if kind == "vertex":
-        rgba = np.asarray(mesh.visual.vertex_colors)[faces]
-    elif kind == "face":
-        rgba = np.repeat(np.asarray(mesh.visual.face_colors)[:, None, :], 3, axis=1)
-    else:
-        rgba = np.full((len(faces), 3, 4), 128, dtype=np.uint8)
-    out = _SRGB_TO_LINEAR[rgba]
-    out[..., 3] = 1.0  # opaque: alpha is used for sky coverage
-    return out
-
-
-def _triangles(mesh) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    tri = np.asarray(mesh.vertices, dtype=np.float64)[mesh.faces]  # (F, 3, 3)
-    normals = np.repeat(np.asarray(mesh.face_normals)[:, None, :], 3, axis=1)
-    return tri, normals, _corner_colors(mesh)
-
-
-def _sphere(positions: np.ndarray) -> tuple[np.ndarray, float]:
-    lo, hi = positions.min(axis=0), positions.max(axis=0)
-    centre = (lo + hi) / 2
-    return centre.astype(np.float64), float(np.linalg.norm(hi - lo) / 2)
-
-
-def _part_triangles(parts: tuple[Part, ...]):
-    """(part, (triangles, normals, colours)) for every non-empty part; checks its material."""
-    for part in parts:
-        if len(part.mesh.faces):
-            look(part.material)
-            yield part, _triangles(part.mesh)
-
-
-def static_groups(parts: tuple[Part, ...], tile_m: float) -> dict[tuple, _Soup]:
-    """Static triangles grouped by (tile x, tile y, class id, material), by face centroid."""
-    groups: dict[tuple, _Soup] = {}
-    for part, (tri, normals, colors) in _part_triangles(parts):
-        tiles = np.floor(tri.mean(axis=1)[:, :2] / tile_m).astype(np.int64)
-        keys, inverse = np.unique(tiles, axis=0, return_inverse=True)
-        inverse = inverse.ravel()
-        for k, (tx, ty) in enumerate(keys):
-            sel = inverse == k
-            soup = groups.setdefault((int(tx), int(ty), part.class_id, part.material), _Soup())
-            soup.add(tri[sel].reshape(-1, 3), normals[sel].reshape(-1, 3), colors[sel].reshape(-1, 4))
-    return groups
-
-
-def part_groups(parts: tuple[Part, ...]) -> dict[tuple, _Soup]:
-    """An actor's triangles grouped by (class id, material)."""
-    groups: dict[tuple, _Soup] = {}
-    for part, (tri, normals, colors) in _part_triangles(parts):
-        groups.setdefault((part.class_id, part.material), _Soup()).add(
-            tri.reshape(-1, 3), normals.reshape(-1, 3), colors.reshape(-1, 4)
-        )
-    return groups
-
-
-def _pyrender_mesh(soup: _Soup, material: str):
-    pr = compat.import_pyrender()
-    positions, normals, colors = soup.arrays()
-    primitive = pr.Primitive(
-        positions=positions, normals=normals, color_0=colors, material=pyrender_material(material), mode=4
-    )
-    return pr.Mesh(primitives=[primitive]), positions
 
 
 # --------------------------------------------------------------------------
@@ -424,8 +176,8 @@ def _node_set(items) -> tuple[_NodeSet, list[int]]:
     sphere, in the given order; and the class id of each node."""
     pr = compat.import_pyrender()
     nodes, centres, radii, keys = [], [], [], []
-    for cls, material, soup in items:
-        mesh, positions = _pyrender_mesh(soup, material)
+    for cls, material, soup, texture in items:
+        mesh, positions = _pyrender_mesh(soup, material, texture)
         centre, radius = _sphere(positions)
         nodes.append(pr.Node(mesh=mesh, matrix=np.eye(4)))
         centres.append(centre)
@@ -503,7 +255,7 @@ class Renderer:
         self._clouds = _cloud_texture(sky_seed)
 
         if self._static_world is not scene.world:
-            self._static = self._build_static(scene.world.static)
+            self._static = self._build_static(scene.world)
             self._static_world = scene.world
         self._actors, self._actor_of = self._build_actors(scene)
 
@@ -541,17 +293,23 @@ class Renderer:
         self._shadow_strength = shadow_strength(weather)
         self._scene = prs
 
-    def _build_static(self, parts: tuple[Part, ...]) -> _NodeSet:
-        groups = sorted(static_groups(parts, self.tile_m).items())
-        node_set, self._static_keys = _node_set((cls, material, soup) for (_, _, cls, material), soup in groups)
-        log.debug("static scene: %d nodes from %d parts", len(node_set.nodes), len(parts))
+    def _build_static(self, world) -> _NodeSet:
+        pr = compat.import_pyrender()
+        textures = {}
+        for name in sorted({p.texture for p in world.static if p.texture}):
+            image = lookup(world.textures, name, "texture")
+            textures[name] = pr.Texture(source=image, source_channels="RGB")
+        groups = sorted(static_groups(world.static, self.tile_m).items())
+        node_set, self._static_keys = _node_set((cls, material, soup, textures.get(tex))
+                                                for (_, _, cls, material, tex), soup in groups)
+        log.debug("static scene: %d nodes from %d parts", len(node_set.nodes), len(world.static))
         return node_set
 
     def _build_actors(self, scene: EpisodeScene) -> tuple[_NodeSet, list[int]]:
         items, actor_of = [], []
         for index, actor in enumerate(scene.actors):
             for (cls, material), soup in sorted(part_groups(actor.parts).items()):
-                items.append((cls, material, soup))
+                items.append((cls, material, soup, None))
                 actor_of.append(index)
         node_set, self._actor_keys = _node_set(items)
         return node_set, actor_of

@@ -29,6 +29,7 @@ class Part:
     class_id: int
     mesh: trimesh.Trimesh  # vertex colours hold the albedo
     material: str = "matte"
+    texture: str = ""  # name of a World texture multiplied into the colours (static parts); "" = none
 
     def __post_init__(self) -> None:
         if self.material not in MATERIALS:
@@ -111,6 +112,31 @@ class Actor:
 
 
 @dataclass(frozen=True, eq=False)
+class Loop:
+    """A closed lane loop and what traffic needs to know about it."""
+
+    path: Path
+    kind: str  # "block" | "perimeter" | "freeway"
+    lane: int  # 0 = next to the centre line / median
+    min_radius_m: float  # tightest corner
+    parking: tuple[tuple[float, float], ...]  # arc-length spans with a kerbside parking strip
+    parking_lateral_m: float  # lateral offset of parked cars (negative = right)
+    kerb_lateral_m: float  # lateral offset for riders at the lane's right edge
+    lane_sep_m: float = 3.5  # distance to the nearest lane centre of another loop or lane
+
+
+@dataclass(frozen=True, eq=False)
+class Crosswalk:
+    """A zebra crossing on one approach of a junction (sidewalk towns only)."""
+
+    centre: np.ndarray  # (2,) middle of the zebra, on the street's centre line
+    across: np.ndarray  # (2,) unit vector across the street
+    half_road: float  # centre line to kerb
+    reach: tuple[float, float]  # straight sidewalk beyond the kerb on the -across / +across side
+    kerb_h: float = 0.15  # height of the sidewalks at both ends
+
+
+@dataclass(frozen=True, eq=False)
 class World:
     """A town's static geometry and the paths traffic can use."""
 
@@ -120,6 +146,10 @@ class World:
     lanes: tuple[Path, ...]  # drivable lane centre lines
     walkways: tuple[Path, ...] = ()  # sidewalk and crossing paths
     bounds: tuple[float, float, float, float] = (0.0, 0.0, 0.0, 0.0)  # xmin, ymin, xmax, ymax
+    loops: tuple[Loop, ...] = ()  # the lanes with their kind, parking spans and kerb offsets (same order)
+    crosswalks: tuple[Crosswalk, ...] = ()  # zebra crossings
+    walk_lanes: tuple[tuple[Path, ...], ...] = ()  # per lane: the closed walkways moved k lanes off the road
+    textures: dict = field(default_factory=dict)  # texture name -> (px, px, 3) uint8, for Part.texture
 
 
 @dataclass(frozen=True, eq=False)

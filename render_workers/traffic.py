@@ -15,7 +15,7 @@
 * parked cars (15-30% of the four-wheelers, now and then a van, truck or a
   bus at a stop) sit in the kerbside parking strips;
 * pedestrians walk the sidewalks, mostly near the ego's route, in lanes
-  ``WALK_LANE_M`` apart with one pace per lane, so they never walk through
+  ``town_plan.WALK_LANE_M`` apart with one pace per lane, so they never walk through
   one another; 20-40% of them walk back and forth over a zebra crossing
   (again mostly on the ego's route). Every vehicle's motion is known, so a
   crossing pedestrian is only placed if, sampled every ``CROSSING_DT`` s over
@@ -26,52 +26,20 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
-import trimesh
 
-from manifests.catalog import LABELS, viewpoint as viewpoint_row
-from render_workers import meshes as M
-from render_workers import world as W
-from render_workers.scene import Actor, EpisodeScene, Part, Path, World
+from manifests.catalog import viewpoint as viewpoint_row
+from render_workers.actors import PAINTS, VEHICLE_KINDS, pedestrian_parts, rider_parts, vehicle_parts
+from render_workers.scene import Actor, EpisodeScene, Loop, Path, World
 
-ID = {label.name: label.id for label in LABELS}
-
-
-@dataclass(frozen=True)
-class VehicleKind:
-    name: str
-    length: float
-    width: float
-    height: float
-    wheel_r: float
-    glass_from: float  # share of the height where the windows start
-    cabin: tuple[float, float]  # cabin span along x as shares of the length (rear, front)
-
-
-VEHICLE_KINDS = {
-    k.name: k
-    for k in (
-        VehicleKind("sedan", 4.5, 1.8, 1.45, 0.32, 0.6, (-0.32, 0.18)),
-        VehicleKind("suv", 4.8, 1.9, 1.75, 0.36, 0.58, (-0.4, 0.2)),
-        VehicleKind("van", 5.2, 2.0, 2.15, 0.34, 0.55, (-0.48, 0.4)),
-        VehicleKind("truck", 7.5, 2.4, 3.2, 0.5, 0.55, (0.3, 0.48)),
-        VehicleKind("bus", 11.0, 2.55, 3.1, 0.5, 0.5, (-0.47, 0.49)),
-    )
-}
 KIND_WEIGHTS = {"sedan": 0.45, "suv": 0.25, "van": 0.15, "truck": 0.08, "bus": 0.07}
 # Parked along the kerb: buses wait at stops, trucks deliver. A bus (2.55 m) is
 # a little wider than the 2.2 m strip and overhangs lane and kerb by 0.18 m.
 PARKED_WEIGHTS = {"sedan": 0.42, "suv": 0.26, "van": 0.16, "truck": 0.06, "bus": 0.10}
 EGO_SIZE = {"B": (11.0, 2.55)}  # ego footprint (length, width) by viewpoint
 EGO_SIZE_DEFAULT = (4.8, 2.0)
-PAINTS = [(200, 30, 30), (240, 240, 240), (20, 20, 24), (130, 130, 135), (30, 60, 150), (200, 200, 205),
-          (20, 90, 50), (230, 180, 20), (110, 20, 30), (70, 110, 160), (180, 90, 30), (90, 90, 95)]
-CLOTHES = [(30, 40, 80), (180, 30, 40), (40, 40, 45), (200, 200, 195), (60, 110, 60), (150, 120, 80),
-           (220, 170, 40), (90, 60, 120), (120, 120, 130), (30, 110, 160)]
-SKIN = [(224, 180, 150), (190, 140, 100), (140, 95, 65), (90, 60, 40)]
 RIDER_SLOT = 2.4  # bicycles and motorcycles occupy this much lane length
 EGO_SPEED = {"A": (10.0, 14.0), "M": (10.0, 14.0), "J": (9.0, 13.0), "V": (8.0, 12.0), "B": (8.0, 11.0)}
 FREEWAY_EGO_SPEED = (16.0, 20.0)
@@ -89,127 +57,13 @@ WALKER_RADIUS = 0.6  # a walker's footprint (and its motion over a check step) f
 CROSSING_CLEAR = 0.5  # kept between a crossing pedestrian and any vehicle's box, m
 CROSSING_TRIES = 20  # candidate (zebra, walk) draws per crossing pedestrian
 OFFSET_BIN = 0.05  # resolution of the free start offsets, m
-# Pedestrians on sidewalks keep to lanes WALK_LANE_M apart (from the middle of
-# the sidewalk towards the buildings), one pace per lane and loop, each holding
+# Pedestrians on sidewalks keep to the World's walking lanes (town_plan.WALK_LANE_M
+# apart, from the middle of the sidewalk towards the buildings), one pace per lane and loop, each holding
 # a WALK_SLOT_M stretch of it: they never walk through one another. A walker
 # that finds no free stretch in WALK_TRIES draws is left out (none in 11,081
 # pedestrians over 210 episodes of the seven towns).
-WALK_LANE_M = 0.7
 WALK_SLOT_M = 1.0
 WALK_TRIES = 10
-
-
-# --------------------------------------------------------------------------
-# Meshes (actor frame: +x forward, +y left, z up from the ground)
-# --------------------------------------------------------------------------
-def _wheels(xs, half_track, radius, width, sides=8):
-    """Wheels as prisms with their axis along y."""
-    v, f = M.cylinders(np.zeros((1, 3)), width, radius, sides)
-    v = v[:, [0, 2, 1]]  # axis z -> y (this mirrors, so flip the winding)
-    v[:, 1] -= width / 2
-    f = f[:, [0, 2, 1]]
-    vs, fs = [], []
-    for x in xs:
-        for y in (-half_track, half_track):
-            vs.append(v + np.array([x, y, radius]))
-            fs.append(f)
-    return M._concat(list(zip(vs, fs)))
-
-
-@lru_cache(maxsize=None)
-def _vehicle_geometry(name: str):
-    """(body, glass, dark) geometry of one vehicle kind."""
-    k = VEHICLE_KINDS[name]
-    L, Wd, H = k.length, k.width, k.height
-    clear = k.wheel_r * 0.8
-    zg = H * k.glass_from
-    body = [M.boxes([[0, 0, clear]], [[L, Wd, zg - clear]])]
-    r0, r1 = k.cabin
-    cab_len = (r1 - r0) * L
-    cab_x = (r0 + r1) / 2 * L
-    glass = M.boxes([[cab_x, 0, zg]], [[cab_len, Wd * 0.92, (H - zg) * 0.8]])
-    body.append(M.boxes([[cab_x, 0, zg + (H - zg) * 0.8]], [[cab_len * 0.98, Wd * 0.94, (H - zg) * 0.2]]))
-    if name == "truck":  # cargo box behind the cab
-        body.append(M.boxes([[-0.18 * L, 0, clear + 0.2]], [[0.62 * L, Wd, H - clear - 0.2]]))
-    xs = (L / 2 - 0.9 - k.wheel_r * 0.5, -L / 2 + 0.9 + k.wheel_r * 0.5)
-    dark = [_wheels(xs, Wd / 2 - 0.12, k.wheel_r, 0.25)]
-    dark.append(M.boxes([[L / 2 + 0.01, 0, clear + 0.05]], [[0.04, Wd * 0.9, 0.22]]))  # grille / bumper
-    dark.append(M.boxes([[-L / 2 - 0.01, 0, clear + 0.05]], [[0.04, Wd * 0.9, 0.22]]))
-    return M._concat(body), glass, M._concat(dark)
-
-
-def _part(cls: str, geom, color, material: str, amount: float = 0.04) -> Part:
-    v, f = geom
-    cols = M.noisy_colors(v, color, amount, 0.7, seed=int(sum(color)) % 97)
-    mesh = trimesh.Trimesh(vertices=v, faces=f, vertex_colors=cols, process=False)
-    return Part(ID[cls], mesh, material)
-
-
-def vehicle_parts(name: str, paint) -> tuple[Part, ...]:
-    body, glass, dark = _vehicle_geometry(name)
-    return (_part("vehicle", body, paint, "glossy"),
-            _part("vehicle", glass, (34, 44, 56), "glass"),
-            _part("vehicle", dark, (26, 26, 28), "matte"))
-
-
-def _person(height: float, sitting: bool = False):
-    """(clothes_top, clothes_bottom, skin) geometry of a person, feet at z=0."""
-    s = height / 1.75
-    if sitting:
-        legs = M.boxes([[0.15 * s, 0.12 * s, 0.55 * s], [0.15 * s, -0.12 * s, 0.55 * s]], [[0.5 * s, 0.15 * s, 0.18 * s]])
-        shins = M.boxes([[0.38 * s, 0.12 * s, 0.15 * s], [0.38 * s, -0.12 * s, 0.15 * s]], [[0.14 * s, 0.14 * s, 0.45 * s]])
-        bottom = M._concat([legs, shins])
-        top = M.boxes([[0.0, 0, 0.72 * s]], [[0.3 * s, 0.42 * s, 0.6 * s]], 0.0)
-        arms = M.boxes([[0.25 * s, 0.24 * s, 1.0 * s], [0.25 * s, -0.24 * s, 1.0 * s]], [[0.5 * s, 0.1 * s, 0.1 * s]])
-        top = M._concat([top, arms])
-        head = M.boxes([[0.05 * s, 0, 1.33 * s]], [[0.22 * s, 0.2 * s, 0.26 * s]])
-    else:
-        bottom = M.boxes([[0, 0.1 * s, 0], [0, -0.1 * s, 0]], [[0.18 * s, 0.15 * s, 0.86 * s]])
-        top = M._concat([M.boxes([[0, 0, 0.86 * s]], [[0.26 * s, 0.44 * s, 0.6 * s]]),
-                         M.boxes([[0, 0.27 * s, 0.8 * s], [0, -0.27 * s, 0.8 * s]], [[0.1 * s, 0.09 * s, 0.62 * s]])])
-        head = M.boxes([[0, 0, 1.49 * s]], [[0.22 * s, 0.2 * s, 0.26 * s]])
-    return top, bottom, head
-
-
-def pedestrian_parts(rng) -> tuple[Part, ...]:
-    height = float(rng.uniform(1.45, 1.95)) if rng.random() > 0.12 else float(rng.uniform(1.0, 1.4))
-    top, bottom, head = _person(height)
-    geom = M._concat([top, bottom, head])
-    v, f = geom
-    cols = np.empty((len(v), 4), np.uint8)
-    n_top, n_bot = len(top[0]), len(bottom[0])
-    cols[:n_top] = M.flat_colors(n_top, CLOTHES[int(rng.integers(len(CLOTHES)))])
-    cols[n_top:n_top + n_bot] = M.flat_colors(n_bot, CLOTHES[int(rng.integers(len(CLOTHES)))])
-    cols[n_top + n_bot:] = M.flat_colors(len(v) - n_top - n_bot, SKIN[int(rng.integers(len(SKIN)))])
-    return (Part(ID["pedestrian"], trimesh.Trimesh(v, f, vertex_colors=cols, process=False), "matte"),)
-
-
-def rider_parts(rng, motor: bool) -> tuple[Part, ...]:
-    """A bicycle or motorcycle (own class) with its rider (class rider)."""
-    r = 0.3 if motor else 0.34
-    wheels = _wheels((0.65, -0.65), 0.0, r, 0.12 if motor else 0.05, sides=10)
-    if motor:
-        frame = M._concat([wheels, M.boxes([[0.0, 0, 0.35]], [[1.2, 0.35, 0.45]]),
-                           M.boxes([[0.25, 0, 0.75]], [[0.5, 0.3, 0.2]])])
-        vcls, vcol = "motorcycle", PAINTS[int(rng.integers(len(PAINTS)))]
-    else:
-        frame = M._concat([wheels, M.boxes([[0.0, 0, 0.45]], [[1.0, 0.05, 0.05]]),
-                           M.boxes([[-0.1, 0, 0.35]], [[0.05, 0.05, 0.5]]),
-                           M.boxes([[0.5, 0, 0.35]], [[0.05, 0.05, 0.65]]),
-                           M.boxes([[0.5, 0, 1.0]], [[0.05, 0.55, 0.04]])])
-        vcls, vcol = "bicycle", CLOTHES[int(rng.integers(len(CLOTHES)))]
-    top, bottom, head = _person(float(rng.uniform(1.6, 1.9)), sitting=True)
-    lift = np.array([-0.25, 0, 0.35 if motor else 0.45])
-    body = M._concat([top, bottom, head])
-    v = body[0] + lift
-    cols = M.flat_colors(len(v), CLOTHES[int(rng.integers(len(CLOTHES)))])
-    n_h = len(head[0])
-    cols[-n_h:] = M.flat_colors(n_h, (40, 40, 45) if motor else SKIN[int(rng.integers(len(SKIN)))])
-    rider = Part(ID["rider"], trimesh.Trimesh(v, body[1], vertex_colors=cols, process=False), "matte")
-    fv, ff = frame
-    bike = Part(ID[vcls], trimesh.Trimesh(fv, ff, vertex_colors=M.flat_colors(len(fv), vcol), process=False),
-                "glossy" if motor else "metal")
-    return bike, rider
 
 
 # --------------------------------------------------------------------------
@@ -233,7 +87,7 @@ class _LoopSlots:
         self.taken.append((s % self.length, half))
 
 
-def _allowed_kinds(loop: W.Loop) -> list[str]:
+def _allowed_kinds(loop: Loop) -> list[str]:
     """Long vehicles only where corners are wide enough to keep them in lane."""
     kinds = []
     for name, k in VEHICLE_KINDS.items():
@@ -282,15 +136,6 @@ def _along(path: Path, s: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return pos, heading
 
 
-def track(actor: Actor, times: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vectorised ``Actor.pose``: ground positions (T, 3) and headings (T,)."""
-    times = np.asarray(times, np.float64)
-    pos, heading = _along(actor.path, actor.offset_m + actor.speed_mps * times)
-    if actor.lateral_m:
-        pos = pos + actor.lateral_m * np.stack([-np.sin(heading), np.cos(heading), np.zeros(heading.shape)], -1)
-    return pos, heading
-
-
 def footprint(parts) -> tuple[np.ndarray, np.ndarray]:
     """Centre (2,) and half extents (2,) of the parts' box in the actor frame."""
     verts = np.concatenate([p.mesh.vertices[:, :2] for p in parts])
@@ -299,10 +144,10 @@ def footprint(parts) -> tuple[np.ndarray, np.ndarray]:
 
 
 @lru_cache(maxsize=16)
-def _loop_samples(town_code: str, seed: int) -> tuple[np.ndarray, np.ndarray]:
+def _loop_samples(world: World) -> tuple[np.ndarray, np.ndarray]:
     """Points every metre or so along each lane loop, and their loop index."""
     pts, ids = [], []
-    for k, lp in enumerate(W.loops(town_code, seed)):
+    for k, lp in enumerate(world.loops):
         ring = np.vstack([lp.path.points, lp.path.points[:1]])[:, :2]
         for a, b in zip(ring[:-1], ring[1:]):
             n = max(1, int(np.ceil(np.linalg.norm(b - a))))
@@ -328,7 +173,7 @@ class _CrossingPlanner:
 
     def __init__(self, world: World, loops, vehicles: list[tuple[Actor, np.ndarray, np.ndarray]]) -> None:
         self.world = world
-        self.crosswalks = W.crosswalks(world.town, world.seed)
+        self.crosswalks = world.crosswalks
         self.times = np.arange(0.0, CROSSING_HORIZON_S + CROSSING_DT / 2, CROSSING_DT)
         loop_of = {id(lp.path): k for k, lp in enumerate(loops)}
         self.by_loop: dict[int, list[int]] = {}
@@ -357,7 +202,7 @@ class _CrossingPlanner:
 
     def near_loops(self, k: int) -> np.ndarray:
         """Loops that pass near crossing k."""
-        return _crosswalk_loops(self.world.town, self.world.seed)[k]
+        return _crosswalk_loops(self.world)[k]
 
     def events(self, k: int) -> tuple:
         """(time index, position, forward, centre, grown half extents) of every
@@ -460,7 +305,7 @@ class _CrossingPlanner:
         along = np.array([-cw.across[1], cw.across[0]])
         shift = float(rng.uniform(-CROSSING_SHIFT, CROSSING_SHIFT))
         c = cw.centre + along * shift
-        hw, z = cw.half_road, W.CURB_H
+        hw, z = cw.half_road, cw.kerb_h
         stops = [(-hw - a0, z), (-hw, z), (-hw + 0.2, 0.0), (hw - 0.2, 0.0), (hw, z), (hw + a1, z)]
         if rng.random() < 0.5:  # start from either side
             stops = [(-u, h) for u, h in stops[::-1]]
@@ -487,11 +332,11 @@ class _CrossingPlanner:
 
 
 @lru_cache(maxsize=16)
-def _crosswalk_loops(town_code: str, seed: int) -> tuple[np.ndarray, ...]:
+def _crosswalk_loops(world: World) -> tuple[np.ndarray, ...]:
     """For each crossing, the loops whose vehicles can come near a walker on it."""
-    pts, ids = _loop_samples(town_code, seed)
+    pts, ids = _loop_samples(world)
     out = []
-    for cw in W.crosswalks(town_code, seed):
+    for cw in world.crosswalks:
         half = cw.half_road + CROSSING_APPROACH[1]
         a, b = cw.centre - cw.across * half, cw.centre + cw.across * half
         # a vehicle's box reaches at most ~6 m from its centre, parked ones sit 3 m off their loop
@@ -510,9 +355,9 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
     rng = np.random.default_rng(episode_seed)
     n_vehicles = int(rng.integers(20, 151))
     n_pedestrians = int(rng.integers(0, 101))
-    loops = W.loops(world.town, world.seed)
-    if len(loops) != len(world.lanes):
-        raise ValueError(f"world {world.town} seed {world.seed} does not match its lane plan")
+    loops = world.loops
+    if not loops or len(loops) != len(world.lanes):
+        raise ValueError(f"world {world.town} seed {world.seed} carries no lane loops matching its lanes")
     lengths = np.array([lp.path.length for lp in loops])
 
     # the ego: a random loop (longer ones more likely) and spawn point
@@ -602,7 +447,7 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
     # pedestrians on zebra crossings, in the gaps of the traffic, most of them
     # on the ego's route
     crossing: list[Actor] = []
-    cws = W.crosswalks(world.town, world.seed)
+    cws = world.crosswalks
     if cws and n_pedestrians:
         vehicles = [(a, *footprint(a.parts)) for a in actors]  # no pedestrians yet
         vehicles.append((ego, np.zeros(2), np.array(ego_size) / 2))
@@ -619,10 +464,8 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
         near_w = np.array([_min_distance(p.points, ego_loop.path.points) < 25 for p in walk_loops], float)
         wts = np.array([p.length for p in walk_loops]) * (1.0 + 8.0 * near_w)
         wts /= wts.sum()
-        lay = W.layout(world.town, world.seed)
-        half_w = 0.5 * lay.sidewalk_w or 1.25
-        lanes = [W.walkway_loops(lay, k * WALK_LANE_M) for k in range(1 + int(max(0.0, half_w - 0.5) // WALK_LANE_M))]
-        if len(lanes[0]) != len(walk_loops):
+        lanes = world.walk_lanes
+        if not lanes or len(lanes[0]) != len(walk_loops):
             raise RuntimeError("walkway lanes do not match the world's walkways")
         lane_speed: dict[tuple[int, int], float] = {}
         lane_slots: dict[tuple[int, int], _LoopSlots] = {}

@@ -8,7 +8,8 @@ import trimesh
 
 from manifests.catalog import NUM_CLASSES, VIEWPOINTS, viewpoint, weather
 from render_workers import camera
-from render_workers.renderer import Renderer, look
+from render_workers.renderer import Renderer
+from render_workers.soups import look
 from render_workers.scene import Actor, EpisodeScene, Part, Path, World
 
 W, H = 160, 90

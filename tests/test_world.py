@@ -31,23 +31,23 @@ def _tri_counts(world) -> dict[int, int]:
 # --------------------------------------------------------------------------
 def test_layout_is_deterministic_and_seed_dependent():
     for code in TOWN_CODES:
-        a, b = W.layout.__wrapped__(code, 3), W.layout.__wrapped__(code, 3)
+        a, b = W.plan.__wrapped__(town_row(code), 3), W.plan.__wrapped__(town_row(code), 3)
         assert np.array_equal(a.xs, b.xs) and np.array_equal(a.ys, b.ys)
         assert a.signals == b.signals and a.groups == b.groups
-        c = W.layout.__wrapped__(code, 4)
+        c = W.plan.__wrapped__(town_row(code), 4)
         assert not np.array_equal(a.xs, c.xs)
 
 
 def test_geometry_is_deterministic_and_seed_dependent():
-    a, _ = W._built.__wrapped__("T02", 5)
-    b, _ = W._built.__wrapped__("T02", 5)
+    a, _ = W._built.__wrapped__(town_row("T02"), 5)
+    b, _ = W._built.__wrapped__(town_row("T02"), 5)
     assert len(a) == len(b)
     for pa, pb in zip(a, b):
         assert pa.class_id == pb.class_id and pa.material == pb.material
         assert np.array_equal(pa.mesh.vertices, pb.mesh.vertices)
         assert np.array_equal(pa.mesh.faces, pb.mesh.faces)
         assert np.array_equal(pa.mesh.visual.vertex_colors, pb.mesh.visual.vertex_colors)
-    c, _ = W._built.__wrapped__("T02", 6)
+    c, _ = W._built.__wrapped__(town_row("T02"), 6)
     va = np.concatenate([p.mesh.vertices for p in a])
     vc = np.concatenate([p.mesh.vertices for p in c])
     assert va.shape != vc.shape or not np.array_equal(va, vc)
@@ -62,7 +62,7 @@ def test_town_contains_its_classes(worlds, code):
     present = set(_tri_counts(worlds[code]))
     need = ["road", "road line", "building", "vegetation", "terrain", "pole", "traffic sign",
             "traffic light", "fence", "wall"]
-    if t.sidewalks:
+    if t.urban:
         need.append("sidewalk")
     if t.railway:
         need.append("railway")
@@ -72,7 +72,7 @@ def test_town_contains_its_classes(worlds, code):
     assert not missing, f"{code} lacks {missing}"
     if not t.railway:
         assert class_id("railway") not in present
-    if not t.sidewalks:
+    if not t.urban:
         assert class_id("sidewalk") not in present
 
 
@@ -103,7 +103,7 @@ def test_triangle_budget(worlds, code):
     total = sum(len(p.mesh.faces) for p in world.static)
     assert total < 1_500_000
     centres = np.concatenate([p.mesh.triangles_center[:, :2] for p in world.static])
-    probe = W.loops(code, 0)[-1].path.points[0, :2]  # a point on the perimeter / freeway
+    probe = world.loops[-1].path.points[0, :2]  # a point on the perimeter / freeway
     near = np.linalg.norm(centres - probe, axis=1) < 450.0
     assert near.sum() < 300_000
 
@@ -239,7 +239,7 @@ def test_no_car_right_ahead_of_the_ego(worlds):
         scene = populate(worlds[code], "V", seed)
         ego, length = scene.ego, scene.ego.path.length
         for a in scene.actors:
-            if a.path is not ego.path or a.kind in ("cyclist", "motorcyclist"):
+            if a.path is not ego.path or a.kind in ("cyclist", "motorcyclist") or a.speed_mps == 0:  # parked at the kerb
                 continue
             ahead = (a.offset_m - ego.offset_m) % length
             assert ahead > 25.0, f"{code}: {a.kind} {ahead:.1f} m ahead of the ego"
@@ -248,7 +248,7 @@ def test_no_car_right_ahead_of_the_ego(worlds):
 def test_ego_prefers_streets_to_the_freeway(worlds):
     from render_workers.traffic import FREEWAY_EGO_WEIGHT
 
-    loops = W.loops("T04", 0)
+    loops = worlds["T04"].loops
     lengths = np.array([lp.path.length for lp in loops])
     is_fw = np.array([lp.kind == "freeway" for lp in loops])
     by_length = lengths[is_fw].sum() / lengths.sum()  # the ego's share if it picked by length only
@@ -319,3 +319,66 @@ def test_town_traffic_has_buses(worlds):
     for code in ("T01", "T02"):
         kinds = [a.kind for s in range(6) for a in populate(worlds[code], "A", s).actors]
         assert "bus" in kinds and "truck" in kinds, code
+
+
+# --------------------------------------------------------------------------
+# Styles: town identity as data
+# --------------------------------------------------------------------------
+def test_every_town_has_a_style_and_styles_differ():
+    from manifests.catalog import STYLES, style
+
+    for t in TOWNS:
+        assert style(t.style) is t.look
+    assert len({t.style for t in TOWNS}) == len(TOWNS)
+    assert len({s.name for s in STYLES}) == len(STYLES)
+    assert town_row("T07").look.markings == "none" and not town_row("T07").urban
+    assert town_row("T07").look.lane_w_m < town_row("T01").look.lane_w_m
+
+
+def test_unknown_surface_style_and_kit_are_rejected():
+    from dataclasses import replace
+
+    from manifests.catalog import STYLES, Town, style, surface
+
+    with pytest.raises(ValueError, match="unknown surface 'marble'; valid surfaces: asphalt dark, "):
+        replace(STYLES[0], facades=("brick red", "marble"))
+    with pytest.raises(ValueError, match="unknown architecture 'gothic'; valid architectures: european"):
+        replace(STYLES[0], architecture="gothic")
+    with pytest.raises(ValueError, match="unknown tree species 'palm'"):
+        replace(STYLES[0], trees=(("palm", 1.0),))
+    with pytest.raises(ValueError, match="unknown surface"):
+        surface("chrome")
+    with pytest.raises(ValueError, match="unknown style 'gothic town'; valid styles: european old town"):
+        replace(town_row("T01"), style="gothic town").look
+    assert isinstance(town_row("T01"), Town) and style("farmland").architecture == "farm"
+
+
+def test_builder_never_reads_town_codes():
+    """Features see the plan and the style only: no town code appears in the world's modules."""
+    import re
+    from pathlib import Path
+
+    root = Path(W.__file__).parent
+    modules = ["world", "town_plan", "kit", "roadway", "streets", "buildings", "countryside", "freeway", "river", "railway"]
+    for name in modules:
+        text = (root / f"{name}.py").read_text()
+        assert not re.search(r"T0\d", text), f"{name}.py mentions a town code"
+        assert ".code" not in text.replace("t.code,", ""), f"{name}.py reads a town's code"
+
+
+def test_a_style_row_changes_the_world():
+    """The same town with another style row: other surfaces, other buildings, other roadside."""
+    from dataclasses import replace
+
+    t01 = town_row("T01")
+    base = W.build_town(t01, 0)
+    restyled = W.build_town(replace(t01, style="glass city"), 0)
+
+    def colours(world, name):
+        return np.concatenate([p.mesh.visual.vertex_colors[:, :3] for p in world.static if p.class_id == class_id(name)])
+
+    assert not np.array_equal(colours(base, "road").mean(axis=0), colours(restyled, "road").mean(axis=0))
+    assert any(p.material == "glass" and p.class_id == class_id("building") and len(p.mesh.faces) > 500
+               for p in restyled.static)
+    farm = W.build_town(replace(t01, style="farmland"), 0)
+    assert class_id("sidewalk") not in _tri_counts(farm) and class_id("sidewalk") in _tri_counts(base)

@@ -1,0 +1,111 @@
+"""The paper's domain-shift table for docs/worlds.md (run by ``make report``).
+
+Renders the paper's five domains (T01_CS_A, T01_CS_J, T01_HRN_J, T01_HRN_A,
+T07_HRN_A; 150 frames each at 320x180, procedural world, run seed 0) into
+``SHIFT_ROOT``, runs ``training.shifts`` on them (the same as
+``idda shifts SHIFT_ROOT``) and returns the table and the per-case figures.
+:func:`markdown` turns them into the report's "Domain shift" section.
+
+``.venv/bin/python -m benchmarks.shifts_report`` does only this part and
+replaces the section in an existing docs/worlds.md (and ``shifts`` in
+docs/worlds.json).
+"""
+
+from __future__ import annotations
+
+import logging
+
+SHIFT_ROOT = "/tmp/idda-shifts-sample"  # outside git; rebuilt on every run
+SHIFT_DOMAINS = "T01_CS_A,T01_CS_J,T01_HRN_J,T01_HRN_A,T07_HRN_A"
+FRAMES, WIDTH, HEIGHT = 150, 320, 180
+TOLERANCE = 0.15  # kept fractions should be within this of the paper's
+SECTION_TITLE = "## Domain shift: the paper's table with a small network"
+
+log = logging.getLogger(__name__)
+
+
+def measure(root: str = SHIFT_ROOT, frames: int = FRAMES, width: int = WIDTH, height: int = HEIGHT,
+            workers: int = 2) -> dict:
+    """Render the five domains and run the shift table on them; an error dict if torch is missing."""
+    from benchmarks.worlds_report import produce_sample
+
+    try:
+        from training.shifts import ShiftConfig, format_shift_table, require_torch, run_shifts
+
+        require_torch()
+    except ImportError as exc:
+        return {"error": str(exc)}
+    log.info("rendering the five shift domains into %s (%d frames each, %dx%d)", root, frames, width, height)
+    sample = produce_sample(root, frames, width, height, workers, SHIFT_DOMAINS)
+    log.info("training the shift table's networks")
+    report = run_shifts(ShiftConfig(root=root))
+    result = report.to_json()
+    result.update(table=format_shift_table(report), sample=dict(sample, frames_per_scenario=frames, width=width,
+                                                                 height=height, root=root))
+    return result
+
+
+def _verdict(results: list[dict]) -> list[str]:
+    kept = {r["case"]: r["kept"] for r in results}
+    ordered = [r["case"] for r in sorted(results, key=lambda r: -r["kept"])]
+    close = {r["case"]: abs(r["kept"] - r["paper_kept"]) <= TOLERANCE for r in results}
+    lines = [f"Kept fractions order {' > '.join(ordered)} "
+             f"({'as in' if ordered == ['viewpoint', 'weather', 'city'] else 'not as in'} the paper: "
+             "viewpoint > weather > city).", ""]
+    for case, ok in close.items():
+        paper = next(r["paper_kept"] for r in results if r["case"] == case)
+        lines.append(f"* {case}: kept {kept[case]:.2f} against the paper's {paper:.2f}: "
+                     f"{'within' if ok else '**not** within'} {TOLERANCE} of it.")
+    return lines + [""]
+
+
+def markdown(result: dict) -> list[str]:
+    """The report's "Domain shift" section."""
+    lines = ["", SECTION_TITLE, ""]
+    if "error" in result:
+        return lines + [f"Not computed: {result['error']}", ""]
+    s, cfg = result["sample"], result["config"]
+    lines += [
+        f"`idda shifts` (training/shifts.py) on the paper's five domains, {s['frames_per_scenario']} frames each at "
+        f"{s['width']}x{s['height']} (procedural world, run seed 0). For each case a small encoder-decoder "
+        f"({result['parameters']:,} parameters, trained from scratch at {cfg['width']}x{cfg['height']}, "
+        f"{cfg['steps']} steps of {cfg['batch_size']} frames) learns the source domain and is scored on the "
+        "source's held-out frames and on the target. *kept* = target mIoU / held-out source mIoU; the paper's "
+        "is DeepLab V2 source-only / trained on the target (62.60/79.13, 40.24/78.31, 21.65/78.02). mIoU over "
+        "the 16 evaluated classes present in the ground truth of the scored set.",
+        "",
+        "```",
+        result["table"],
+        "```",
+        "",
+    ]
+    lines += _verdict(result["results"])
+    lines += ["Reproduce: `idda produce --domains " + SHIFT_DOMAINS + f" --frames-per-scenario {s['frames_per_scenario']} "
+              f"--width {s['width']} --height {s['height']} --out {s['root']}` then `idda shifts {s['root']}`.", ""]
+    return lines
+
+
+def update_docs(result: dict, docs: str = "docs") -> None:
+    """Put the section into an existing docs/worlds.md (and worlds.json) without re-running the whole report."""
+    import json
+    from pathlib import Path
+
+    md, js = Path(docs, "worlds.md"), Path(docs, "worlds.json")
+    text = md.read_text() if md.exists() else ""
+    section = "\n".join(markdown(result)).strip("\n") + "\n\n"
+    if SECTION_TITLE in text:
+        head, _, rest = text.partition(SECTION_TITLE)
+        nxt = rest.find("\n## ")
+        text = head.rstrip("\n") + "\n\n" + section + (rest[nxt + 1:] if nxt >= 0 else "")
+    else:  # before the timings section, where the full report puts it
+        at = text.find("\n## Scene building")
+        text = text + "\n" + section if at < 0 else text[:at].rstrip("\n") + "\n\n" + section + text[at + 1:]
+    md.write_text(text)
+    data = json.loads(js.read_text()) if js.exists() else {}
+    data["shifts"] = result
+    js.write_text(json.dumps(data, indent=1, default=float) + "\n")
+
+
+if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    update_docs(measure())

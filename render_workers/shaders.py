@@ -1,0 +1,131 @@
+"""The colour pass's fragment shader, a cheaper drop-in for pyrender's ``mesh.frag``,
+and how a renderer's context is pointed at it (see ``render_workers.renderer``)."""
+
+from __future__ import annotations
+
+import atexit
+import shutil
+import tempfile
+from pathlib import Path as FilePath
+
+from render_workers import compat
+
+# Drop-in for pyrender's mesh.frag: same inputs and uniform names, cheaper maths.
+FAST_MESH_FRAG = """#version 330 core
+struct DirectionalLight {
+    vec3 color;
+    float intensity;
+    vec3 direction;
+#ifdef DIRECTIONAL_LIGHT_SHADOWS
+    sampler2DShadow shadow_map;  // depth compare on: each tap is a 2x2 PCF
+    mat4 light_matrix;
+#endif
+};
+struct Material {
+    vec3 emissive_factor;
+    vec4 base_color_factor;
+    float metallic_factor;
+    float roughness_factor;
+#ifdef HAS_BASE_COLOR_TEX
+    sampler2D base_color_texture;
+#endif
+};
+uniform Material material;
+uniform DirectionalLight directional_lights[MAX_DIRECTIONAL_LIGHTS];
+uniform int n_directional_lights;
+uniform vec3 cam_pos;
+uniform vec3 ambient_light;
+in vec3 frag_position;
+#ifdef NORMAL_LOC
+in vec3 frag_normal;
+#endif
+#ifdef COLOR_0_LOC
+in vec4 color_multiplier;
+#endif
+#ifdef TEXCOORD_0_LOC
+in vec2 uv_0;
+#endif
+out vec4 frag_color;
+const float PI = 3.141592653589793;
+
+#ifdef DIRECTIONAL_LIGHT_SHADOWS
+uniform vec4 shadow_params;  // strength, normal offset (m), fade start (m), fade end (m)
+
+// Share of the sun that reaches this fragment: 1 lit, 1 - strength in full shadow.
+float sun_visibility(sampler2DShadow map, mat4 light_matrix, vec3 n, float nl)
+{
+    float dist = length(cam_pos - frag_position);
+    if (shadow_params.x <= 0.0 || dist >= shadow_params.w) return 1.0;
+    // normal offset, larger at grazing light, against acne on slopes
+    vec3 p = frag_position + n * (shadow_params.y * (2.0 - nl));
+    vec3 c = (light_matrix * vec4(p, 1.0)).xyz * 0.5 + 0.5;
+    if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return 1.0;
+    vec2 t = 0.5 / vec2(textureSize(map, 0));
+    float lit = 0.25 * (texture(map, vec3(c.xy + vec2(-t.x, -t.y), c.z))
+                      + texture(map, vec3(c.xy + vec2( t.x, -t.y), c.z))
+                      + texture(map, vec3(c.xy + vec2(-t.x,  t.y), c.z))
+                      + texture(map, vec3(c.xy + vec2( t.x,  t.y), c.z)));
+    float fade = clamp((shadow_params.w - dist) / max(shadow_params.w - shadow_params.z, 1e-3), 0.0, 1.0);
+    return 1.0 - shadow_params.x * fade * (1.0 - lit);
+}
+#endif
+
+void main()
+{
+    vec4 base = material.base_color_factor;
+#ifdef COLOR_0_LOC
+    base *= color_multiplier;
+#endif
+#ifdef HAS_BASE_COLOR_TEX
+#ifdef TEXCOORD_0_LOC
+    base.rgb *= texture(material.base_color_texture, uv_0).rgb;  // grey detail texture, a linear factor
+#endif
+#endif
+    vec3 v = normalize(cam_pos - frag_position);
+#ifdef NORMAL_LOC
+    vec3 n = normalize(frag_normal);
+#else
+    vec3 n = v;
+#endif
+    if (dot(n, v) < 0.0) n = -n;  // two-sided
+    float rough = clamp(material.roughness_factor, 0.04, 1.0);
+    float metal = clamp(material.metallic_factor, 0.0, 1.0);
+    vec3 diffuse = base.rgb * (1.0 - metal) / PI;
+    vec3 f0 = mix(vec3(0.04), base.rgb, metal);
+    float shininess = clamp(2.0 / (rough * rough * rough * rough) - 2.0, 1.0, 2048.0);
+    float fresnel = pow(1.0 - max(dot(n, v), 0.0), 5.0);
+    vec3 spec_colour = f0 + (1.0 - f0) * fresnel;
+    vec3 color = base.rgb * ambient_light + material.emissive_factor * base.rgb;
+    for (int i = 0; i < n_directional_lights; i++) {
+        vec3 l = normalize(-directional_lights[i].direction);
+        float nl = max(dot(n, l), 0.0);
+        if (nl <= 0.0) continue;
+        vec3 h = normalize(l + v);
+        float spec = pow(max(dot(n, h), 0.0), shininess) * (shininess + 8.0) / (8.0 * PI);
+        float sun = 1.0;
+#ifdef DIRECTIONAL_LIGHT_SHADOWS
+        if (i == 0) sun = sun_visibility(directional_lights[0].shadow_map, directional_lights[0].light_matrix, n, nl);
+#endif
+        color += directional_lights[i].color * directional_lights[i].intensity * nl * sun
+                 * (diffuse + spec_colour * spec);
+    }
+    frag_color = vec4(pow(clamp(color, 0.0, 1.0), vec3(1.0 / 2.2)), base.a);
+}
+"""
+
+
+def _install_fast_shaders(offscreen) -> FilePath:
+    """Point the context's shader cache at a copy of pyrender's shaders with FAST_MESH_FRAG."""
+    pr = compat.import_pyrender()
+    from pyrender.shader_program import ShaderProgramCache
+
+    shader_dir = FilePath(tempfile.mkdtemp(prefix="idda-shaders-"))
+    atexit.register(shutil.rmtree, shader_dir, True)  # also when a renderer is never closed
+    source = FilePath(pr.__file__).parent / "shaders"
+    for path in source.iterdir():
+        shutil.copy(path, shader_dir / path.name)
+    (shader_dir / "mesh.frag").write_text(FAST_MESH_FRAG)
+    renderer = offscreen._renderer  # pyrender keeps its shader cache on the inner renderer
+    renderer._program_cache.clear()
+    renderer._program_cache = ShaderProgramCache(shader_dir=str(shader_dir))
+    return shader_dir

@@ -1,0 +1,6 @@
+"""Tools for people who train on the data (may import torch; nothing below it does).
+
+``training`` sits above ``manifests``: it reads frames through the public
+reader and loaders. PyTorch comes with the optional ``analysis`` extra
+(``pip install -e '.[analysis]'``); the pipeline and the renderers never need it.
+"""
