@@ -390,9 +390,43 @@ def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
 COMPACT_WAIT_S = 120.0  # how long compaction waits for another holder of the root's exclusive lease
 
 
+def _check_no_repair_running(storage) -> None:
+    from manifests.lease import LeaseError, describe, exclusive_holder
+
+    holder = exclusive_holder(storage)
+    if holder is not None and holder.get("purpose") == "repair":
+        raise LeaseError(f"{storage.uri} is being repaired ({describe(holder)}); run again when it is done")
+
+
+def _repair_alone(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
+    """Repair under the root's exclusive lease, refusing beside another live producer."""
+    from manifests.lease import LeaseError, acquire_exclusive, describe, live_producers
+
+    with acquire_exclusive(storage, "repair", owner=owner):
+        others = live_producers(storage, except_owner=owner)
+        if others:
+            raise LeaseError(
+                f"{storage.uri} is being written by another producer ({describe(others[0])}); repair when it has finished"
+            )
+        repaired = _repair(storage, plan)
+        prepare_root(storage, config.run, extend=config.extend, repair=True)
+    return repaired
+
+
+def _compact_when_free(storage, owner: str) -> None:
+    """Rebuild stale indexes under the exclusive lease; left to the next run if it stays taken."""
+    from manifests.lease import LeaseError, acquire_exclusive
+
+    try:
+        with acquire_exclusive(storage, "compaction", owner=owner, wait_s=COMPACT_WAIT_S):
+            compact(storage)
+    except LeaseError as exc:
+        log.warning("indexes not rebuilt this time (%s); readers use the parts meanwhile", exc)
+
+
 def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None) -> ProduceReport:
     """Render every pending episode of the plan into ``config.out``."""
-    from manifests.lease import LeaseError, acquire_exclusive, describe, exclusive_holder, live_producers, register_producer
+    from manifests.lease import register_producer
     from manifests.root import claim_root
     from storage import Storage
 
@@ -409,19 +443,9 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     )
     producer = register_producer(storage)
     try:
-        holder = exclusive_holder(storage)
-        if holder is not None and holder.get("purpose") == "repair":
-            raise LeaseError(f"{storage.uri} is being repaired ({describe(holder)}); run again when it is done")
+        _check_no_repair_running(storage)
         if config.repair:
-            with acquire_exclusive(storage, "repair", owner=producer.owner):
-                others = live_producers(storage, except_owner=producer.owner)
-                if others:
-                    raise LeaseError(
-                        f"{storage.uri} is being written by another producer ({describe(others[0])}); "
-                        "repair when it has finished"
-                    )
-                report.repaired = _repair(storage, plan)
-                prepare_root(storage, config.run, extend=config.extend, repair=True)
+            report.repaired = _repair_alone(storage, config, plan, producer.owner)
         held = episode_frames(storage)
         todo = pending_episodes(plan, held)
         if not config.repair:
@@ -435,11 +459,7 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
                 _render_on_ray(config, storage, todo, report, progress, start)
         except KeyboardInterrupt:
             raise ProduceInterrupted(report) from None
-        try:  # one index file per scenario, also for scenarios an earlier (killed) run finished
-            with acquire_exclusive(storage, "compaction", owner=producer.owner, wait_s=COMPACT_WAIT_S):
-                compact(storage)
-        except LeaseError as exc:
-            log.warning("indexes not rebuilt this time (%s); readers use the parts meanwhile", exc)
+        _compact_when_free(storage, producer.owner)  # also scenarios an earlier (killed) run finished
         report.seconds = time.perf_counter() - start
         if report.rendered_frames and report.seconds > 0:
             driver_stats = {
