@@ -28,7 +28,7 @@ import pyarrow.parquet as pq
 from manifests.query import SPLITS
 
 SHARD_FRAMES = 256  # frames per Parquet shard
-LICENSE = "cc-by-4.0"  # of the generated data; IDDA's own licence does not apply to it
+LICENSE = "cc-by-4.0"  # declared for the generated frames; edit the card if yours differs
 TASK_CATEGORIES = ("image-segmentation", "depth-estimation")
 TAGS = ("autonomous-driving", "semantic-segmentation", "domain-adaptation", "synthetic")
 

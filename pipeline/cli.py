@@ -349,6 +349,8 @@ def query(
         the_query = cli_data.build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
         storage = _output_root(root)
         result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
+        for code, missing in sorted(result.shortfall.items()):
+            typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
         if len(result.table) == 0:
             raise ValueError(f"no frames in {storage.uri} match the query ({result.matched:,} match the filters)")
         chosen = tuple(o.strip() for o in outputs.split(",") if o.strip())
@@ -358,8 +360,6 @@ def query(
                 raise ValueError(f"cannot tell the format of {out}; use --format list|csv|parquet")
             data = q.encode_result(result.table, fmt, chosen)
             _write_local(out, data)
-        for code, missing in sorted(result.shortfall.items()):
-            typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
         counts: dict[str, int] = {}
         for code in result.table.column("scenario").to_pylist():
             counts[code] = counts.get(code, 0) + 1

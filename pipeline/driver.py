@@ -192,7 +192,9 @@ def _connect(ray, config: ProduceConfig) -> bool:
         logging.getLogger(_RAY_TOKEN_LOGGER).setLevel(logging.ERROR)
         for name, value in _LOCAL_CLUSTER_ENV.items():  # read by the raylet and agents it starts
             os.environ.setdefault(name, value)
-        ray.init(num_cpus=config.workers or os.cpu_count(), include_dashboard=False, **common)
+        # address="local": a new instance even where `ray start` left a cluster
+        # on this machine (ray.init() with no address would attach to it).
+        ray.init(address="local", num_cpus=config.workers or os.cpu_count(), include_dashboard=False, **common)
     return True
 
 

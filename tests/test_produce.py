@@ -105,8 +105,9 @@ def test_cli_status_verify_query_stats(reference, tmp_path):
     assert result.exit_code == 0 and result.output.startswith("OK: checked 96 files")
     out = tmp_path / "worst.txt"
     result = runner.invoke(app, ["query", str(reference), "--preset", "worst-case", "--out", str(out)])
-    assert result.exit_code == 0, result.output
-    assert "0 frames selected" in result.output  # HRN_J / HRN_B were not produced
+    assert result.exit_code == 2, result.output  # HRN_J / HRN_B were not produced: an empty selection
+    assert "(total) has 40128 frame(s) fewer" in result.output and "error: no frames" in result.output
+    assert not out.exists()
     result = runner.invoke(app, ["query", str(reference), "--domains", "towns=T07", "--per-scenario", "3", "--out", str(out)])
     assert result.exit_code == 0, result.output
     lines = out.read_text().splitlines()
