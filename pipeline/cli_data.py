@@ -175,7 +175,7 @@ def card(
 def shifts(
     root: str = typer.Argument(..., help=ROOT_HELP),
     cases: str = typer.Option("viewpoint,weather,city", help="Which of the paper's cases to run, comma-separated."),
-    steps: int = typer.Option(1500, help="Training steps per case."),
+    steps: int = typer.Option(800, help="Training steps per case."),
     batch_size: int = typer.Option(8, help="Frames per training step."),
     width: int = typer.Option(160, help="Network input width (multiple of 16)."),
     height: int = typer.Option(96, help="Network input height (multiple of 16)."),

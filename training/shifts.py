@@ -71,7 +71,7 @@ CASE_BY_NAME = {c.name: c for c in CASES}
 class ShiftConfig:
     root: str  # output root: local path or s3:// URI
     cases: tuple[str, ...] = tuple(CASE_BY_NAME)  # which of the paper's cases to run
-    steps: int = 1500  # optimiser steps per case
+    steps: int = 800  # optimiser steps per case
     batch_size: int = 8
     lr: float = 3e-3  # AdamW peak learning rate (linear warm-up, cosine decay)
     width: int = 160  # network input size; multiples of 16
