@@ -49,9 +49,9 @@ def _verdict(results: list[dict]) -> list[str]:
     kept = {r["case"]: r["kept"] for r in results}
     ordered = [r["case"] for r in sorted(results, key=lambda r: -r["kept"])]
     close = {r["case"]: abs(r["kept"] - r["paper_kept"]) <= TOLERANCE for r in results}
+    paper = [r["case"] for r in sorted(results, key=lambda r: -r["paper_kept"])]
     lines = [f"Kept fractions order {' > '.join(ordered)} "
-             f"({'as in' if ordered == ['viewpoint', 'weather', 'city'] else 'not as in'} the paper: "
-             "viewpoint > weather > city).", ""]
+             f"({'as in' if ordered == paper else 'not as in'} the paper: {' > '.join(paper)}).", ""]
     for case, ok in close.items():
         paper = next(r["paper_kept"] for r in results if r["case"] == case)
         lines.append(f"* {case}: kept {kept[case]:.2f} against the paper's {paper:.2f}: "
