@@ -110,15 +110,21 @@ def prism_roofs(centers, sizes, heights, yaws=0.0) -> tuple[np.ndarray, np.ndarr
     return verts.reshape(-1, 3), faces
 
 
-def cylinders(bases, heights, radii, sides: int = 6) -> tuple[np.ndarray, np.ndarray]:
-    """Vertical open cylinders (no caps) standing on ``bases``."""
+def _rims(bases, heights, radii, sides: int):
+    """Bases (N, 3), heights (N,) and the closed rim circle (N, S+1, 3) around each base."""
     b = np.atleast_2d(np.asarray(bases, dtype=np.float64))
     n = len(b)
     h = np.broadcast_to(np.asarray(heights, float), (n,))
     r = np.broadcast_to(np.asarray(radii, float), (n,))
     ang = np.linspace(0, 2 * np.pi, sides + 1)
     ring = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], 1)  # (S+1, 3)
-    bottom = b[:, None] + r[:, None, None] * ring[None]
+    return b, h, b[:, None] + r[:, None, None] * ring[None]
+
+
+def cylinders(bases, heights, radii, sides: int = 6) -> tuple[np.ndarray, np.ndarray]:
+    """Vertical open cylinders (no caps) standing on ``bases``."""
+    b, h, bottom = _rims(bases, heights, radii, sides)
+    n = len(b)
     top = bottom.copy()
     top[..., 2] += h[:, None]
     verts = np.concatenate([bottom, top], axis=1).reshape(-1, 3)
@@ -131,13 +137,8 @@ def cylinders(bases, heights, radii, sides: int = 6) -> tuple[np.ndarray, np.nda
 
 def cones(bases, heights, radii, sides: int = 8) -> tuple[np.ndarray, np.ndarray]:
     """Vertical cones (no base cap) standing on ``bases``: conifer tiers, silo tops."""
-    b = np.atleast_2d(np.asarray(bases, dtype=np.float64))
+    b, h, rim = _rims(bases, heights, radii, sides)
     n = len(b)
-    h = np.broadcast_to(np.asarray(heights, float), (n,))
-    r = np.broadcast_to(np.asarray(radii, float), (n,))
-    ang = np.linspace(0, 2 * np.pi, sides + 1)
-    ring = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], 1)
-    rim = b[:, None] + r[:, None, None] * ring[None]  # (N, S+1, 3)
     apex = b + np.stack([np.zeros(n), np.zeros(n), h], 1)
     verts = np.concatenate([rim, apex[:, None]], axis=1).reshape(-1, 3)
     k = np.arange(sides)
