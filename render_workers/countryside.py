@@ -15,7 +15,7 @@ import numpy as np
 
 from manifests.catalog import surface
 from render_workers import meshes as M
-from render_workers.kit import Kit
+from render_workers.kit import Kit, rect_distance
 
 MOUNTAIN_BAND_M = 500.0  # depth of the mountain backdrop beyond the town's bounds
 MOUNTAIN_CELL_M = 35.0
@@ -212,9 +212,7 @@ def mountains(kit: Kit) -> None:
     X0, Y0, X1, Y1 = X0[outside], Y0[outside], X1[outside], Y1[outside]
     v, f = M.quads(np.stack([X0, Y0, 0 * X0], 1), np.stack([X1 - X0, 0 * X0, 0 * X0], 1),
                    np.stack([0 * X0, Y1 - Y0, 0 * X0], 1))
-    dx = np.maximum(np.maximum(bx0 - v[:, 0], 0), v[:, 0] - bx1)
-    dy = np.maximum(np.maximum(by0 - v[:, 1], 0), v[:, 1] - by1)
-    ramp = np.clip(np.hypot(dx, dy) / 200.0, 0, 1)
+    ramp = np.clip(rect_distance(v[:, 0], v[:, 1], kit.lay.bounds) / 200.0, 0, 1)
     flat = v * np.array([1, 1, 0])
     ridges = 0.45 + 0.55 * M.value_noise(flat, 260.0, 41) + 0.25 * (M.value_noise(flat, 70.0, 43) - 0.5)
     v[:, 2] = kit.ground_z(v[:, :2]) + peak * ramp * ridges

@@ -41,10 +41,10 @@ def freeway(kit: Kit) -> None:
         ang = np.radians(np.linspace(a0, a0 + 180.0, 25))
         rmid = m2 + cw / 2
         pts = np.stack([xe + rmid * np.cos(ang), y + rmid * np.sin(ang)], 1)
-        v, f = M.ribbon(pts, cw / 2 + m2 * 0.0, cw / 2 + m2, 0.0, 4)
+        v, f = M.ribbon(pts, cw / 2, cw / 2 + m2, 0.0, 4)
         asphalt(kit, v, f)
         outer = np.stack([xe + (m2 + cw) * np.cos(ang), y + (m2 + cw) * np.sin(ang)], 1)
-        kit.guard_rail(outer[::1] if xe == x1 else outer[::1])
+        kit.guard_rail(outer)
         # two tree rows behind the turn-around, so the view from the loop is not an empty plain
         for rr, step in ((m2 + cw + 8.0, 8.0), (m2 + cw + 16.0, 10.0)):
             for a in np.radians(np.arange(a0 + 8.0, a0 + 173.0, np.degrees(step / rr))):

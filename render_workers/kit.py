@@ -54,15 +54,15 @@ def line_pieces(p0, p1):
             yield a, b, length, float(np.arctan2(d[1], d[0]))
 
 
-def split_span(a, b, gaps):
-    """The pieces of [a, b] outside the (g0, g1) gaps, each over 1 m."""
+def split_span(a, b, gaps, min_len: float = 1.0):
+    """The pieces of [a, b] outside the (g0, g1) gaps, each over ``min_len`` metres."""
     pieces = [(a, b)]
     for g0, g1 in gaps:
-        pieces = [q for p in pieces for q in ((p[0], min(p[1], g0)), (max(p[0], g1), p[1])) if q[1] - q[0] > 1.0]
+        pieces = [q for p in pieces for q in ((p[0], min(p[1], g0)), (max(p[0], g1), p[1])) if q[1] - q[0] > min_len]
     return pieces
 
 
-def _rect_distance(x, y, rect) -> np.ndarray:
+def rect_distance(x, y, rect) -> np.ndarray:
     x0, y0, x1, y1 = rect
     dx = np.maximum(np.maximum(x0 - x, 0.0), x - x1)
     dy = np.maximum(np.maximum(y0 - y, 0.0), y - y1)
@@ -196,7 +196,7 @@ class Kit:
         relief = self.style.relief_m
         if relief <= 0:
             return np.full(len(xy), OUTER_Z)
-        d = np.min([_rect_distance(xy[:, 0], xy[:, 1], z) for z in self.flat_zones()], axis=0)
+        d = np.min([rect_distance(xy[:, 0], xy[:, 1], z) for z in self.flat_zones()], axis=0)
         ramp = np.clip((d - FLAT_BAND_M) / 120.0, 0.0, 1.0)
         ramp = ramp * ramp * (3 - 2 * ramp)
         pts = np.c_[xy, np.zeros(len(xy))]

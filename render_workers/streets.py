@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from render_workers import meshes as M
-from render_workers.kit import PALETTE, Kit
+from render_workers.kit import PALETTE, Kit, split_span
 from render_workers.roadway import asphalt, markings, road_marks
 from render_workers.town_plan import CURB_H, MARK_Z, OUTER_Z, ZEBRA_FROM, ZEBRA_LEN, corner_offset
 
@@ -110,10 +110,7 @@ def sidewalk_ring(kit, x0, y0, x1, y1, w, outward: bool, gaps=()) -> None:
     look = kit.pick(kit.style.paving)
     planting = kit.rng.random() < 0.5
     for (a0, b0, a1, b1), side in bands:
-        pieces = [(a0, a1)]
-        if side == "s_out":
-            for g0, g1 in gaps:
-                pieces = [q for p in pieces for q in ((p[0], min(p[1], g0)), (max(p[0], g1), p[1])) if q[1] - q[0] > 0.5]
+        pieces = split_span(a0, a1, gaps, 0.5) if side == "s_out" else [(a0, a1)]
         for p0_, p1_ in pieces:
             v, f = M.ground_rect(p0_, b0, p1_, b1, z, 2.0)
             kit.paint("sidewalk", v, f, look, fine=0.08, tiled=True)

@@ -144,10 +144,13 @@ def footprint(parts) -> tuple[np.ndarray, np.ndarray]:
 
 
 @lru_cache(maxsize=16)
-def _loop_samples(world: World) -> tuple[np.ndarray, np.ndarray]:
-    """Points every metre or so along each lane loop, and their loop index."""
+def _loop_samples(loops: tuple) -> tuple[np.ndarray, np.ndarray]:
+    """Points every metre or so along each lane loop, and their loop index.
+
+    Cached on the loops tuple, not the World, so a cache entry never keeps a
+    whole town (meshes, textures) alive after the world cache dropped it."""
     pts, ids = [], []
-    for k, lp in enumerate(world.loops):
+    for k, lp in enumerate(loops):
         ring = np.vstack([lp.path.points, lp.path.points[:1]])[:, :2]
         for a, b in zip(ring[:-1], ring[1:]):
             n = max(1, int(np.ceil(np.linalg.norm(b - a))))
@@ -202,7 +205,7 @@ class _CrossingPlanner:
 
     def near_loops(self, k: int) -> np.ndarray:
         """Loops that pass near crossing k."""
-        return _crosswalk_loops(self.world)[k]
+        return _crosswalk_loops(self.world.loops, self.world.crosswalks)[k]
 
     def events(self, k: int) -> tuple:
         """(time index, position, forward, centre, grown half extents) of every
@@ -332,11 +335,11 @@ class _CrossingPlanner:
 
 
 @lru_cache(maxsize=16)
-def _crosswalk_loops(world: World) -> tuple[np.ndarray, ...]:
+def _crosswalk_loops(loops: tuple, crosswalks: tuple) -> tuple[np.ndarray, ...]:
     """For each crossing, the loops whose vehicles can come near a walker on it."""
-    pts, ids = _loop_samples(world)
+    pts, ids = _loop_samples(loops)
     out = []
-    for cw in world.crosswalks:
+    for cw in crosswalks:
         half = cw.half_road + CROSSING_APPROACH[1]
         a, b = cw.centre - cw.across * half, cw.centre + cw.across * half
         # a vehicle's box reaches at most ~6 m from its centre, parked ones sit 3 m off their loop
