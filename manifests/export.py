@@ -340,9 +340,9 @@ LAYOUTS: dict[str, Callable] = {
 }
 
 
-# Scenarios with fewer episodes than this get their splits by frame blocks
-# inside the episodes (exports only; the manifest keeps per-episode splits).
-MIN_EPISODES_FOR_SPLITS = 3
+# Scenarios whose episodes leave a split empty (the planner gives val and test
+# episodes only from 6 episodes on) get their splits by frame blocks inside the
+# episodes (exports only; the manifest keeps per-episode splits).
 SPLIT_SHARES = (0.8, 0.1, 0.1)  # train, val, test: as the planner splits episodes
 
 
@@ -357,17 +357,17 @@ def block_splits(n: int) -> list[str]:
 
 
 def few_episode_scenarios(table: pa.Table) -> list[str]:
-    """Scenarios with fewer than ``MIN_EPISODES_FOR_SPLITS`` episodes in ``table``."""
-    episodes: dict[str, set] = {}
-    for code, episode in zip(table.column("scenario").to_pylist(), table.column("episode").to_pylist()):
-        episodes.setdefault(code, set()).add(episode)
-    return sorted(code for code, eps in episodes.items() if len(eps) < MIN_EPISODES_FOR_SPLITS)
+    """Scenarios with too few episodes for every split: some split has none of their frames in ``table``."""
+    splits: dict[str, set] = {}
+    for code, split in zip(table.column("scenario").to_pylist(), table.column("split").to_pylist()):
+        splits.setdefault(code, set()).add(split)
+    return sorted(code for code, present in splits.items() if set(SPLITS) - present)
 
 
 def export_splits(table: pa.Table) -> pa.Table:
-    """The manifest with the splits exports use: unchanged for scenarios with
-    at least ``MIN_EPISODES_FOR_SPLITS`` episodes; by frame blocks in
-    (episode, frame) order for the others, so small runs have frames in every split."""
+    """The manifest with the splits exports use: unchanged for scenarios whose
+    episodes fill every split; by frame blocks in (episode, frame) order for the
+    others, so small runs have frames in every split."""
     few = set(few_episode_scenarios(table))
     if not few:
         return table

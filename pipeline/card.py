@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 from manifests.catalog import LABELS, SCENARIO_BY_CODE
-from manifests.export import MIN_EPISODES_FOR_SPLITS, SPLIT_SHARES, few_episode_scenarios
+from manifests.export import SPLIT_SHARES, few_episode_scenarios
 from manifests.hf import card_header, citation_section
 from manifests.query import SPLITS
 
@@ -81,7 +81,7 @@ def _domain_section(table: pa.Table) -> list[str]:
     if few:
         shares = "/".join(f"{round(100 * x)}" for x in SPLIT_SHARES)
         lines.append(
-            f"{len(few)} scenario(s) have fewer than {MIN_EPISODES_FOR_SPLITS} episodes ({', '.join(few)}): "
+            f"{len(few)} scenario(s) have fewer than 3 episodes or none in val or test ({', '.join(few)}): "
             f"`idda export` splits their frames by frame blocks instead, {shares} % train/val/test in frame "
             "order, so that every split has frames (`--as-split` puts an export in one split)."
         )

@@ -87,7 +87,7 @@ def export(
     instanceIds) that cityscapesScripts and torchvision read. idda:
     <scenario>/RGB/*.jpg, <scenario>/Semantic/*.png (class ids) and split
     files. hf: Parquet shards with embedded images and a card. Scenarios with
-    fewer than 3 episodes are split by frame blocks (80/10/10 in frame order).
+    no val or test episode (fewer than 6 episodes) are split by frame blocks (80/10/10 in frame order).
     """
     from manifests.export import ExportConfig, export as run_export
 

@@ -305,3 +305,24 @@ def test_export_from_s3_root_downloads(root, manifest, tmp_path, s3_server):  # 
             name = ex.cityscapes_name(row["scenario"], row["episode"], row["frame"])
             image = target / "leftImg8bit" / row["split"] / "T07-HRN-A" / f"{name}_leftImg8bit.png"
             assert image.read_bytes() == (root / row["rgb_path"]).read_bytes()
+
+
+def test_scenarios_with_an_empty_split_are_split_by_frame_blocks():
+    """Not only scenarios with fewer than 3 episodes: 4 all-train episodes (the
+    planner's val/test start at 6 episodes) must get val and test frames too."""
+    import pyarrow as pa
+
+    from manifests.export import export_splits, few_episode_scenarios
+
+    rows = [("T01_CN_A", e, f, "train") for e in range(4) for f in range(10)]  # 4 episodes, all train
+    rows += [("T02_CN_A", e, f, ("train", "val", "test")[e % 3] if e < 6 else "train")
+             for e in range(6) for f in range(10)]  # every split present: kept as planned
+    scenario, episode, frame, split = (list(c) for c in zip(*rows))
+    table = pa.table({"scenario": scenario, "episode": episode, "frame": frame, "split": split})
+    assert few_episode_scenarios(table) == ["T01_CN_A"]
+    out = export_splits(table)
+    got = {}
+    for code, s in zip(out.column("scenario").to_pylist(), out.column("split").to_pylist()):
+        got.setdefault(code, []).append(s)
+    assert got["T01_CN_A"] == ["train"] * 32 + ["val"] * 4 + ["test"] * 4
+    assert got["T02_CN_A"] == split[40:]
