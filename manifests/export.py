@@ -213,10 +213,14 @@ def _cityscapes_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]
     return written
 
 
-def _idda_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]:
+def _idda_paths(frame: _Frame) -> tuple[str, str]:
+    """A frame's RGB and Semantic paths in the IDDA layout (the split files list the same)."""
     stem = f"{frame.frame_id}_{frame.scenario}"
-    rgb_rel = f"{frame.scenario}/RGB/{stem}.jpg"
-    sem_rel = f"{frame.scenario}/Semantic/{stem}.png"
+    return f"{frame.scenario}/RGB/{stem}.jpg", f"{frame.scenario}/Semantic/{stem}.png"
+
+
+def _idda_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]:
+    rgb_rel, sem_rel = _idda_paths(frame)
     _write(os.path.join(tmp, rgb_rel), _jpeg(_decode(storage, frame.rgb_path)))
     _write(os.path.join(tmp, sem_rel), _png(_decode(storage, frame.semantic_raw_path)[..., 0]))
     return {"image": rgb_rel, "semantic": sem_rel}
@@ -265,11 +269,8 @@ def _leaf(users: dict[str, list[_Frame]]) -> dict:
     data = {}
     for user in names:
         ordered = sorted(users[user], key=lambda f: (f.scenario, f.episode, f.frame))
-        stems = [(f.scenario, f"{f.frame_id}_{f.scenario}") for f in ordered]
-        data[user] = {
-            "x": [f"{code}/RGB/{stem}.jpg" for code, stem in stems],
-            "y": [f"{code}/Semantic/{stem}.png" for code, stem in stems],
-        }
+        pairs = [_idda_paths(f) for f in ordered]
+        data[user] = {"x": [x for x, _ in pairs], "y": [y for _, y in pairs]}
     return {"users": names, "num_samples": [len(data[u]["x"]) for u in names], "user_data": data}
 
 
@@ -364,11 +365,11 @@ def few_episode_scenarios(table: pa.Table) -> list[str]:
     return sorted(code for code, present in splits.items() if set(SPLITS) - present)
 
 
-def export_splits(table: pa.Table) -> pa.Table:
+def export_splits(table: pa.Table, few: list[str] | None = None) -> pa.Table:
     """The manifest with the splits exports use: unchanged for scenarios whose
     episodes fill every split; by frame blocks in (episode, frame) order for the
     others, so small runs have frames in every split."""
-    few = set(few_episode_scenarios(table))
+    few = set(few_episode_scenarios(table) if few is None else few)
     if not few:
         return table
     scenarios = table.column("scenario").to_pylist()
@@ -489,7 +490,7 @@ def export(config: ExportConfig) -> ExportReport:
         raise ValueError(f"export target {target} must not be the source root {storage.uri} or contain it")
     manifest = read_manifest(storage)
     few = few_episode_scenarios(manifest)
-    result = run_query(export_splits(manifest), config.query)
+    result = run_query(export_splits(manifest, few), config.query)
     if len(result.table) == 0:
         raise ValueError(f"no frames in {storage.uri} match the query; nothing to export")
     frames = _frames(result.table)
