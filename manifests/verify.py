@@ -10,6 +10,7 @@ for byte. run.json carries a checksum of itself.
 
 from __future__ import annotations
 
+import functools
 import io
 import time
 from concurrent.futures import ThreadPoolExecutor
@@ -20,7 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from manifests.catalog import OUTPUTS, SCENARIO_BY_CODE
-from manifests.reader import as_storage, build_index, index_episodes, index_files, part_files
+from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_table, part_files
 from manifests.root import FRAME_FILE_RE
 from manifests.runrecord import RunRecordError, read_record
 from manifests.schema import PART_SCHEMA, RUN_FILE, frame_id, frame_path, output_columns
@@ -70,14 +71,10 @@ def _episode_of(path: str) -> tuple[str | None, int | None]:
     return match.group("scenario"), int(match.group("episode"))
 
 
-_CREATED_BY: list[str] = []
-
-
+@functools.cache
 def _this_writer() -> str:
     """``created_by`` of the Parquet files this pyarrow writes."""
-    if not _CREATED_BY:
-        _CREATED_BY.append(pq.read_metadata(io.BytesIO(part_bytes(PART_SCHEMA.empty_table()))).created_by)
-    return _CREATED_BY[0]
+    return pq.read_metadata(io.BytesIO(part_bytes(PART_SCHEMA.empty_table()))).created_by
 
 
 def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | None) -> str | None:
@@ -117,7 +114,8 @@ def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | N
     return table, None
 
 
-def _check_index(storage, rel: str, scenario: str, episodes: dict[int, str] | None, good: set) -> Problem | None:
+def _check_index(storage, rel: str, scenario: str, episodes: dict[int, str] | None,
+                 good: dict[tuple[str, int], pa.Table]) -> Problem | None:
     """An index is damaged if it is unreadable, or covers the parts present but
     differs from the index rebuilt from them (a stale index is only unused)."""
     if not episodes:
@@ -127,8 +125,10 @@ def _check_index(storage, rel: str, scenario: str, episodes: dict[int, str] | No
         return Problem("bad-index", rel, scenario, None, "unreadable footer")
     if covered != set(episodes) or not all((scenario, e) in good for e in episodes):
         return None  # stale (or its parts are being repaired): readers ignore it, compaction rewrites it
+    eps = sorted(episodes)
+    rebuilt = index_bytes(index_table([good[(scenario, e)] for e in eps], scenario, eps))  # parts already read
     try:
-        same = storage.read_bytes(rel) == build_index(storage, scenario, sorted(episodes))
+        same = storage.read_bytes(rel) == rebuilt
     except (ManifestError, StorageError, OSError) as exc:
         return Problem("bad-index", rel, scenario, None, str(exc))
     return None if same else Problem("bad-index", rel, scenario, None, "differs from the index rebuilt from its parts")
@@ -153,23 +153,21 @@ def verify(root, threads: int = 8, progress: Callable[[int, int], None] | None =
     except RunRecordError as exc:
         report.problems.append(Problem("bad-run", RUN_FILE, None, None, str(exc)))
 
-    tables = []
-    good = set()
+    good: dict[tuple[str, int], pa.Table] = {}  # parts that passed, by (scenario, episode)
     for scenario in sorted(parts):
         for episode, rel in sorted(parts[scenario].items()):
             table, problem = _check_part(storage, rel, scenario, episode, config)
             if problem is not None:
                 report.problems.append(problem)
             else:
-                tables.append(table)
-                good.add((scenario, episode))
+                good[(scenario, episode)] = table
     for scenario, rel in sorted(index_files(storage).items()):
         problem = _check_index(storage, rel, scenario, parts.get(scenario), good)
         if problem is not None:
             report.problems.append(problem)
 
     expected: list[tuple[str, int, str, str, int]] = []
-    for table in tables:
+    for table in good.values():
         scenarios, episodes = table.column("scenario").to_pylist(), table.column("episode").to_pylist()
         for output in OUTPUTS:
             path_col, bytes_col, sha_col = output_columns(output)

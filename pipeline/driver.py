@@ -175,10 +175,10 @@ def _address(config: ProduceConfig) -> str | None:
     return config.address or os.environ.get("RAY_ADDRESS")
 
 
-def _connect(ray, config: ProduceConfig) -> bool:
-    """Start or attach to Ray. Returns True when this call started it."""
+def _connect(ray, config: ProduceConfig) -> None:
+    """Start or attach to Ray, unless this process already has it."""
     if ray.is_initialized():
-        return False
+        return
     address = _address(config)
     common = dict(log_to_driver=False, logging_level=logging.WARNING)
     if address:
@@ -195,7 +195,6 @@ def _connect(ray, config: ProduceConfig) -> bool:
         # address="local": a new instance even where `ray start` left a cluster
         # on this machine (ray.init() with no address would attach to it).
         ray.init(address="local", num_cpus=config.workers or os.cpu_count(), include_dashboard=False, **common)
-    return True
 
 
 class _FrameCounter:
