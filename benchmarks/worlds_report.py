@@ -9,7 +9,7 @@ episode per scenario at reduced resolution, frames 3 s apart), then writes
   and per town;
 * class presence (share of frames showing a class), overall and over the
   urban towns T01-T06;
-* the paper's three domain distances (``manifests.distances``) and a 2-D
+* the paper's three domain distances (``training.distances``) and a 2-D
   embedding of all domains;
 * the paper's domain-shift table (``benchmarks.shifts_report``: ``idda shifts``
   on its five domains, 150 frames each);
@@ -289,7 +289,7 @@ def contact_sheets(root: str, table, out_dir: Path, cell_width: int) -> list[str
 
 # ------------------------------------------------------------ distances -----
 def distances(root: str, images: Path) -> dict:
-    from manifests.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table
+    from training.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table
 
     report = domain_distances(DistanceConfig(root=root, samples=500, threads=2))
     (images / "worlds_domain_embedding.png").write_bytes(embedding_png(report))
@@ -471,7 +471,7 @@ def markdown(result: dict) -> str:
         lines += [f"Not computed: {d['error']}", ""]
     else:
         lines += [
-            "The paper's method via `manifests.distances`: image features of the first 500 frames of each domain "
+            "The paper's method via `training.distances`: image features of the first 500 frames of each domain "
             f"(here all {', '.join(map(str, d['samples_per_domain']))} of them), PCA to {d['components']} components "
             f"({100 * d['explained']:.1f}% of the feature variance), Euclidean and cosine distance between the "
             "domains' mean vectors, per-feature Bhattacharyya distance. The features are a fixed filter bank, not "
@@ -603,8 +603,8 @@ def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height
     log.info("domain distances")
     try:
         dist = distances(root, images)
-    except ImportError as exc:  # manifests.distances not available
-        dist = {"error": f"manifests.distances unavailable ({exc})"}
+    except ImportError as exc:  # training.distances not available
+        dist = {"error": f"training.distances unavailable ({exc})"}
 
     log.info("domain shift table")
     shifts = shifts_report.measure(workers=workers)

@@ -3,20 +3,18 @@ call one function. Errors reach the user as one line and exit code 2."""
 
 from __future__ import annotations
 
-import contextlib
 import logging
 from pathlib import Path
-from typing import Iterator, Optional
+from typing import Optional
 
 import typer
 
-from manifests.lease import LeaseError
-from manifests.selection import SELECTION_HELP
-from manifests.writer import ManifestError
 from pipeline import cli_data
+from pipeline.cli_common import (
+    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
+    build_query, count, user_errors, write_local,
+)
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.runmeta import RunConfigError
-from storage import StorageError
 
 app = typer.Typer(
     help="Produce large multi-domain synthetic driving datasets (IDDA-style).\n\n"
@@ -46,28 +44,6 @@ def _root(
     ),
 ) -> None:
     """Produce large multi-domain synthetic driving datasets (IDDA-style)."""
-
-DOMAINS_HELP = SELECTION_HELP
-
-
-@contextlib.contextmanager
-def user_errors() -> Iterator[None]:
-    """Turn expected failures into one readable line and exit code 2."""
-    try:
-        yield
-    except typer.Exit:
-        raise
-    except (ValueError, OSError, ImportError, StorageError, ManifestError, RunConfigError, LeaseError) as exc:
-        typer.echo(f"error: {exc}", err=True)
-        raise typer.Exit(code=2) from None
-    except KeyboardInterrupt:
-        typer.echo("interrupted", err=True)
-        raise typer.Exit(code=130) from None
-
-
-def _count(n: int, noun: str) -> str:
-    """'1 frame', '2 frames', '1,000 frames'."""
-    return f"{n:,} {noun}" + ("" if n == 1 else "s")
 
 
 def format_plan_table(plan) -> str:
@@ -242,8 +218,8 @@ class ProgressDisplay:
 def format_interrupted(report) -> str:
     """What an interrupted run did, and how to go on."""
     return (
-        f"interrupted: {report.out} gained {_count(report.rendered_frames, 'frame')} in "
-        f"{_count(report.rendered_episodes, 'episode')} this run; run the same command again to resume "
+        f"interrupted: {report.out} gained {count(report.rendered_frames, 'frame')} in "
+        f"{count(report.rendered_episodes, 'episode')} this run; run the same command again to resume "
         "(finished episodes are kept, the rest render again)"
     )
 
@@ -264,9 +240,9 @@ def format_produce_report(report) -> str:
         return "\n".join(lines)
     rate = report.rendered_frames / report.seconds if report.seconds else 0.0
     lines.append(
-        f"{report.out}: rendered {_count(report.rendered_frames, 'frame')} in "
-        f"{_count(report.rendered_episodes, 'episode')} "
-        f"({format_duration(report.seconds)}, {rate:.2f} frames/s on {_count(report.workers, 'worker')}); "
+        f"{report.out}: rendered {count(report.rendered_frames, 'frame')} in "
+        f"{count(report.rendered_episodes, 'episode')} "
+        f"({format_duration(report.seconds)}, {rate:.2f} frames/s on {count(report.workers, 'worker')}); "
         f"{report.skipped_episodes:,} of {report.planned_episodes:,} episodes were already done"
     )
     for key, error in report.failed:
@@ -277,7 +253,7 @@ def format_produce_report(report) -> str:
 
 
 @app.command()
-def status(root: str = typer.Argument(..., help="Output root (path or s3:// URI).")) -> None:
+def status(root: str = typer.Argument(..., help=ROOT_HELP)) -> None:
     """Done / pending episodes and frames per scenario, and the time left."""
     from pipeline.status import format_duration, root_status
 
@@ -299,7 +275,7 @@ def status(root: str = typer.Argument(..., help="Output root (path or s3:// URI)
 
 @app.command()
 def verify(
-    root: str = typer.Argument(..., help="Output root (path or s3:// URI)."),
+    root: str = typer.Argument(..., help=ROOT_HELP),
     threads: int = typer.Option(8, help="Files checked in parallel."),
 ) -> None:
     """Recompute every checksum; report missing, corrupt and extra files.
@@ -327,16 +303,16 @@ def verify(
 
 @app.command()
 def query(
-    root: str = typer.Argument(..., help="Output root (path or s3:// URI)."),
-    preset: Optional[str] = typer.Option(None, help="Ready-made subset: best-case or worst-case (the paper's)."),
-    domains: Optional[str] = typer.Option(None, "--domains", "-d", help=DOMAINS_HELP),
-    split: list[str] = typer.Option([], help="Keep frames of this split (train, val, test); repeatable."),
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    preset: Preset = None,
+    domains: Domains = None,
+    split: Splits = [],
     episode: list[int] = typer.Option([], help="Keep this episode index; repeatable."),
-    has_class: list[str] = typer.Option([], "--has", help="Keep frames containing this class, e.g. --has rider; repeatable."),
-    min_share: list[str] = typer.Option([], help="CLASS=SHARE: keep frames where the class covers at least SHARE (0-1); repeatable."),
-    per_scenario: Optional[int] = typer.Option(None, help="Sample this many frames per scenario."),
-    total: Optional[int] = typer.Option(None, help="Sample this many frames in total, stratified by scenario."),
-    seed: Optional[int] = typer.Option(None, help="Sampling seed (default 0)."),
+    has_class: HasClass = [],
+    min_share: MinShare = [],
+    per_scenario: PerScenario = None,
+    total: Total = None,
+    seed: SampleSeed = None,
     out: Optional[Path] = typer.Option(None, help="Write the frames: .txt/.lst (file list), .csv or .parquet."),
     fmt: Optional[str] = typer.Option(None, "--format", help="list, csv or parquet (default: from --out's suffix)."),
     outputs: str = typer.Option("rgb,semantic_raw", help="Outputs listed per frame in file lists (CSV and Parquet hold every manifest column)."),
@@ -346,7 +322,7 @@ def query(
     from manifests.reader import scan_manifest
 
     with user_errors():
-        the_query = cli_data.build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
+        the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
         storage = _output_root(root)
         result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
         for code, missing in sorted(result.shortfall.items()):
@@ -359,7 +335,7 @@ def query(
             if fmt is None:
                 raise ValueError(f"cannot tell the format of {out}; use --format list|csv|parquet")
             data = q.encode_result(result.table, fmt, chosen)
-            _write_local(out, data)
+            write_local(out, data)
         counts: dict[str, int] = {}
         for code in result.table.column("scenario").to_pylist():
             counts[code] = counts.get(code, 0) + 1
@@ -378,22 +354,9 @@ def _writable(storage) -> bool:
         return False
 
 
-def _write_local(path: Path, data: bytes) -> None:
-    import os
-
-    if not path.parent.exists():
-        raise ValueError(f"cannot write {path}: directory {path.parent} does not exist")
-    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
-    try:
-        tmp.write_bytes(data)
-        os.replace(tmp, path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 @app.command()
 def stats(
-    root: str = typer.Argument(..., help="Output root (path or s3:// URI)."),
+    root: str = typer.Argument(..., help=ROOT_HELP),
     domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
     per_scenario: bool = typer.Option(False, "--per-scenario", help="One table and one chart panel per scenario instead of overall."),
     chart: Optional[Path] = typer.Option(None, help="Write a log-scale bar chart PNG (default: <root>/class_shares.png for local roots)."),
@@ -419,7 +382,7 @@ def stats(
             storage.write_bytes("class_shares.png", png)
             chart_where = storage.join("class_shares.png")
         else:
-            _write_local(chart, png)
+            write_local(chart, png)
             chart_where = str(chart)
         typer.echo(f"chart: {chart_where}")
 

@@ -3,7 +3,7 @@
 ``register(app)`` adds them to the ``idda`` typer app (``pipeline.cli`` calls
 it at its bottom); it is idempotent. Like every command, each one parses its
 options, builds one config and calls one library function; expected errors
-become one line and exit code 2 via ``pipeline.cli.user_errors``.
+become one line and exit code 2 via ``pipeline.cli_common.user_errors``.
 """
 
 from __future__ import annotations
@@ -13,66 +13,24 @@ from typing import Optional
 
 import typer
 
-from manifests.selection import SELECTION_HELP
-
-ROOT_HELP = "Output root (path or s3:// URI)."
-DOMAINS_HELP = SELECTION_HELP
-
-
-def _cli():
-    from pipeline import cli  # imported late: pipeline.cli imports this module at its bottom
-
-    return cli
-
-
-def build_query(
-    preset: Optional[str],
-    domains: Optional[str],
-    split: list[str],
-    has_class: list[str],
-    min_share: list[str],
-    per_scenario: Optional[int],
-    total: Optional[int],
-    seed: Optional[int],
-    episode: tuple[int, ...] = (),
-):
-    """A validated Query from the shared query options (as in `idda query`)."""
-    from manifests import query as q
-
-    shares = []
-    for item in min_share:
-        name, sep, value = item.rpartition("=")
-        if not sep:
-            raise ValueError(f"--min-share takes CLASS=SHARE, got {item!r}")
-        try:
-            shares.append((name, float(value)))
-        except ValueError:
-            raise ValueError(f"--min-share takes CLASS=SHARE with SHARE a number in [0, 1], got {item!r}") from None
-    fields = dict(
-        domains=domains, splits=tuple(split) or None, episodes=tuple(episode) or None,
-        classes=tuple(has_class) or None,
-        min_share=tuple(shares) or None, per_scenario=per_scenario, total=total, seed=seed,
-    )
-    if preset is not None:
-        the_query = q.preset(preset, **fields)
-    else:
-        the_query = q.Query(**{k: v for k, v in fields.items() if v is not None})
-    the_query.validate()
-    return the_query
+from pipeline.cli_common import (
+    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
+    build_query, user_errors, write_local,
+)
 
 
 def export(
     root: str = typer.Argument(..., help=ROOT_HELP),
     fmt: str = typer.Option(..., "--format", "-f", help="Layout: cityscapes, idda or hf (HuggingFace Parquet shards)."),
     to: Path = typer.Option(..., "--to", help="Target directory (local); must be empty or absent unless --force."),
-    preset: Optional[str] = typer.Option(None, help="Ready-made subset: best-case or worst-case (the paper's)."),
-    domains: Optional[str] = typer.Option(None, "--domains", "-d", help=DOMAINS_HELP),
-    split: list[str] = typer.Option([], help="Keep frames of this split (train, val, test); repeatable."),
-    has_class: list[str] = typer.Option([], "--has", help="Keep frames containing this class; repeatable."),
-    min_share: list[str] = typer.Option([], help="CLASS=SHARE: keep frames where the class covers at least SHARE (0-1); repeatable."),
-    per_scenario: Optional[int] = typer.Option(None, help="Sample this many frames per scenario."),
-    total: Optional[int] = typer.Option(None, help="Sample this many frames in total, stratified by scenario."),
-    seed: Optional[int] = typer.Option(None, help="Sampling seed (default 0)."),
+    preset: Preset = None,
+    domains: Domains = None,
+    split: Splits = [],
+    has_class: HasClass = [],
+    min_share: MinShare = [],
+    per_scenario: PerScenario = None,
+    total: Total = None,
+    seed: SampleSeed = None,
     copy: bool = typer.Option(False, "--copy", help="Copy files instead of hard-linking them."),
     symlink: bool = typer.Option(False, "--symlink", help="Symlink files instead of hard-linking them."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty target directory."),
@@ -89,10 +47,9 @@ def export(
     files. hf: Parquet shards with embedded images and a card. Scenarios with
     no val or test episode (fewer than 6 episodes) are split by frame blocks (80/10/10 in frame order).
     """
-    from manifests.export import ExportConfig, export as run_export
+    from training.export import ExportConfig, export as run_export
 
-    cli = _cli()
-    with cli.user_errors():
+    with user_errors():
         if copy and symlink:
             raise ValueError("give at most one of --copy and --symlink")
         query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed)
@@ -119,10 +76,9 @@ def evaluate(
 ) -> None:
     """Score predictions on a Cityscapes export with cityscapesScripts' pixel-level
     evaluation (its instance part, broken on numpy 2.4, is off)."""
-    from manifests.evaluate import EvaluateConfig, evaluate as run_evaluate, format_report
+    from training.evaluate import EvaluateConfig, evaluate as run_evaluate, format_report
 
-    cli = _cli()
-    with cli.user_errors():
+    with user_errors():
         config = EvaluateConfig(export=str(export), predictions=str(predictions), split=split,
                                 json_out=str(json_out) if json_out else None)
         typer.echo(format_report(run_evaluate(config)))
@@ -142,10 +98,9 @@ def distances(
     """Domain distances as in the paper: features of the first N frames per
     domain, PCA to 50 components, Euclidean / cosine distance of the domain
     means and per-feature Bhattacharyya distance, next to the paper's values."""
-    from manifests.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
+    from training.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
 
-    cli = _cli()
-    with cli.user_errors():
+    with user_errors():
         config = DistanceConfig(
             root=root, pairs=parse_pairs(pairs), samples=samples, components=components,
             domains=domains, splits=tuple(split), seed=seed, threads=threads,
@@ -153,7 +108,7 @@ def distances(
         report = domain_distances(config)
         typer.echo(format_distance_table(report))
         if chart is not None:
-            cli._write_local(chart, embedding_png(report))
+            write_local(chart, embedding_png(report))
             typer.echo(f"chart: {chart}")
 
 
@@ -162,10 +117,9 @@ def card(
     contact_sheet: bool = typer.Option(False, "--contact-sheet", help="Render a contact sheet into <root>/preview/ and show it."),
 ) -> None:
     """Write a dataset card (README.md and class_shares.png) into the root."""
-    from pipeline.card import CardConfig, write_card
+    from training.card import CardConfig, write_card
 
-    cli = _cli()
-    with cli.user_errors():
+    with user_errors():
         result = write_card(CardConfig(root=root, contact_sheet=contact_sheet))
         typer.echo(f"wrote {result.card} ({result.frames:,} frames) and {result.chart}")
         for rel in result.previews:
@@ -191,8 +145,7 @@ def shifts(
     share of mIoU kept next to the paper's. Needs PyTorch: pip install -e '.[analysis]'."""
     import json
 
-    cli = _cli()
-    with cli.user_errors():
+    with user_errors():
         from training.shifts import ShiftConfig, format_shift_table, run_shifts
 
         config = ShiftConfig(
@@ -204,7 +157,7 @@ def shifts(
             raise ValueError(f"cannot write {json_out}: directory {json_out.parent} does not exist")
         report = run_shifts(config)
         typer.echo(format_shift_table(report))
-        cli._write_local(json_out, (json.dumps(report.to_json(), indent=1) + "\n").encode())
+        write_local(json_out, (json.dumps(report.to_json(), indent=1) + "\n").encode())
         typer.echo(f"wrote {json_out}")
 
 

@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 from manifests.catalog import LABELS
 from manifests.reader import read_manifest
 from manifests.stats import share_table
-from pipeline import card as card_mod
+from training import card as card_mod
 from manifests.encoding import decode_depth_raw
 from tests.test_export import cli_app, make_tiny_root
 

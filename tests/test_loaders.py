@@ -12,7 +12,7 @@ import pytest
 from PIL import Image
 
 from manifests.catalog import OUTPUTS, TRAIN_ID_LUT
-from manifests.loaders import DECODERS, META_COLUMNS, FrameDataset, ray_dataset
+from training.loaders import DECODERS, META_COLUMNS, FrameDataset, ray_dataset
 from manifests.query import Query, run_query
 from manifests.reader import read_manifest
 from tests.s3_server import s3_server  # noqa: F401  (fixture)

@@ -95,7 +95,7 @@ def test_config_is_checked_and_cases_come_from_the_paper():
 
 
 def test_pipeline_and_renderers_never_import_torch():
-    code = ("import sys, pipeline.cli, pipeline.driver, render_workers.episode, manifests.loaders, training.metrics; "
+    code = ("import sys, pipeline.cli, pipeline.driver, render_workers.episode, training.loaders, training.metrics; "
             "sys.exit(1 if 'torch' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
@@ -156,7 +156,7 @@ def test_shifts_command_on_a_tiny_run(shift_root, tmp_path):
 
 
 def test_shifts_command_errors_are_one_line(shift_root, tmp_path, monkeypatch):
-    from manifests.loaders import FrameDataset  # noqa: F401  (imported before torch is hidden)
+    from training.loaders import FrameDataset  # noqa: F401  (imported before torch is hidden)
 
     missing = CliRunner().invoke(cli_app(), ["shifts", str(tmp_path), "--json", str(tmp_path / "x.json")])
     assert missing.exit_code == 2

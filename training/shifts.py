@@ -14,7 +14,7 @@ episodes (the manifest split) when the source has both training and held-out
 episodes; otherwise (small runs, where every episode is ``train``) the last
 ``HOLDOUT_TAIL`` of the frames of every episode, by frame index.
 
-Frames are read through :class:`manifests.loaders.FrameDataset`, resized to
+Frames are read through :class:`training.loaders.FrameDataset`, resized to
 the network's input (RGB with area interpolation, labels with nearest) and
 kept in memory. Training is deterministic for a given config: seeded
 weights, a seeded batch order and flips, a fixed torch thread count and
@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from manifests.catalog import lookup
-from manifests.distances import PAPER_PAIRS, PaperPair
+from training.distances import PAPER_PAIRS, PaperPair
 from training.metrics import EVAL_CLASSES, IGNORE, NUM_EVAL, TRAIN_INDEX_LUT, class_iou, confusion, mean_iou
 
 log = logging.getLogger(__name__)
@@ -49,7 +49,7 @@ INPUT_MULTIPLE = 16  # input sides: multiples of SegNet's total stride (checked 
 
 @dataclass(frozen=True)
 class ShiftCase:
-    pair: PaperPair  # the paper's source / target pair (shared with manifests.distances)
+    pair: PaperPair  # the paper's source / target pair (shared with training.distances)
     paper_source_only: float  # DeepLab V2 trained on the source, mIoU % on the target
     paper_oracle: float  # DeepLab V2 trained on the target (source = target), mIoU % on the target
 
@@ -175,7 +175,7 @@ def _prepare(sample: dict, width: int, height: int) -> tuple[np.ndarray, np.ndar
 
 def load_domain(root, code: str, width: int, height: int, max_frames: int | None = None) -> Frames:
     """The domain's frames (the first ``max_frames`` in manifest order), resized for the network."""
-    from manifests.loaders import FrameDataset
+    from training.loaders import FrameDataset
     from manifests.query import Query
 
     data = FrameDataset(root, Query(domains=code), outputs=("rgb", "semantic_raw"))

@@ -328,7 +328,7 @@ def _per_frame(frame: Callable, directories: Callable, extras: Callable) -> Call
 
 
 def _hf_build(storage, frames: list[_Frame], tmp: str, config: "ExportConfig"):
-    from manifests.hf import write_hf
+    from training.hf import write_hf
 
     return write_hf(storage, frames, tmp, threads=config.threads)
 

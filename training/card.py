@@ -17,8 +17,8 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 from manifests.catalog import LABELS, SCENARIO_BY_CODE
-from manifests.export import SPLIT_SHARES, few_episode_scenarios
-from manifests.hf import card_header, citation_section
+from training.export import SPLIT_SHARES, few_episode_scenarios
+from training.hf import card_header, citation_section
 from manifests.query import SPLITS
 
 CARD_FILE = "README.md"
@@ -197,10 +197,10 @@ def _usage_section(uri: str) -> list[str]:
         "```",
         "",
         "In Python (numpy arrays; works with `torch.utils.data.DataLoader`, or Ray Data "
-        "with `manifests.loaders.ray_dataset`):",
+        "with `training.loaders.ray_dataset`):",
         "",
         "```python",
-        "from manifests.loaders import FrameDataset",
+        "from training.loaders import FrameDataset",
         "from manifests.query import Query",
         "from manifests.reader import read_manifest",
         "",
@@ -275,7 +275,7 @@ def write_card(config: CardConfig) -> CardResult:
     """Write ``README.md`` and ``class_shares.png`` into the root (and a contact sheet if asked)."""
     from manifests.reader import read_manifest
     from manifests.stats import bar_chart_png, share_table
-    from pipeline.runmeta import read_run
+    from manifests.runrecord import RunRecordError, read_record
     from storage import Storage
 
     storage = Storage.from_uri(config.root)
@@ -285,7 +285,10 @@ def write_card(config: CardConfig) -> CardResult:
     table = read_manifest(storage)
     if len(table) == 0:
         raise ValueError(f"{storage.uri} has no frames yet; produce some before writing its card")
-    record = read_run(storage)
+    try:
+        record = read_record(storage)
+    except RunRecordError as exc:
+        raise ValueError(f"{exc}; `idda produce --repair` with the run's options rewrites it") from None
     if config.contact_sheet:
         render_contact_sheet(storage, record, sorted(set(table.column("scenario").to_pylist())))
     previews = find_previews(storage)

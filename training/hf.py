@@ -13,7 +13,7 @@ frame's metadata. The features are declared in each shard's Arrow schema
 metadata (key ``huggingface``), where ``datasets`` looks for them.
 
 The card header (``card_header``) is shared with the output root's card
-(``pipeline/card.py``), and both cite the IDDA paper (``CITATION``).
+(``training/card.py``), and both cite the IDDA paper (``CITATION``).
 """
 
 from __future__ import annotations
@@ -73,7 +73,7 @@ def features() -> dict:
 
 
 def _row(storage, frame) -> dict:
-    from manifests.export import _decode, _png  # the export's decoders and encoder
+    from training.export import _decode, _png  # the export's decoders and encoder
 
     semantic = _png(_decode(storage, frame.semantic_raw_path)[..., 0])
     depth_rel = frame.depth_raw_path

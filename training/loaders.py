@@ -20,7 +20,7 @@ depth_log       ``depth_log``       HxW uint8
 Example with PyTorch::
 
     from torch.utils.data import DataLoader
-    from manifests.loaders import FrameDataset
+    from training.loaders import FrameDataset
     from manifests.query import Query
 
     data = FrameDataset("output", Query(domains="T01_*_*", splits=("train",)), labels="train")
