@@ -15,6 +15,7 @@ from pipeline.cli_common import (
     build_query, count, user_errors, write_local,
 )
 from pipeline.planner import PlanConfig, make_plan
+from storage import StorageError
 
 app = typer.Typer(
     help="Produce large multi-domain synthetic driving datasets (IDDA-style).\n\n"
