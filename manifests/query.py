@@ -17,7 +17,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
-from manifests.catalog import ALL_SCENARIOS, NAME2LABEL, OUTPUTS, class_id, lookup
+from manifests.catalog import ALL_SCENARIOS, NAME2LABEL, class_id, lookup
+from manifests.outputs import OUTPUTS
 from manifests.schema import output_columns
 from manifests.selection import parse_selection
 

@@ -20,7 +20,7 @@ import re
 
 import pyarrow.fs as pafs
 
-from manifests.catalog import OUTPUTS
+from manifests.outputs import OUTPUTS
 from manifests.schema import MANIFEST_DIR, RUN_FILE
 
 ROOT_MARKER = "idda-root.json"  # <root>/idda-root.json: "this directory is an idda output root"

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Scenario, Town
+from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
 from manifests.selection import parse_selection
 from manifests.spec import EpisodeSpec, episode_seed
 
@@ -80,6 +81,10 @@ class PlanConfig:
     width: int = 1920
     height: int = 1080
     seed: int = 0
+    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # what every frame writes (manifests.outputs)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
 
     def validate(self) -> None:
         if self.scale is not None and self.frames_per_scenario is not None:
@@ -103,9 +108,11 @@ class PlanConfig:
         if self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
         parse_selection(self.domains)
+        if check_outputs(self.outputs) != self.outputs:
+            raise ValueError(f"outputs must be listed once each in table order, got {', '.join(self.outputs)}")
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {**asdict(self), "outputs": list(self.outputs)}  # as JSON holds it
 
 
 @dataclass(frozen=True)
@@ -162,6 +169,7 @@ def make_plan(config: PlanConfig) -> Plan:
                     height=config.height,
                     split=split,
                     run_seed=config.seed,
+                    outputs=config.outputs,
                 )
             )
     return Plan(config=config, episodes=tuple(episodes))
