@@ -61,6 +61,7 @@ OBJECT_SCHEMA = pa.schema(
     ]
 )
 INSTANCE_CLASS_IDS = tuple(label.id for label in INSTANCE_LABELS)
+HOOD_ID = 1  # instance id of the ego hood (not an object); 0 = static geometry and sky
 
 
 def object_table(rows: list[dict]) -> pa.Table:

@@ -18,14 +18,13 @@ import numpy as np
 
 from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Scenario, Town
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
+from manifests.query import SPLIT_SHARES
 from manifests.selection import parse_selection
 from manifests.spec import EpisodeSpec, episode_seed
 
 PAPER_TOTAL_FRAMES = 1_006_800
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
 MIN_SIZE, MAX_SIZE = 32, 8192  # accepted image width / height in pixels
-SPLITS = ("train", "val", "test")
-SPLIT_SHARES = (0.8, 0.1, 0.1)
 
 # Upper bound on --frames-per-scenario: 100 times the paper's largest scenario
 # (T01 at full scale). A plan holds one small record per episode, so this

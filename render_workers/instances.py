@@ -24,10 +24,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from manifests.catalog import LABELS
-from manifests.objects import INSTANCE_CLASS_IDS, object_table
+from manifests.objects import HOOD_ID, INSTANCE_CLASS_IDS, object_table
 from render_workers.scene import EpisodeScene, Part
 
-HOOD_ID = 1
 MAX_ID = 2**16 - 1
 TOUCH_M = 0.05  # static boxes closer than this belong to one object
 NEAR_M = 0.1  # silhouettes are clipped at this depth

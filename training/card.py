@@ -19,9 +19,9 @@ import pyarrow as pa
 from manifests.catalog import LABELS, SCENARIO_BY_CODE
 from manifests.outputs import OUTPUTS, markdown_table
 from manifests.schema import output_columns
-from training.export import SPLIT_SHARES, few_episode_scenarios
+from training.export import few_episode_scenarios
 from training.hf import card_header, citation_section
-from manifests.query import SPLITS
+from manifests.query import SPLIT_SHARES, SPLITS
 
 CARD_FILE = "README.md"
 CHART_FILE = "class_shares.png"
