@@ -389,6 +389,8 @@ class Viewpoint:
     hood_color: RGB  # hood paint colour
     hood_curvature: float  # bulge of the hood's top edge, in image heights
     hood_drop_m: float  # hood surface below the camera
+    ego_size_m: tuple[float, float]  # the ego vehicle's footprint (length, width), kept clear of crossing pedestrians
+    ego_speed_mps: tuple[float, float]  # the ego's speed range off the freeway (uniform draw per episode)
 
     @property
     def hood_visible(self) -> bool:
@@ -396,11 +398,11 @@ class Viewpoint:
 
 
 VIEWPOINTS: tuple[Viewpoint, ...] = (
-    Viewpoint("A", "Audi TT", 1.20, 0.1399, (196, 24, 28), 0.10, 0.45),
-    Viewpoint("M", "Ford Mustang", 1.35, 0.1250, (28, 52, 120), 0.07, 0.50),
-    Viewpoint("J", "Jeep Wrangler", 1.80, 0.1108, (70, 82, 58), 0.02, 0.60),
-    Viewpoint("V", "Volkswagen T2", 2.10, 0.0, (210, 200, 170), 0.0, 0.0),
-    Viewpoint("B", "Bus", 2.50, 0.0, (230, 180, 20), 0.0, 0.0),
+    Viewpoint("A", "Audi TT", 1.20, 0.1399, (196, 24, 28), 0.10, 0.45, (4.8, 2.0), (10.0, 14.0)),
+    Viewpoint("M", "Ford Mustang", 1.35, 0.1250, (28, 52, 120), 0.07, 0.50, (4.8, 2.0), (10.0, 14.0)),
+    Viewpoint("J", "Jeep Wrangler", 1.80, 0.1108, (70, 82, 58), 0.02, 0.60, (4.8, 2.0), (9.0, 13.0)),
+    Viewpoint("V", "Volkswagen T2", 2.10, 0.0, (210, 200, 170), 0.0, 0.0, (4.8, 2.0), (8.0, 12.0)),
+    Viewpoint("B", "Bus", 2.50, 0.0, (230, 180, 20), 0.0, 0.0, (11.0, 2.55), (8.0, 11.0)),
 )
 
 TOWN_BY_CODE = {t.code: t for t in TOWNS}
