@@ -13,7 +13,9 @@ Columns (``OBJECT_SCHEMA``):
   and ``y0 <= y < y1`` (pixel indices, so width = x1 - x0);
 * ``pixels``: visible pixel count;
 * ``occlusion``: share of its in-image silhouette hidden by nearer geometry
-  (0 = fully visible);
+  (0 = fully visible); the silhouette is rasterised from the object's
+  triangles on the CPU, so objects a few pixels across read as partly
+  occluded (edge pixels the GPU did not cover);
 * ``truncation``: share of its projected 3D box that lies outside the image;
 * ``cx, cy, cz``: 3D box centre in camera coordinates (metres; OpenCV
   convention: x right, y down, z forward, origin at the camera);

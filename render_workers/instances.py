@@ -165,24 +165,31 @@ def _project(points: np.ndarray, focal: float, cx: float, cy: float) -> np.ndarr
     return np.stack([cx + focal * points[:, 0] / points[:, 2], cy + focal * points[:, 1] / points[:, 2]], axis=1)
 
 
-def _silhouette(tri_cam: np.ndarray, shape: tuple[int, int], focal: float, cx: float, cy: float) -> np.ndarray:
-    """Pixels covered by triangles (camera frame) if nothing were in front of them."""
+def _silhouette(tri_cam: np.ndarray, window: tuple[slice, slice], shape: tuple[int, int], focal: float,
+                cx: float, cy: float) -> np.ndarray:
+    """Pixels covered by triangles (camera frame) if nothing were in front of them,
+    in the image window that holds their projection (and ``window``, the visible box)."""
     import cv2
 
     h, w = shape
-    mask = np.zeros(shape, np.uint8)
-    limit = 8.0 * max(h, w)
     front = tri_cam[:, :, 2] >= NEAR_M
     whole = front.all(axis=1)
     polys = [tri_cam[i] for i in np.flatnonzero(whole)]
-    polys += [_clip_near(tri_cam[i]) for i in np.flatnonzero(front.any(axis=1) & ~whole)]
+    polys += [p for p in (_clip_near(tri_cam[i]) for i in np.flatnonzero(front.any(axis=1) & ~whole)) if len(p) >= 3]
+    limit = 8.0 * max(h, w)
+    pixels = [np.clip(_project(poly, focal, cx, cy) - 0.5, -limit, limit) for poly in polys]  # centres at +0.5
+    ys, xs = window
+    x0, y0, x1, y1 = xs.start, ys.start, xs.stop, ys.stop
+    if pixels:
+        lo, hi = np.min([p.min(axis=0) for p in pixels], axis=0), np.max([p.max(axis=0) for p in pixels], axis=0)
+        x0, y0 = min(x0, max(0, int(np.floor(lo[0])))), min(y0, max(0, int(np.floor(lo[1]))))
+        x1, y1 = max(x1, min(w, int(np.ceil(hi[0])) + 1)), max(y1, min(h, int(np.ceil(hi[1])) + 1))
+    mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
     shift = 4
-    for poly in polys:
-        if len(poly) < 3:
-            continue
-        px = np.clip(_project(poly, focal, cx, cy) - 0.5, -limit, limit)  # pixel centres at +0.5
-        cv2.fillConvexPoly(mask, np.rint(px * (1 << shift)).astype(np.int32), 1, lineType=cv2.LINE_8, shift=shift)
-    return mask.astype(bool)
+    for px in pixels:
+        pts = np.rint((px - (x0, y0)) * (1 << shift)).astype(np.int32)
+        cv2.fillConvexPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=shift)
+    return (slice(y0, y1), slice(x0, x1)), mask.astype(bool)
 
 
 def frame_objects(instance: np.ndarray, instances: list[Instance], poses: list[np.ndarray],
@@ -210,8 +217,8 @@ def frame_objects(instance: np.ndarray, instances: list[Instance], poses: list[n
         centre = to_cam_r @ inst.centre + to_cam_t
         forward = to_cam_r @ np.array([np.cos(inst.yaw), np.sin(inst.yaw), 0.0])
         tri_cam = inst.triangles @ to_cam_r.T + to_cam_t
-        sil = _silhouette(tri_cam, (h, w), focal, cx, cy)
-        amodal = int(np.count_nonzero(sil | (instance == iid)))
+        crop, sil = _silhouette(tri_cam, boxes[iid - 1], (h, w), focal, cx, cy)
+        amodal = int(np.count_nonzero(sil | (instance[crop] == iid)))
         rows.append({
             "instance_id": int(iid), "class_id": inst.class_id, "class_name": LABELS[inst.class_id].name,
             "x0": xs.start, "y0": ys.start, "x1": xs.stop, "y1": ys.stop, "pixels": int(pixels[iid]),
