@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 
 from manifests import query as q
-from manifests.catalog import OUTPUTS
+from manifests.outputs import OUTPUTS
 from manifests.reader import compact, manifest_dataset, read_manifest
 from manifests.schema import output_columns
 from manifests.synthetic import episode_rows, episode_table

@@ -20,9 +20,10 @@ WORLD = os.environ.get("BENCH_WORLD", "procedural")
 _PLAIN = """
 import sys, time
 from pipeline.episode_job import run_episode
+from manifests.outputs import SEED_OUTPUTS  # the paper's six, as docs/bench_produce.md reports
 from pipeline.planner import PlanConfig, make_plan
 from storage import Storage
-plan = make_plan(PlanConfig(domains=sys.argv[1], frames_per_scenario=int(sys.argv[2]), width=int(sys.argv[3]), height=int(sys.argv[4])))
+plan = make_plan(PlanConfig(domains=sys.argv[1], frames_per_scenario=int(sys.argv[2]), width=int(sys.argv[3]), height=int(sys.argv[4]), outputs=SEED_OUTPUTS))
 storage = Storage.from_uri(sys.argv[5])
 start = time.perf_counter()
 for spec in plan.episodes:
@@ -34,6 +35,7 @@ _RAY = """
 import sys, time
 import ray
 from pipeline.driver import ProduceConfig, produce
+from manifests.outputs import SEED_OUTPUTS
 from pipeline.planner import PlanConfig
 from pipeline.runmeta import RunConfig
 workers = int(sys.argv[7])
@@ -48,7 +50,7 @@ def warm():
 
 ray.get([warm.remote() for _ in range(workers)])
 startup = time.perf_counter() - t0
-plan = PlanConfig(domains=sys.argv[1], frames_per_scenario=int(sys.argv[2]), width=int(sys.argv[3]), height=int(sys.argv[4]))
+plan = PlanConfig(domains=sys.argv[1], frames_per_scenario=int(sys.argv[2]), width=int(sys.argv[3]), height=int(sys.argv[4]), outputs=SEED_OUTPUTS)
 start = time.perf_counter()
 report = produce(ProduceConfig(run=RunConfig(plan=plan, world=sys.argv[6]), out=sys.argv[5], workers=workers))
 assert report.ok, report.failed

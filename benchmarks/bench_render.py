@@ -29,9 +29,10 @@ STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "png
 
 
 def _spec(code: str, frames: int, seed: int = 1):
+    from manifests.outputs import SEED_OUTPUTS
     from manifests.spec import EpisodeSpec
 
-    return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0)
+    return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0, outputs=SEED_OUTPUTS)  # the paper's six
 
 
 def _write(frame, data: dict, out: Path) -> None:
@@ -41,8 +42,7 @@ def _write(frame, data: dict, out: Path) -> None:
 
 def _stage_times(world: str) -> dict:
     """Median seconds per stage over FRAMES frames of each scenario, plus the PNG floor."""
-    from manifests.encoding import encode_png
-    from render_workers.episode import load_episode, render_frame
+    from render_workers.episode import encode_frame, load_episode, render_frame
     from render_workers.renderer import Renderer
 
     per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
@@ -56,7 +56,7 @@ def _stage_times(world: str) -> dict:
                 start = time.perf_counter()
                 frame, timings = render_frame(renderer, scene, spec, index)
                 t0 = time.perf_counter()
-                data = {name: encode_png(img, name) for name, img in frame.images.items()}
+                data = encode_frame(frame)
                 timings["png_encode"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
                 _write(frame, data, Path(tmp))

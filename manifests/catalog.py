@@ -42,34 +42,40 @@ class Label:
     evaluated: bool  # False for the paper's excluded classes (*)
     cityscapes_id: int  # Cityscapes label id written by the cityscapes export
     train_id: int  # Cityscapes trainId (255 = ignored in training/eval)
+    instances: bool = False  # objects of this class get instance ids, boxes and a count column
 
     @property
     def column(self) -> str:
         """Manifest column holding this class's per-frame pixel count."""
         return "px_" + self.name.replace(" ", "_")
 
+    @property
+    def object_column(self) -> str:
+        """Manifest column holding this class's per-frame count of visible objects."""
+        return "obj_" + self.name.replace(" ", "_")
+
 
 LABELS: tuple[Label, ...] = (
-    #     id  name             colour            eval   cs_id  trainId
+    #     id  name             colour            eval   cs_id  trainId  instances
     Label(0, "unlabeled", (0, 0, 0), False, 0, 255),
     Label(1, "building", (70, 70, 70), True, 11, 2),
     Label(2, "fence", (190, 153, 153), True, 13, 4),
     Label(3, "other", (72, 0, 90), False, 0, 255),
-    Label(4, "pedestrian", (220, 20, 60), True, 24, 11),
+    Label(4, "pedestrian", (220, 20, 60), True, 24, 11, True),
     Label(5, "pole", (153, 153, 153), True, 17, 5),
     Label(6, "road line", (157, 234, 50), False, 0, 255),
     Label(7, "road", (128, 64, 128), True, 7, 0),
     Label(8, "sidewalk", (244, 35, 232), True, 8, 1),
     Label(9, "vegetation", (107, 142, 35), True, 21, 8),
-    Label(10, "vehicle", (0, 0, 142), True, 26, 13),
+    Label(10, "vehicle", (0, 0, 142), True, 26, 13, True),
     Label(11, "wall", (102, 102, 156), True, 12, 3),
-    Label(12, "traffic sign", (220, 220, 0), True, 20, 7),
-    Label(13, "traffic light", (250, 170, 30), True, 19, 6),
+    Label(12, "traffic sign", (220, 220, 0), True, 20, 7, True),
+    Label(13, "traffic light", (250, 170, 30), True, 19, 6, True),
     Label(14, "guard rail", (180, 165, 180), False, 14, 255),
     Label(15, "dynamic", (111, 74, 0), False, 5, 255),
-    Label(16, "bicycle", (119, 11, 32), True, 33, 18),
-    Label(17, "motorcycle", (0, 0, 230), True, 32, 17),
-    Label(18, "rider", (255, 0, 0), True, 25, 12),
+    Label(16, "bicycle", (119, 11, 32), True, 33, 18, True),
+    Label(17, "motorcycle", (0, 0, 230), True, 32, 17, True),
+    Label(18, "rider", (255, 0, 0), True, 25, 12, True),
     Label(19, "terrain", (152, 251, 152), True, 22, 9),
     Label(20, "sky", (70, 130, 180), True, 23, 10),
     Label(21, "railway", (230, 150, 140), False, 10, 255),
@@ -78,10 +84,9 @@ LABELS: tuple[Label, ...] = (
 )
 
 NUM_CLASSES = len(LABELS)
-ID2LABEL = {label.id: label for label in LABELS}
 NAME2LABEL = {label.name: label for label in LABELS}
 EVALUATED_IDS = tuple(label.id for label in LABELS if label.evaluated)
-PIXEL_COLUMNS = tuple(label.column for label in LABELS)
+INSTANCE_LABELS = tuple(label for label in LABELS if label.instances)
 
 # uint8 palette: PALETTE[class_id] -> RGB colour.
 PALETTE = np.array([label.color for label in LABELS], dtype=np.uint8)
@@ -98,19 +103,6 @@ del _label
 def class_id(name: str) -> int:
     """Class id for a class name; raises ValueError listing valid names."""
     return lookup(NAME2LABEL, name, "class", "classes").id
-
-
-# --------------------------------------------------------------------------
-# Per-frame outputs (six images, as in IDDA)
-# --------------------------------------------------------------------------
-OUTPUTS: tuple[str, ...] = (
-    "rgb",  # lit colour image with post effects
-    "depth_raw",  # 24-bit planar depth in R,G,B (CARLA encoding, 1000 m far)
-    "depth_gray",  # linear grayscale depth (CARLA "Depth")
-    "depth_log",  # logarithmic grayscale depth (CARLA "LogarithmicDepth")
-    "semantic_raw",  # class id in the red channel
-    "semantic_color",  # class colours from the palette
-)
 
 
 # --------------------------------------------------------------------------
@@ -397,6 +389,8 @@ class Viewpoint:
     hood_color: RGB  # hood paint colour
     hood_curvature: float  # bulge of the hood's top edge, in image heights
     hood_drop_m: float  # hood surface below the camera
+    ego_size_m: tuple[float, float]  # the ego vehicle's footprint (length, width), kept clear of crossing pedestrians
+    ego_speed_mps: tuple[float, float]  # the ego's speed range off the freeway (uniform draw per episode)
 
     @property
     def hood_visible(self) -> bool:
@@ -404,11 +398,11 @@ class Viewpoint:
 
 
 VIEWPOINTS: tuple[Viewpoint, ...] = (
-    Viewpoint("A", "Audi TT", 1.20, 0.1399, (196, 24, 28), 0.10, 0.45),
-    Viewpoint("M", "Ford Mustang", 1.35, 0.1250, (28, 52, 120), 0.07, 0.50),
-    Viewpoint("J", "Jeep Wrangler", 1.80, 0.1108, (70, 82, 58), 0.02, 0.60),
-    Viewpoint("V", "Volkswagen T2", 2.10, 0.0, (210, 200, 170), 0.0, 0.0),
-    Viewpoint("B", "Bus", 2.50, 0.0, (230, 180, 20), 0.0, 0.0),
+    Viewpoint("A", "Audi TT", 1.20, 0.1399, (196, 24, 28), 0.10, 0.45, (4.8, 2.0), (10.0, 14.0)),
+    Viewpoint("M", "Ford Mustang", 1.35, 0.1250, (28, 52, 120), 0.07, 0.50, (4.8, 2.0), (10.0, 14.0)),
+    Viewpoint("J", "Jeep Wrangler", 1.80, 0.1108, (70, 82, 58), 0.02, 0.60, (4.8, 2.0), (9.0, 13.0)),
+    Viewpoint("V", "Volkswagen T2", 2.10, 0.0, (210, 200, 170), 0.0, 0.0, (4.8, 2.0), (8.0, 12.0)),
+    Viewpoint("B", "Bus", 2.50, 0.0, (230, 180, 20), 0.0, 0.0, (11.0, 2.55), (8.0, 11.0)),
 )
 
 TOWN_BY_CODE = {t.code: t for t in TOWNS}

@@ -1,7 +1,7 @@
 """Per-frame output encodings (CARLA conventions) and PNG bytes, in pure numpy + cv2.
 
-Each output in ``manifests.catalog.OUTPUTS`` has one registered encoder that
-turns one of the renderer's buffers into an HxWx3 uint8 RGB image:
+Each output in ``manifests.outputs.OUTPUT_TABLE`` names one of these encoders,
+which turns one of the renderer's buffers into the array its file holds:
 
 * ``rgb``: the post-processed colour image, passed through;
 * ``depth_raw``: ``v = round(depth/1000 * (256**3-1))`` spread over R, G, B
@@ -10,7 +10,8 @@ turns one of the renderer's buffers into an HxWx3 uint8 RGB image:
 * ``depth_log``: ``round(clamp(1 + ln(n)/ln(300), 0, 1) * 255)`` with
   ``n = depth/1000`` and 0 for n = 0 (CARLA ``LogarithmicDepth``);
 * ``semantic_raw``: the class id in R, G = B = 0;
-* ``semantic_color``: ``PALETTE[class id]``.
+* ``semantic_color``: ``PALETTE[class id]``;
+* ``instance``: the per-episode instance ids, HxW uint16 (a 16-bit PNG).
 
 Depth is metric planar Z (float, metres) with background/sky at 1000 m.
 
@@ -20,21 +21,15 @@ exports, loaders and verification decode with it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-from typing import Callable
-
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE, lookup
+from manifests.catalog import NUM_CLASSES, PALETTE
 
 FAR_M = 1000.0  # depth far limit; sky and background count as this
 DEPTH_LEVELS = 256**3 - 1
 DEPTH_STEP_M = FAR_M / DEPTH_LEVELS  # one depth_raw quantisation step
 LOG_DEPTH_SCALE = 5.70378  # ln(300): the log ramp covers ~3.33 m .. 1000 m
 PNG_COMPRESSION = 1  # zlib level: fast; PNG stays lossless and deterministic
-
-SOURCES = ("rgb", "depth", "classes")  # buffers an encoder can read
-
 
 def _check(name: str, array: np.ndarray, dtype, ndim: int) -> None:
     if not isinstance(array, np.ndarray):
@@ -112,40 +107,6 @@ def encode_semantic_color(classes: np.ndarray) -> np.ndarray:
     return PALETTE[classes]
 
 
-@dataclass(frozen=True)
-class Encoder:
-    source: str  # which buffer it reads: one of SOURCES
-    encode: Callable[[np.ndarray], np.ndarray]  # buffer -> HxWx3 uint8 RGB
-
-
-ENCODERS: dict[str, Encoder] = {
-    "rgb": Encoder("rgb", encode_rgb),
-    "depth_raw": Encoder("depth", encode_depth_raw),
-    "depth_gray": Encoder("depth", encode_depth_gray),
-    "depth_log": Encoder("depth", encode_depth_log),
-    "semantic_raw": Encoder("classes", encode_semantic_raw),
-    "semantic_color": Encoder("classes", encode_semantic_color),
-}
-if tuple(ENCODERS) != OUTPUTS:  # one encoder per catalog output, in catalog order
-    raise RuntimeError(f"encoders {tuple(ENCODERS)} do not match catalog outputs {OUTPUTS}")
-
-
-def encoder(name: str) -> Encoder:
-    """The registered encoder for an output; ValueError lists the valid names."""
-    return lookup(ENCODERS, name, "output")
-
-
-def encode_outputs(
-    rgb: np.ndarray, depth: np.ndarray, classes: np.ndarray, names: tuple[str, ...] = OUTPUTS
-) -> dict[str, np.ndarray]:
-    """All requested outputs from the three buffers (RGB uint8, depth metres, class ids)."""
-    buffers = {"rgb": rgb, "depth": depth, "classes": classes}
-    shapes = {k: v.shape[:2] for k, v in buffers.items() if isinstance(v, np.ndarray)}
-    if len(set(shapes.values())) > 1:
-        raise ValueError(f"buffers disagree in size: {shapes}")
-    return {name: encoder(name).encode(buffers[encoder(name).source]) for name in names}
-
-
 def encode_png(image: np.ndarray, name: str = "image") -> bytes:
     """Lossless, deterministic PNG bytes of an HxWx3 uint8 RGB image."""
     import cv2
@@ -166,3 +127,32 @@ def decode_png(data: bytes, name: str = "image") -> np.ndarray:
     if image is None:
         raise ValueError(f"{name}: not a decodable PNG ({len(data)} bytes)")
     return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
+def encode_instance(instances: np.ndarray) -> np.ndarray:
+    """Instance ids as they are stored: HxW uint16 (0 = no object)."""
+    _check("instance", instances, np.uint16, 2)
+    return instances
+
+
+def encode_png16(image: np.ndarray, name: str = "image") -> bytes:
+    """Lossless, deterministic 16-bit single-channel PNG bytes of an HxW uint16 image."""
+    import cv2
+
+    _check(name, image, np.uint16, 2)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
+    if not ok:
+        raise ValueError(f"{name}: PNG encoding failed for shape {image.shape}")
+    return buf.tobytes()
+
+
+def decode_png16(data: bytes, name: str = "image") -> np.ndarray:
+    """HxW uint16 image from 16-bit single-channel PNG bytes."""
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ValueError(f"{name}: not a decodable PNG ({len(data)} bytes)")
+    if image.dtype != np.uint16 or image.ndim != 2:
+        raise ValueError(f"{name}: expected a 16-bit single-channel PNG, got {image.dtype} {image.shape}")
+    return image

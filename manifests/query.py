@@ -17,11 +17,13 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
-from manifests.catalog import ALL_SCENARIOS, NAME2LABEL, OUTPUTS, class_id, lookup
+from manifests.catalog import ALL_SCENARIOS, NAME2LABEL, class_id, lookup
+from manifests.outputs import OUTPUTS
 from manifests.schema import output_columns
 from manifests.selection import parse_selection
 
 SPLITS = ("train", "val", "test")
+SPLIT_SHARES = (0.8, 0.1, 0.1)  # the planner gives episodes to the splits in these shares; exports split frame blocks so too
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,9 @@ from manifests.schema import (
     PARTITION_KEYS,
     PARTITION_SCHEMA,
     index_path,
+    output_columns,
 )
+from manifests.outputs import OUTPUTS
 
 _PART_RE = re.compile(
     r"^manifest/town=(T\d\d)/weather=(\w+)/viewpoint=(\w)/((T\d\d)_(\w+)_(\w))_e(\d{4})\.parquet$"
@@ -252,3 +254,15 @@ def read_manifest(root, filter: ds.Expression | None = None, columns: list[str] 
     table = scan_manifest(root, lambda dataset: dataset.to_table(filter=filter, columns=columns))
     sort_keys = [(k, "ascending") for k in ("scenario", "episode", "frame") if k in table.column_names]
     return table.sort_by(sort_keys) if sort_keys else table
+
+
+def require_outputs(table: pa.Table, names, where: str) -> None:
+    """ValueError in one line unless every row of ``table`` has each of the ``names`` outputs."""
+    for name in names:
+        column = table.column(output_columns(name)[0])
+        if column.null_count:
+            have = [o for o in OUTPUTS if table.column(output_columns(o)[0]).null_count == 0]
+            raise ValueError(
+                f"{where} does not hold the {name!r} output for {column.null_count:,} of {len(table):,} frames "
+                f"(every frame has: {', '.join(have) or 'none'}); produce it with `idda produce --outputs` into a new root"
+            )

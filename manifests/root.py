@@ -20,19 +20,25 @@ import re
 
 import pyarrow.fs as pafs
 
-from manifests.catalog import OUTPUTS
+from manifests.outputs import OUTPUT_TABLE, OUTPUTS
 from manifests.schema import MANIFEST_DIR, RUN_FILE
 
 ROOT_MARKER = "idda-root.json"  # <root>/idda-root.json: "this directory is an idda output root"
 ROOT_MARKER_BODY = (json.dumps({"idda_output_root": 1, "contract": "see README.md, 'The output root'"}) + "\n").encode()
 EXPORT_MARKER = "EXPORT.json"  # written last into an export: a finished export of ours
 
-# <scenario>/<output>/<episode:04d>_<frame:03d>_<scenario>.png, the only files
-# repair may delete from a scenario folder.
+# <scenario>/<output>/<episode:04d>_<frame:03d>_<scenario>.<its extension>, the
+# only files repair may delete from a scenario folder.
+_BY_EXTENSION: dict[str, list[str]] = {}
+for _o in OUTPUT_TABLE:
+    _BY_EXTENSION.setdefault(_o.extension, []).append(_o.name)
 FRAME_FILE_RE = re.compile(
-    r"^(?P<scenario>T\d\d_[A-Z]+_[A-Z])/(?P<output>" + "|".join(OUTPUTS) + r")/"
-    r"(?P<episode>\d{4})_(?P<frame>\d{3})_(?P=scenario)\.png$"
+    r"^(?P<scenario>T\d\d_[A-Z]+_[A-Z])/"
+    + "(?=" + "|".join(f"(?:{'|'.join(names)})/[^/]*\\.{ext}$" for ext, names in _BY_EXTENSION.items()) + ")"
+    + r"(?P<output>" + "|".join(OUTPUTS) + r")/"
+    r"(?P<episode>\d{4})_(?P<frame>\d{3})_(?P=scenario)\.[a-z0-9]+$"
 )
+del _o
 
 
 class RootError(ValueError):

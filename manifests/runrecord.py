@@ -24,6 +24,7 @@ CONFIG_TYPES: dict[str, tuple[type, ...]] = {
     "height": (int,),
     "seed": (int,),
     "world": (str,),
+    "outputs": (list,),  # absent in roots from before --outputs: the six seed outputs
 }
 
 
@@ -48,7 +49,7 @@ def check_record(record, where: str) -> dict:
         raise RunRecordError(f"{where} is not a run record (expected an object with a 'config' object)")
     config = record["config"]
     for key, types in CONFIG_TYPES.items():
-        if key not in config and type(None) not in types and key != "world":
+        if key not in config and type(None) not in types and key not in ("world", "outputs"):
             raise RunRecordError(f"{where} is damaged: its config lacks {key!r}")
         value = config.get(key)
         if key in config and (not isinstance(value, types) or isinstance(value, bool)):

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 import pyarrow as pa
 
-from manifests.catalog import LABELS, OUTPUTS
+from manifests.catalog import INSTANCE_LABELS, LABELS
+from manifests.outputs import OUTPUTS, output
 
 # ---------------------------------------------------------------- plan ----
 PLAN_SCHEMA = pa.schema(
@@ -36,31 +37,36 @@ def output_columns(output: str) -> tuple[str, str, str]:
     return (f"{output}_path", f"{output}_bytes", f"{output}_sha256")
 
 
+# (column, type, where frame_row takes it from: the episode spec, the rendered
+# frame, or derived from both)
 _FRAME_FIELDS = [
-    ("frame_id", pa.string()),  # <episode:04d>_<frame:03d>; file stem is <frame_id>_<scenario>
-    ("scenario", pa.string()),
-    ("episode", pa.int32()),
-    ("frame", pa.int32()),  # index within the episode
-    ("sim_time_s", pa.float32()),  # simulated time of the frame
-    ("split", pa.string()),
-    ("seed", pa.int64()),  # the episode's seed
-    ("n_vehicles", pa.int16()),
-    ("n_pedestrians", pa.int16()),
-    ("camera_height_m", pa.float32()),
-    ("hood_fraction", pa.float32()),
-    ("ego_speed_mps", pa.float32()),
-    ("width", pa.int32()),
-    ("height", pa.int32()),
+    ("frame_id", pa.string(), "derived"),  # <episode:04d>_<frame:03d>; file stem is <frame_id>_<scenario>
+    ("scenario", pa.string(), "spec"),
+    ("episode", pa.int32(), "spec"),
+    ("frame", pa.int32(), "derived"),  # index within the episode
+    ("sim_time_s", pa.float32(), "frame"),  # simulated time of the frame
+    ("split", pa.string(), "spec"),
+    ("seed", pa.int64(), "spec"),  # the episode's seed
+    ("n_vehicles", pa.int16(), "frame"),  # vehicles in the episode's traffic
+    ("n_pedestrians", pa.int16(), "frame"),
+    ("camera_height_m", pa.float32(), "frame"),
+    ("hood_fraction", pa.float32(), "frame"),
+    ("ego_speed_mps", pa.float32(), "frame"),
+    ("width", pa.int32(), "spec"),
+    ("height", pa.int32(), "spec"),
 ]
+FIELD_SOURCE = {name: source for name, _, source in _FRAME_FIELDS}
+# An output a run did not ask for has null path, size and checksum.
 _OUTPUT_FIELDS = [
     field
-    for output in OUTPUTS
-    for field in zip(output_columns(output), (pa.string(), pa.int64(), pa.string()))
+    for name in OUTPUTS
+    for field in zip(output_columns(name), (pa.string(), pa.int64(), pa.string()))
 ]
 PIXEL_FIELDS = [(label.column, pa.int64()) for label in LABELS]
+OBJECT_FIELDS = [(label.object_column, pa.int32()) for label in INSTANCE_LABELS]  # visible objects per class
 
 # Schema of a part file (one episode); the full manifest adds PARTITION_KEYS.
-PART_SCHEMA = pa.schema(_FRAME_FIELDS + _OUTPUT_FIELDS + PIXEL_FIELDS)
+PART_SCHEMA = pa.schema([(n, t) for n, t, _ in _FRAME_FIELDS] + _OUTPUT_FIELDS + PIXEL_FIELDS + OBJECT_FIELDS)
 MANIFEST_SCHEMA = pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA))
 
 MANIFEST_DIR = "manifest"  # <root>/manifest/town=../weather=../viewpoint=../<scenario>_eNNNN.parquet
@@ -72,9 +78,9 @@ def frame_id(episode: int, frame: int) -> str:
     return f"{episode:04d}_{frame:03d}"
 
 
-def frame_path(scenario: str, output: str, fid: str) -> str:
-    """Relative path of one image: <scenario>/<output>/<frameid>_<scenario>.png"""
-    return f"{scenario}/{output}/{fid}_{scenario}.png"
+def frame_path(scenario: str, name: str, fid: str) -> str:
+    """Relative path of one output file: <scenario>/<output>/<frameid>_<scenario>.<ext>"""
+    return f"{scenario}/{name}/{fid}_{scenario}.{output(name).extension}"
 
 
 # Per-scenario compaction of its parts (see manifests.reader.compact). Indexes

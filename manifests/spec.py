@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from manifests.catalog import TOWNS, Scenario, Town
+from manifests.outputs import DEFAULT_OUTPUTS
 
 FRAME_PERIOD_S = 3.0  # one frame every 3 s of simulated time
 _EPISODE_STREAM = 2  # rng stream ids keep seeds of different uses apart
@@ -40,6 +41,7 @@ class EpisodeSpec:
     height: int
     split: str  # train | val | test
     run_seed: int  # the run's seed; the town's world derives from it
+    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # which outputs to write (manifests.outputs)
 
     @property
     def town(self) -> str:

@@ -11,7 +11,8 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import LABELS, OUTPUTS, VIEWPOINT_BY_CODE
+from manifests.catalog import INSTANCE_LABELS, LABELS, VIEWPOINT_BY_CODE
+from manifests.outputs import OUTPUTS
 from manifests.schema import PART_SCHEMA, frame_id, frame_path, output_columns
 from manifests.stats import PAPER_SHARES
 
@@ -50,6 +51,8 @@ def episode_table(spec) -> pa.Table:
         columns[sha_col] = [bytes(row).hex() for row in rng.integers(0, 256, (n, 32), dtype=np.uint8)]
     for label in LABELS:
         columns[label.column] = counts[:, label.id]
+    for label in INSTANCE_LABELS:
+        columns[label.object_column] = rng.integers(0, 20, n, dtype=np.int32)
     return pa.table(columns, schema=PART_SCHEMA)
 
 

@@ -20,7 +20,8 @@ from typing import Callable
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from manifests.catalog import OUTPUTS, SCENARIO_BY_CODE
+from manifests.catalog import SCENARIO_BY_CODE
+from manifests.outputs import OUTPUTS
 from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_table, part_files
 from manifests.root import FRAME_FILE_RE
 from manifests.runrecord import RunRecordError, read_record
@@ -88,7 +89,10 @@ def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | No
     if col["frame"] != list(range(n)) or col["frame_id"] != [frame_id(episode, i) for i in range(n)]:
         return "frames are not numbered 0.." + str(n - 1)
     for output in OUTPUTS:
-        if table.column(output_columns(output)[0]).to_pylist() != [frame_path(scenario, output, f) for f in col["frame_id"]]:
+        paths = table.column(output_columns(output)[0]).to_pylist()
+        if paths == [None] * n:  # an output the run did not ask for
+            continue
+        if paths != [frame_path(scenario, output, f) for f in col["frame_id"]]:
             return f"{output} paths do not follow the layout"
     if len(set(col["seed"])) != 1 or len(set(zip(col["width"], col["height"]))) != 1:
         return "mixed seeds or resolutions"
@@ -172,7 +176,7 @@ def verify(root, threads: int = 8, progress: Callable[[int, int], None] | None =
         for output in OUTPUTS:
             path_col, bytes_col, sha_col = output_columns(output)
             rows = zip(*(table.column(c).to_pylist() for c in (path_col, bytes_col, sha_col)), scenarios, episodes)
-            expected.extend(rows)
+            expected.extend(row for row in rows if row[0] is not None)
 
     def check(item) -> Problem | int:
         rel, size, sha, scenario, episode = item

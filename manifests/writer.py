@@ -11,11 +11,51 @@ import io
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from manifests.schema import PART_SCHEMA, part_path
+import numpy as np
+
+from manifests.catalog import LABELS
+from manifests.schema import FIELD_SOURCE, OBJECT_FIELDS, PART_SCHEMA, frame_id, frame_path, output_columns, part_path
+from manifests.outputs import OUTPUTS
+from storage import sha256_bytes
 
 
 class ManifestError(Exception):
     """A manifest part is missing, unreadable or inconsistent."""
+
+
+def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
+    """The manifest row of one rendered frame, column by column from PART_SCHEMA.
+
+    ``spec`` is the episode's ``EpisodeSpec``; ``frame`` a rendered frame
+    (``render_workers.scene.Frame``: the FIELD_SOURCE "frame" columns as
+    attributes, ``index``, ``class_counts`` per class id and ``object_counts``
+    per object column); ``files`` the bytes written per output (outputs not
+    asked for get null columns)."""
+    fid = frame_id(spec.episode, frame.index)
+    derived = {"frame_id": fid, "frame": frame.index}
+    row = {}
+    for name, source in FIELD_SOURCE.items():
+        row[name] = derived[name] if source == "derived" else getattr(spec if source == "spec" else frame, name)
+    unknown = set(files) - set(OUTPUTS)
+    if unknown:
+        raise ManifestError(f"{spec.key} frame {frame.index}: unknown outputs {sorted(unknown)}")
+    for name in OUTPUTS:
+        data = files.get(name)
+        path_col, bytes_col, sha_col = output_columns(name)
+        row[path_col] = None if data is None else frame_path(spec.scenario, name, fid)
+        row[bytes_col] = None if data is None else len(data)
+        row[sha_col] = None if data is None else sha256_bytes(data)
+    counts = np.asarray(frame.class_counts, dtype=np.int64)
+    if counts.shape != (len(LABELS),) or int(counts.sum()) != spec.width * spec.height:
+        raise ManifestError(
+            f"{spec.key} frame {frame.index}: class counts must be {len(LABELS)} values summing to "
+            f"{spec.width * spec.height}, got shape {counts.shape} sum {int(counts.sum())}"
+        )
+    for label in LABELS:
+        row[label.column] = int(counts[label.id])
+    for name, _ in OBJECT_FIELDS:
+        row[name] = int(frame.object_counts[name])
+    return row
 
 
 def part_table(rows: list[dict]) -> pa.Table:

@@ -14,6 +14,8 @@ from pipeline.cli_common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
     build_query, count, user_errors, write_local,
 )
+from manifests.outputs import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
+from manifests.reader import require_outputs
 from pipeline.planner import PlanConfig, make_plan
 from storage import StorageError
 
@@ -133,6 +135,7 @@ def produce(
     max_retries: int = typer.Option(3, help="Retries per episode after a worker, node or renderer failure."),
     extend: bool = typer.Option(False, "--extend", help="Allow a different selection or size than the root was made with."),
     repair: bool = typer.Option(False, "--repair", help="Verify first and re-render exactly the damaged episodes."),
+    outputs: str = typer.Option(",".join(DEFAULT_OUTPUTS), "--outputs", help=f"Outputs to write, comma-separated: any of {', '.join(OUTPUTS)}. A root keeps the outputs it was made with."),
 ) -> None:
     """Render the selected scenarios into an output root (resumable).
 
@@ -145,7 +148,8 @@ def produce(
     with user_errors():
         if scale is None and frames_per_scenario is None:
             frames_per_scenario = 2
-        plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width, height=height, seed=seed)
+        plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
+                              height=height, seed=seed, outputs=parse_outputs(outputs))
         config = ProduceConfig(
             run=RunConfig(plan=plan_cfg, world=world),
             out=out,
@@ -330,11 +334,13 @@ def query(
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
         if len(result.table) == 0:
             raise ValueError(f"no frames in {storage.uri} match the query ({result.matched:,} match the filters)")
-        chosen = tuple(o.strip() for o in outputs.split(",") if o.strip())
+        chosen = parse_outputs(outputs)
         if out is not None:
             fmt = fmt or q.FORMAT_BY_SUFFIX.get(out.suffix)
             if fmt is None:
                 raise ValueError(f"cannot tell the format of {out}; use --format list|csv|parquet")
+            if fmt == "list":
+                require_outputs(result.table, chosen, storage.uri)
             data = q.encode_result(result.table, fmt, chosen)
             write_local(out, data)
         counts: dict[str, int] = {}

@@ -21,7 +21,7 @@ from pipeline.cli_common import (
 
 def export(
     root: str = typer.Argument(..., help=ROOT_HELP),
-    fmt: str = typer.Option(..., "--format", "-f", help="Layout: cityscapes, idda or hf (HuggingFace Parquet shards)."),
+    fmt: str = typer.Option(..., "--format", "-f", help="Layout: cityscapes, idda, hf (HuggingFace Parquet shards) or coco (instances as RLE masks and boxes; needs the instance and objects outputs)."),
     to: Path = typer.Option(..., "--to", help="Target directory (local); must be empty or absent unless --force."),
     preset: Preset = None,
     domains: Domains = None,

@@ -17,14 +17,10 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-import numpy as np
-
-from manifests.catalog import LABELS, OUTPUTS
-from manifests.encoding import encode_png
-from manifests.schema import STATS_DIR, frame_id, frame_path, output_columns, part_path
+from manifests.outputs import OUTPUTS, file_bytes
+from manifests.schema import STATS_DIR, frame_id, frame_path, part_path
 from manifests.spec import EpisodeSpec
-from manifests.writer import write_part
-from storage import sha256_bytes
+from manifests.writer import frame_row, write_part
 from storage.errors import storage_error
 
 log = logging.getLogger(__name__)
@@ -67,39 +63,12 @@ def _fault_after() -> int | None:
     return int(count)
 
 
-def frame_row(spec: EpisodeSpec, frame, storage) -> dict:
-    """Encode and write one frame's six images; return its manifest row
-    (without the episode's traffic counts, known only when it ends)."""
-    fid = frame_id(spec.episode, frame.index)
-    row = {
-        "frame_id": fid,
-        "scenario": spec.scenario,
-        "episode": spec.episode,
-        "frame": frame.index,
-        "sim_time_s": float(frame.sim_time_s),
-        "split": spec.split,
-        "seed": spec.seed,
-        "camera_height_m": float(frame.camera_height_m),
-        "hood_fraction": float(frame.hood_fraction),
-        "ego_speed_mps": float(frame.ego_speed_mps),
-        "width": spec.width,
-        "height": spec.height,
-    }
-    for output in OUTPUTS:
-        data = encode_png(frame.images[output])
-        rel = frame_path(spec.scenario, output, fid)
-        storage.write_bytes(rel, data)
-        path_col, bytes_col, sha_col = output_columns(output)
-        row[path_col], row[bytes_col], row[sha_col] = rel, len(data), sha256_bytes(data)
-    counts = np.asarray(frame.class_counts, dtype=np.int64)
-    if counts.shape != (len(LABELS),) or int(counts.sum()) != spec.width * spec.height:
-        raise ValueError(
-            f"{spec.key} frame {frame.index}: class counts must be {len(LABELS)} values summing to "
-            f"{spec.width * spec.height}, got shape {counts.shape} sum {int(counts.sum())}"
-        )
-    for label in LABELS:
-        row[label.column] = int(counts[label.id])
-    return row
+def store_frame(spec: EpisodeSpec, frame, storage) -> dict:
+    """Write one frame's output files; return its manifest row."""
+    files = {name: file_bytes(name, content) for name, content in frame.outputs.items()}
+    for name, data in files.items():
+        storage.write_bytes(frame_path(spec.scenario, name, frame_id(spec.episode, frame.index)), data)
+    return frame_row(spec, frame, files)
 
 
 def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
@@ -121,7 +90,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     def sink(frame) -> None:
         if full_after is not None and len(rows) >= full_after:
             raise storage_error("write", storage.join(spec.scenario), OSError(errno.ENOSPC, "No space left on device"))
-        rows.append(frame_row(spec, frame, storage))
+        rows.append(store_frame(spec, frame, storage))
         if on_frame is not None:
             on_frame(len(rows))
         if kill_after is not None and len(rows) >= kill_after:
@@ -129,8 +98,6 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
 
     # The process keeps one renderer alive across episodes (render_workers.episode).
     info = render_episode(spec, sink, world=world)
-    for row in rows:  # the episode's traffic counts come with the episode info
-        row.update(n_vehicles=info.n_vehicles, n_pedestrians=info.n_pedestrians)
     if len(rows) != spec.frames:
         raise RuntimeError(f"{spec.key}: rendered {len(rows)} frames, expected {spec.frames}")
     seconds = time.perf_counter() - start

@@ -17,14 +17,14 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Scenario, Town
+from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
+from manifests.query import SPLIT_SHARES
 from manifests.selection import parse_selection
 from manifests.spec import EpisodeSpec, episode_seed
 
 PAPER_TOTAL_FRAMES = 1_006_800
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
 MIN_SIZE, MAX_SIZE = 32, 8192  # accepted image width / height in pixels
-SPLITS = ("train", "val", "test")
-SPLIT_SHARES = (0.8, 0.1, 0.1)
 
 # Upper bound on --frames-per-scenario: 100 times the paper's largest scenario
 # (T01 at full scale). A plan holds one small record per episode, so this
@@ -80,6 +80,10 @@ class PlanConfig:
     width: int = 1920
     height: int = 1080
     seed: int = 0
+    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # what every frame writes (manifests.outputs)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
 
     def validate(self) -> None:
         if self.scale is not None and self.frames_per_scenario is not None:
@@ -103,9 +107,11 @@ class PlanConfig:
         if self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
         parse_selection(self.domains)
+        if check_outputs(self.outputs) != self.outputs:
+            raise ValueError(f"outputs must be listed once each in table order, got {', '.join(self.outputs)}")
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        return {**asdict(self), "outputs": list(self.outputs)}  # as JSON holds it
 
 
 @dataclass(frozen=True)
@@ -162,6 +168,7 @@ def make_plan(config: PlanConfig) -> Plan:
                     height=config.height,
                     split=split,
                     run_seed=config.seed,
+                    outputs=config.outputs,
                 )
             )
     return Plan(config=config, episodes=tuple(episodes))

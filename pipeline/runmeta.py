@@ -12,16 +12,17 @@ import logging
 import os
 import platform
 import subprocess
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
+from manifests.outputs import SEED_OUTPUTS
 from manifests.runrecord import RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE
 from pipeline.planner import PlanConfig
 
 # Changing these would make new frames inconsistent with the ones on disk.
-FRAME_DEFINING = ("seed", "width", "height", "world")
+FRAME_DEFINING = ("seed", "width", "height", "world", "outputs")
 _PACKAGES = ("idda-pipeline", "numpy", "pyrender", "PyOpenGL", "trimesh", "ray", "pyarrow", "opencv-python-headless")
 
 
@@ -40,7 +41,7 @@ class RunConfig:
     world: str = "procedural"
 
     def to_dict(self) -> dict:
-        return {**asdict(self.plan), "world": self.world}
+        return {**self.plan.to_dict(), "world": self.world}
 
 
 def package_versions() -> dict[str, str]:
@@ -106,6 +107,11 @@ def check_rows(storage, config: RunConfig) -> None:
             )
 
 
+def _with_outputs(config: dict) -> dict:
+    """A recorded config; roots from before ``--outputs`` hold the six seed outputs."""
+    return {"outputs": list(SEED_OUTPUTS), **config}
+
+
 def _fresh_record(new: dict, history: list[dict] | None = None) -> dict:
     return {
         "config": new,
@@ -141,12 +147,17 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
         record = read_run(storage)  # another driver was first: compare with its record
         if record is None:
             raise RunConfigError(f"cannot create {storage.join(RUN_FILE)}")
-    old = record["config"]
+    old = _with_outputs(record["config"])
     if old == new:
         check_rows(storage, config)
         return record
     diffs = _differences(old, new)
     fixed = [k for k in FRAME_DEFINING if old.get(k) != new.get(k)]
+    if fixed == ["outputs"]:
+        raise RunConfigError(
+            f"{storage.uri} holds the outputs {','.join(old['outputs'])}; this run asks for "
+            f"{','.join(new['outputs'])}: pass --outputs {','.join(old['outputs'])} to resume it, or use a new --out"
+        )
     if fixed:
         raise RunConfigError(
             f"{storage.uri} holds frames made with a different {', '.join(fixed)} ({'; '.join(diffs)}); "
@@ -164,6 +175,6 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
 
 
 def recorded_config(record: dict) -> RunConfig:
-    cfg = dict(record["config"])
+    cfg = _with_outputs(record["config"])
     world = cfg.pop("world", "procedural")
     return RunConfig(plan=PlanConfig(**cfg), world=world)

@@ -111,12 +111,6 @@ class CameraRig:
         dv = row + 0.5 - self.cy
         return math.inf if dv <= 0 else self.focal_px * self.viewpoint.camera_height_m / dv
 
-    def pixel_rays(self) -> tuple[np.ndarray, np.ndarray]:
-        """Per-column x and per-row y slopes of camera rays (multiply by depth Z)."""
-        xs = (np.arange(self.width) + 0.5 - self.cx) / self.focal_px
-        ys = (self.cy - np.arange(self.height) - 0.5) / self.focal_px
-        return xs, ys
-
 
 def camera_rig(view: Viewpoint | str, width: int, height: int) -> CameraRig:
     return CameraRig(_as_viewpoint(view), width, height)

@@ -3,7 +3,9 @@
 Reads top to bottom like a worker script: look up the scenario, build (or reuse)
 the town's world, populate it from the episode seed, load it into the
 process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
-seconds) render, post-process, encode the six outputs and call ``sink(frame)``.
+seconds) render the named buffers, post-process the colour, add the ``objects``
+table when asked, encode the spec's outputs (``manifests.outputs``) and call
+``sink(frame)``.
 
 Every random draw derives from ``spec.seed`` (traffic, sky, puddles, rain) or
 from the town seed (world), so the same spec gives byte-identical PNGs.
@@ -22,12 +24,14 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, OUTPUTS, scenario as lookup_scenario
+from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario
+from manifests.objects import object_counts
+from manifests.outputs import check_outputs, encode_outputs, file_bytes
 from manifests.spec import EpisodeSpec
 from manifests.spec import FRAME_PERIOD_S, town_seed
 from render_workers import postfx
 from render_workers.camera import measured_hood_fraction
-from manifests.encoding import encode_outputs, encode_png
+from render_workers.instances import frame_objects, instance_classes
 from render_workers.renderer import Renderer
 from render_workers.scene import EpisodeScene, Frame, World
 
@@ -115,6 +119,7 @@ def validate_spec(spec: EpisodeSpec) -> None:
         raise ValueError(f"{spec.key}: image size must be positive, got {spec.width}x{spec.height}")
     if spec.seed < 0 or spec.run_seed < 0:
         raise ValueError(f"{spec.key}: seeds must be non-negative")
+    check_outputs(spec.outputs)
 
 
 def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WORLD) -> tuple[EpisodeScene, dict]:
@@ -140,22 +145,29 @@ def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, ind
     result = renderer.render(t)
     timings = dict(result.timings)
     start = time.perf_counter()
+    buffers = dict(result.buffers)
     ctx = postfx.FxContext(
-        depth=result.depth, classes=result.classes, hood_mask=result.hood_mask, rig=result.rig,
+        depth=buffers["depth"], classes=buffers["classes"], hood_mask=result.hood_mask, rig=result.rig,
         world_from_camera=result.world_from_camera, weather=renderer.weather,
         ego_speed_mps=scene.ego.speed_mps, sun_pixel=result.sun_pixel,
         rng=np.random.default_rng([spec.seed, _FX_STREAM, index]), episode_seed=spec.seed,
     )
-    rgb = postfx.apply(result.rgb, ctx)
+    buffers["rgb"] = postfx.apply(buffers["rgb"], ctx)
     timings["post_fx"] = time.perf_counter() - start
     start = time.perf_counter()
-    images = encode_outputs(rgb, result.depth, result.classes)
-    counts = np.bincount(result.classes.ravel(), minlength=NUM_CLASSES).astype(np.int64)
+    if "objects" in spec.outputs:
+        poses = [actor.pose(t) for actor in scene.actors]
+        buffers["objects"] = frame_objects(buffers["instance"], renderer.instances, poses,
+                                           result.world_from_camera, result.rig.focal_px)
+    outputs = encode_outputs(buffers, spec.outputs)
+    counts = np.bincount(buffers["classes"].ravel(), minlength=NUM_CLASSES).astype(np.int64)
+    objects = object_counts(buffers["instance"], instance_classes(renderer.instances))
     timings["outputs"] = time.perf_counter() - start
     frame = Frame(
-        index=index, sim_time_s=t, images=images, class_counts=counts,
+        index=index, sim_time_s=t, outputs=outputs, class_counts=counts, object_counts=objects,
         camera_height_m=renderer.rig.viewpoint.camera_height_m,
         hood_fraction=measured_hood_fraction(result.hood_mask), ego_speed_mps=float(scene.ego.speed_mps),
+        n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
     )
     return frame, timings
 
@@ -180,8 +192,5 @@ def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: s
 
 
 def encode_frame(frame: Frame) -> dict[str, bytes]:
-    """PNG bytes of each of a frame's outputs, in catalog order."""
-    missing = set(OUTPUTS) - set(frame.images)
-    if missing:
-        raise ValueError(f"frame {frame.index}: missing outputs {sorted(missing)}")
-    return {name: encode_png(frame.images[name], name) for name in OUTPUTS}
+    """The file bytes of each of a frame's outputs, in table order."""
+    return {name: file_bytes(name, content) for name, content in frame.outputs.items()}

@@ -16,7 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from manifests.catalog import OUTPUTS, TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario
+from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario
+from manifests.outputs import SEED_OUTPUTS
 from manifests.spec import EpisodeSpec
 from manifests.spec import episode_seed
 from manifests.encoding import encode_png
@@ -69,10 +70,10 @@ def contact_sheet(cells: dict[tuple[str, str], np.ndarray], rows: list[str], col
 
 def output_strip(frame: Frame, width: int) -> np.ndarray:
     """The six outputs of a frame side by side, captioned."""
-    panels = [_thumbnail(frame.images[name], width) for name in OUTPUTS]
+    panels = [_thumbnail(frame.outputs[name], width) for name in SEED_OUTPUTS]
     h, w = panels[0].shape[:2]
     canvas = np.full((MARGIN_PX + h, len(panels) * w, 3), BACKGROUND, np.uint8)
-    for k, (name, panel) in enumerate(zip(OUTPUTS, panels)):
+    for k, (name, panel) in enumerate(zip(SEED_OUTPUTS, panels)):
         canvas[MARGIN_PX:, k * w:(k + 1) * w] = panel
         _label(canvas, name, k * w + 6, MARGIN_PX - 10)
     return canvas
@@ -83,7 +84,7 @@ def render_first_frame(code: str, width: int, height: int, seed: int, world: str
     """Frame 0 of episode 0 of a scenario, seeded as a production run with ``seed`` would."""
     scen = lookup_scenario(code)
     spec = EpisodeSpec(scenario=scen.code, episode=0, seed=episode_seed(seed, scen, 0), frames=1,
-                       width=width, height=height, split="train", run_seed=seed)
+                       width=width, height=height, split="train", run_seed=seed, outputs=SEED_OUTPUTS)
     frames: list[Frame] = []
     render_episode(spec, frames.append, world=world, renderer=renderer)
     return frames[0]
@@ -112,7 +113,7 @@ def write_preview(out_dir, scenario_codes, width: int, height: int, seed: int,
             continue
         rows = [v.code for v in VIEWPOINTS if any(s.viewpoint == v for s in chosen)]
         cols = [t.code for t in TOWNS if any(s.town == t for s in chosen)]
-        cells = {(s.viewpoint.code, s.town.code): _thumbnail(frames[s.code].images["rgb"], cell_w) for s in chosen}
+        cells = {(s.viewpoint.code, s.town.code): _thumbnail(frames[s.code].outputs["rgb"], cell_w) for s in chosen}
         sheet = contact_sheet(cells, rows, cols, title=f"{weather.code} ({weather.name})")
         written.append(_write(out / f"preview_{weather.code}.png", sheet))
 

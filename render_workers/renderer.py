@@ -11,9 +11,11 @@ Each :meth:`Renderer.render` makes two passes:
 
 * a colour pass (sun as a DirectionalLight plus ambient light, 4x MSAA from
   pyrender), composited over a procedural sky by its alpha coverage;
-* a ``RenderFlags.SEG`` pass where every node is mapped to ``(class_id, mark, 0)``
-  (mark 1 = ego hood). It gives crisp class ids (background -> sky) and the
-  metric depth (background -> 1000 m), both free of MSAA blending.
+* a ``RenderFlags.SEG`` pass where every node is mapped to ``(class_id,
+  instance id low byte, high byte)`` (``render_workers.instances``: the hood,
+  actors and static traffic lights and signs have ids; merged static tiles 0).
+  It gives crisp class and instance ids (background -> sky, 0) and the metric
+  depth (background -> 1000 m), all free of MSAA blending.
 
 Lighting: pyrender's PBR fragment shader costs ~1 s per 1920x1080 frame on
 llvmpipe, so by default the colour pass swaps in :data:`render_workers.shaders.FAST_MESH_FRAG` (Lambert
@@ -56,6 +58,8 @@ import numpy as np
 from manifests.catalog import Viewpoint, Weather, class_id, lookup
 from render_workers import compat
 from render_workers.camera import CameraRig, hood_mesh, sun_direction
+from render_workers.sky import cloud_texture, sky_image
+from render_workers.instances import HOOD_ID, episode_instances, split_static
 from render_workers.scene import EpisodeScene
 from render_workers.shaders import _install_fast_shaders
 from render_workers.soups import _pyrender_mesh, _Soup, _sphere, _triangles, part_groups, static_groups
@@ -68,8 +72,6 @@ CULL_M = 450.0  # static tiles and actors farther than this are not drawn
 TILE_M = 200.0  # static geometry is split into square tiles of this size
 SKY_ID = class_id("sky")
 VEHICLE_ID = class_id("vehicle")
-HOOD_MARK = 1  # green channel of the hood's SEG colour
-SKY_DOWNSCALE = 4  # the sky is smooth: compute it at 1/4 size and upscale
 SUN_SCALE = 0.55  # exposure: Weather.light_intensity x this keeps noon albedo from clipping
 SHADOW_MAP_PX = 2048  # shadow map size (square)
 SHADOW_FAR_M = 150.0  # shadows reach this far from the camera ...
@@ -81,82 +83,15 @@ MIN_SHADOW_STRENGTH = 0.1  # fainter shadows (overcast: HRN's would be 0.05) are
 
 
 # --------------------------------------------------------------------------
-# Sky
-# --------------------------------------------------------------------------
-def _cloud_texture(seed: int, size: tuple[int, int] = (64, 256)) -> np.ndarray:
-    """Periodic (in azimuth) fractal noise in [0, 1], rows = elevation 0..90 deg."""
-    import cv2
-
-    rng = np.random.default_rng([seed, 17])
-    h, w = size
-    out = np.zeros((h, w), dtype=np.float32)
-    amplitude, total = 1.0, 0.0
-    for cells in (4, 8, 16, 32):
-        coarse = rng.random((max(2, cells * h // w), cells)).astype(np.float32)
-        wrapped = np.concatenate([coarse, coarse[:, :1]], axis=1)  # wrap in azimuth
-        big = cv2.resize(wrapped, (w + w // cells, h), interpolation=cv2.INTER_CUBIC)[:, :w]
-        out += amplitude * big
-        total += amplitude
-        amplitude *= 0.5
-    out /= total
-    return np.clip((out - out.min()) / max(1e-6, float(out.max() - out.min())), 0.0, 1.0)
-
-
-def sky_image(
-    weather: Weather, rig: CameraRig, world_from_camera: np.ndarray, clouds: np.ndarray
-) -> np.ndarray:
-    """HxWx3 float32 sky (0..1, sRGB) seen by the camera: gradient, clouds and sun glow."""
-    import cv2
-
-    h, w = max(2, rig.height // SKY_DOWNSCALE), max(2, rig.width // SKY_DOWNSCALE)
-    xs = (np.arange(w) + 0.5) / w * 2 * rig.tan_half_h - rig.tan_half_h  # right
-    ys = rig.tan_half_v - (np.arange(h) + 0.5) / h * 2 * rig.tan_half_v  # up
-    # world directions of the rays: R @ (x, y, -1)
-    rot = world_from_camera[:3, :3]
-    dirs = (xs[None, :, None] * rot[:, 0] + ys[:, None, None] * rot[:, 1] - rot[:, 2])
-    dirs /= np.linalg.norm(dirs, axis=2, keepdims=True)
-    elevation = np.arcsin(np.clip(dirs[..., 2], -1, 1))
-    azimuth = np.arctan2(dirs[..., 1], dirs[..., 0])
-
-    t = np.clip(elevation / math.radians(55.0), 0.0, 1.0)[..., None] ** 0.6
-    zenith = np.asarray(weather.sky_zenith, np.float32) / 255.0
-    horizon = np.asarray(weather.sky_horizon, np.float32) / 255.0
-    sky = horizon + (zenith - horizon) * t
-    sky = np.where((elevation < 0)[..., None], horizon * 0.92, sky)
-
-    if weather.cloudiness > 0:
-        ch, cw = clouds.shape
-        row = np.clip(elevation / (math.pi / 2), 0, 1) * (ch - 1)
-        col = (azimuth / (2 * math.pi) % 1.0) * cw
-        # clouds thin out towards the horizon by perspective: stretch rows
-        noise = cv2.remap(clouds, col.astype(np.float32), row.astype(np.float32), cv2.INTER_LINEAR,
-                          borderMode=cv2.BORDER_WRAP)
-        cover = np.clip((noise - (1.0 - weather.cloudiness)) / 0.25 + weather.cloudiness * 0.5, 0.0, 1.0)
-        cloud_rgb = np.clip(horizon * 0.6 + 0.45 * (1 - weather.cloudiness) + 0.1, 0, 1)
-        sky = sky + (cloud_rgb - sky) * (cover * 0.9)[..., None]
-
-    sun = sun_direction(weather.sun_elevation_deg, weather.sun_azimuth_deg)
-    cos_angle = np.clip(dirs @ sun, -1.0, 1.0)
-    angle = np.degrees(np.arccos(cos_angle))
-    light = np.asarray(weather.light_color, np.float32)
-    glow = (np.exp(-np.square(angle / 12.0)) * 0.35 + np.exp(-np.square(angle / 1.2)) * 1.5)
-    glow *= (1.0 - 0.85 * weather.cloudiness)
-    sky = sky + glow[..., None] * light
-    sky = cv2.resize(np.clip(sky, 0, 1).astype(np.float32), (rig.width, rig.height),
-                     interpolation=cv2.INTER_LINEAR)
-    return sky
-
-
-# --------------------------------------------------------------------------
 # Renderer
 # --------------------------------------------------------------------------
 @dataclass(frozen=True, eq=False)
 class RenderResult:
     """The raw buffers of one frame, before post effects."""
 
-    rgb: np.ndarray  # HxWx3 uint8, lit geometry over the sky
-    depth: np.ndarray  # HxW float32, planar metres, background = ZFAR_M
-    classes: np.ndarray  # HxW uint8 class ids, background = sky
+    buffers: dict  # name -> array: "rgb" (HxWx3 uint8, lit geometry over the sky), "depth" (HxW
+    # float32 planar metres, background ZFAR_M), "classes" (HxW uint8, background sky),
+    # "instance" (HxW uint16 instance ids, background 0)
     hood_mask: np.ndarray  # HxW bool, pixels drawn by the ego hood
     world_from_camera: np.ndarray  # 4x4
     rig: CameraRig
@@ -252,7 +187,7 @@ class Renderer:
         self.rig = CameraRig(viewpoint, width, height)
         self.weather = weather
         self._episode = scene
-        self._clouds = _cloud_texture(sky_seed)
+        self._clouds = cloud_texture(sky_seed)
 
         if self._static_world is not scene.world:
             self._static = self._build_static(scene.world)
@@ -261,13 +196,16 @@ class Renderer:
 
         ambient = weather.ambient * np.asarray(weather.light_color)
         prs = pr.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=ambient)
+        self.instances = episode_instances(scene, self._static_objects)
+        static_ids = [i.id for i in self.instances if i.actor < 0]
+        actor_ids = {(i.actor, i.class_id): i.id for i in self.instances if i.actor >= 0}
         self._seg_map: dict = {}
-        for node, key in zip(self._static.nodes, self._static_keys):
+        for node, key, obj in zip(self._static.nodes, self._static_keys, self._static_object_of):
             prs.add_node(node)
-            self._seg_map[node] = (key, 0, 0)
-        for node, key in zip(self._actors.nodes, self._actor_keys):
+            self._seg_map[node] = _seg_color(key, 0 if obj < 0 else static_ids[obj])
+        for node, key, actor in zip(self._actors.nodes, self._actor_keys, self._actor_of):
             prs.add_node(node)
-            self._seg_map[node] = (key, 0, 0)
+            self._seg_map[node] = _seg_color(key, actor_ids.get((actor, key), 0))
 
         camera = pr.PerspectiveCamera(yfov=self.rig.yfov, aspectRatio=self.rig.aspect,
                                       znear=self.znear, zfar=self.zfar)
@@ -280,7 +218,7 @@ class Renderer:
             mesh, _ = _pyrender_mesh(soup, "glossy")
             hood_node = pr.Node(mesh=mesh, matrix=np.eye(4))
             prs.add_node(hood_node, parent_node=self._camera_node)
-            self._seg_map[hood_node] = (VEHICLE_ID, HOOD_MARK, 0)
+            self._seg_map[hood_node] = _seg_color(VEHICLE_ID, HOOD_ID)
         self._draw_list = list(self._seg_map)  # hood, then actors, then static: near first
         self._draw_list.reverse()
 
@@ -299,10 +237,17 @@ class Renderer:
         for name in sorted({p.texture for p in world.static if p.texture}):
             image = lookup(world.textures, name, "texture")
             textures[name] = pr.Texture(source=image, source_channels="RGB")
-        groups = sorted(static_groups(world.static, self.tile_m).items())
-        node_set, self._static_keys = _node_set((cls, material, soup, textures.get(tex))
-                                                for (_, _, cls, material, tex), soup in groups)
-        log.debug("static scene: %d nodes from %d parts", len(node_set.nodes), len(world.static))
+        tiled, self._static_objects = split_static(world.static)  # traffic lights and signs: one node set each
+        items = [(cls, material, soup, textures.get(tex))
+                 for (_, _, cls, material, tex), soup in sorted(static_groups(tiled, self.tile_m).items())]
+        self._static_object_of = [-1] * len(items)
+        for k, parts in enumerate(self._static_objects):
+            for (cls, material), soup in sorted(part_groups(parts).items()):
+                items.append((cls, material, soup, None))
+                self._static_object_of.append(k)
+        node_set, self._static_keys = _node_set(items)
+        log.debug("static scene: %d nodes from %d parts, %d objects", len(node_set.nodes), len(world.static),
+                  len(self._static_objects))
         return node_set
 
     def _build_actors(self, scene: EpisodeScene) -> tuple[_NodeSet, list[int]]:
@@ -397,12 +342,15 @@ class Renderer:
         background = depth <= 0.0
         classes = seg[..., 0].copy()
         classes[background] = SKY_ID
-        hood = seg[..., 1] == HOOD_MARK
+        instance = seg[..., 1].astype(np.uint16) | (seg[..., 2].astype(np.uint16) << 8)
+        instance[background] = 0
+        hood = instance == HOOD_ID
         depth = np.where(background, np.float32(self.zfar), np.minimum(depth, np.float32(self.zfar)))
         timings["class_pass"] = time.perf_counter() - start
 
+        buffers = {"rgb": rgb, "depth": depth.astype(np.float32), "classes": classes, "instance": instance}
         return RenderResult(
-            rgb=rgb, depth=depth.astype(np.float32), classes=classes, hood_mask=hood,
+            buffers=buffers, hood_mask=hood,
             world_from_camera=cam, rig=self.rig, sun_pixel=self._sun_pixel(cam), timings=timings,
         )
 
@@ -412,6 +360,11 @@ class Renderer:
             return None
         x, y = self.rig.project(sun_cam[None, :])[0]
         return float(x), float(y)
+
+
+def _seg_color(class_id: int, instance_id: int) -> tuple[int, int, int]:
+    """SEG pass colour of a node: class id in red, instance id over green (low) and blue (high)."""
+    return (class_id, instance_id & 255, instance_id >> 8)
 
 
 def shadow_strength(weather: Weather) -> float:

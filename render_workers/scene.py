@@ -166,12 +166,15 @@ class EpisodeScene:
 
 @dataclass(frozen=True, eq=False)
 class Frame:
-    """One rendered frame: the six images and what the manifest records."""
+    """One rendered frame: its outputs and what the manifest records (``manifests.writer.frame_row``)."""
 
     index: int  # frame index within the episode
     sim_time_s: float  # simulated time of the frame (index * 3 s)
-    images: dict  # output name (manifests.catalog.OUTPUTS) -> HxWx3 uint8, RGB order
+    outputs: dict  # output name (manifests.outputs) -> its file content (an array or a table)
     class_counts: np.ndarray  # (24,) int64 pixel count per class id, sums to W*H
+    object_counts: dict  # manifest column obj_<class> -> visible objects of that class
     camera_height_m: float
     hood_fraction: float  # share of pixels covered by the ego hood
     ego_speed_mps: float
+    n_vehicles: int  # the episode's traffic
+    n_pedestrians: int

@@ -133,3 +133,12 @@ def test_card_command_errors(tmp_path):
     result = CliRunner().invoke(cli_app(), ["card", str(tmp_path)])
     assert result.exit_code == 2
     assert result.output.strip() == f"error: {tmp_path} has no frames yet; produce some before writing its card"
+
+
+def test_readme_output_table_is_the_output_table():
+    from pathlib import Path
+
+    from manifests.outputs import markdown_table
+
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    assert "\n".join(markdown_table()) in readme

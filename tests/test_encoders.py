@@ -8,8 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE
+from manifests.catalog import NUM_CLASSES, PALETTE
 from manifests import encoding as enc
+from manifests import outputs as out_table
+from manifests.outputs import OUTPUTS, SEED_OUTPUTS
 
 depths = hnp.arrays(
     np.float32, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=12),
@@ -22,10 +24,14 @@ class_maps = hnp.arrays(
 images = hnp.arrays(np.uint8, st.tuples(st.integers(1, 16), st.integers(1, 16), st.just(3)))
 
 
-def test_registry_matches_catalog_outputs():
-    assert tuple(enc.ENCODERS) == OUTPUTS
+def test_output_table_names_are_unique_and_known():
+    assert len(set(OUTPUTS)) == len(OUTPUTS) == 8
+    assert OUTPUTS[:6] == SEED_OUTPUTS
     with pytest.raises(ValueError, match="valid outputs"):
-        enc.encoder("depth_fancy")
+        out_table.output("depth_fancy")
+    with pytest.raises(ValueError, match="valid outputs"):
+        out_table.parse_outputs("rgb,depth_fancy")
+    assert out_table.parse_outputs("instance, rgb,rgb") == ("rgb", "instance")
 
 
 def test_depth_raw_known_values():
@@ -57,7 +63,7 @@ def test_depth_gray_and_log_follow_carla():
 @given(depths)
 def test_depth_images_are_gray_and_monotonic(depth):
     for name in ("depth_gray", "depth_log"):
-        out = enc.encoder(name).encode(depth)
+        out = out_table.output(name).encode(depth)
         assert out.dtype == np.uint8 and out.shape == depth.shape + (3,)
         assert (out[..., 0] == out[..., 1]).all() and (out[..., 1] == out[..., 2]).all()
         order = np.argsort(depth.ravel(), kind="stable")
@@ -93,9 +99,18 @@ def test_encode_outputs_gives_every_output():
     rgb = np.zeros((h, w, 3), np.uint8)
     depth = np.full((h, w), 1000.0, np.float32)
     classes = np.full((h, w), 20, np.uint8)
-    out = enc.encode_outputs(rgb, depth, classes)
-    assert tuple(out) == OUTPUTS
+    out = out_table.encode_outputs({"rgb": rgb, "depth": depth, "classes": classes}, SEED_OUTPUTS)
+    assert tuple(out) == SEED_OUTPUTS
     assert all(v.shape == (h, w, 3) and v.dtype == np.uint8 for v in out.values())
+    with pytest.raises(ValueError, match="needs the 'instance' buffer"):
+        out_table.encode_outputs({"rgb": rgb}, ("instance",))
+
+
+@given(hnp.arrays(np.uint16, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=12)))
+@settings(max_examples=25, deadline=None)
+def test_png16_round_trips(ids):
+    data = out_table.file_bytes("instance", out_table.output("instance").encode(ids))
+    assert (out_table.read_output("instance", data) == ids).all()
 
 
 @pytest.mark.parametrize(
@@ -107,11 +122,13 @@ def test_encode_outputs_gives_every_output():
         ("depth_log", np.full((2, 2), np.nan, np.float32)),
         ("semantic_raw", np.full((2, 2), NUM_CLASSES, np.uint8)),
         ("semantic_color", np.zeros((2, 2), np.int32)),
+        ("instance", np.zeros((2, 2), np.uint8)),
+        ("objects", np.zeros((2, 2), np.uint8)),
     ],
 )
 def test_bad_buffers_raise_naming_the_output(name, array):
     with pytest.raises(ValueError, match=name):
-        enc.encoder(name).encode(array)
+        out_table.output(name).encode(array)
 
 
 def test_bad_png_input_raises():
@@ -120,4 +137,4 @@ def test_bad_png_input_raises():
     with pytest.raises(ValueError, match="not a decodable PNG"):
         enc.decode_png(b"not a png")
     with pytest.raises(ValueError, match="disagree"):
-        enc.encode_outputs(np.zeros((2, 2, 3), np.uint8), np.zeros((3, 2), np.float32), np.zeros((2, 2), np.uint8))
+        out_table.encode_outputs({"rgb": np.zeros((2, 2, 3), np.uint8), "depth": np.zeros((3, 2), np.float32)})

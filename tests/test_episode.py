@@ -5,11 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from manifests.catalog import NUM_CLASSES, OUTPUTS, PALETTE
+from manifests.catalog import NUM_CLASSES, PALETTE
+from manifests.outputs import IMAGE_OUTPUTS, OUTPUTS, read_output
 from manifests.spec import EpisodeSpec
 from manifests.spec import FRAME_PERIOD_S
 from render_workers import episode, testworld
-from manifests.encoding import decode_depth_raw, decode_png
+from manifests.encoding import decode_depth_raw
 from render_workers.renderer import Renderer
 
 W, H = 160, 90
@@ -39,14 +40,15 @@ def test_small_episode_renders_headless(renderer):
         assert info.timings[stage] >= 0.0
     for index, frame in enumerate(frames):
         assert frame.index == index and frame.sim_time_s == index * FRAME_PERIOD_S
-        assert tuple(frame.images) == OUTPUTS
-        for name, image in frame.images.items():
-            assert image.shape == (H, W, 3) and image.dtype == np.uint8, name
+        assert tuple(frame.outputs) == OUTPUTS
+        for name in IMAGE_OUTPUTS:
+            image = frame.outputs[name]
+            assert image.shape[:2] == (H, W) and image.dtype == (np.uint16 if name == "instance" else np.uint8), name
         assert frame.class_counts.shape == (NUM_CLASSES,)
         assert frame.class_counts.sum() == W * H
-        ids = frame.images["semantic_raw"][..., 0]
-        assert ids.max() < NUM_CLASSES and not frame.images["semantic_raw"][..., 1:].any()
-        assert (frame.images["semantic_color"] == PALETTE[ids]).all()
+        ids = frame.outputs["semantic_raw"][..., 0]
+        assert ids.max() < NUM_CLASSES and not frame.outputs["semantic_raw"][..., 1:].any()
+        assert (frame.outputs["semantic_color"] == PALETTE[ids]).all()
         assert (np.bincount(ids.ravel(), minlength=NUM_CLASSES) == frame.class_counts).all()
         assert frame.camera_height_m == 1.20 and frame.ego_speed_mps > 0
         assert 0.1108 - 1 / H <= frame.hood_fraction <= 0.1399 + 1 / H
@@ -54,7 +56,7 @@ def test_small_episode_renders_headless(renderer):
 
 def test_depth_outputs_agree(renderer):
     _, frames = run(spec(frames=1), renderer)
-    images = frames[0].images
+    images = frames[0].outputs
     depth = decode_depth_raw(images["depth_raw"])
     assert depth.max() <= 1000.0 and depth.min() > 0.0
     sky = images["semantic_raw"][..., 0] == 20
@@ -90,8 +92,11 @@ def test_encode_frame_round_trips(renderer):
     _, frames = run(spec(frames=1), renderer)
     data = episode.encode_frame(frames[0])
     assert tuple(data) == OUTPUTS
-    for name, png in data.items():
-        assert (decode_png(png) == frames[0].images[name]).all()
+    for name, blob in data.items():
+        if name in IMAGE_OUTPUTS:
+            assert (read_output(name, blob) == frames[0].outputs[name]).all()
+        else:
+            assert read_output(name, blob).equals(frames[0].outputs[name])
 
 
 def test_populate_counts_follow_idda():

@@ -77,8 +77,11 @@ def test_flipped_index_is_found_repaired_and_never_breaks_query(ray_local, refer
 def test_damaged_part_makes_query_name_the_file(copy):
     part = copy / part_path("T01_HRN_A", 0)
     (copy / index_path("T01_HRN_A")).unlink()  # readers must read the part itself
+    import pyarrow.parquet as pq
+
+    chunk = pq.ParquetFile(part).metadata.row_group(0).column(0)  # frame_id: every query reads it
     data = bytearray(part.read_bytes())
-    data[len(data) // 2] ^= 0xFF
+    data[chunk.data_page_offset + chunk.total_compressed_size // 2] ^= 0xFF
     part.write_bytes(bytes(data))
     line = one_line_error(runner.invoke(app, ["query", str(copy)]))
     assert part_path("T01_HRN_A", 0) in line and "--repair" in line

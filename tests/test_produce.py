@@ -17,7 +17,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from manifests.catalog import OUTPUTS
+from manifests.outputs import OUTPUTS
 from manifests.reader import done_episodes, read_manifest
 from manifests.schema import output_columns
 from manifests.verify import verify
@@ -102,7 +102,7 @@ def test_cli_status_verify_query_stats(reference, tmp_path):
     assert result.exit_code == 0, result.output
     assert "16 of 16 frames done (100.0%)" in result.output
     result = runner.invoke(app, ["verify", str(reference)])
-    assert result.exit_code == 0 and result.output.startswith("OK: checked 96 files")
+    assert result.exit_code == 0 and result.output.startswith("OK: checked 128 files")
     out = tmp_path / "worst.txt"
     result = runner.invoke(app, ["query", str(reference), "--preset", "worst-case", "--out", str(out)])
     assert result.exit_code == 2, result.output  # HRN_J / HRN_B were not produced: an empty selection

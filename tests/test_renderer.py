@@ -56,17 +56,17 @@ def test_flat_road_depth_matches_projection(renderer, view):
     col = W // 2
     for row in range(H // 2 + 2, H):
         expected = rig.focal_px * viewpoint(view).camera_height_m / (row + 0.5 - rig.cy)
-        assert result.depth[row, col] == pytest.approx(expected, rel=0.01), row
+        assert result.buffers["depth"][row, col] == pytest.approx(expected, rel=0.01), row
         assert rig.ground_depth(row) == pytest.approx(expected)
     # at and above the horizon there is only sky, at the far limit
-    assert (result.depth[: H // 2] == 1000.0).all()
-    assert (result.classes[: H // 2] == 20).all()
-    assert (result.classes[H // 2 + 1:] == ROAD).all()
+    assert (result.buffers["depth"][: H // 2] == 1000.0).all()
+    assert (result.buffers["classes"][: H // 2] == 20).all()
+    assert (result.buffers["classes"][H // 2 + 1:] == ROAD).all()
 
 
 def test_higher_camera_moves_the_road_down_in_depth_terms(renderer):
-    low = render(renderer, flat_scene(), "V").depth
-    high = render(renderer, flat_scene(), "B").depth
+    low = render(renderer, flat_scene(), "V").buffers["depth"]
+    high = render(renderer, flat_scene(), "B").buffers["depth"]
     row = H - 10
     ratio = viewpoint("B").camera_height_m / viewpoint("V").camera_height_m
     assert high[row, W // 2] / low[row, W // 2] == pytest.approx(ratio, rel=0.01)
@@ -84,7 +84,7 @@ def test_hood_fraction(renderer, vp):
     tolerance = 1.0 / h  # one pixel row of rasterisation
     assert 0.1108 - tolerance <= measured <= 0.1399 + tolerance
     assert measured == pytest.approx(camera.measured_hood_fraction(camera.hood_mask(vp, w, h)), abs=0.004)
-    assert (result.classes[result.hood_mask] == 10).all()
+    assert (result.buffers["classes"][result.hood_mask] == 10).all()
     # the hood's top edge is the parabola: highest in the middle
     top = result.hood_mask.argmax(axis=0)
     assert top[w // 2] <= top[2] and top[w // 2] <= top[-3]
@@ -98,9 +98,9 @@ def test_hood_mask_converges_to_catalog_fraction():
 
 def test_every_pixel_has_a_valid_class_and_hood_follows_camera(renderer):
     result = render(renderer, flat_scene(), "A")
-    assert result.classes.max() < NUM_CLASSES
-    assert result.rgb.shape == (H, W, 3) and result.rgb.dtype == np.uint8
-    assert result.depth.dtype == np.float32
+    assert result.buffers["classes"].max() < NUM_CLASSES
+    assert result.buffers["rgb"].shape == (H, W, 3) and result.buffers["rgb"].dtype == np.uint8
+    assert result.buffers["depth"].dtype == np.float32
     # the hood is part of the camera rig: the same mask wherever the ego is
     renderer.load(flat_scene(), weather("CN"), viewpoint("A"), W, H)
     later = renderer.render(0.0)
@@ -117,19 +117,19 @@ def _wall(distance: float) -> Part:
 def test_distance_culling(renderer):
     scene = flat_scene((_wall(600.0),))
     culled = render(renderer, scene, "V")
-    assert not (culled.classes == WALL).any()
+    assert not (culled.buffers["classes"] == WALL).any()
     with Renderer(cull_m=2000.0) as far:
         drawn = render(far, scene, "V")
-    assert (drawn.classes == WALL).any()
-    assert drawn.depth[drawn.classes == WALL].min() == pytest.approx(599.5, rel=0.02)
+    assert (drawn.buffers["classes"] == WALL).any()
+    assert drawn.buffers["depth"][drawn.buffers["classes"] == WALL].min() == pytest.approx(599.5, rel=0.02)
 
 
 def test_near_wall_is_drawn_and_lit(renderer):
     result = render(renderer, flat_scene((_wall(30.0),)), "V")
-    wall = result.classes == WALL
+    wall = result.buffers["classes"] == WALL
     assert wall[H // 4, W // 2]
-    assert result.depth[H // 4, W // 2] == pytest.approx(29.5 - camera.CAMERA_FORWARD_M, rel=0.01)
-    assert result.rgb[wall].mean() > 10  # not black: ambient + sun
+    assert result.buffers["depth"][H // 4, W // 2] == pytest.approx(29.5 - camera.CAMERA_FORWARD_M, rel=0.01)
+    assert result.buffers["rgb"][wall].mean() > 10  # not black: ambient + sun
 
 
 def test_unknown_material_raises():

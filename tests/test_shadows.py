@@ -50,7 +50,7 @@ def _patch(result, world_xy: tuple[float, float], half: int = 2) -> np.ndarray:
     x, y = result.rig.project(p[None, :3])[0]
     col, row = int(x), int(y)
     assert half <= col < W - half and half <= row < H - half, (col, row)
-    return result.rgb[row - half:row + half + 1, col - half:col + half + 1].reshape(-1, 3).mean(axis=0)
+    return result.buffers["rgb"][row - half:row + half + 1, col - half:col + half + 1].reshape(-1, 3).mean(axis=0)
 
 
 def _away_from_sun(code: str) -> np.ndarray:
@@ -89,18 +89,18 @@ def test_overcast_light_stays_flat(renderer):
     assert shadow_strength(weather("HRN")) < MIN_SHADOW_STRENGTH <= shadow_strength(weather("CS"))
     scene = flat_scene((_box(20.0, 0.0),))
     on, off = _render(renderer, scene, "HRN", True), _render(renderer, scene, "HRN", False)
-    assert np.abs(on.rgb.astype(int) - off.rgb.astype(int)).max() <= 2
+    assert np.abs(on.buffers["rgb"].astype(int) - off.buffers["rgb"].astype(int)).max() <= 2
 
 
 @pytest.mark.parametrize("code", ["CN", "CS", "HRN"])
 def test_classes_and_depth_do_not_change(renderer, code):
     scene = flat_scene((_box(20.0, 0.0), _box(12.0, 6.0)))
     on, off = _render(renderer, scene, code, True), _render(renderer, scene, code, False)
-    assert np.array_equal(on.classes, off.classes)
-    assert np.array_equal(on.depth, off.depth)
+    assert np.array_equal(on.buffers["classes"], off.buffers["classes"])
+    assert np.array_equal(on.buffers["depth"], off.buffers["depth"])
     assert np.array_equal(on.hood_mask, off.hood_mask)
     if code != "HRN":
-        assert not np.array_equal(on.rgb, off.rgb)
+        assert not np.array_equal(on.buffers["rgb"], off.buffers["rgb"])
 
 
 @pytest.mark.parametrize("code", ["CN", "CS"])
@@ -151,10 +151,10 @@ def test_closing_one_renderer_leaves_another_intact():
 
     scene = flat_scene((_box(20.0, 0.0),))
     with Renderer() as kept:
-        before = _render(kept, scene, "CN", True).rgb
+        before = _render(kept, scene, "CN", True).buffers["rgb"]
         with Renderer() as other:
             _render(other, scene, "CN", True)
         _render(kept, scene, "CN", True)  # the kept renderer's context is current again
         gc.collect()  # the closed renderer's leftovers go now, while that context is current
-        after = _render(kept, scene, "CN", True).rgb
+        after = _render(kept, scene, "CN", True).buffers["rgb"]
     assert np.array_equal(before, after)

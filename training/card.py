@@ -17,9 +17,11 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 from manifests.catalog import LABELS, SCENARIO_BY_CODE
-from training.export import SPLIT_SHARES, few_episode_scenarios
+from manifests.outputs import OUTPUTS, markdown_table
+from manifests.schema import output_columns
+from training.export import few_episode_scenarios
 from training.hf import card_header, citation_section
-from manifests.query import SPLITS
+from manifests.query import SPLIT_SHARES, SPLITS
 
 CARD_FILE = "README.md"
 CHART_FILE = "class_shares.png"
@@ -128,21 +130,15 @@ def _preview_section(previews: list[str]) -> list[str]:
 
 
 def _encoding_section(table: pa.Table) -> list[str]:
-    example = table.column("depth_raw_path")[0].as_py()
+    held = tuple(o for o in OUTPUTS if table.column(output_columns(o)[0]).null_count < len(table))
+    example = table.column("depth_raw_path")[0].as_py() if "depth_raw" in held else "<depth_raw path>"
     return [
         "## Files and encodings",
         "",
-        "`<scenario>/<output>/<episode>_<frame>_<scenario>.png`, six PNG outputs per frame "
-        "(CARLA conventions):",
+        "`<scenario>/<output>/<episode>_<frame>_<scenario>.<png|parquet>`, per frame one file per output "
+        f"this root holds ({', '.join(held)}; image encodings follow CARLA's conventions):",
         "",
-        "| output | content |",
-        "|---|---|",
-        "| `rgb` | lit colour image (bloom, lens flare, motion blur, weather grading) |",
-        "| `depth_raw` | planar depth, 24 bits over R, G, B (R least significant), far limit 1000 m; sky = 1000 m |",
-        "| `depth_gray` | `255 * depth_m / 1000` (linear) |",
-        "| `depth_log` | `255 * clamp(1 + ln(depth_m / 1000) / ln(300), 0, 1)` |",
-        "| `semantic_raw` | class id in the red channel (G = B = 0) |",
-        "| `semantic_color` | class colours from the table above |",
+        *markdown_table(held),
         "",
         "Depth in metres from `depth_raw`: `depth_m = 1000 * (R + G*256 + B*65536) / (256**3 - 1)`. "
         "OpenCV reads BGR, so R is channel 2:",

@@ -386,7 +386,7 @@ def domain_features(storage, paths: dict[str, list[str]], bank: FilterBank, thre
 def domain_distances(config: DistanceConfig) -> DistanceReport:
     """Sample, extract features, and compare domains of a produced root."""
     from manifests.query import Query, filter_frames
-    from manifests.reader import read_manifest
+    from manifests.reader import read_manifest, require_outputs
     from storage import Storage
 
     config.validate()
@@ -394,6 +394,7 @@ def domain_distances(config: DistanceConfig) -> DistanceReport:
     table = filter_frames(read_manifest(storage), Query(domains=config.domains, splits=config.splits))
     if len(table) == 0:
         raise ValueError(f"{storage.uri} has no frames for {config.domains!r}")
+    require_outputs(table, ("rgb",), storage.uri)
     features = domain_features(storage, first_frames(table, config.samples), FilterBank(config.seed), config.threads)
     return compare_domains(features, config.pairs, config.components)
 

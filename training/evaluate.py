@@ -9,6 +9,12 @@ prediction for ``<city>_<seq>_<frame>_gtFine_labelIds.png`` is any
 ``evaluateImgLists``, with the instance-level score and the pixel accuracy
 (the two parts that call ``np.in1d``) turned off. The class and category IoUs
 are cityscapesScripts' own numbers.
+
+``evaluate_instances`` runs its instance-level evaluation
+(``evalInstanceLevelSemanticLabeling``) on the export's instanceIds images;
+that module gets a numpy namespace with ``in1d`` bound to ``isin``
+(``numpy_with_in1d``), scoped to that module only, and its steps run without
+its JSON dumps, which fail on numpy 2's integer scalars.
 """
 
 from __future__ import annotations
@@ -108,3 +114,56 @@ def format_report(report: EvaluateReport) -> str:
     lines.append(f"mIoU {report.miou:.3f} over classes, {report.miou_categories:.3f} over categories "
                  f"({report.images:,} images)")
     return "\n".join(lines)
+
+
+def numpy_with_in1d():
+    """numpy as cityscapesScripts 2.3 calls it: a module namespace with ``in1d``
+    (removed in numpy 2.4) bound to ``isin``. Given to one cityscapesScripts
+    module as its ``np``; numpy itself is not changed."""
+    import types
+
+    import numpy
+
+    shim = types.ModuleType("numpy")
+    shim.__dict__.update(numpy.__dict__)
+    shim.in1d = numpy.isin
+    return shim
+
+
+def instance_eval_module():
+    """cityscapesScripts' evalInstanceLevelSemanticLabeling, its ``np`` given ``in1d`` where numpy lacks it."""
+    try:
+        from cityscapesscripts.evaluation import evalInstanceLevelSemanticLabeling as module
+    except ImportError as exc:
+        raise ImportError("instance evaluation needs cityscapesScripts: pip install cityscapesscripts") from exc
+    if not hasattr(module.np, "in1d"):
+        module.np = numpy_with_in1d()
+    return module
+
+
+def evaluate_instances(export: str, predictions: str, split: str = "val", min_region_px: int = 100) -> dict:
+    """cityscapesScripts' instance-level AP of ``predictions`` (its txt + mask
+    format) against the export's ``*_gtFine_instanceIds.png``; returns its
+    averages (``allAp``, ``allAp50%``, per class ``ap``). ``min_region_px``
+    replaces its smallest ground-truth region size (100 px) for small frames."""
+    import numpy as np
+
+    module = instance_eval_module()
+    truth = sorted(glob.glob(os.path.join(export, "gtFine", split, "*", "*_gtFine_instanceIds.png")))
+    if not truth:
+        raise ValueError(f"{export} has no gtFine/{split}/*/*_gtFine_instanceIds.png (not a Cityscapes export?)")
+    args = copy.deepcopy(module.args)
+    args.quiet = True
+    args.colorized = False
+    args.JSONOutput = False
+    args.minRegionSizes = np.array([min_region_px, max(min_region_px, 1000), max(min_region_px, 1000)])
+    args.predictionPath = os.path.abspath(predictions)
+    args.predictionWalk = None
+    with _quiet("matching predictions"):
+        predicted = [module.getPrediction(gt, args) for gt in truth]
+    # evaluateImgLists' steps, without its JSON dumps (they fail on numpy 2 integers)
+    with _quiet("evaluating instances"):
+        module.setInstanceLabels(args)
+        gt_instances = module.instances2dict(truth, False)
+        matches = module.matchGtWithPreds(predicted, truth, gt_instances, args)
+        return module.computeAverages(module.evaluateMatches(matches, args), args)

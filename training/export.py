@@ -8,16 +8,18 @@ Two layouts, chosen by name (see ``LAYOUTS``):
       gtFine/<split>/<scenario>/<name>_gtFine_labelIds.png        Cityscapes label ids
       gtFine/<split>/<scenario>/<name>_gtFine_labelTrainIds.png   trainIds, 255 = ignore
       gtFine/<split>/<scenario>/<name>_gtFine_color.png           Cityscapes colours
-      gtFine/<split>/<scenario>/<name>_gtFine_instanceIds.png     = labelIds (16 bit)
+      gtFine/<split>/<scenario>/<name>_gtFine_instanceIds.png     instances (16 bit)
 
   ``<name>`` is ``<city>_<episode:06d>_<frame:06d>`` with ``<city>`` the
   scenario code with ``-`` for ``_`` (``T01-CS-A``): cityscapesScripts splits
   file names at ``_`` into city, sequence and frame, and finds a prediction
   for a ground-truth file by the pattern ``<city>_<seq>_<frame>*.png``. The
-  instance image carries no instances (every id is below 1000, which
-  Cityscapes reads as "no instance"); it exists so the evaluation script runs
-  with its default settings, whose instance-level scores are then empty.
-  Excluded IDDA classes map to Cityscapes ids that the evaluation ignores.
+  instance image holds, as Cityscapes does, ``label id * 1000 + index`` on the
+  objects of Cityscapes' instance classes (person, rider, car, motorcycle,
+  bicycle; index counts the frame's objects of that class from 0, in instance
+  id order) and the label id elsewhere (the hood too). A root produced
+  without the ``instance`` output gets label ids only. Excluded IDDA classes
+  map to Cityscapes ids that the evaluation ignores.
 
 * ``idda``: the published IDDA layout::
 
@@ -29,7 +31,10 @@ Two layouts, chosen by name (see ``LAYOUTS``):
   object per split mapping each exported scenario to its sorted frame ids
   (every split file lists every exported scenario, possibly with ``[]``).
 
-Both layouts also get ``frames.csv`` (one row per frame: source frame id,
+* ``coco``: images and COCO instance annotations (RLE masks and boxes), see
+  ``training.coco``; needs the ``instance`` and ``objects`` outputs.
+
+Every layout also gets ``frames.csv`` (one row per frame: source frame id,
 scenario, split and the exported paths) and, written last, ``EXPORT.json``
 (format, source root, query, counts): an export without it is unfinished.
 
@@ -58,8 +63,10 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
-from manifests.encoding import decode_png
-from manifests.query import SPLITS, Query, run_query
+from manifests.encoding import decode_png, decode_png16
+from manifests.query import SPLIT_SHARES, SPLITS, Query, run_query
+from manifests.objects import HOOD_ID
+from manifests.reader import require_outputs
 from manifests.root import EXPORT_MARKER, check_export_target
 
 MARKER = EXPORT_MARKER  # written last: its presence means the export is complete
@@ -164,14 +171,31 @@ def _decode(storage, rel: str) -> np.ndarray:
     return decode_png(storage.read_bytes(rel), name=storage.join(rel))
 
 
-def cityscapes_targets(classes: np.ndarray) -> dict[str, np.ndarray]:
-    """The four gtFine images of an HxW uint8 IDDA class-id image."""
+# Cityscapes label ids with instances (helpers/labels.py hasInstances), among those the catalog maps to.
+CITYSCAPES_INSTANCE_IDS = (24, 25, 26, 27, 28, 29, 30, 31, 32, 33)
+
+
+def cityscapes_instance_ids(classes: np.ndarray, instance: np.ndarray | None) -> np.ndarray:
+    """Cityscapes' instanceIds image: label id * 1000 + index on instance-class objects, label id elsewhere."""
     label_ids = CITYSCAPES_ID_LUT[classes]
+    out = label_ids.astype(np.int32)
+    if instance is None:
+        return out.astype(np.uint16)
+    objects = (instance > HOOD_ID) & np.isin(label_ids, CITYSCAPES_INSTANCE_IDS)
+    for cs_id in np.unique(label_ids[objects]):
+        ids = np.unique(instance[objects & (label_ids == cs_id)])
+        for index, iid in enumerate(ids):
+            out[(instance == iid) & (label_ids == cs_id)] = int(cs_id) * 1000 + index
+    return out.astype(np.uint16)
+
+
+def cityscapes_targets(classes: np.ndarray, instance: np.ndarray | None = None) -> dict[str, np.ndarray]:
+    """The four gtFine images of an HxW uint8 IDDA class-id image (and its instance ids)."""
     return {
-        "labelIds": label_ids,
+        "labelIds": CITYSCAPES_ID_LUT[classes],
         "labelTrainIds": TRAIN_ID_LUT[classes],
         "color": CITYSCAPES_COLOR_LUT[classes],  # RGBA, as Cityscapes' *_gtFine_color.png
-        "instanceIds": label_ids.astype(np.uint16),
+        "instanceIds": cityscapes_instance_ids(classes, instance),
     }
 
 
@@ -188,9 +212,13 @@ class _Frame:
     episode: int
     frame: int
     split: str
-    rgb_path: str
-    semantic_raw_path: str
-    depth_raw_path: str
+    width: int
+    height: int
+    rgb_path: str | None
+    semantic_raw_path: str | None
+    depth_raw_path: str | None
+    instance_path: str | None
+    objects_path: str | None
 
 
 def cityscapes_city(scenario: str) -> str:
@@ -205,8 +233,11 @@ def _cityscapes_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]
     rgb_rel = f"{image_dir}/{name}_leftImg8bit.png"
     place(storage, frame.rgb_path, os.path.join(tmp, rgb_rel))
     classes = _decode(storage, frame.semantic_raw_path)[..., 0]
+    instance = None
+    if frame.instance_path is not None:
+        instance = decode_png16(storage.read_bytes(frame.instance_path), storage.join(frame.instance_path))
     written = {"image": rgb_rel}
-    for kind, array in cityscapes_targets(classes).items():
+    for kind, array in cityscapes_targets(classes, instance).items():
         rel = f"{gt_dir}/{name}_gtFine_{kind}.png"
         _write(os.path.join(tmp, rel), _png(array))
         written[kind] = rel
@@ -333,18 +364,31 @@ def _hf_build(storage, frames: list[_Frame], tmp: str, config: "ExportConfig"):
     return write_hf(storage, frames, tmp, threads=config.threads)
 
 
+def _coco_build(storage, frames: list[_Frame], tmp: str, config: "ExportConfig"):
+    from training.coco import write_coco
+
+    return write_coco(storage, frames, tmp, FILE_MODES[config.files], threads=config.threads)
+
+
 LAYOUTS: dict[str, Callable] = {
     # (storage, frames, tmp dir, config) -> ([{kind: exported rel path}] per frame, [per-export files])
     "cityscapes": _per_frame(_cityscapes_frame, _cityscapes_dirs, _no_extras),
     "idda": _per_frame(_idda_frame, _idda_dirs, _idda_split_files),
     "hf": _hf_build,
+    "coco": _coco_build,
+}
+# The outputs each layout reads (the cityscapes one also uses instance when the root holds it).
+LAYOUT_OUTPUTS: dict[str, tuple[str, ...]] = {
+    "cityscapes": ("rgb", "semantic_raw"),
+    "idda": ("rgb", "semantic_raw"),
+    "hf": ("rgb", "semantic_raw", "depth_raw"),
+    "coco": ("rgb", "instance", "objects"),
 }
 
 
 # Scenarios whose episodes leave a split empty (the planner gives val and test
 # episodes only from 6 episodes on) get their splits by frame blocks inside the
 # episodes (exports only; the manifest keeps per-episode splits).
-SPLIT_SHARES = (0.8, 0.1, 0.1)  # train, val, test: as the planner splits episodes
 
 
 def block_splits(n: int) -> list[str]:
@@ -493,6 +537,7 @@ def export(config: ExportConfig) -> ExportReport:
     result = run_query(export_splits(manifest, few), config.query)
     if len(result.table) == 0:
         raise ValueError(f"no frames in {storage.uri} match the query; nothing to export")
+    require_outputs(result.table, LAYOUT_OUTPUTS[config.format], f"{storage.uri} ({config.format} export)")
     frames = _frames(result.table)
     if config.as_split is not None:
         frames = [replace(f, split=config.as_split) for f in frames]

@@ -3,16 +3,12 @@
 Both read the images through ``storage`` (local roots and s3://) and decode
 them to plain numpy arrays; neither imports torch. Per requested output:
 
-=============== =================== ==========================================
-output          key                 array
-=============== =================== ==========================================
-rgb             ``rgb``             HxWx3 uint8
-semantic_raw    ``semantic``        HxW uint8 class ids (or mapped, ``labels``)
-semantic_color  ``semantic_color``  HxWx3 uint8 palette colours
-depth_raw       ``depth``           HxW float32 planar depth in metres
-depth_gray      ``depth_gray``      HxW uint8
-depth_log       ``depth_log``       HxW uint8
-=============== =================== ==========================================
+``manifests.outputs.OUTPUT_TABLE`` lists each output's key, dtype,
+channels and content (``DECODERS`` here is that table by name);
+``semantic_raw`` arrives as ``semantic`` (HxW class ids, or mapped, ``labels``),
+``depth_raw`` as ``depth`` (HxW float32 metres), ``instance`` as HxW uint16
+instance ids and ``objects`` as a dict of numpy columns (one entry per visible
+object, so batch it with a collate function that keeps lists).
 
 ``labels`` picks the semantic ids: ``idda`` (the 24 class ids), ``cityscapes``
 (Cityscapes label ids) or ``train`` (Cityscapes trainIds, 255 = ignore).
@@ -32,16 +28,15 @@ from __future__ import annotations
 
 import copy
 import os
-from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import CITYSCAPES_ID_LUT, OUTPUTS, TRAIN_ID_LUT
-from manifests.encoding import decode_depth_raw, decode_png
+from manifests.catalog import CITYSCAPES_ID_LUT, TRAIN_ID_LUT
+from manifests.outputs import OUTPUT_BY_NAME as DECODERS, OUTPUTS, read_output
 from manifests.query import Query, run_query
-from manifests.reader import as_storage, read_manifest
+from manifests.reader import as_storage, read_manifest, require_outputs
 from manifests.schema import output_columns
 
 # Per-frame metadata returned with the arrays.
@@ -50,31 +45,6 @@ META_COLUMNS = ("frame_id", "scenario", "town", "weather", "viewpoint", "episode
 # iter_torch_batches turns every column into a tensor and strings cannot be.
 NUMERIC_META = ("episode", "frame", "width", "height")
 
-
-def _first_channel(image: np.ndarray) -> np.ndarray:
-    return np.ascontiguousarray(image[..., 0])
-
-
-def _depth_metres(image: np.ndarray) -> np.ndarray:
-    return decode_depth_raw(image).astype(np.float32)
-
-
-@dataclass(frozen=True)
-class Decoder:
-    key: str  # key of the decoded array in a sample
-    decode: Callable[[np.ndarray], np.ndarray]  # HxWx3 uint8 PNG pixels -> array
-
-
-DECODERS: dict[str, Decoder] = {
-    "rgb": Decoder("rgb", lambda image: image),
-    "depth_raw": Decoder("depth", _depth_metres),
-    "depth_gray": Decoder("depth_gray", _first_channel),
-    "depth_log": Decoder("depth_log", _first_channel),
-    "semantic_raw": Decoder("semantic", _first_channel),
-    "semantic_color": Decoder("semantic_color", lambda image: image),
-}
-if set(DECODERS) != set(OUTPUTS):  # one decoder per catalog output
-    raise RuntimeError(f"decoders {tuple(DECODERS)} do not match catalog outputs {OUTPUTS}")
 
 LABEL_MAPS: dict[str, np.ndarray | None] = {
     "idda": None,  # the 24 IDDA class ids
@@ -104,7 +74,7 @@ def load_output(storage, rel: str, output: str, decode: bool = True, labels: str
     data = storage.read_bytes(rel)
     if not decode:
         return data
-    array = DECODERS[output].decode(decode_png(data, name=storage.join(rel)))
+    array = DECODERS[output].decode(read_output(output, data, storage.join(rel)))
     lut = LABEL_MAPS[labels]
     if output == "semantic_raw" and lut is not None:
         array = lut[array]
@@ -114,7 +84,7 @@ def load_output(storage, rel: str, output: str, decode: bool = True, labels: str
 class FrameDataset:
     """Map-style dataset over a query's frames: ``len(ds)`` and ``ds[i]`` -> dict.
 
-    A sample holds the decoded arrays (keys in ``DECODERS``; with
+    A sample holds the decoded arrays (keys as ``manifests.outputs.OUTPUT_TABLE``'s ``key``; with
     ``decode=False`` the PNG bytes under the output names) and the frame's
     metadata (``META_COLUMNS`` plus ``index``). Frames are in manifest order
     (scenario, episode, frame). The object is small and picklable and opens
@@ -136,6 +106,7 @@ class FrameDataset:
         _check_options(outputs, labels)
         storage = as_storage(root)
         table = select_frames(storage, query)
+        require_outputs(table, outputs, storage.uri)
         columns = list(META_COLUMNS) + [output_columns(o)[0] for o in outputs]
         self._table = table.select(columns).combine_chunks()
         self._storage = copy.copy(storage)  # a fresh copy holds no open file system
@@ -191,7 +162,10 @@ def _read_batch(batch: dict, storage, outputs: tuple[str, ...], labels: str, met
     for output in outputs:
         paths = batch[output_columns(output)[0]]
         arrays = [load_output(storage, str(rel), output, True, labels) for rel in paths]
-        out[DECODERS[output].key] = np.stack(arrays) if arrays else np.zeros((0,), dtype=np.uint8)
+        if DECODERS[output].channels:
+            out[DECODERS[output].key] = np.stack(arrays) if arrays else np.zeros((0,), dtype=np.uint8)
+        else:  # a table per frame: one object array of column dicts
+            out[DECODERS[output].key] = np.array(arrays + [None], dtype=object)[:-1]
     return out
 
 
@@ -207,7 +181,7 @@ def ray_dataset(
     """A ``ray.data.Dataset`` of the query's frames with decoded arrays.
 
     Rows carry the ``metadata`` columns and one array column per output (keys
-    as in ``DECODERS``). The default metadata is numeric only (``NUMERIC_META``),
+    as the output table's ``key``). The default metadata is numeric only (``NUMERIC_META``),
     so ``iter_torch_batches()`` yields a tensor for every column as is; pass
     ``metadata=META_COLUMNS`` to also get the string columns (scenario,
     frame_id, split, ...) for ``iter_batches`` / ``take``. The manifest rows are
@@ -229,6 +203,7 @@ def ray_dataset(
         raise ImportError("ray_dataset needs Ray Data: pip install 'ray[data]'") from exc
     storage = as_storage(root)
     table = select_frames(storage, query)
+    require_outputs(table, outputs, storage.uri)
     columns = list(metadata) + [output_columns(o)[0] for o in outputs]
     table = table.select(columns).combine_chunks()
     if table.num_rows == 0:

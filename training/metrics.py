@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.catalog import EVALUATED_IDS, ID2LABEL
+from manifests.catalog import EVALUATED_IDS, LABELS
 
 IGNORE = 255  # training index of pixels that are not scored
-EVAL_CLASSES: tuple[str, ...] = tuple(ID2LABEL[i].name for i in EVALUATED_IDS)
+EVAL_CLASSES: tuple[str, ...] = tuple(LABELS[i].name for i in EVALUATED_IDS)
 NUM_EVAL = len(EVAL_CLASSES)
 
 # IDDA class id -> training index 0..NUM_EVAL-1 (IGNORE for classes not evaluated).

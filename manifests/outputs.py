@@ -1,0 +1,178 @@
+"""The per-frame outputs: one table, and everything about an output derives from it.
+
+Each :class:`Output` row names the renderer buffer it reads, the encoder that
+turns that buffer into what its file holds, the file format, the decoder the
+loaders apply, and a one-line description that the dataset card, the README
+and the loaders' docs show. The manifest's columns (``<output>_path / _bytes /
+_sha256``), file paths, verification, queries and exports all iterate this
+table.
+
+Adding an output is one row here plus its encoder (a function in
+``manifests.encoding``, or a buffer the renderer does not make yet in
+``render_workers.episode.render_frame``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from manifests.catalog import lookup
+from manifests.encoding import (
+    decode_depth_raw,
+    decode_png,
+    decode_png16,
+    encode_depth_gray,
+    encode_depth_log,
+    encode_depth_raw,
+    encode_instance,
+    encode_png,
+    encode_png16,
+    encode_rgb,
+    encode_semantic_color,
+    encode_semantic_raw,
+)
+from manifests.objects import encode_objects, objects_as_arrays, read_objects, write_objects
+
+# The named buffers the renderer hands over per frame.
+BUFFERS: dict[str, str] = {
+    "rgb": "HxWx3 uint8 colour after post effects",
+    "depth": "HxW float32 planar depth in metres, sky = 1000",
+    "classes": "HxW uint8 class ids",
+    "instance": "HxW uint16 per-episode instance ids (0 = static geometry and sky)",
+    "objects": "pyarrow table of the visible objects (manifests.objects.OBJECT_SCHEMA)",
+}
+
+
+@dataclass(frozen=True)
+class FileFormat:
+    """How an encoded output becomes file bytes and back."""
+
+    extension: str
+    write: Callable[[Any, str], bytes]  # (content, name) -> bytes
+    read: Callable[[bytes, str], Any]  # (bytes, name) -> content
+
+
+FORMATS: dict[str, FileFormat] = {
+    "png": FileFormat("png", encode_png, decode_png),  # HxWx3 uint8 RGB
+    "png16": FileFormat("png", encode_png16, decode_png16),  # HxW uint16
+    "parquet": FileFormat("parquet", write_objects, read_objects),  # a table
+}
+
+
+def _first_channel(image: np.ndarray) -> np.ndarray:
+    return np.ascontiguousarray(image[..., 0])
+
+
+def _depth_metres(image: np.ndarray) -> np.ndarray:
+    return decode_depth_raw(image).astype(np.float32)
+
+
+def _same(content):
+    return content
+
+
+@dataclass(frozen=True)
+class Output:
+    name: str  # directory name and manifest column prefix
+    source: str  # the renderer buffer it reads (BUFFERS)
+    encode: Callable[[Any], Any]  # buffer -> file content; checks dtype and shape
+    file: str  # FORMATS key
+    decode: Callable[[Any], Any]  # file content -> the array a loader returns
+    key: str  # the loaders' sample key
+    dtype: str  # dtype of the loaders' array ("table" for a sidecar)
+    channels: int  # channels of the loaders' array (0 for a sidecar)
+    description: str  # one line for the card, the README and the loaders' docs
+
+    @property
+    def format(self) -> FileFormat:
+        return FORMATS[self.file]
+
+    @property
+    def extension(self) -> str:
+        return self.format.extension
+
+
+OUTPUT_TABLE: tuple[Output, ...] = (
+    Output("rgb", "rgb", encode_rgb, "png", _same, "rgb", "uint8", 3,
+           "lit colour image with bloom, lens flare, motion blur and weather grading"),
+    Output("depth_raw", "depth", encode_depth_raw, "png", _depth_metres, "depth", "float32", 1,
+           "planar depth, 24 bits in R, G, B: `depth_m = 1000 * (R + G*256 + B*65536) / (256**3 - 1)`; sky = 1000 m"),
+    Output("depth_gray", "depth", encode_depth_gray, "png", _first_channel, "depth_gray", "uint8", 1,
+           "`255 * depth_m / 1000` (linear, dark up close)"),
+    Output("depth_log", "depth", encode_depth_log, "png", _first_channel, "depth_log", "uint8", 1,
+           "`255 * clamp(1 + ln(depth_m / 1000) / ln(300), 0, 1)`"),
+    Output("semantic_raw", "classes", encode_semantic_raw, "png", _first_channel, "semantic", "uint8", 1,
+           "class id in the red channel (G = B = 0)"),
+    Output("semantic_color", "classes", encode_semantic_color, "png", _same, "semantic_color", "uint8", 3,
+           "class colours (the paper's palette)"),
+    Output("instance", "instance", encode_instance, "png16", _same, "instance", "uint16", 1,
+           "16-bit instance ids, stable over an episode: one per vehicle, pedestrian, rider, bicycle, motorcycle, "
+           "traffic light and sign; the hood has its own; static geometry and sky 0"),
+    Output("objects", "objects", encode_objects, "parquet", objects_as_arrays, "objects", "table", 0,
+           "Parquet, one row per visible object: instance id, class, tight 2D box, visible pixels, occlusion, "
+           "truncation, 3D box (centre, size, yaw) in camera coordinates"),
+)
+OUTPUT_BY_NAME: dict[str, Output] = {o.name: o for o in OUTPUT_TABLE}
+OUTPUTS: tuple[str, ...] = tuple(OUTPUT_BY_NAME)
+SEED_OUTPUTS: tuple[str, ...] = OUTPUTS[:6]  # the six images of the IDDA paper
+DEFAULT_OUTPUTS: tuple[str, ...] = OUTPUTS  # what `idda produce` writes unless --outputs says otherwise
+IMAGE_OUTPUTS: tuple[str, ...] = tuple(o.name for o in OUTPUT_TABLE if o.channels)
+
+for _output in OUTPUT_TABLE:  # every row reads a known buffer and writes a known format
+    lookup(BUFFERS, _output.source, "buffer")
+    lookup(FORMATS, _output.file, "file format")
+del _output
+
+
+def output(name: str) -> Output:
+    """The table row of an output; ValueError lists the valid names."""
+    return lookup(OUTPUT_BY_NAME, name, "output")
+
+
+def check_outputs(names) -> tuple[str, ...]:
+    """A validated, de-duplicated selection of outputs in table order."""
+    names = tuple(names)
+    if not names:
+        raise ValueError(f"ask for at least one output; valid outputs: {', '.join(OUTPUTS)}")
+    for name in names:
+        output(name)
+    return tuple(o for o in OUTPUTS if o in names)
+
+
+def parse_outputs(text: str) -> tuple[str, ...]:
+    """``"rgb,instance"`` -> a validated selection (see :func:`check_outputs`)."""
+    return check_outputs(n.strip() for n in text.split(",") if n.strip())
+
+
+def encode_outputs(buffers: dict[str, Any], names: tuple[str, ...] = DEFAULT_OUTPUTS) -> dict[str, Any]:
+    """The requested outputs' file contents from the renderer's named buffers."""
+    shapes = {k: v.shape[:2] for k, v in buffers.items() if isinstance(v, np.ndarray)}
+    if len(set(shapes.values())) > 1:
+        raise ValueError(f"buffers disagree in size: {shapes}")
+    out = {}
+    for name in names:
+        row = output(name)
+        if row.source not in buffers:
+            raise ValueError(f"output {name!r} needs the {row.source!r} buffer, which this frame lacks")
+        out[name] = row.encode(buffers[row.source])
+    return out
+
+
+def file_bytes(name: str, content) -> bytes:
+    """The bytes of one output's file."""
+    return output(name).format.write(content, name)
+
+
+def read_output(name: str, data: bytes, where: str = "") -> Any:
+    """One output's file content from its bytes (an image array or a table)."""
+    return output(name).format.read(data, where or name)
+
+
+def markdown_table(names: tuple[str, ...] = OUTPUTS) -> list[str]:
+    """The outputs as a Markdown table (the card and the README show it)."""
+    lines = ["| output | file | content |", "|---|---|---|"]
+    lines += [f"| `{o.name}` | {o.file} | {o.description} |" for o in OUTPUT_TABLE if o.name in names]
+    return lines
