@@ -121,3 +121,42 @@ def test_bad_png_input_raises():
         enc.decode_png(b"not a png")
     with pytest.raises(ValueError, match="disagree"):
         enc.encode_outputs(np.zeros((2, 2, 3), np.uint8), np.zeros((3, 2), np.float32), np.zeros((2, 2), np.uint8))
+
+
+@pytest.mark.parametrize("shape, dtype", [((5, 7), np.uint8), ((5, 7), np.uint16), ((6, 3, 4), np.uint8),
+                                          ((6, 3, 3), np.uint16), ((1, 1, 3), np.uint8)])
+def test_png_bytes_round_trip_grey_rgba_and_16_bit(shape, dtype):
+    import cv2
+
+    image = np.random.default_rng(7).integers(0, np.iinfo(dtype).max + 1, shape).astype(dtype)
+    data = enc.png_bytes(image)
+    assert data == enc.png_bytes(image.copy())
+    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)  # BGR(A) order
+    if decoded.ndim == 3:
+        decoded = decoded[..., [2, 1, 0, 3][: decoded.shape[2]]]
+    assert decoded.dtype == image.dtype and (decoded == image).all()
+
+
+def test_png_bytes_rejects_what_png_cannot_hold():
+    for bad in (np.zeros((2, 2), np.float32), np.zeros((2, 2, 2), np.uint8), np.zeros((0, 3, 3), np.uint8)):
+        with pytest.raises(ValueError, match="instance"):
+            enc.png_bytes(bad, "instance")
+
+
+def test_jpeg_is_close_and_repeatable():
+    y, x = np.mgrid[0:96, 0:128]
+    image = np.stack([x * 2, y * 2, (x + y)], axis=2).astype(np.uint8)
+    data = enc.encode_jpeg(image)
+    assert data[:2] == b"\xff\xd8" and data == enc.encode_jpeg(image.copy())
+    decoded = enc.decode_png(data)  # cv2 reads either format
+    assert decoded.shape == image.shape and np.abs(decoded.astype(int) - image).mean() < 2
+
+
+def test_encoder_identity_names_the_encoders_and_versions():
+    from importlib import metadata
+
+    png = enc.encoder_identity("png")
+    assert set(png) == {"png"} and metadata.version("isal") in png["png"] and enc.PNG_ENCODER in png["png"]
+    assert set(enc.encoder_identity("jpg")) == {"png", "rgb"}
+    with pytest.raises(ValueError, match="rgb format"):
+        enc.encoder_identity("webp")
