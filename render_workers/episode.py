@@ -4,6 +4,9 @@ Reads top to bottom like a worker script: look up the scenario, build (or reuse)
 the town's world, populate it from the episode seed, load it into the
 process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
 seconds) render, post-process, encode the six outputs and call ``sink(frame)``.
+The sink runs on one background thread, in frame order, so writing frame i
+(PNG deflate, hashing and file writes release the GIL) overlaps rendering
+frame i + 1; at most ``SINK_AHEAD`` frames wait for it.
 
 Every random draw derives from ``spec.seed`` (traffic, sky, puddles, rain) or
 from the town seed (world), so the same spec gives byte-identical PNGs.
@@ -12,11 +15,12 @@ from the town seed (world), so the same spec gives byte-identical PNGs.
 from __future__ import annotations
 
 import atexit
-
 import functools
 import importlib
 import logging
 import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -42,7 +46,8 @@ WORLDS: dict[str, tuple[str, str]] = {
 DEFAULT_WORLD = "procedural"
 _FX_STREAM = 404  # rng stream id of per-frame post effects
 
-FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "sink")
+FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "sink", "sink_wait")
+SINK_AHEAD = 2  # frames handed to the sink thread and not yet written
 
 
 @dataclass(frozen=True)
@@ -160,20 +165,45 @@ def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, ind
     return frame, timings
 
 
+def _timed_sink(sink: Callable[[Frame], None], frame: Frame) -> float:
+    start = time.perf_counter()
+    sink(frame)
+    return time.perf_counter() - start
+
+
 def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: str = DEFAULT_WORLD,
                    renderer: Renderer | None = None) -> EpisodeInfo:
-    """Render every frame of ``spec`` and pass each to ``sink``; returns counts and timings."""
+    """Render every frame of ``spec`` and pass each to ``sink``; returns counts and timings.
+
+    ``sink`` is called from one background thread, in frame order; an error it
+    raises stops the episode and is raised here. Timings: ``sink`` is the time
+    spent in it, ``sink_wait`` the time rendering waited for it."""
     renderer = renderer if renderer is not None else process_renderer()
     scene, timings = load_episode(spec, renderer, world)
     for stage in FRAME_STAGES:
         timings[stage] = 0.0
-    for index in range(spec.frames):
-        frame, frame_timings = render_frame(renderer, scene, spec, index)
+    pending: deque[Future] = deque()
+
+    def settle(limit: int) -> None:
         start = time.perf_counter()
-        sink(frame)
-        frame_timings["sink"] = time.perf_counter() - start
-        for stage, seconds in frame_timings.items():
-            timings[stage] = timings.get(stage, 0.0) + seconds
+        while len(pending) > limit:
+            timings["sink"] += pending.popleft().result()
+        timings["sink_wait"] += time.perf_counter() - start
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
+        try:
+            for index in range(spec.frames):
+                frame, frame_timings = render_frame(renderer, scene, spec, index)
+                for stage, seconds in frame_timings.items():
+                    timings[stage] = timings.get(stage, 0.0) + seconds
+                while pending and pending[0].done():  # surface a sink error early
+                    timings["sink"] += pending.popleft().result()
+                settle(SINK_AHEAD - 1)
+                pending.append(pool.submit(_timed_sink, sink, frame))
+            settle(0)
+        finally:
+            for future in pending:  # after an error: drop frames not yet started
+                future.cancel()
     log.debug("%s: %d frames, timings %s", spec.key, spec.frames, timings)
     return EpisodeInfo(n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
                        frames=spec.frames, timings=timings)
