@@ -83,6 +83,19 @@ MIN_SHADOW_STRENGTH = 0.1  # fainter shadows (overcast: HRN's would be 0.05) are
 # --------------------------------------------------------------------------
 # Sky
 # --------------------------------------------------------------------------
+def composite_sky(rgba: np.ndarray, sky: np.ndarray) -> np.ndarray:
+    """The colour pass (premultiplied RGBA, alpha 0 where nothing was drawn) over the uint8 sky.
+
+    ``rgb + sky * (255 - alpha) / 255`` per pixel, rounded and saturated, as
+    whole-image uint8 OpenCV passes (no per-pixel masks)."""
+    import cv2
+
+    rgba = np.ascontiguousarray(rgba)
+    uncovered = cv2.subtract(np.full(rgba.shape[:2], 255, np.uint8), cv2.extractChannel(rgba, 3))
+    behind = cv2.multiply(sky, cv2.cvtColor(uncovered, cv2.COLOR_GRAY2RGB), scale=1.0 / 255.0)
+    return cv2.add(cv2.cvtColor(rgba, cv2.COLOR_RGBA2RGB), behind)
+
+
 def _cloud_texture(seed: int, size: tuple[int, int] = (64, 256)) -> np.ndarray:
     """Periodic (in azimuth) fractal noise in [0, 1], rows = elevation 0..90 deg."""
     import cv2
@@ -105,7 +118,10 @@ def _cloud_texture(seed: int, size: tuple[int, int] = (64, 256)) -> np.ndarray:
 def sky_image(
     weather: Weather, rig: CameraRig, world_from_camera: np.ndarray, clouds: np.ndarray
 ) -> np.ndarray:
-    """HxWx3 float32 sky (0..1, sRGB) seen by the camera: gradient, clouds and sun glow."""
+    """HxWx3 uint8 sRGB sky seen by the camera: gradient, clouds and sun glow.
+
+    Computed at 1/SKY_DOWNSCALE size in float and upscaled as uint8 (a quarter
+    of the memory traffic of a float upscale)."""
     import cv2
 
     h, w = max(2, rig.height // SKY_DOWNSCALE), max(2, rig.width // SKY_DOWNSCALE)
@@ -142,9 +158,8 @@ def sky_image(
     glow = (np.exp(-np.square(angle / 12.0)) * 0.35 + np.exp(-np.square(angle / 1.2)) * 1.5)
     glow *= (1.0 - 0.85 * weather.cloudiness)
     sky = sky + glow[..., None] * light
-    sky = cv2.resize(np.clip(sky, 0, 1).astype(np.float32), (rig.width, rig.height),
-                     interpolation=cv2.INTER_LINEAR)
-    return sky
+    small = (np.clip(sky, 0, 1) * 255.0 + 0.5).astype(np.uint8)
+    return cv2.resize(small, (rig.width, rig.height), interpolation=cv2.INTER_LINEAR)
 
 
 # --------------------------------------------------------------------------
@@ -201,7 +216,8 @@ class Renderer:
         self._shadow_frame: compat.ShadowFrame | None = None
         # 0: no multisampling (half the colour pass on llvmpipe); edges are
         # anti-aliased in post instead (postfx.antialias).
-        compat.set_msaa_samples(msaa)
+        if msaa not in compat.MSAA_CHOICES:
+            raise ValueError(f"MSAA samples must be one of {compat.MSAA_CHOICES}, got {msaa}")
         self.msaa = msaa
         self._shader_dir: FilePath | None = None
         self._offscreen = None
@@ -234,11 +250,12 @@ class Renderer:
             self._offscreen = compat.offscreen_renderer(width, height)
             if not self.pbr:
                 self._shader_dir = _install_fast_shaders(self._offscreen)
+            compat.install_framebuffer(self._offscreen, self.msaa)
             compat.install_shadow_pass(self._offscreen, lambda: self._shadow_frame, depth_compare=not self.pbr)
             # pyrender sorts nodes by distance and breaks ties in set (id) order,
             # so coplanar faces could resolve differently from run to run: draw
             # the visible nodes in the fixed order load() built them instead.
-            self._offscreen._renderer._sorted_mesh_nodes = self._draw_order
+            compat.install_draw_order(self._offscreen, self._draw_order)
         elif self._size != (width, height):
             self._offscreen.viewport_width, self._offscreen.viewport_height = width, height
         self._size = (width, height)
@@ -383,12 +400,7 @@ class Renderer:
         if self._shadows_on():
             flags |= pr.RenderFlags.SHADOWS_DIRECTIONAL
         color, _ = self._offscreen.render(self._scene, flags=flags)
-        sky = sky_image(self.weather, self.rig, cam, self._clouds)
-        rgb = np.ascontiguousarray(color[..., :3])
-        open_px = color[..., 3] < 255  # sky, and edges MSAA blended with it
-        alpha = color[..., 3][open_px].astype(np.float32)[:, None] * np.float32(1.0 / 255.0)
-        over = rgb[open_px].astype(np.float32) + (1.0 - alpha) * sky[open_px] * np.float32(255.0)
-        rgb[open_px] = np.clip(over + 0.5, 0, 255).astype(np.uint8)
+        rgb = composite_sky(color, sky_image(self.weather, self.rig, cam, self._clouds))
         timings["color_pass"] = time.perf_counter() - start
 
         start = time.perf_counter()
