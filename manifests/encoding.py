@@ -23,7 +23,7 @@ level 1 (``isal``). At 1920x1080 that is about 14x faster than OpenCV's libpng
 at zlib level 1 (whose adaptive per-row filter choice is most of its cost) for
 files of the same size. Any PNG reader decodes them; a different encoder (or
 version) gives different bytes, so :data:`PNG_ENCODER` names it and the run
-record keeps it (``encoder_identity``).
+record keeps it (:func:`encoder_identity`).
 """
 
 from __future__ import annotations
@@ -45,9 +45,6 @@ DEPTH_STEP_M = FAR_M / DEPTH_LEVELS  # one depth_raw quantisation step
 LOG_DEPTH_SCALE = 5.70378  # ln(300): the log ramp covers ~3.33 m .. 1000 m
 PNG_COMPRESSION = 1  # deflate level (ISA-L 0..3): fast; PNG stays lossless and deterministic
 PNG_ENCODER = "png-sub-isal"  # PNG filter Sub on every row, one IDAT deflated by ISA-L
-JPEG_QUALITY = 95  # --rgb-format jpg: the released IDDA's RGB format
-JPEG_ENCODER = "jpeg-cv2"  # OpenCV's libjpeg-turbo, 4:2:0, baseline
-RGB_FORMATS = ("png", "jpg")
 
 SOURCES = ("rgb", "depth", "classes")  # buffers an encoder can read
 
@@ -203,31 +200,12 @@ def encode_png(image: np.ndarray, name: str = "image") -> bytes:
     return png_bytes(image, name)
 
 
-def encode_jpeg(image: np.ndarray, name: str = "image", quality: int = JPEG_QUALITY) -> bytes:
-    """JPEG bytes (lossy, deterministic for one libjpeg-turbo build) of an HxWx3 uint8 RGB image."""
-    import cv2
-
-    _check(name, image, np.uint8, 3)
-    bgr = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR)
-    ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])
-    if not ok:
-        raise ValueError(f"{name}: JPEG encoding failed for shape {image.shape}")
-    return buf.tobytes()
-
-
 @cache
-def encoder_identity(rgb_format: str = "png") -> dict[str, str]:
-    """What made the files' bytes: encoder names and library versions (for the run record)."""
+def encoder_identity() -> str:
+    """What makes the files' bytes: the PNG encoder, its level and the ISA-L binding's version."""
     from importlib import metadata
 
-    import cv2
-
-    if rgb_format not in RGB_FORMATS:
-        raise ValueError(f"unknown rgb format {rgb_format!r}; valid: {', '.join(RGB_FORMATS)}")
-    identity = {"png": f"{PNG_ENCODER} level {PNG_COMPRESSION}, isal {metadata.version('isal')}"}
-    if rgb_format == "jpg":
-        identity["rgb"] = f"{JPEG_ENCODER} quality {JPEG_QUALITY}, opencv {cv2.__version__}"
-    return identity
+    return f"{PNG_ENCODER} level {PNG_COMPRESSION}, isal {metadata.version('isal')}"
 
 
 def decode_png(data: bytes, name: str = "image") -> np.ndarray:
