@@ -26,7 +26,7 @@ from pipeline.runmeta import RunConfig, RunConfigError, prepare_root
 log = logging.getLogger(__name__)
 
 # Environment passed on to Ray workers (renderer platform, test hooks).
-_FORWARDED_ENV = ("PYOPENGL_PLATFORM", "EGL_DEVICE_ID", "IDDA_FAULT_INJECT", "LP_NUM_THREADS")
+_FORWARDED_ENV = ("PYOPENGL_PLATFORM", "EGL_DEVICE_ID", "IDDA_FAULT_INJECT", "LP_NUM_THREADS", "IDDA_WORLD_CACHE")
 # Mesa llvmpipe rasterises with one thread per core in every GL context. When
 # the workers alone fill the cores that only adds thread hand-offs, so each
 # worker's context then gets this many (unless LP_NUM_THREADS is set).

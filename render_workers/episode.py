@@ -29,7 +29,7 @@ import numpy as np
 from manifests.catalog import NUM_CLASSES, OUTPUTS, scenario as lookup_scenario
 from manifests.spec import EpisodeSpec
 from manifests.spec import FRAME_PERIOD_S, town_seed
-from render_workers import postfx
+from render_workers import postfx, worldcache
 from render_workers.camera import measured_hood_fraction
 from manifests.encoding import encode_outputs, encode_png
 from render_workers.renderer import Renderer
@@ -86,8 +86,11 @@ def world_builder(name: str) -> WorldBuilder:
 
 @functools.lru_cache(maxsize=8)
 def cached_world(world: str, town_code: str, seed: int) -> World:
-    """A town's static world, built once per process and reused across its episodes."""
-    return world_builder(world).build_world(town_code, seed)
+    """A town's static world, loaded (or built) once per process and reused across its episodes.
+
+    The process's one world cache; behind it, built worlds are kept on disk
+    (``render_workers.worldcache``), so a new worker loads instead of building."""
+    return worldcache.load_or_build(world, town_code, seed, world_builder(world).build_world)
 
 
 @functools.lru_cache(maxsize=1)
