@@ -62,15 +62,19 @@ def _check(name: str, array: np.ndarray, dtype, ndim: int) -> None:
         raise ValueError(f"{name}: expected dtype {np.dtype(dtype)}, got {array.dtype}")
 
 
-def _normalised_depth(depth: np.ndarray, name: str) -> np.ndarray:
+def _normalised_depth(depth: np.ndarray, name: str, dtype=np.float64) -> np.ndarray:
     _check(name, depth, np.float64, 2)
     if np.isnan(depth).any():
         raise ValueError(f"{name}: depth contains NaN")
-    return np.clip(depth.astype(np.float64) / FAR_M, 0.0, 1.0)
+    n = np.multiply(depth, dtype(1.0 / FAR_M), dtype=dtype)
+    return np.clip(n, 0.0, 1.0, out=n)
 
 
-def _gray3(values: np.ndarray) -> np.ndarray:
-    return np.repeat(values.astype(np.uint8)[:, :, None], 3, axis=2)
+def _gray3(unit: np.ndarray) -> np.ndarray:
+    """round(unit * 255) (unit: float32 in [0, 1], rounding half to even like np.rint) as HxWx3 uint8."""
+    import cv2
+
+    return cv2.cvtColor(cv2.convertScaleAbs(unit, alpha=255.0), cv2.COLOR_GRAY2RGB)
 
 
 def encode_rgb(rgb: np.ndarray) -> np.ndarray:
@@ -79,13 +83,9 @@ def encode_rgb(rgb: np.ndarray) -> np.ndarray:
 
 
 def encode_depth_raw(depth: np.ndarray) -> np.ndarray:
-    n = _normalised_depth(depth, "depth_raw")
-    v = np.rint(n * DEPTH_LEVELS).astype(np.uint32)
-    out = np.empty(v.shape + (3,), dtype=np.uint8)
-    out[..., 0] = v & 255
-    out[..., 1] = (v >> 8) & 255
-    out[..., 2] = (v >> 16) & 255
-    return out
+    n = _normalised_depth(depth, "depth_raw")  # float64: 24 bits need more than float32 keeps
+    v = np.rint(np.multiply(n, DEPTH_LEVELS, out=n), out=n).astype("<u4")
+    return np.ascontiguousarray(v.view(np.uint8).reshape(v.shape + (4,))[..., :3])  # R = lowest byte
 
 
 def decode_depth_raw(image: np.ndarray) -> np.ndarray:
@@ -96,15 +96,15 @@ def decode_depth_raw(image: np.ndarray) -> np.ndarray:
 
 
 def encode_depth_gray(depth: np.ndarray) -> np.ndarray:
-    n = _normalised_depth(depth, "depth_gray")
-    return _gray3(np.rint(n * 255.0))
+    return _gray3(_normalised_depth(depth, "depth_gray", np.float32))
 
 
 def encode_depth_log(depth: np.ndarray) -> np.ndarray:
-    n = _normalised_depth(depth, "depth_log")
-    with np.errstate(divide="ignore"):
-        v = np.clip(1.0 + np.log(n) / LOG_DEPTH_SCALE, 0.0, 1.0)  # log(0) = -inf -> 0
-    return _gray3(np.rint(v * 255.0))
+    import cv2
+
+    n = _normalised_depth(depth, "depth_log", np.float32)
+    # cv2.log(0) is a large negative number rather than -inf: the clip sends both to 0
+    return _gray3(np.clip(cv2.log(n) * np.float32(1.0 / LOG_DEPTH_SCALE) + np.float32(1.0), 0.0, 1.0))
 
 
 def _check_classes(classes: np.ndarray, name: str) -> None:
@@ -120,9 +120,15 @@ def encode_semantic_raw(classes: np.ndarray) -> np.ndarray:
     return out
 
 
+_PALETTE_LUT = np.zeros((256, 1, 3), np.uint8)  # cv2.LUT table: class id -> palette colour, per channel
+_PALETTE_LUT[: len(PALETTE), 0] = PALETTE
+
+
 def encode_semantic_color(classes: np.ndarray) -> np.ndarray:
+    import cv2
+
     _check_classes(classes, "semantic_color")
-    return PALETTE[classes]
+    return cv2.LUT(cv2.cvtColor(classes, cv2.COLOR_GRAY2RGB), _PALETTE_LUT)
 
 
 @dataclass(frozen=True)
