@@ -12,7 +12,7 @@ import it:
 * makes pyrender's import-time ``import pyglet`` harmless on a headless machine
   (no shadow window; the viewer is never used).
 
-Rules kept in ``render_workers.renderer`` rather than here:
+Rules the renderer follows (``render_workers.renderer``):
 
 * pyrender's default far plane (100 m) is too short: cameras use zfar=1000,
   the dataset's far limit, and znear=0.1;
@@ -20,19 +20,25 @@ Rules kept in ``render_workers.renderer`` rather than here:
   renderer sets background to 1000 m;
 * a ``RenderFlags.SEG`` pass skips every node missing from ``seg_node_map``
   (it then occludes nothing), so the renderer maps every mesh node;
-* pyrender draws mesh nodes sorted by distance with ties broken in set (id)
-  order, so coplanar faces could differ between runs; the renderer replaces
-  the inner renderer's ``_sorted_mesh_nodes`` with a fixed order, and it swaps
-  in a cheaper ``mesh.frag`` (see ``shaders.FAST_MESH_FRAG``);
 * the first render in a process costs ~1.5 s (context, shader compiling), so a
-  renderer is kept alive per worker process;
-* the colour pass always rasterises into a 4x multisampled framebuffer. On
-  llvmpipe that costs about half of the colour pass at 1920x1080, so
-  :func:`install_framebuffer` makes the sample count a setting (0 = off; the
-  renderer then anti-aliases geometry edges in post, ``postfx.antialias``);
-* it reads back and linearises depth after every pass, with boolean-mask
-  indexing, even for the colour pass whose depth the renderer discards.
-  :func:`install_framebuffer` handles both on one renderer instance.
+  renderer is kept alive per worker process.
+
+Every change to pyrender's behaviour is made here, by a function that patches
+one renderer instance (never pyrender's modules or classes), so renderers with
+different settings can live in one process:
+
+* :func:`install_draw_order`: pyrender draws mesh nodes sorted by distance
+  with ties broken in set (id) order, so coplanar faces could differ between
+  runs; the renderer gives its own fixed order;
+* :func:`install_mesh_shader`: a cheaper ``mesh.frag``
+  (``shaders.FAST_MESH_FRAG``) in a private copy of pyrender's shaders;
+* :func:`install_framebuffer`: the colour pass always rasterises into a 4x
+  multisampled framebuffer, which on llvmpipe costs about half of the colour
+  pass at 1920x1080; here the sample count is a setting (0 = off; the renderer
+  then anti-aliases geometry edges in post, ``postfx.antialias``). pyrender
+  also reads back and linearises depth after every pass, with boolean-mask
+  indexing, even for the colour pass whose depth the renderer discards; here
+  colour passes skip it and depth is linearised in one vectorised pass.
 
 Sun shadows (:func:`install_shadow_pass`, :func:`shadow_texture`) override
 private parts of pyrender's inner renderer, on that instance only:
@@ -71,11 +77,15 @@ live renderer.
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import ctypes.util
 import logging
 import os
+import shutil
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import ModuleType
 from typing import Callable
 
@@ -252,6 +262,25 @@ def install_framebuffer(offscreen, samples: int) -> None:
     inner._configure_main_framebuffer = configure
     inner._delete_main_framebuffer = delete
     inner._read_main_framebuffer = read
+
+
+def install_mesh_shader(offscreen, fragment_source: str) -> Path:
+    """Point this renderer's shader cache at a copy of pyrender's shaders with ``mesh.frag`` replaced.
+
+    Returns the copy's directory (the caller removes it when the renderer closes;
+    it is also removed at exit)."""
+    pr = import_pyrender()
+    from pyrender.shader_program import ShaderProgramCache
+
+    shader_dir = Path(tempfile.mkdtemp(prefix="idda-shaders-"))
+    atexit.register(shutil.rmtree, shader_dir, True)  # also when a renderer is never closed
+    for path in (Path(pr.__file__).parent / "shaders").iterdir():
+        shutil.copy(path, shader_dir / path.name)
+    (shader_dir / "mesh.frag").write_text(fragment_source)
+    inner = offscreen._renderer  # pyrender keeps its shader cache on the inner renderer
+    inner._program_cache.clear()
+    inner._program_cache = ShaderProgramCache(shader_dir=str(shader_dir))
+    return shader_dir
 
 
 def install_draw_order(offscreen, sorted_mesh_nodes: Callable) -> None:

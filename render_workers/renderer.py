@@ -57,7 +57,7 @@ from manifests.catalog import Viewpoint, Weather, class_id, lookup
 from render_workers import compat
 from render_workers.camera import CameraRig, hood_mesh, sun_direction
 from render_workers.scene import EpisodeScene
-from render_workers.shaders import _install_fast_shaders
+from render_workers.shaders import FAST_MESH_FRAG
 from render_workers.soups import _pyrender_mesh, _Soup, _sphere, _triangles, part_groups, static_groups
 
 log = logging.getLogger(__name__)
@@ -249,7 +249,7 @@ class Renderer:
         if self._offscreen is None:
             self._offscreen = compat.offscreen_renderer(width, height)
             if not self.pbr:
-                self._shader_dir = _install_fast_shaders(self._offscreen)
+                self._shader_dir = compat.install_mesh_shader(self._offscreen, FAST_MESH_FRAG)
             compat.install_framebuffer(self._offscreen, self.msaa)
             compat.install_shadow_pass(self._offscreen, lambda: self._shadow_frame, depth_compare=not self.pbr)
             # pyrender sorts nodes by distance and breaks ties in set (id) order,
