@@ -8,8 +8,9 @@ An entry is keyed by the world's name, the town code, the town seed and
 :func:`code_digest`, a digest of every module the builders could read
 (``render_workers/*.py`` and ``manifests/*.py``) and of the Python, numpy and
 trimesh versions. Any edit to that code makes new keys, so a stale world is
-never loaded; entries with another digest are deleted when a new one is
-written.
+never loaded. Entries unused for ``KEEP_DAYS`` days are deleted when a new one
+is written (not every other digest: two checkouts sharing the cache would
+keep deleting each other's worlds).
 
 Where: ``$IDDA_WORLD_CACHE``, else ``$XDG_CACHE_HOME/idda/worlds``, else
 ``~/.cache/idda/worlds``; ``IDDA_WORLD_CACHE=off`` turns the cache off. Writes
@@ -26,6 +27,7 @@ import os
 import pickle
 import platform
 import tempfile
+import time
 from functools import cache
 from pathlib import Path
 from typing import Callable, TypeVar
@@ -34,6 +36,7 @@ log = logging.getLogger(__name__)
 
 CACHE_ENV = "IDDA_WORLD_CACHE"
 _PACKAGES = ("render_workers", "manifests")  # the code a world can depend on
+KEEP_DAYS = 14  # an entry not loaded for this long is dropped
 W = TypeVar("W")
 
 
@@ -67,7 +70,9 @@ def entry_path(directory: Path, world: str, town_code: str, seed: int) -> Path:
 def _read(path: Path):
     try:
         with open(path, "rb") as f:
-            return pickle.load(f)
+            value = pickle.load(f)
+        os.utime(path)  # recently used: kept by the pruning in _write
+        return value
     except FileNotFoundError:
         return None
     except Exception as exc:  # noqa: BLE001 - a truncated or foreign pickle raises many types
@@ -86,9 +91,10 @@ def _write(path: Path, value) -> None:
         finally:
             if os.path.exists(tmp):
                 os.unlink(tmp)
-        for stale in path.parent.glob("*.pickle"):  # other code versions' entries
-            if not stale.stem.endswith(code_digest()):
-                stale.unlink(missing_ok=True)
+        oldest = time.time() - KEEP_DAYS * 86400
+        for entry in path.parent.glob("*.pickle"):
+            if entry.stat().st_mtime < oldest:
+                entry.unlink(missing_ok=True)
     except OSError as exc:  # a cache that cannot be written costs a rebuild next time, nothing else
         log.warning("world cache entry %s not written (%s)", path, exc)
 

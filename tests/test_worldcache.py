@@ -33,12 +33,18 @@ def test_a_world_is_built_once_then_loaded_equal(cache):
     assert calls[-1] == ("T01", 6) and len(list(cache.glob("*.pickle"))) == 2
 
 
-def test_entries_of_other_code_are_dropped_and_damaged_ones_rebuilt(cache):
-    stale = cache / "test_T01_5_0123456789abcdef.pickle"
-    stale.write_bytes(b"old code's world")
+def test_unused_entries_are_dropped_and_damaged_ones_rebuilt(cache):
+    import os
+    import time
+
+    stale, recent = cache / "test_T01_5_0123456789abcdef.pickle", cache / "test_T01_5_fedcba9876543210.pickle"
+    stale.write_bytes(b"a world nobody loaded for a month")
+    recent.write_bytes(b"another checkout's world")
+    month_ago = time.time() - 30 * 86400
+    os.utime(stale, (month_ago, month_ago))
     calls: list = []
     worldcache.load_or_build("test", "T01", 5, counting_build(calls))
-    assert not stale.exists()
+    assert not stale.exists() and recent.exists()
     worldcache.entry_path(cache, "test", "T01", 5).write_bytes(b"\x80truncated")
     worldcache.load_or_build("test", "T01", 5, counting_build(calls))
     assert len(calls) == 2
