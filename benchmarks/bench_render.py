@@ -46,17 +46,22 @@ def _spec(code: str, frames: int, seed: int = 1):
     return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0)
 
 
-def _encode_and_write(frame, out: Path) -> None:
-    from manifests.encoding import encode_png
+def _png_encoder():
+    """The tree's PNG writer: ``png_bytes`` (any PNG-able array) where it exists, else ``encode_png`` (RGB)."""
+    from manifests import encoding
 
+    return getattr(encoding, "png_bytes", None) or encoding.encode_png
+
+
+def _encode_and_write(frame, out: Path) -> None:
+    encode = _png_encoder()
     for name, image in frame.images.items():
-        (out / f"{frame.index:04d}_{name}.png").write_bytes(encode_png(image, name))
+        (out / f"{frame.index:04d}_{name}.png").write_bytes(encode(image, name))
 
 
 # -- the probe: runs inside the tree it measures ------------------------------
 def probe(world: str) -> dict:
     """Stage samples (seconds per frame) of whichever code is first on sys.path."""
-    from manifests.encoding import encode_png
     from render_workers import episode, postfx
     from render_workers.renderer import Renderer
 
@@ -67,6 +72,7 @@ def probe(world: str) -> dict:
         return original(rgb, ctx, order, fx)
 
     postfx.apply = timed_apply
+    encode_png = _png_encoder()
     samples: dict[str, list[float]] = {s: [] for s in STAGES + EFFECTS + ("frame", "frame_cpu")}
     startup: dict[str, float] = {}
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:
