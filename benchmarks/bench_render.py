@@ -1,22 +1,31 @@
-"""Frame rendering at 1920x1080: per-stage cost, the PNG floor, and 1- vs 2-worker throughput.
+"""Frame rendering at 1920x1080, before and after: per-stage cost in one process, and workers.
 
-Stages per frame (median over measured frames, after a warm-up frame that
-compiles shaders): scene update, colour pass (incl. sky), class pass (SEG +
-depth), post effects, outputs (the six encoders), PNG encoding, writing to a
-temp dir. Throughput runs whole frames (render + encode + write) in 1 and 2
-worker processes (multiprocessing, spawn), each with its own Renderer, timed
-from a shared start barrier; the 2-worker run is also tried with
-``LP_NUM_THREADS=1`` (one llvmpipe thread per worker instead of one per core).
+Per-stage table: the same probe (this file run with ``--probe``) runs in a
+fresh process on the baseline revision ("before", see ``benchmarks.baseline``)
+and on this tree ("after"), alternately, ``BENCH_ROUNDS`` pairs. A probe
+renders FRAMES frames of each of SCENARIOS after a warm-up frame and times
+every stage: scene update, colour pass (incl. sky), class pass (SEG + depth),
+post effects (each effect apart), output encoders, PNG encoding of the six
+outputs, writing; then one episode through ``render_episode`` with a sink that
+encodes and writes, as production does (after: the sink runs on a thread,
+overlapping the next frame). Process CPU seconds per frame are reported too:
+they move less than wall times when other jobs load the machine.
+
+Worker table (this tree): whole frames in 1 and 2 worker processes
+(multiprocessing, spawn), each with its own Renderer, timed from a shared
+start barrier; 2 workers with the default llvmpipe threads and with
+``LP_NUM_THREADS=1`` (what ``idda produce`` uses when workers fill the cores).
 """
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import multiprocessing as mp
 import os
 import platform
 import statistics
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -24,76 +33,157 @@ from pathlib import Path
 WIDTH, HEIGHT = 1920, 1080
 SCENARIOS = ("T01_CN_A", "T01_HRN_A", "T01_CS_M")  # clear, worst-case effects, low sun
 FRAMES = 3  # measured frames per scenario (after one warm-up frame)
-THROUGHPUT_FRAMES = 4  # frames per worker in the throughput runs
+EPISODE_FRAMES = 6  # frames of the render_episode run (production's loop)
+THROUGHPUT_FRAMES = 8  # frames per worker in the throughput runs
+WORLD = os.environ.get("BENCH_WORLD", "procedural")
 STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "png_encode", "write")
+EFFECTS = ("antialias", "puddles", "wet_road", "fog", "rain", "bloom", "lens_flare", "motion_blur", "grading")
 
 
 def _spec(code: str, frames: int, seed: int = 1):
-    from manifests.outputs import SEED_OUTPUTS
+    """An episode spec with the paper's six outputs (trees before the Output table write exactly those)."""
     from manifests.spec import EpisodeSpec
 
-    return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0, outputs=SEED_OUTPUTS)  # the paper's six
+    try:
+        from manifests.outputs import SEED_OUTPUTS
+    except ImportError:  # the baseline tree: six outputs is all it has
+        return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0)
+    return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0, outputs=SEED_OUTPUTS)
 
 
-def _write(frame, data: dict, out: Path) -> None:
-    for name, png in data.items():
-        (out / f"{frame.index:04d}_{name}.png").write_bytes(png)
+def _png_encoder():
+    """The tree's PNG writer: ``png_bytes`` (any PNG-able array) where it exists, else ``encode_png`` (RGB)."""
+    from manifests import encoding
+
+    return getattr(encoding, "png_bytes", None) or encoding.encode_png
 
 
-def _stage_times(world: str) -> dict:
-    """Median seconds per stage over FRAMES frames of each scenario, plus the PNG floor."""
-    from render_workers.episode import encode_frame, load_episode, render_frame
+def _frame_files(frame) -> dict[str, bytes]:
+    """A frame's file bytes, through whichever encoding API the measured tree has."""
+    from render_workers import episode
+
+    if hasattr(episode, "encode_frame"):  # the Output table's trees
+        return episode.encode_frame(frame)
+    encode = _png_encoder()
+    return {name: encode(image, name) for name, image in frame.images.items()}
+
+
+def _encode_and_write(frame, out: Path) -> None:
+    for name, data in _frame_files(frame).items():
+        (out / f"{frame.index:04d}_{name}").write_bytes(data)
+
+
+# -- the probe: runs inside the tree it measures ------------------------------
+def probe(world: str) -> dict:
+    """Stage samples (seconds per frame) of whichever code is first on sys.path."""
+    from render_workers import episode, postfx
     from render_workers.renderer import Renderer
 
-    per_stage: dict[str, list[float]] = {s: [] for s in STAGES}
-    png_floor, totals = [], []
+    fx: dict[str, float] = {}
+    original = postfx.apply
+
+    def timed_apply(rgb, ctx, order=postfx.ORDER, timings=None):  # per-effect times, both trees
+        return original(rgb, ctx, order, fx)
+
+    postfx.apply = timed_apply
+    samples: dict[str, list[float]] = {s: [] for s in STAGES + EFFECTS + ("frame", "frame_cpu")}
+    startup: dict[str, float] = {}
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:
         for code in SCENARIOS:
             spec = _spec(code, FRAMES + 1)
-            scene, _ = load_episode(spec, renderer, world)
-            render_frame(renderer, scene, spec, 0)  # warm-up: shader compile, uploads
+            scene, load = episode.load_episode(spec, renderer, world)
+            start = time.perf_counter()
+            episode.render_frame(renderer, scene, spec, 0)  # warm-up: shader compile on the first, uploads
+            if not startup:
+                startup = {"world_build_s": load["world"], "first_frame_s": time.perf_counter() - start}
             for index in range(1, FRAMES + 1):
-                start = time.perf_counter()
-                frame, timings = render_frame(renderer, scene, spec, index)
+                fx.clear()
+                cpu, start = time.process_time(), time.perf_counter()
+                frame, timings = episode.render_frame(renderer, scene, spec, index)
                 t0 = time.perf_counter()
-                data = encode_frame(frame)
+                data = _frame_files(frame)
                 timings["png_encode"] = time.perf_counter() - t0
                 t0 = time.perf_counter()
-                _write(frame, data, Path(tmp))
+                for name, png in data.items():
+                    (Path(tmp) / f"{index:04d}_{name}").write_bytes(png)
                 timings["write"] = time.perf_counter() - t0
-                totals.append(time.perf_counter() - start)
-                png_floor.append(timings["png_encode"])
+                samples["frame"].append(time.perf_counter() - start)
+                samples["frame_cpu"].append(time.process_time() - cpu)
                 for stage in STAGES:
-                    per_stage[stage].append(timings[stage])
+                    samples[stage].append(timings[stage])
+                for name in EFFECTS:
+                    samples[name].append(fx.get(name, 0.0))
+        # production's loop: render_episode with a sink that encodes and writes
+        spec = _spec(SCENARIOS[0], EPISODE_FRAMES)
+        cpu, start = time.process_time(), time.perf_counter()
+        info = episode.render_episode(spec, lambda f: _encode_and_write(f, Path(tmp)), world=world, renderer=renderer)
+        loading = sum(info.timings[k] for k in ("world", "populate", "load"))  # the episode's set-up, not frames
+        samples["episode_frame"] = [(time.perf_counter() - start - loading) / EPISODE_FRAMES]
+        samples["episode_frame_cpu"] = [(time.process_time() - cpu - loading) / EPISODE_FRAMES]
+    return {"samples": samples, "startup": startup, "load_average": os.getloadavg()[0]}
+
+
+def _run_probe(tree: Path | None, world: str) -> dict:
+    from benchmarks.baseline import tree_env
+
+    cwd = tree if tree is not None else Path(__file__).resolve().parent.parent
+    env = tree_env(tree) if tree is not None else dict(os.environ)
+    with tempfile.TemporaryDirectory(prefix="idda-bench-worlds-") as cache:
+        env["IDDA_WORLD_CACHE"] = cache  # cold: every probe builds its town
+        result = subprocess.run([sys.executable, str(Path(__file__).resolve()), "--probe", world], cwd=cwd, env=env,
+                                capture_output=True, text=True, check=False)
+    if result.returncode != 0:
+        raise RuntimeError(f"render probe failed in {cwd}:\n{result.stderr[-3000:]}")
+    return json.loads(result.stdout.strip().splitlines()[-1])
+
+
+def _merge(runs: list[dict]) -> dict:
+    merged: dict[str, list[float]] = {}
+    for run in runs:
+        for key, values in run["samples"].items():
+            merged.setdefault(key, []).extend(values)
     return {
-        "median_s": {s: statistics.median(v) for s, v in per_stage.items()},
-        "frame_median_s": statistics.median(totals),
-        "png_floor_s": statistics.median(png_floor),
+        "median_s": {k: statistics.median(v) for k, v in merged.items()},
+        "startup": {k: statistics.median(r["startup"][k] for r in runs) for k in runs[0]["startup"]},
+        "load_average": [r["load_average"] for r in runs],
     }
 
 
+def stage_tables(world: str) -> dict:
+    """Before/after probes, alternated; medians per stage."""
+    from benchmarks.baseline import baseline_tree, rounds
+
+    before, after = [], []
+    with baseline_tree() as (ref, tree, reason):
+        for _ in range(rounds()):
+            if tree is not None:
+                before.append(_run_probe(tree, world))
+            after.append(_run_probe(None, world))
+    return {"baseline": ref, "before": _merge(before) if before else None, "before_missing": reason,
+            "after": _merge(after), "rounds": rounds()}
+
+
+# -- workers (this tree) ---------------------------------------------------------
 def _worker(world: str, code: str, seed: int, barrier, lp_threads: str | None, queue) -> None:
     if lp_threads is not None:
         os.environ["LP_NUM_THREADS"] = lp_threads
-    from render_workers.episode import encode_frame, load_episode, render_frame
+    from render_workers.episode import load_episode, render_episode, render_frame
     from render_workers.renderer import Renderer
 
-    spec = _spec(code, THROUGHPUT_FRAMES + 1, seed)
+    spec = _spec(code, THROUGHPUT_FRAMES, seed)
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:
         scene, _ = load_episode(spec, renderer, world)
         render_frame(renderer, scene, spec, 0)  # warm-up outside the timed window
         barrier.wait()
         start = time.monotonic()
-        for index in range(1, THROUGHPUT_FRAMES + 1):
-            frame, _ = render_frame(renderer, scene, spec, index)
-            _write(frame, encode_frame(frame), Path(tmp))
+        render_episode(spec, lambda f: _encode_and_write(f, Path(tmp)), world=world, renderer=renderer)
         queue.put((start, time.monotonic()))
 
 
 def _throughput(world: str, workers: int, lp_threads: str | None = None) -> dict:
     ctx = mp.get_context("spawn")
     barrier, queue = ctx.Barrier(workers), ctx.Queue()
-    procs = [ctx.Process(target=_worker, args=(world, "T01_HRN_A", 1 + k, barrier, lp_threads, queue))
+    procs = [ctx.Process(target=_worker, args=(world, "T01_CN_A", 1 + k, barrier, lp_threads, queue))
              for k in range(workers)]
     for p in procs:
         p.start()
@@ -109,23 +199,17 @@ def _throughput(world: str, workers: int, lp_threads: str | None = None) -> dict
 
 
 def main(out_dir: str = "docs") -> dict:
-    worlds = ["test"]
-    if importlib.util.find_spec("render_workers.world") is not None:
-        worlds.append("procedural")
     result = {
-        "command": "make bench BENCH=render (benchmarks/bench_render.py)",
+        "command": "BENCH=render make bench (benchmarks/bench_render.py)",
         "resolution": [WIDTH, HEIGHT],
+        "world": WORLD,
         "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),
                     "load_average_at_start": os.getloadavg(),
                     "pyopengl_platform": os.environ.get("PYOPENGL_PLATFORM", "egl (default)")},
-        "worlds": {},
     }
-    for world in worlds:
-        stages = _stage_times(world)
-        runs = [_throughput(world, 1), _throughput(world, 2), _throughput(world, 2, "1")]
-        result["worlds"][world] = {"stages": stages, "throughput": runs}
+    result["stages"] = stage_tables(WORLD)
+    result["throughput"] = [_throughput(WORLD, 1), _throughput(WORLD, 2), _throughput(WORLD, 2, "1")]
     result["machine"]["load_average_at_end"] = os.getloadavg()
-
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench_render.json").write_text(json.dumps(result, indent=2) + "\n")
@@ -133,45 +217,89 @@ def main(out_dir: str = "docs") -> dict:
     return result
 
 
+def _row(label: str, before: float | None, after: float) -> str:
+    if before is None:
+        return f"| {label} | not measured | {after:.3f} | |"
+    ratio = f"{after / before:.2f}" if before > 0.0005 else ""
+    return f"| {label} | {before:.3f} | {after:.3f} | {ratio} |"
+
+
 def _markdown(result: dict) -> str:
-    m = result["machine"]
+    m, st = result["machine"], result["stages"]
+    before, after = st["before"], st["after"]
+    b = (lambda key: before["median_s"].get(key)) if before else (lambda key: None)
+    a = after["median_s"]
     lines = [
         "# Rendering benchmark",
         "",
-        f"`{result['command']}` at {WIDTH}x{HEIGHT}, all six outputs, on {m['cpus']} CPU cores",
-        f"({m['platform']}, PyOpenGL platform {m['pyopengl_platform']}, Mesa llvmpipe when there is no GPU).",
+        f"`{result['command']}` at {WIDTH}x{HEIGHT}, {result['world']} world, all six outputs, on {m['cpus']} CPU "
+        f"cores ({m['platform']}, PyOpenGL platform {m['pyopengl_platform']}, Mesa llvmpipe when there is no GPU).",
         f"Load average at start / end: {m['load_average_at_start'][0]:.1f} / {m['load_average_at_end'][0]:.1f}"
-        " (other jobs on the machine inflate wall times).",
+        " (other jobs on the machine inflate wall times; compare the ratios).",
         "",
-        f"Stages: median seconds per frame over {FRAMES} frames each of {', '.join(SCENARIOS)}, after a",
-        "warm-up frame (the first render in a process compiles shaders, ~1.5 s).",
+        "## Per stage, one process, before and after",
+        "",
+        f"Before: revision `{st['baseline']}` (`BENCH_BASELINE`); after: this tree. Each side runs in fresh processes,",
+        f"alternately, {st['rounds']} of each; medians over {FRAMES} frames each of {', '.join(SCENARIOS)}",
+        "after a warm-up frame. Seconds per frame. Process CPU per frame moves least with the machine's load.",
         "",
     ]
-    for world, data in result["worlds"].items():
-        st = data["stages"]
-        lines += [f"## World `{world}`", "", "| stage | median s/frame |", "|---|---:|"]
-        lines += [f"| {s} | {st['median_s'][s]:.3f} |" for s in STAGES]
-        lines += [
-            f"| **whole frame (one process)** | **{st['frame_median_s']:.3f}** |",
-            "",
-            f"PNG-encoding-only floor: {st['png_floor_s']:.3f} s per frame (six PNGs, zlib level 1), i.e. at most "
-            f"{1 / st['png_floor_s']:.1f} frames/s per core even if rendering were free.",
-            "",
-            "| workers | LP_NUM_THREADS | frames | wall s | frames/s |",
-            "|---:|---|---:|---:|---:|",
-        ]
-        lines += [f"| {r['workers']} | {r['lp_num_threads']} | {r['frames']} | {r['wall_s']:.2f} | "
-                  f"{r['frames_per_s']:.2f} |" for r in data["throughput"]]
-        lines.append("")
+    if before is None:
+        lines += [f"The before side was not measured: {st['before_missing']}.", ""]
+    lines += ["| stage | before | after | after/before |", "|---|---:|---:|---:|"]
+    for stage in STAGES:
+        lines.append(_row(stage, b(stage), a[stage]))
+        if stage == "post_fx":
+            lines += [_row(f"  post_fx: {e}", b(e), a[e]) for e in EFFECTS if a[e] > 0 or (b(e) or 0) > 0]
     lines += [
-        "What bounds it: on a CPU-only machine every stage competes for the same cores, so two",
-        "workers give about the per-frame CPU time divided by two cores. The colour pass (llvmpipe",
-        "rasterising and shading 1920x1080, no multisampling: pyrender's hard-coded 4x MSAA cost",
-        "about half of this pass, and edges are anti-aliased in post instead), the post effects and",
-        "the PNG encoding of six full-HD images are each about a quarter of a frame; the class pass",
-        "and the output encoders take the rest. The PNG floor alone caps a core at about 4 frames/s.",
-        "Sun shadows (a 2048 shadow map fitted around the view) are part of the colour pass for CN",
-        "and CS; HRN skips them.",
+        _row("**whole frame, stages in a row**", b("frame"), a["frame"]),
+        _row("process CPU per frame (all threads)", b("frame_cpu"), a["frame_cpu"]),
+        _row(f"**frame in production's loop** (render_episode, {SCENARIOS[0]}, {EPISODE_FRAMES} frames from the first)",
+             b("episode_frame"), a["episode_frame"]),
+        _row("process CPU per frame in that loop (approx.: set-up wall time subtracted)", b("episode_frame_cpu"),
+             a["episode_frame_cpu"]),
+        "",
+        "Once per worker (first scenario; worlds built cold, without the disk cache):",
+        "",
+        "| start-up | before | after |",
+        "|---|---:|---:|",
+    ]
+    for key, label in (("world_build_s", "world build (s)"), ("first_frame_s", "first frame, shader compile (s)")):
+        bv = f"{before['startup'][key]:.2f}" if before else "not measured"
+        lines.append(f"| {label} | {bv} | {after['startup'][key]:.2f} |")
+    loads = (before["load_average"] if before else []) + after["load_average"]
+    lines += [
+        "",
+        f"Load average (1 min) when each probe ended: {', '.join(f'{x:.1f}' for x in loads)}.",
+        "",
+        "PNG encoding after: PNG filter Sub in numpy, one IDAT deflated by ISA-L level 1",
+        "(`manifests.encoding`); before: OpenCV's libpng at zlib level 1 with its adaptive filters.",
+        "In production the encoding runs on the episode's sink thread, overlapping the next frame.",
+        "",
+        "## Workers (after)",
+        "",
+        f"Whole frames (render, post effects, outputs, PNG, write) of T01_CN_A, {THROUGHPUT_FRAMES} per worker,",
+        "each worker its own process and renderer, timed from a shared barrier after a warm-up frame.",
+        "",
+        "| workers | LP_NUM_THREADS | frames | wall s | frames/s |",
+        "|---:|---|---:|---:|---:|",
+    ]
+    lines += [f"| {r['workers']} | {r['lp_num_threads']} | {r['frames']} | {r['wall_s']:.2f} | {r['frames_per_s']:.2f} |"
+              for r in result["throughput"]]
+    one = result["throughput"][0]["frames_per_s"]
+    lines += [
+        "",
+        f"Scaling 1 -> 2 workers: {result['throughput'][1]['frames_per_s'] / one:.2f}x with llvmpipe's default threads, "
+        f"{result['throughput'][2]['frames_per_s'] / one:.2f}x with one llvmpipe thread per worker.",
+        "",
+        "## GPU",
+        "",
+        "Not measured: no GPU machine was available to this benchmark's runs. On one, run",
+        "`BENCH=render make bench` with NVIDIA EGL and record the machine here.",
+        "",
+        "What bounds it on CPU: every stage competes for the same cores. The colour pass (llvmpipe",
+        "rasterising and shading 1920x1080 without multisampling; edges are anti-aliased in post) is",
+        "now the largest stage, then the post effects and the class pass.",
         "",
         "For scale: the IDDA paper made 1,006,800 frames in about two weeks on two GPU workstations,",
         "about 0.42 frames/s per workstation, at the same resolution.",
@@ -181,4 +309,7 @@ def _markdown(result: dict) -> str:
 
 
 if __name__ == "__main__":
-    main()
+    if sys.argv[1:2] == ["--probe"]:
+        print(json.dumps(probe(sys.argv[2])))
+    else:
+        main()

@@ -1,4 +1,4 @@
-"""Per-frame output encodings (CARLA conventions) and PNG bytes, in pure numpy + cv2.
+"""Per-frame output encodings (CARLA conventions) and PNG bytes, in numpy + ISA-L (cv2 decodes).
 
 Each output in ``manifests.outputs.OUTPUT_TABLE`` names one of these encoders,
 which turns one of the renderer's buffers into the array its file holds:
@@ -17,9 +17,21 @@ Depth is metric planar Z (float, metres) with background/sky at 1000 m.
 
 This is part of the dataset's vocabulary: the renderer encodes with it, and
 exports, loaders and verification decode with it.
+
+PNG files are written here, not by a codec library: every row gets PNG filter
+1 (Sub, in numpy) and the image is one IDAT compressed by ISA-L's deflate at
+level 1 (``isal``). At 1920x1080 that is about 14x faster than OpenCV's libpng
+at zlib level 1 (whose adaptive per-row filter choice is most of its cost) for
+files of the same size. Any PNG reader decodes them; a different encoder (or
+version) gives different bytes, so :data:`PNG_ENCODER` names it and the run
+record keeps it (:func:`encoder_identity`).
 """
 
 from __future__ import annotations
+
+import struct
+import zlib
+from functools import cache
 
 import numpy as np
 
@@ -29,7 +41,8 @@ FAR_M = 1000.0  # depth far limit; sky and background count as this
 DEPTH_LEVELS = 256**3 - 1
 DEPTH_STEP_M = FAR_M / DEPTH_LEVELS  # one depth_raw quantisation step
 LOG_DEPTH_SCALE = 5.70378  # ln(300): the log ramp covers ~3.33 m .. 1000 m
-PNG_COMPRESSION = 1  # zlib level: fast; PNG stays lossless and deterministic
+PNG_COMPRESSION = 1  # deflate level (ISA-L 0..3): fast; PNG stays lossless and deterministic
+PNG_ENCODER = "png-sub-isal"  # PNG filter Sub on every row, one IDAT deflated by ISA-L
 
 def _check(name: str, array: np.ndarray, dtype, ndim: int) -> None:
     if not isinstance(array, np.ndarray):
@@ -44,15 +57,19 @@ def _check(name: str, array: np.ndarray, dtype, ndim: int) -> None:
         raise ValueError(f"{name}: expected dtype {np.dtype(dtype)}, got {array.dtype}")
 
 
-def _normalised_depth(depth: np.ndarray, name: str) -> np.ndarray:
+def _normalised_depth(depth: np.ndarray, name: str, dtype=np.float64) -> np.ndarray:
     _check(name, depth, np.float64, 2)
     if np.isnan(depth).any():
         raise ValueError(f"{name}: depth contains NaN")
-    return np.clip(depth.astype(np.float64) / FAR_M, 0.0, 1.0)
+    n = np.multiply(depth, dtype(1.0 / FAR_M), dtype=dtype)
+    return np.clip(n, 0.0, 1.0, out=n)
 
 
-def _gray3(values: np.ndarray) -> np.ndarray:
-    return np.repeat(values.astype(np.uint8)[:, :, None], 3, axis=2)
+def _gray3(unit: np.ndarray) -> np.ndarray:
+    """round(unit * 255) (unit: float32 in [0, 1], rounding half to even like np.rint) as HxWx3 uint8."""
+    import cv2
+
+    return cv2.cvtColor(cv2.convertScaleAbs(unit, alpha=255.0), cv2.COLOR_GRAY2RGB)
 
 
 def encode_rgb(rgb: np.ndarray) -> np.ndarray:
@@ -61,13 +78,9 @@ def encode_rgb(rgb: np.ndarray) -> np.ndarray:
 
 
 def encode_depth_raw(depth: np.ndarray) -> np.ndarray:
-    n = _normalised_depth(depth, "depth_raw")
-    v = np.rint(n * DEPTH_LEVELS).astype(np.uint32)
-    out = np.empty(v.shape + (3,), dtype=np.uint8)
-    out[..., 0] = v & 255
-    out[..., 1] = (v >> 8) & 255
-    out[..., 2] = (v >> 16) & 255
-    return out
+    n = _normalised_depth(depth, "depth_raw")  # float64: 24 bits need more than float32 keeps
+    v = np.rint(np.multiply(n, DEPTH_LEVELS, out=n), out=n).astype("<u4")
+    return np.ascontiguousarray(v.view(np.uint8).reshape(v.shape + (4,))[..., :3])  # R = lowest byte
 
 
 def decode_depth_raw(image: np.ndarray) -> np.ndarray:
@@ -78,15 +91,15 @@ def decode_depth_raw(image: np.ndarray) -> np.ndarray:
 
 
 def encode_depth_gray(depth: np.ndarray) -> np.ndarray:
-    n = _normalised_depth(depth, "depth_gray")
-    return _gray3(np.rint(n * 255.0))
+    return _gray3(_normalised_depth(depth, "depth_gray", np.float32))
 
 
 def encode_depth_log(depth: np.ndarray) -> np.ndarray:
-    n = _normalised_depth(depth, "depth_log")
-    with np.errstate(divide="ignore"):
-        v = np.clip(1.0 + np.log(n) / LOG_DEPTH_SCALE, 0.0, 1.0)  # log(0) = -inf -> 0
-    return _gray3(np.rint(v * 255.0))
+    import cv2
+
+    n = _normalised_depth(depth, "depth_log", np.float32)
+    # cv2.log(0) is a large negative number rather than -inf: the clip sends both to 0
+    return _gray3(np.clip(cv2.log(n) * np.float32(1.0 / LOG_DEPTH_SCALE) + np.float32(1.0), 0.0, 1.0))
 
 
 def _check_classes(classes: np.ndarray, name: str) -> None:
@@ -102,21 +115,64 @@ def encode_semantic_raw(classes: np.ndarray) -> np.ndarray:
     return out
 
 
+_PALETTE_LUT = np.zeros((256, 1, 3), np.uint8)  # cv2.LUT table: class id -> palette colour, per channel
+_PALETTE_LUT[: len(PALETTE), 0] = PALETTE
+
+
 def encode_semantic_color(classes: np.ndarray) -> np.ndarray:
+    import cv2
+
     _check_classes(classes, "semantic_color")
-    return PALETTE[classes]
+    return cv2.LUT(cv2.cvtColor(classes, cv2.COLOR_GRAY2RGB), _PALETTE_LUT)
+
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_COLOUR_TYPE = {1: 0, 3: 2, 4: 6}  # channels -> grey, RGB, RGBA
+
+
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data))
+
+
+def _sub_filtered(rows: np.ndarray, bpp: int) -> np.ndarray:
+    """PNG scanlines with filter type 1 (Sub): each byte minus the one ``bpp`` bytes left, mod 256."""
+    out = np.empty((rows.shape[0], rows.shape[1] + 1), np.uint8)
+    out[:, 0] = 1
+    out[:, 1:bpp + 1] = rows[:, :bpp]
+    np.subtract(rows[:, bpp:], rows[:, :-bpp], out=out[:, bpp + 1:])
+    return out
+
+
+def png_bytes(image: np.ndarray, name: str = "image") -> bytes:
+    """Lossless, deterministic PNG bytes of an HxW (grey), HxWx3 (RGB) or HxWx4 (RGBA) image, uint8 or uint16."""
+    from isal import isal_zlib
+
+    if not isinstance(image, np.ndarray) or image.dtype not in (np.uint8, np.uint16):
+        raise ValueError(f"{name}: expected a uint8 or uint16 numpy array, got {getattr(image, 'dtype', type(image))}")
+    channels = 1 if image.ndim == 2 else (image.shape[2] if image.ndim == 3 else 0)
+    if channels not in _PNG_COLOUR_TYPE or image.shape[0] < 1 or image.shape[1] < 1:
+        raise ValueError(f"{name}: expected an HxW, HxWx3 or HxWx4 image, got shape {image.shape}")
+    height, width = image.shape[:2]
+    depth = image.dtype.itemsize * 8
+    big_endian = image.astype(">u2", copy=False) if depth == 16 else image
+    rows = np.ascontiguousarray(big_endian).view(np.uint8).reshape(height, -1)
+    data = isal_zlib.compress(_sub_filtered(rows, channels * image.dtype.itemsize), PNG_COMPRESSION)
+    header = struct.pack(">IIBBBBB", width, height, depth, _PNG_COLOUR_TYPE[channels], 0, 0, 0)
+    return _PNG_SIGNATURE + _png_chunk(b"IHDR", header) + _png_chunk(b"IDAT", data) + _png_chunk(b"IEND", b"")
 
 
 def encode_png(image: np.ndarray, name: str = "image") -> bytes:
     """Lossless, deterministic PNG bytes of an HxWx3 uint8 RGB image."""
-    import cv2
-
     _check(name, image, np.uint8, 3)
-    bgr = cv2.cvtColor(np.ascontiguousarray(image), cv2.COLOR_RGB2BGR)
-    ok, buf = cv2.imencode(".png", bgr, [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
-    if not ok:
-        raise ValueError(f"{name}: PNG encoding failed for shape {image.shape}")
-    return buf.tobytes()
+    return png_bytes(image, name)
+
+
+@cache
+def encoder_identity() -> str:
+    """What makes the files' bytes: the PNG encoder, its level and the ISA-L binding's version."""
+    from importlib import metadata
+
+    return f"{PNG_ENCODER} level {PNG_COMPRESSION}, isal {metadata.version('isal')}"
 
 
 def decode_png(data: bytes, name: str = "image") -> np.ndarray:
@@ -137,13 +193,8 @@ def encode_instance(instances: np.ndarray) -> np.ndarray:
 
 def encode_png16(image: np.ndarray, name: str = "image") -> bytes:
     """Lossless, deterministic 16-bit single-channel PNG bytes of an HxW uint16 image."""
-    import cv2
-
     _check(name, image, np.uint16, 2)
-    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), [cv2.IMWRITE_PNG_COMPRESSION, PNG_COMPRESSION])
-    if not ok:
-        raise ValueError(f"{name}: PNG encoding failed for shape {image.shape}")
-    return buf.tobytes()
+    return png_bytes(image, name)
 
 
 def decode_png16(data: bytes, name: str = "image") -> np.ndarray:

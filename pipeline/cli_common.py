@@ -40,7 +40,8 @@ def user_errors() -> Iterator[None]:
     except typer.Exit:
         raise
     except (ValueError, OSError, ImportError, StorageError, ManifestError, RunConfigError, LeaseError) as exc:
-        typer.echo(f"error: {exc}", err=True)
+        message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())  # one line, always
+        typer.echo(f"error: {message}", err=True)
         raise typer.Exit(code=2) from None
     except KeyboardInterrupt:
         typer.echo("interrupted", err=True)

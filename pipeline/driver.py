@@ -26,7 +26,11 @@ from pipeline.runmeta import RunConfig, RunConfigError, prepare_root
 log = logging.getLogger(__name__)
 
 # Environment passed on to Ray workers (renderer platform, test hooks).
-_FORWARDED_ENV = ("PYOPENGL_PLATFORM", "EGL_DEVICE_ID", "IDDA_FAULT_INJECT")
+_FORWARDED_ENV = ("PYOPENGL_PLATFORM", "EGL_DEVICE_ID", "IDDA_FAULT_INJECT", "LP_NUM_THREADS", "IDDA_WORLD_CACHE")
+# Mesa llvmpipe rasterises with one thread per core in every GL context. When
+# the workers alone fill the cores that only adds thread hand-offs, so each
+# worker's context then gets this many (unless LP_NUM_THREADS is set).
+LP_THREADS_WHEN_FULL = "1"
 
 
 @dataclass(frozen=True)
@@ -236,10 +240,12 @@ class _FrameCounter:
 PROGRESS_WAIT_S = 5.0  # longest the driver waits for a frame before it looks again
 
 
-def _episode_task(spec, storage, world, counter=None):
+def _episode_task(spec, storage, world, counter=None, lp_threads=None):
     from pipeline.episode_job import run_episode
     from storage import StorageError
 
+    if lp_threads is not None:  # read when this worker's GL context is made (its first episode)
+        os.environ.setdefault("LP_NUM_THREADS", lp_threads)
     on_frame = None
     if counter is not None:
         def on_frame(n: int) -> None:  # fire and forget: progress never slows rendering
@@ -292,6 +298,8 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
             reaper = Reaper()
         slots = max(1, int(ray.cluster_resources().get("CPU", 1) // config.cpus_per_task))
         report.workers = slots
+        full = not _address(config) and not config.gpus_per_task and slots * config.cpus_per_task >= (os.cpu_count() or 1)
+        lp_threads = LP_THREADS_WHEN_FULL if full and "LP_NUM_THREADS" not in os.environ else None
         limit = config.max_in_flight or 2 * slots
         options = dict(
             num_cpus=config.cpus_per_task,
@@ -327,7 +335,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         while queue or in_flight:
             while queue and len(in_flight) < limit:
                 spec = queue.popleft()
-                in_flight[task.remote(spec, storage_ref, config.run.world, counter)] = spec
+                in_flight[task.remote(spec, storage_ref, config.run.world, counter, lp_threads)] = spec
             if counter is not None and watch is None:
                 watch = counter.wait_total.remote(frames_seen, PROGRESS_WAIT_S)
             ready, _ = ray.wait(list(in_flight) + ([watch] if watch is not None else []), num_returns=1)

@@ -1,9 +1,12 @@
 """Provenance and config guard for an output root (``<root>/run.json``).
 
-The file records the run config, package versions and the git revision. A
-later run into the same root must ask for the same config, or pass --extend;
-settings that decide what a frame looks like (seed, resolution, world) can
-never change within one root, since frames would no longer match each other.
+The file records the run config, package versions, the git revision and the
+file encoder (``manifests.encoding.encoder_identity``). A later run into the
+same root must ask for the same config, or pass --extend; settings that decide
+what a frame looks like (seed, resolution, world) can never change within one
+root, since frames would no longer match each other. Nor can the encoder once
+the root holds frames: another encoder (or version) writes other bytes for the
+same image, so a resumed episode would not match the one it replaces.
 """
 
 from __future__ import annotations
@@ -113,12 +116,37 @@ def _with_outputs(config: dict) -> dict:
 
 
 def _fresh_record(new: dict, history: list[dict] | None = None) -> dict:
+    from manifests.encoding import encoder_identity
+
     return {
         "config": new,
         "history": (history or []) + [new],
         "versions": package_versions(),
         "git_revision": git_revision(),
+        "encoder": encoder_identity(),
     }
+
+
+UNRECORDED_ENCODER = "not recorded (OpenCV's PNG encoder, before encoders were recorded)"
+
+
+def check_encoder(storage, record: dict) -> dict:
+    """Refuse to add frames encoded otherwise than the root's; records the encoder in an empty root."""
+    from manifests.encoding import encoder_identity
+    from manifests.reader import episode_frames
+
+    ours, theirs = encoder_identity(), record.get("encoder", UNRECORDED_ENCODER)
+    if theirs == ours:
+        return record
+    if episode_frames(storage):
+        raise RunConfigError(
+            f"{storage.uri} holds frames written by another encoder ({theirs}; this run writes {ours}); "
+            "one root never mixes encoders, since a re-rendered frame would not match its files: "
+            "use a new --out, or the encoder that made the root"
+        )
+    record = {**record, "encoder": ours}
+    storage.write_bytes(RUN_FILE, record_bytes(record))
+    return read_record(storage)
 
 
 def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool = False) -> dict:
@@ -147,6 +175,7 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
         record = read_run(storage)  # another driver was first: compare with its record
         if record is None:
             raise RunConfigError(f"cannot create {storage.join(RUN_FILE)}")
+    record = check_encoder(storage, record)
     old = _with_outputs(record["config"])
     if old == new:
         check_rows(storage, config)

@@ -12,7 +12,7 @@ import it:
 * makes pyrender's import-time ``import pyglet`` harmless on a headless machine
   (no shadow window; the viewer is never used).
 
-Rules kept in ``render_workers.renderer`` rather than here:
+Rules the renderer follows (``render_workers.renderer``):
 
 * pyrender's default far plane (100 m) is too short: cameras use zfar=1000,
   the dataset's far limit, and znear=0.1;
@@ -20,16 +20,25 @@ Rules kept in ``render_workers.renderer`` rather than here:
   renderer sets background to 1000 m;
 * a ``RenderFlags.SEG`` pass skips every node missing from ``seg_node_map``
   (it then occludes nothing), so the renderer maps every mesh node;
-* pyrender draws mesh nodes sorted by distance with ties broken in set (id)
-  order, so coplanar faces could differ between runs; the renderer replaces
-  the inner renderer's ``_sorted_mesh_nodes`` with a fixed order, and it swaps
-  in a cheaper ``mesh.frag`` (see ``shaders.FAST_MESH_FRAG``);
 * the first render in a process costs ~1.5 s (context, shader compiling), so a
-  renderer is kept alive per worker process;
-* the colour pass always rasterises into a 4x multisampled framebuffer. On
-  llvmpipe that costs about half of the colour pass at 1920x1080, so
-  :func:`set_msaa_samples` makes the sample count a setting (0 = off; the
-  renderer then anti-aliases geometry edges in post, ``postfx.antialias``).
+  renderer is kept alive per worker process.
+
+Every change to pyrender's behaviour is made here, by a function that patches
+one renderer instance (never pyrender's modules or classes), so renderers with
+different settings can live in one process:
+
+* :func:`install_draw_order`: pyrender draws mesh nodes sorted by distance
+  with ties broken in set (id) order, so coplanar faces could differ between
+  runs; the renderer gives its own fixed order;
+* :func:`install_mesh_shader`: a cheaper ``mesh.frag``
+  (``shaders.FAST_MESH_FRAG``) in a private copy of pyrender's shaders;
+* :func:`install_framebuffer`: the colour pass always rasterises into a 4x
+  multisampled framebuffer, which on llvmpipe costs about half of the colour
+  pass at 1920x1080; here the sample count is a setting (0 = off; the renderer
+  then anti-aliases geometry edges in post, ``postfx.antialias``). pyrender
+  also reads back and linearises depth after every pass, with boolean-mask
+  indexing, even for the colour pass whose depth the renderer discards; here
+  colour passes skip it and depth is linearised in one vectorised pass.
 
 Sun shadows (:func:`install_shadow_pass`, :func:`shadow_texture`) override
 private parts of pyrender's inner renderer, on that instance only:
@@ -68,11 +77,15 @@ live renderer.
 
 from __future__ import annotations
 
+import atexit
 import ctypes
 import ctypes.util
 import logging
 import os
+import shutil
+import tempfile
 from dataclasses import dataclass, field
+from pathlib import Path
 from types import ModuleType
 from typing import Callable
 
@@ -153,35 +166,126 @@ def import_pyrender() -> ModuleType:
 
 
 _live_renderers = 0
-_msaa_samples = 4
+MSAA_CHOICES = (0, 2, 4, 8)
 
 
-def set_msaa_samples(samples: int) -> None:
-    """Samples of pyrender's colour framebuffer (pyrender hard-codes 4).
+def install_framebuffer(offscreen, samples: int) -> None:
+    """This renderer's main framebuffer and its read-back (pyrender hard-codes 4x MSAA).
 
-    Takes effect when a framebuffer is next configured (new renderer or size).
+    On this instance only: ``samples`` (0 = none) sets the colour framebuffer's
+    multisampling; with 0 the passes draw straight into the framebuffer that
+    is read, so there is no blit. Colour passes (no ``SEG``, no
+    ``DEPTH_ONLY``) return ``(color, None)``: pyrender would read and linearise
+    a depth buffer the renderer throws away. Depth is linearised in one
+    vectorised pass (pyrender indexes it with boolean masks), same formula,
+    same float32 values.
     """
-    global _msaa_samples
-    if samples not in (0, 2, 4, 8):
-        raise ValueError(f"MSAA samples must be one of 0, 2, 4, 8, got {samples}")
-    _msaa_samples = samples
-    renderer_module = import_module_attr()
-    if not getattr(renderer_module, "_idda_msaa_patched", False):
-        original = renderer_module.glRenderbufferStorageMultisample
-
-        def storage(target, _samples, internal_format, width, height):
-            return original(target, _msaa_samples, internal_format, width, height)
-
-        renderer_module.glRenderbufferStorageMultisample = storage
-        renderer_module._idda_msaa_patched = True
-
-
-def import_module_attr() -> ModuleType:
-    """pyrender's renderer module (where the framebuffer is configured)."""
     import_pyrender()
-    import pyrender.renderer
+    from OpenGL import GL
+    from pyrender.constants import RenderFlags
 
-    return pyrender.renderer
+    if samples not in MSAA_CHOICES:
+        raise ValueError(f"MSAA samples must be one of {', '.join(map(str, MSAA_CHOICES))}, got {samples}")
+    inner = offscreen._renderer
+
+    def renderbuffer(fmt, width, height, multisample):
+        name = GL.glGenRenderbuffers(1)
+        GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, name)
+        if multisample:
+            GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, samples, fmt, width, height)
+        else:
+            GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, fmt, width, height)
+        return name
+
+    def framebuffer(colour, depth):
+        name = GL.glGenFramebuffers(1)
+        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, name)
+        GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, colour)
+        GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, depth)
+        return name
+
+    def delete():
+        if inner._main_fb is not None:
+            GL.glDeleteFramebuffers(len({inner._main_fb, inner._main_fb_ms}), list({inner._main_fb, inner._main_fb_ms}))
+            buffers = list({inner._main_cb, inner._main_db, inner._main_cb_ms, inner._main_db_ms})
+            GL.glDeleteRenderbuffers(len(buffers), buffers)
+        inner._main_fb = inner._main_cb = inner._main_db = None
+        inner._main_fb_ms = inner._main_cb_ms = inner._main_db_ms = None
+
+    def configure():
+        width, height = inner.viewport_width, inner.viewport_height
+        if inner._main_fb is not None and (width, height) != tuple(inner._main_fb_dims):
+            delete()
+        if inner._main_fb is None:
+            inner._main_cb = renderbuffer(GL.GL_RGBA, width, height, False)
+            inner._main_db = renderbuffer(GL.GL_DEPTH_COMPONENT24, width, height, False)
+            inner._main_fb = framebuffer(inner._main_cb, inner._main_db)
+            if samples:  # drawn into, then resolved into the plain one by a blit
+                inner._main_cb_ms = renderbuffer(GL.GL_RGBA, width, height, True)
+                inner._main_db_ms = renderbuffer(GL.GL_DEPTH_COMPONENT24, width, height, True)
+                inner._main_fb_ms = framebuffer(inner._main_cb_ms, inner._main_db_ms)
+            else:
+                inner._main_cb_ms, inner._main_db_ms, inner._main_fb_ms = inner._main_cb, inner._main_db, inner._main_fb
+            inner._main_fb_dims = (width, height)
+
+    def read(scene, flags):
+        width, height = inner._main_fb_dims
+        want_colour = not flags & RenderFlags.DEPTH_ONLY
+        want_depth = bool(flags & (RenderFlags.DEPTH_ONLY | RenderFlags.SEG))
+        if inner._main_fb_ms != inner._main_fb:
+            GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, inner._main_fb_ms)
+            GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, inner._main_fb)
+            if want_colour:
+                GL.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)
+            if want_depth:
+                GL.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
+        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, inner._main_fb)
+        depth = None
+        if want_depth:
+            raw = GL.glReadPixels(0, 0, width, height, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
+            window = np.flip(np.frombuffer(raw, dtype=np.float32).reshape(height, width), axis=0)
+            camera = scene.main_camera_node.camera
+            z_near, z_far = camera.znear, camera.zfar
+            ndc = 2.0 * window - 1.0
+            if z_far is None:
+                linear = 2 * z_near / (1.0 - ndc)
+            else:
+                linear = (2.0 * z_near * z_far) / (z_far + z_near - ndc * (z_far - z_near))
+            depth = np.where(window == 1.0, np.float32(0.0), linear)
+            if not want_colour:
+                return depth
+        fmt, channels = (GL.GL_RGBA, 4) if flags & RenderFlags.RGBA else (GL.GL_RGB, 3)
+        raw = GL.glReadPixels(0, 0, width, height, fmt, GL.GL_UNSIGNED_BYTE)
+        colour = np.flip(np.frombuffer(raw, dtype=np.uint8).reshape(height, width, channels), axis=0)
+        return colour, depth
+
+    inner._configure_main_framebuffer = configure
+    inner._delete_main_framebuffer = delete
+    inner._read_main_framebuffer = read
+
+
+def install_mesh_shader(offscreen, fragment_source: str) -> Path:
+    """Point this renderer's shader cache at a copy of pyrender's shaders with ``mesh.frag`` replaced.
+
+    Returns the copy's directory (the caller removes it when the renderer closes;
+    it is also removed at exit)."""
+    pr = import_pyrender()
+    from pyrender.shader_program import ShaderProgramCache
+
+    shader_dir = Path(tempfile.mkdtemp(prefix="idda-shaders-"))
+    atexit.register(shutil.rmtree, shader_dir, True)  # also when a renderer is never closed
+    for path in (Path(pr.__file__).parent / "shaders").iterdir():
+        shutil.copy(path, shader_dir / path.name)
+    (shader_dir / "mesh.frag").write_text(fragment_source)
+    inner = offscreen._renderer  # pyrender keeps its shader cache on the inner renderer
+    inner._program_cache.clear()
+    inner._program_cache = ShaderProgramCache(shader_dir=str(shader_dir))
+    return shader_dir
+
+
+def install_draw_order(offscreen, sorted_mesh_nodes: Callable) -> None:
+    """Replace pyrender's distance sort (ties broken in set/id order) on this renderer only."""
+    offscreen._renderer._sorted_mesh_nodes = sorted_mesh_nodes
 
 
 def offscreen_renderer(width: int, height: int):

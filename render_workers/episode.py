@@ -5,7 +5,9 @@ the town's world, populate it from the episode seed, load it into the
 process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
 seconds) render the named buffers, post-process the colour, add the ``objects``
 table when asked, encode the spec's outputs (``manifests.outputs``) and call
-``sink(frame)``.
+``sink(frame)``. The sink runs on one background thread, in frame order, so
+writing frame i (PNG deflate, hashing and file writes release the GIL)
+overlaps rendering frame i + 1; at most ``SINK_AHEAD`` frames wait for it.
 
 Every random draw derives from ``spec.seed`` (traffic, sky, puddles, rain) or
 from the town seed (world), so the same spec gives byte-identical PNGs.
@@ -14,11 +16,12 @@ from the town seed (world), so the same spec gives byte-identical PNGs.
 from __future__ import annotations
 
 import atexit
-
 import functools
 import importlib
 import logging
 import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field
 from typing import Callable
 
@@ -29,7 +32,7 @@ from manifests.objects import object_counts
 from manifests.outputs import check_outputs, encode_outputs, file_bytes
 from manifests.spec import EpisodeSpec
 from manifests.spec import FRAME_PERIOD_S, town_seed
-from render_workers import postfx
+from render_workers import postfx, worldcache
 from render_workers.camera import measured_hood_fraction
 from render_workers.instances import frame_objects, instance_classes
 from render_workers.renderer import Renderer
@@ -46,7 +49,8 @@ WORLDS: dict[str, tuple[str, str]] = {
 DEFAULT_WORLD = "procedural"
 _FX_STREAM = 404  # rng stream id of per-frame post effects
 
-FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "sink")
+FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "sink", "sink_wait")
+SINK_AHEAD = 2  # frames handed to the sink thread and not yet written
 
 
 @dataclass(frozen=True)
@@ -85,8 +89,11 @@ def world_builder(name: str) -> WorldBuilder:
 
 @functools.lru_cache(maxsize=8)
 def cached_world(world: str, town_code: str, seed: int) -> World:
-    """A town's static world, built once per process and reused across its episodes."""
-    return world_builder(world).build_world(town_code, seed)
+    """A town's static world, loaded (or built) once per process and reused across its episodes.
+
+    The process's one world cache; behind it, built worlds are kept on disk
+    (``render_workers.worldcache``), so a new worker loads instead of building."""
+    return worldcache.load_or_build(world, town_code, seed, world_builder(world).build_world)
 
 
 @functools.lru_cache(maxsize=1)
@@ -172,20 +179,45 @@ def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, ind
     return frame, timings
 
 
+def _timed_sink(sink: Callable[[Frame], None], frame: Frame) -> float:
+    start = time.perf_counter()
+    sink(frame)
+    return time.perf_counter() - start
+
+
 def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: str = DEFAULT_WORLD,
                    renderer: Renderer | None = None) -> EpisodeInfo:
-    """Render every frame of ``spec`` and pass each to ``sink``; returns counts and timings."""
+    """Render every frame of ``spec`` and pass each to ``sink``; returns counts and timings.
+
+    ``sink`` is called from one background thread, in frame order; an error it
+    raises stops the episode and is raised here. Timings: ``sink`` is the time
+    spent in it, ``sink_wait`` the time rendering waited for it."""
     renderer = renderer if renderer is not None else process_renderer()
     scene, timings = load_episode(spec, renderer, world)
     for stage in FRAME_STAGES:
         timings[stage] = 0.0
-    for index in range(spec.frames):
-        frame, frame_timings = render_frame(renderer, scene, spec, index)
+    pending: deque[Future] = deque()
+
+    def settle(limit: int) -> None:
         start = time.perf_counter()
-        sink(frame)
-        frame_timings["sink"] = time.perf_counter() - start
-        for stage, seconds in frame_timings.items():
-            timings[stage] = timings.get(stage, 0.0) + seconds
+        while len(pending) > limit:
+            timings["sink"] += pending.popleft().result()
+        timings["sink_wait"] += time.perf_counter() - start
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
+        try:
+            for index in range(spec.frames):
+                frame, frame_timings = render_frame(renderer, scene, spec, index)
+                for stage, seconds in frame_timings.items():
+                    timings[stage] = timings.get(stage, 0.0) + seconds
+                while pending and pending[0].done():  # surface a sink error early
+                    timings["sink"] += pending.popleft().result()
+                settle(SINK_AHEAD - 1)
+                pending.append(pool.submit(_timed_sink, sink, frame))
+            settle(0)
+        finally:
+            for future in pending:  # after an error: drop frames not yet started
+                future.cancel()
     log.debug("%s: %d frames, timings %s", spec.key, spec.frames, timings)
     return EpisodeInfo(n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
                        frames=spec.frames, timings=timings)

@@ -58,10 +58,10 @@ import numpy as np
 from manifests.catalog import Viewpoint, Weather, class_id, lookup
 from render_workers import compat
 from render_workers.camera import CameraRig, hood_mesh, sun_direction
-from render_workers.sky import cloud_texture, sky_image
+from render_workers.sky import cloud_texture, composite_sky, sky_image
 from render_workers.instances import HOOD_ID, episode_instances, split_static
 from render_workers.scene import EpisodeScene
-from render_workers.shaders import _install_fast_shaders
+from render_workers.shaders import FAST_MESH_FRAG
 from render_workers.soups import _pyrender_mesh, _Soup, _sphere, _triangles, part_groups, static_groups
 
 log = logging.getLogger(__name__)
@@ -136,7 +136,8 @@ class Renderer:
         self._shadow_frame: compat.ShadowFrame | None = None
         # 0: no multisampling (half the colour pass on llvmpipe); edges are
         # anti-aliased in post instead (postfx.antialias).
-        compat.set_msaa_samples(msaa)
+        if msaa not in compat.MSAA_CHOICES:
+            raise ValueError(f"MSAA samples must be one of {compat.MSAA_CHOICES}, got {msaa}")
         self.msaa = msaa
         self._shader_dir: FilePath | None = None
         self._offscreen = None
@@ -168,12 +169,13 @@ class Renderer:
         if self._offscreen is None:
             self._offscreen = compat.offscreen_renderer(width, height)
             if not self.pbr:
-                self._shader_dir = _install_fast_shaders(self._offscreen)
+                self._shader_dir = compat.install_mesh_shader(self._offscreen, FAST_MESH_FRAG)
+            compat.install_framebuffer(self._offscreen, self.msaa)
             compat.install_shadow_pass(self._offscreen, lambda: self._shadow_frame, depth_compare=not self.pbr)
             # pyrender sorts nodes by distance and breaks ties in set (id) order,
             # so coplanar faces could resolve differently from run to run: draw
             # the visible nodes in the fixed order load() built them instead.
-            self._offscreen._renderer._sorted_mesh_nodes = self._draw_order
+            compat.install_draw_order(self._offscreen, self._draw_order)
         elif self._size != (width, height):
             self._offscreen.viewport_width, self._offscreen.viewport_height = width, height
         self._size = (width, height)
@@ -328,12 +330,7 @@ class Renderer:
         if self._shadows_on():
             flags |= pr.RenderFlags.SHADOWS_DIRECTIONAL
         color, _ = self._offscreen.render(self._scene, flags=flags)
-        sky = sky_image(self.weather, self.rig, cam, self._clouds)
-        rgb = np.ascontiguousarray(color[..., :3])
-        open_px = color[..., 3] < 255  # sky, and edges MSAA blended with it
-        alpha = color[..., 3][open_px].astype(np.float32)[:, None] * np.float32(1.0 / 255.0)
-        over = rgb[open_px].astype(np.float32) + (1.0 - alpha) * sky[open_px] * np.float32(255.0)
-        rgb[open_px] = np.clip(over + 0.5, 0, 255).astype(np.uint8)
+        rgb = composite_sky(color, sky_image(self.weather, self.rig, cam, self._clouds))
         timings["color_pass"] = time.perf_counter() - start
 
         start = time.perf_counter()

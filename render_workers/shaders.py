@@ -1,14 +1,7 @@
-"""The colour pass's fragment shader, a cheaper drop-in for pyrender's ``mesh.frag``,
-and how a renderer's context is pointed at it (see ``render_workers.renderer``)."""
+"""The colour pass's fragment shader, a cheaper drop-in for pyrender's ``mesh.frag``
+(a renderer installs it with ``compat.install_mesh_shader``; see ``render_workers.renderer``)."""
 
 from __future__ import annotations
-
-import atexit
-import shutil
-import tempfile
-from pathlib import Path as FilePath
-
-from render_workers import compat
 
 # Drop-in for pyrender's mesh.frag: same inputs and uniform names, cheaper maths.
 FAST_MESH_FRAG = """#version 330 core
@@ -112,20 +105,3 @@ void main()
     frag_color = vec4(pow(clamp(color, 0.0, 1.0), vec3(1.0 / 2.2)), base.a);
 }
 """
-
-
-def _install_fast_shaders(offscreen) -> FilePath:
-    """Point the context's shader cache at a copy of pyrender's shaders with FAST_MESH_FRAG."""
-    pr = compat.import_pyrender()
-    from pyrender.shader_program import ShaderProgramCache
-
-    shader_dir = FilePath(tempfile.mkdtemp(prefix="idda-shaders-"))
-    atexit.register(shutil.rmtree, shader_dir, True)  # also when a renderer is never closed
-    source = FilePath(pr.__file__).parent / "shaders"
-    for path in source.iterdir():
-        shutil.copy(path, shader_dir / path.name)
-    (shader_dir / "mesh.frag").write_text(FAST_MESH_FRAG)
-    renderer = offscreen._renderer  # pyrender keeps its shader cache on the inner renderer
-    renderer._program_cache.clear()
-    renderer._program_cache = ShaderProgramCache(shader_dir=str(shader_dir))
-    return shader_dir

@@ -138,3 +138,30 @@ def test_bad_png_input_raises():
         enc.decode_png(b"not a png")
     with pytest.raises(ValueError, match="disagree"):
         out_table.encode_outputs({"rgb": np.zeros((2, 2, 3), np.uint8), "depth": np.zeros((3, 2), np.float32)})
+
+
+@pytest.mark.parametrize("shape, dtype", [((5, 7), np.uint8), ((5, 7), np.uint16), ((6, 3, 4), np.uint8),
+                                          ((6, 3, 3), np.uint16), ((1, 1, 3), np.uint8)])
+def test_png_bytes_round_trip_grey_rgba_and_16_bit(shape, dtype):
+    import cv2
+
+    image = np.random.default_rng(7).integers(0, np.iinfo(dtype).max + 1, shape).astype(dtype)
+    data = enc.png_bytes(image)
+    assert data == enc.png_bytes(image.copy())
+    decoded = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)  # BGR(A) order
+    if decoded.ndim == 3:
+        decoded = decoded[..., [2, 1, 0, 3][: decoded.shape[2]]]
+    assert decoded.dtype == image.dtype and (decoded == image).all()
+
+
+def test_png_bytes_rejects_what_png_cannot_hold():
+    for bad in (np.zeros((2, 2), np.float32), np.zeros((2, 2, 2), np.uint8), np.zeros((0, 3, 3), np.uint8)):
+        with pytest.raises(ValueError, match="instance"):
+            enc.png_bytes(bad, "instance")
+
+
+def test_encoder_identity_names_the_encoder_and_version():
+    from importlib import metadata
+
+    identity = enc.encoder_identity()
+    assert enc.PNG_ENCODER in identity and f"isal {metadata.version('isal')}" in identity

@@ -123,3 +123,26 @@ def test_bad_spec_raises_before_rendering(renderer):
         episode.render_episode(spec(frames=0), lambda f: None, world="test", renderer=renderer)
     with pytest.raises(ValueError, match="unknown town"):
         episode.render_episode(spec("T99_CN_A"), lambda f: None, world="test", renderer=renderer)
+
+
+def test_sink_runs_in_frame_order_off_the_render_thread(renderer):
+    import threading
+
+    seen = []
+    episode.render_episode(spec(frames=4), lambda f: seen.append((f.index, threading.current_thread())),
+                           world="test", renderer=renderer)
+    assert [i for i, _ in seen] == [0, 1, 2, 3]
+    assert all(t is not threading.main_thread() for _, t in seen)
+
+
+def test_a_sink_error_stops_the_episode_and_is_raised(renderer):
+    seen = []
+
+    def sink(frame):
+        seen.append(frame.index)
+        if frame.index == 1:
+            raise OSError("disk full")
+
+    with pytest.raises(OSError, match="disk full"):
+        episode.render_episode(spec(frames=6), sink, world="test", renderer=renderer)
+    assert seen[:2] == [0, 1] and len(seen) <= 1 + episode.SINK_AHEAD + 1

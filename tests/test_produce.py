@@ -237,6 +237,24 @@ def test_changed_config_is_refused_unless_extended(ray_local, reference, tmp_pat
     assert verify(str(root)).ok
 
 
+def test_resume_refuses_to_mix_encoders(ray_local, reference, tmp_path):
+    from manifests.encoding import encoder_identity
+    from manifests.runrecord import read_record, record_bytes
+    from manifests.schema import RUN_FILE, part_path
+
+    root = tmp_path / "encoders"
+    shutil.copytree(reference, root)
+    storage = Storage.from_uri(str(root))
+    record = read_record(storage)
+    assert record["encoder"] == encoder_identity()
+    scenario, episode = sorted(done_episodes(storage))[0]
+    storage.delete(part_path(scenario, episode))  # one episode to resume
+    storage.write_bytes(RUN_FILE, record_bytes({**record, "encoder": "png-other level 9, zlib 1.0"}))
+    with pytest.raises(RunConfigError, match="another encoder.*png-other"):
+        produce(config(root))
+    assert (scenario, episode) not in done_episodes(storage)  # nothing was rendered
+
+
 def test_unwritable_root_is_a_clear_error(tmp_path):
     blocker = tmp_path / "a-file"
     blocker.write_text("not a directory")

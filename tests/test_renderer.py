@@ -140,3 +140,22 @@ def test_unknown_material_raises():
 def test_render_before_load_raises():
     with pytest.raises(RuntimeError, match="load"):
         Renderer().render(0.0)
+
+
+def test_framebuffer_patch_is_per_renderer_and_multisampling_still_works(renderer):
+    from render_workers import compat
+
+    pr = compat.import_pyrender()
+    plain = render(renderer, flat_scene(), "V")
+    with Renderer(msaa=4) as multi:
+        sampled = render(multi, flat_scene(), "V")
+        assert multi._offscreen._renderer._main_fb_ms != multi._offscreen._renderer._main_fb
+        colour, depth = multi._offscreen.render(multi._scene, flags=pr.RenderFlags.RGBA)
+        assert depth is None and colour.shape == (H, W, 4)  # colour passes skip the depth read-back
+    inner = renderer._offscreen._renderer
+    assert inner._main_fb_ms == inner._main_fb  # msaa=0 draws straight into the read framebuffer
+    assert (sampled.buffers["classes"] == plain.buffers["classes"]).all()
+    assert np.isclose(sampled.buffers["depth"], plain.buffers["depth"], rtol=0.01).mean() > 0.99
+    assert np.abs(sampled.buffers["rgb"].astype(int) - plain.buffers["rgb"]).mean() < 4
+    with pytest.raises(ValueError, match="MSAA"):
+        Renderer(msaa=3)
