@@ -11,7 +11,6 @@ from a shared start barrier; the 2-worker run is also tried with
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import multiprocessing as mp
 import os
@@ -109,9 +108,9 @@ def _throughput(world: str, workers: int, lp_threads: str | None = None) -> dict
 
 
 def main(out_dir: str = "docs") -> dict:
-    worlds = ["test"]
-    if importlib.util.find_spec("render_workers.world") is not None:
-        worlds.append("procedural")
+    from render_workers.episode import DEFAULT_WORLD
+
+    worlds = ["test", DEFAULT_WORLD]
     result = {
         "command": "make bench BENCH=render (benchmarks/bench_render.py)",
         "resolution": [WIDTH, HEIGHT],
