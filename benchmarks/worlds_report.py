@@ -147,7 +147,7 @@ def presence_png(stats: dict) -> bytes:
     x = np.arange(len(idx))
     fig, ax = plt.subplots(figsize=(10, 4.2), dpi=100)
     ax.bar(x - 0.2, [100 * stats["presence"][i] for i in idx], 0.4, label="all frames", color="#4c72b0")
-    ax.bar(x + 0.2, [100 * stats["presence_urban"][i] for i in idx], 0.4, label="urban frames (T01-T06)", color="#dd8452")
+    ax.bar(x + 0.2, [100 * stats["presence_urban"][i] for i in idx], 0.4, label=f"urban frames ({_span(urban_towns())})", color="#dd8452")
     ax.axhline(10, color="black", ls="--", lw=1, label="10% target (rare classes, urban)")
     ax.set_xticks(x, names, rotation=50, ha="right")
     ax.set_ylabel("frames showing the class (%)")
@@ -214,6 +214,17 @@ def small_png(image: np.ndarray, limit: int = MAX_PNG_BYTES) -> bytes:
         pil.quantize(colors=colors, method=Image.Quantize.MEDIANCUT, dither=Image.Dither.NONE).save(
             buf, format="PNG", optimize=True)
     return buf.getvalue()
+
+
+def _span(codes: tuple[str, ...]) -> str:
+    """Town codes as a range when they are consecutive in the catalog (T01-T06), else listed."""
+    from manifests.catalog import TOWNS
+
+    order = [t.code for t in TOWNS]
+    at = [order.index(c) for c in codes]
+    if len(codes) > 2 and at == list(range(at[0], at[0] + len(at))):
+        return f"{codes[0]}-{codes[-1]}"
+    return ", ".join(codes)
 
 
 def urban_towns() -> tuple[str, ...]:
@@ -458,7 +469,7 @@ def markdown(result: dict) -> str:
         "",
         "![class presence](images/worlds_class_presence.png)",
         "",
-        f"Rare classes in urban frames (T01-T06, {st['urban_frames']} frames; target at least 10%):",
+        f"Rare classes in urban frames ({_span(urban_towns())}, {st['urban_frames']} frames; target at least 10%):",
         "",
         "| class | urban frames % | all frames % | ok |",
         "|---|---:|---:|:---:|",

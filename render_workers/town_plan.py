@@ -254,7 +254,7 @@ def _loops(lay: Layout) -> tuple[Loop, ...]:
     xs, ys = lay.xs, lay.ys
     jxy = np.array([(x, y) for x in xs for y in ys])
     loops = []
-    urban = lay.parking_w > 0
+    urban = t.urban
     c = corner_offset(lay)
     clear = c + 6.0
     for k in range(t.lanes):
