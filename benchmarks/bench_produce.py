@@ -26,11 +26,12 @@ import time
 from pathlib import Path
 
 from manifests.outputs import SEED_OUTPUTS  # the paper's six
+from render_workers.episode import DEFAULT_WORLD
 
 WIDTH, HEIGHT = 960, 540
 DOMAINS = "towns=T01,T02 weathers=CN viewpoints=A,B"
 FRAMES = 12  # per scenario: 4 episodes x 12 frames
-WORLD = os.environ.get("BENCH_WORLD", "procedural")
+WORLD = os.environ.get("BENCH_WORLD", DEFAULT_WORLD)
 
 _PLAIN = """
 import sys, time

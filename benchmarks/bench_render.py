@@ -30,12 +30,14 @@ import tempfile
 import time
 from pathlib import Path
 
+from render_workers.episode import DEFAULT_WORLD
+
 WIDTH, HEIGHT = 1920, 1080
 SCENARIOS = ("T01_CN_A", "T01_HRN_A", "T01_CS_M")  # clear, worst-case effects, low sun
 FRAMES = 3  # measured frames per scenario (after one warm-up frame)
 EPISODE_FRAMES = 6  # frames of the render_episode run (production's loop)
 THROUGHPUT_FRAMES = 8  # frames per worker in the throughput runs
-WORLD = os.environ.get("BENCH_WORLD", "procedural")
+WORLD = os.environ.get("BENCH_WORLD", DEFAULT_WORLD)
 STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "png_encode", "write")
 EFFECTS = ("antialias", "puddles", "wet_road", "fog", "rain", "bloom", "lens_flare", "motion_blur", "grading")
 

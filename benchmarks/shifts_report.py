@@ -46,17 +46,18 @@ def measure(root: str = SHIFT_ROOT, frames: int = FRAMES, width: int = WIDTH, he
 
 
 def _verdict(results: list[dict]) -> list[str]:
-    kept = {r["case"]: r["kept"] for r in results}
-    ordered = [r["case"] for r in sorted(results, key=lambda r: -r["kept"])]
-    close = {r["case"]: abs(r["kept"] - r["paper_kept"]) <= TOLERANCE for r in results}
     paper = [r["case"] for r in sorted(results, key=lambda r: -r["paper_kept"])]
-    lines = [f"Kept fractions order {' > '.join(ordered)} "
-             f"({'as in' if ordered == paper else 'not as in'} the paper: {' > '.join(paper)}).", ""]
-    for case, ok in close.items():
-        paper = next(r["paper_kept"] for r in results if r["case"] == case)
-        lines.append(f"* {case}: kept {kept[case]:.2f} against the paper's {paper:.2f}: "
-                     f"{'within' if ok else '**not** within'} {TOLERANCE} of it.")
-    return lines + [""]
+    lines = []
+    for label, key in (("kept (of held-out source mIoU)", "kept"), ("kept* (of the target oracle's mIoU, the paper's definition)", "oracle_kept")):
+        ordered = [r["case"] for r in sorted(results, key=lambda r: -r[key])]
+        lines += [f"{label[0].upper()}{label[1:]}: order {' > '.join(ordered)} "
+                  f"({'as in' if ordered == paper else 'not as in'} the paper: {' > '.join(paper)}).", ""]
+        for r in results:
+            ok = abs(r[key] - r["paper_kept"]) <= TOLERANCE
+            lines.append(f"* {r['case']}: {r[key]:.2f} against the paper's {r['paper_kept']:.2f}: "
+                         f"{'within' if ok else '**not** within'} {TOLERANCE} of it.")
+        lines.append("")
+    return lines
 
 
 def markdown(result: dict) -> list[str]:
@@ -70,9 +71,12 @@ def markdown(result: dict) -> list[str]:
         f"{s['width']}x{s['height']} (procedural world, run seed 0). For each case a small encoder-decoder "
         f"({result['parameters']:,} parameters, trained from scratch at {cfg['width']}x{cfg['height']}, "
         f"{cfg['steps']} steps of {cfg['batch_size']} frames) learns the source domain and is scored on the "
-        "source's held-out frames and on the target. *kept* = target mIoU / held-out source mIoU; the paper's "
-        "is DeepLab V2 source-only / trained on the target (62.60/79.13, 40.24/78.31, 21.65/78.02). mIoU over "
-        "the 16 evaluated classes present in the ground truth of the scored set.",
+        "source's held-out frames and on the target. *kept* = target mIoU / held-out source mIoU. *kept\\** is "
+        "the paper's definition: the source network on the target's held-out frames (*target\\**) over an "
+        "*oracle*, the same network trained on the target's training frames, on those held-out frames; the "
+        "paper's is DeepLab V2 source-only / trained on the target (62.60/79.13, 40.24/78.31, 21.65/78.02). "
+        "One network is trained per domain, so the weather case's source network (T01_CS_J) is the viewpoint "
+        "case's oracle. mIoU over the 16 evaluated classes present in the ground truth of the scored set.",
         "",
         "```",
         result["table"],

@@ -85,6 +85,7 @@ LABELS: tuple[Label, ...] = (
 
 NUM_CLASSES = len(LABELS)
 NAME2LABEL = {label.name: label for label in LABELS}
+CLASS_IDS = {label.name: label.id for label in LABELS}  # class name -> id
 EVALUATED_IDS = tuple(label.id for label in LABELS if label.evaluated)
 INSTANCE_LABELS = tuple(label for label in LABELS if label.instances)
 
@@ -102,7 +103,7 @@ del _label
 
 def class_id(name: str) -> int:
     """Class id for a class name; raises ValueError listing valid names."""
-    return lookup(NAME2LABEL, name, "class", "classes").id
+    return lookup(CLASS_IDS, name, "class", "classes")
 
 
 # --------------------------------------------------------------------------
@@ -125,7 +126,8 @@ class Surface:
 
 
 # render_workers.textures makes these; each is grey and multiplies a surface's colour
-TEXTURE_NAMES = ("asphalt", "brick", "paving", "plaster", "concrete", "glass", "grass", "crop", "soil", "gravel")
+TEXTURE_NAMES = ("asphalt", "brick", "paving", "plaster", "concrete", "glass", "grass", "crop", "soil", "gravel",
+                 "stalks")
 
 
 SURFACES: tuple[Surface, ...] = (
@@ -133,7 +135,7 @@ SURFACES: tuple[Surface, ...] = (
     Surface("asphalt dark", (56, 57, 61), 0.16, 6.0, "road", texture="asphalt"),
     Surface("asphalt grey", (84, 84, 86), 0.14, 6.0, "road", texture="asphalt"),
     Surface("asphalt blue-grey", (70, 74, 82), 0.12, 7.0, "road", texture="asphalt"),
-    Surface("asphalt patched", (96, 90, 80), 0.26, 4.0, "road", texture="asphalt"),
+    Surface("asphalt patched", (124, 118, 106), 0.26, 4.0, "road", texture="asphalt"),
     Surface("asphalt freeway", (80, 80, 84), 0.15, 8.0, "road", texture="asphalt"),
     Surface("marking white", (226, 226, 220), 0.06, 2.0),
     Surface("marking yellow", (214, 178, 58), 0.06, 2.0),
@@ -155,10 +157,14 @@ SURFACES: tuple[Surface, ...] = (
     Surface("soil", (104, 78, 54), 0.18, 5.0, texture="soil"),
     Surface("wheat", (196, 170, 92), 0.16, 6.0, texture="crop"),
     Surface("young crop", (110, 142, 52), 0.18, 6.0, texture="crop"),
+    Surface("hay meadow", (130, 118, 60), 0.25, 8.0, texture="grass"),
+    Surface("maize", (136, 142, 60), 0.18, 5.0, texture="stalks"),
+    Surface("ripe maize", (182, 162, 92), 0.18, 5.0, texture="stalks"),
     Surface("canopy green", (58, 96, 38), 0.25, 1.2),
     Surface("canopy light", (96, 128, 46), 0.25, 1.2),
     Surface("canopy dark", (34, 62, 36), 0.22, 1.2),
     Surface("canopy autumn", (150, 116, 44), 0.25, 1.2),
+    Surface("canopy olive", (88, 96, 42), 0.25, 1.2),
     Surface("hedge", (44, 84, 34), 0.30, 0.7),
     Surface("bark", (84, 64, 44), 0.20, 0.5),
     Surface("birch bark", (206, 204, 196), 0.15, 0.5),
@@ -225,19 +231,24 @@ class Style:
     trees: tuple[tuple[str, float], ...]  # (species, weight) of roadside and garden trees
     canopies: tuple[str, ...]  # canopy surfaces
     ground: str  # open ground: gardens, parks, outskirts
-    crops: tuple[str, ...]  # field surfaces (empty: no crop fields)
+    crops: tuple[str, ...]  # field surfaces of low crops, labelled terrain (empty: no crop fields)
     relief_m: float  # height of the hills around the town (0 = flat)
     mountains_m: float  # height of the mountain backdrop (0 = none)
+    tall_crops: tuple[str, ...] = ()  # field surfaces of tall crops (maize), labelled vegetation
+    tall_crop_share: float = 0.0  # share of the fields sown with tall crops
 
     def __post_init__(self) -> None:
         for name in (self.asphalt, self.kerb, self.verge, self.marking, self.ground,
-                     *self.paving, *self.facades, *self.roofs, *self.canopies, *self.crops):
+                     *self.paving, *self.facades, *self.roofs, *self.canopies, *self.crops, *self.tall_crops):
             surface(name)
         for value, valid, what in ((self.road_edge, ROAD_EDGES, "road edge"),
                                    (self.markings, MARKINGS, "marking scheme"),
                                    (self.architecture, ARCHITECTURES, "architecture"),
                                    *((sp, TREE_SPECIES, "tree species") for sp, _ in self.trees)):
             lookup(dict.fromkeys(valid), value, what, what + "s" if not what.endswith("s") else what)
+        if not 0.0 <= self.tall_crop_share <= 1.0 or (self.tall_crop_share > 0) != bool(self.tall_crops):
+            raise ValueError(f"style {self.name!r}: tall_crop_share must be in [0, 1], and above 0 exactly when "
+                             "there are tall crops")
         if not (self.paving and self.facades and self.roofs and self.trees and self.canopies):
             raise ValueError(f"style {self.name!r}: paving, facades, roofs, trees and canopies must not be empty")
 
@@ -282,7 +293,8 @@ STYLES: tuple[Style, ...] = (
           3.0, "none", 0.3, "marking white", "farm",
           ("barn red", "plaster white", "stone wall", "timber dark"),
           ("roof metal", "roof terracotta"), (("poplar", 0.4), ("broadleaf", 0.4), ("bush", 0.2)),
-          ("canopy light", "canopy autumn", "canopy green"), "meadow", ("wheat", "young crop", "soil"), 30.0, 0.0),
+          ("canopy olive", "canopy autumn"), "hay meadow", ("wheat", "young crop", "soil"), 30.0, 0.0,
+          ("maize", "ripe maize"), 0.75),
 )
 STYLE_BY_NAME = {s.name: s for s in STYLES}
 
@@ -363,17 +375,18 @@ class Weather:
     puddles: float  # 0..1, share of road covered by reflective puddles
     fog: float  # 0..1, contrast loss per 1000 m
     grading: tuple[float, float, float]  # per-channel colour grading gain
+    marker: str  # matplotlib marker of the weather in plots
 
 
 WEATHERS: tuple[Weather, ...] = (
     # Calibrated to CARLA 0.9.6's presets (the version IDDA used); the mapping
     # (CARLA value -> ours) is in docs/assumptions.md, "Weathers".
     Weather("CN", "ClearNoon", 65.0, 40.0, (1.0, 0.98, 0.94), 4.0, 0.45,
-            (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0, 0.02, (1.0, 1.0, 1.0)),
+            (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0, 0.02, (1.0, 1.0, 1.0), "o"),
     Weather("CS", "ClearSunset", 15.0, 200.0, (1.0, 0.86, 0.72), 3.6, 0.50,
-            (78, 104, 170), (240, 182, 148), 0.15, 0.0, 0.0, 0.0, 0.04, (1.03, 0.99, 0.95)),
+            (78, 104, 170), (240, 182, 148), 0.15, 0.0, 0.0, 0.0, 0.04, (1.03, 0.99, 0.95), "s"),
     Weather("HRN", "HardRainNoon", 75.0, 40.0, (0.88, 0.90, 0.94), 2.0, 0.90,
-            (128, 133, 140), (170, 173, 178), 0.90, 0.6, 0.6, 0.2, 0.25, (0.96, 0.98, 1.0)),
+            (128, 133, 140), (170, 173, 178), 0.90, 0.6, 0.6, 0.2, 0.25, (0.96, 0.98, 1.0), "^"),
 )
 
 

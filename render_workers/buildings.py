@@ -98,16 +98,15 @@ def house(kit: Kit, lot: Lot, s0: float, s1: float, setback: float, depth: float
         cols[top, :3] = np.array(surface(top_facade).color, np.uint8)
     kit.add_colored("building", verts, faces, cols, s.look, texture=s.texture)
     rc = np.array([*mid, z + h])
-    r = surface(roof)
     if roof_kind in ("gable", "steep"):
         eave = 0.9 if roof_kind == "steep" else 0.35
         pitch = 0.55 if roof_kind == "steep" else 0.38
         v, f = M.prism_roofs(rc[None], np.array([[width + 2 * eave, depth + 2 * eave, 0]]), pitch * depth, yaw)
-        kit.add("building", v, f, r.color, r.look, r.noise, r.scale_m)
+        kit.paint("building", v, f, roof)
     else:
         v, f = M.ground_rect(-width / 2, -depth / 2, width / 2, depth / 2, 0, 8.0)
         v = M.transform(v, rc, yaw)
-        kit.add("building", v, M.orient_up(v, f), r.color, r.look, r.noise, r.scale_m)
+        kit.paint("building", v, M.orient_up(v, f), roof)
         if rng.random() < 0.6:  # plant room / parapet box
             kit.props_box("building", rc, [min(6, width / 3), min(5, depth / 3), 2.2], yaw, (150, 150, 150))
     _windows(kit, faces_info, z, floors, floor_m, windows, s.look)

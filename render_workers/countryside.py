@@ -1,9 +1,10 @@
 """Land outside the town and between country roads.
 
-* ``farmland_blocks``: for towns without sidewalks, every block becomes crop
-  fields (the style's crops, in rows), meadows, woods or a farmyard (farmhouse,
-  barn, silos, hay bales), bounded by hedgerows, fences or stone walls, with
-  tree rows along the roads.
+* ``farmland_blocks``: for towns without sidewalks, every block becomes a crop
+  field (the style's low crops in rows, or a stand of its tall crops, maize,
+  right up to the verge), a meadow, a wood or a farmyard (farmhouse, barn,
+  silos, hay bales); all but the tall crops are bounded by hedgerows, fences or
+  stone walls, with tree rows along the roads.
 * ``outskirts``: the terrain around every town, rising into the style's hills
   (``Style.relief_m``) away from the streets, with woods; and, where the
   style has one (``Style.mountains_m``), a mountain backdrop with rock and snow.
@@ -17,6 +18,8 @@ from manifests.catalog import surface
 from render_workers import meshes as M
 from render_workers.kit import Kit, rect_distance
 
+TALL_CROP_M = 2.6  # height of a maize stand
+HEADLAND_M = 1.5  # bare soil between a tall crop and its field's edge
 MOUNTAIN_BAND_M = 500.0  # depth of the mountain backdrop beyond the town's bounds
 MOUNTAIN_CELL_M = 35.0
 
@@ -38,11 +41,14 @@ def countryside(kit: Kit, rect, z) -> None:
     """One block: a field, meadow, wood or farm, its boundary and its tree rows."""
     x0, y0, x1, y1 = rect
     rng, t, style = kit.rng, kit.t, kit.style
-    kinds = ["field", "farm", "wood", "meadow"] if style.crops else ["meadow", "farm", "wood"]
-    p = np.array([0.45, 0.22, 0.13, 0.2] if style.crops else [0.55, 0.25, 0.2])
+    fields = bool(style.crops or style.tall_crops)
+    kinds = ["field", "farm", "wood", "meadow"] if fields else ["meadow", "farm", "wood"]
+    p = np.array([0.45, 0.22, 0.13, 0.2] if fields else [0.55, 0.25, 0.2])
     kind = kinds[int(rng.choice(len(kinds), p=p))]
+    if kind == "field" and style.tall_crops and (not style.crops or rng.random() < style.tall_crop_share):
+        return tall_field(kit, rect, z, kit.pick(style.tall_crops))  # up to the verge, no boundary or tree rows
     if kind == "field":
-        field(kit, rect, z)
+        low_field(kit, rect, z, surface(kit.pick(style.crops)))
     else:
         v, f = M.ground_rect(x0, y0, x1, y1, z, 5.0)
         kit.paint("terrain", v, f, style.ground, tiled=True)
@@ -74,11 +80,10 @@ def countryside(kit: Kit, rect, z) -> None:
         farmyard(kit, rect, z)
 
 
-def field(kit: Kit, rect, z) -> None:
-    """A crop field ploughed in rows (alternate rows darker)."""
+def low_field(kit: Kit, rect, z, crop) -> None:
+    """Low crops (terrain) in ploughed rows, alternate rows darker."""
     x0, y0, x1, y1 = rect
     rng = kit.rng
-    crop = surface(kit.pick(kit.style.crops))
     along_x = rng.random() < 0.5
     row = 2.4
     nx = int(np.ceil((x1 - x0) / (row if not along_x else 8.0)))
@@ -90,6 +95,41 @@ def field(kit: Kit, rect, z) -> None:
     dark = k % 2 == 0
     col[dark, :3] = (col[dark, :3] * 0.72).astype(np.uint8)
     kit.add_colored("terrain", v, f, col, tiled=True, texture=crop.texture)
+
+
+def tall_field(kit: Kit, rect, z, name: str) -> None:
+    """A stand of tall crops (maize: vegetation) behind a headland of bare soil:
+    a block of ``TALL_CROP_M`` with a ragged top, textured with stalks."""
+    rng = kit.rng
+    x0, y0, x1, y1 = rect
+    v, f = M.ground_rect(x0, y0, x1, y1, z, 6.0)
+    kit.paint("terrain", v, f, "soil", tiled=True)
+    a0, b0, a1, b1 = x0 + HEADLAND_M, y0 + HEADLAND_M, x1 - HEADLAND_M, y1 - HEADLAND_M
+    if a1 - a0 < 4 or b1 - b0 < 4:
+        return
+    crop = surface(name)
+    seed = int(rng.integers(1 << 16))
+    height = TALL_CROP_M * rng.uniform(0.85, 1.1)
+
+    def top(p):  # ragged top: the same heights on the roof and the walls' upper edge
+        return z + height * (0.85 + 0.3 * M.value_noise(p * np.array([1, 1, 0]), 3.0, seed))
+
+    cell = 4.0
+    nu, nv = int(np.ceil((a1 - a0) / cell)), int(np.ceil((b1 - b0) / cell))
+    v, f = M.grid((a0, b0, 0), (a1 - a0, 0, 0), (0, b1 - b0, 0), nu, nv)
+    v[:, 2] = top(v)
+    parts = [(v, M.orient_up(v, f))]
+    corners = [(a0, b0), (a1, b0), (a1, b1), (a0, b1)]
+    for k, n in enumerate((nu, nv, nu, nv)):  # walls wound outwards (counter-clockwise seen from above)
+        p, q = np.array(corners[k]), np.array(corners[(k + 1) % 4])
+        v, f = M.grid((*p, z), (*(q - p), 0), (0, 0, 1.0), n, 1)
+        v[v[:, 2] > z + 0.5, 2] = top(v[v[:, 2] > z + 0.5])
+        parts.append((v, f))
+    v, f = M._concat(parts)
+    col = M.noisy_colors(v, kit.base_color(crop) * rng.uniform(0.92, 1.08), crop.noise, crop.scale_m, seed=seed)
+    low = v[:, 2] < z + 0.5  # shade at the foot of the stand
+    col[low, :3] = (col[low, :3] * 0.6).astype(np.uint8)
+    kit.add_colored("vegetation", v, f, col, tiled=True, texture=crop.texture)
 
 
 def farmyard(kit: Kit, rect, z) -> None:
@@ -161,8 +201,7 @@ def outskirts(kit: Kit) -> None:
                                          np.linspace(c, d, max(2, int((d - c) / cell) + 1))]))
     xb = breaks(bx0, rx0, rx1, bx1)
     if lay.river:
-        yc, w = lay.river
-        ylo, yhi = yc - w / 2 - 3.0, yc + w / 2 + 3.0
+        ylo, yhi = lay.river_band
         yb = np.unique(np.concatenate([breaks(by0, ry0, ylo, yhi), breaks(yhi, ry1, ry1 + 1, by1)]))
     else:
         yb = breaks(by0, ry0, ry1, by1)
@@ -171,7 +210,7 @@ def outskirts(kit: Kit) -> None:
     cx, cy = (X0 + X1) / 2, (Y0 + Y1) / 2
     keep = ~((cx > rx0) & (cx < rx1) & (cy > ry0) & (cy < ry1))
     if lay.river:
-        keep &= ~(np.abs(cy - lay.river[0]) < lay.river[1] / 2 + 3.0)
+        keep &= ~((cy > ylo) & (cy < yhi))
     X0, Y0, X1, Y1 = X0[keep], Y0[keep], X1[keep], Y1[keep]
     p0 = np.stack([X0, Y0, np.zeros_like(X0)], 1)
     v, f = M.quads(p0, np.stack([X1 - X0, 0 * X0, 0 * X0], 1), np.stack([0 * X0, Y1 - Y0, 0 * X0], 1))

@@ -113,8 +113,8 @@ class Kit:
 
     # ---- where things may go --------------------------------------------
     def on_river(self, y: float, pad: float = 0.0) -> bool:
-        r = self.lay.river
-        return r is not None and abs(y - r[0]) < r[1] / 2 + 3.0 + pad
+        band = self.lay.river_band
+        return band is not None and band[0] - pad < y < band[1] + pad
 
     def free_outside(self, p, pad) -> bool:
         """True when p is clear of the grid, the river, freeway and railway."""
@@ -150,8 +150,7 @@ class Kit:
             for j in range(len(lay.ys) - 1):
                 x0, y0, x1, y1 = lay.xs[i] + e, lay.ys[j] + e, lay.xs[i + 1] - e, lay.ys[j + 1] - e
                 if lay.river and y0 < lay.river[0] < y1:
-                    yr0 = lay.river[0] - lay.river[1] / 2 - 3.0
-                    yr1 = lay.river[0] + lay.river[1] / 2 + 3.0
+                    yr0, yr1 = lay.river_band
                     out += [((x0, y0, x1, yr0), "swe", "n"), ((x0, yr1, x1, y1), "nwe", "s")]
                 else:
                     out.append(((x0, y0, x1, y1), "nswe", ""))
@@ -185,8 +184,8 @@ class Kit:
         if lay.railway_y is not None:
             zones.append((bx0 - 1e4, lay.railway_y - 8, bx1 + 1e4, lay.railway_y + 8))
         if lay.river:
-            yc, w = lay.river
-            zones.append((bx0 - 1e4, yc - w / 2 - 3, bx1 + 1e4, yc + w / 2 + 3))
+            y0, y1 = lay.river_band
+            zones.append((bx0 - 1e4, y0, bx1 + 1e4, y1))
         return zones
 
     def ground_z(self, xy: np.ndarray) -> np.ndarray:

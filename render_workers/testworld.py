@@ -21,7 +21,7 @@ import math
 import numpy as np
 import trimesh
 
-from manifests.catalog import class_id, town as lookup_town, viewpoint as lookup_viewpoint
+from manifests.catalog import CLASS_IDS, town as lookup_town, viewpoint as lookup_viewpoint
 from render_workers.scene import Actor, EpisodeScene, Part, Path, World
 
 MODULE_M = 40.0  # length of the repeated roadside module
@@ -32,10 +32,7 @@ WALK_M = 6.5  # sidewalk centre offset
 VEHICLES = (20, 150)  # IDDA: random number of vehicles per episode
 PEDESTRIANS = (0, 100)  # IDDA: random number of pedestrians per episode
 
-C = {name: class_id(name) for name in (
-    "building", "fence", "other", "pedestrian", "pole", "road line", "road", "sidewalk",
-    "vegetation", "vehicle", "wall", "traffic sign", "traffic light", "guard rail", "dynamic",
-    "bicycle", "motorcycle", "rider", "terrain", "railway", "ground", "static")}
+C = CLASS_IDS  # class name -> id
 
 
 # --------------------------------------------------------------------------

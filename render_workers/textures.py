@@ -1,5 +1,6 @@
 """Procedural textures made with numpy: asphalt with cracks, brick and paving
-courses, plaster, concrete panels, glass mullions, grass, crops, soil, gravel.
+courses, plaster, concrete panels, glass mullions, grass, crops, soil, gravel,
+tall crops' stalks.
 
 A texture is a tileable ``TEXTURE_PX`` square, grey (the same value in R, G and
 B): the renderer multiplies a part's vertex colours (the surface's colour and
@@ -128,6 +129,16 @@ def _soil(rng, px, wear):
     return out
 
 
+def _stalks(rng, px, wear):
+    """Tall crops seen side-on: dark gaps between stalks, lighter leaves slanting off them."""
+    x = np.arange(px)[None, :] / px
+    y = np.arange(px)[:, None] / px
+    phase = rng.random(12)[np.floor(x * 12).astype(int) % 12]  # each stalk wobbles its own way
+    stalks = np.abs(np.sin(np.pi * (12 * x + 0.15 * np.sin(2 * np.pi * (2 * y + phase)))))
+    leaves = _smooth_noise(rng, px, 32) * (0.6 + 0.4 * np.abs(np.sin(2 * np.pi * (9 * y + 6 * x))))
+    return 0.45 + 0.4 * stalks ** 0.5 + 0.3 * leaves + 0.1 * (rng.random((px, px)) - 0.5)
+
+
 def _gravel(rng, px, wear):
     stones = _smooth_noise(rng, px, 64)
     return 0.55 + 0.5 * (stones > 0.5) * stones + 0.15 * (rng.random((px, px)) - 0.5)
@@ -150,6 +161,7 @@ TEXTURES: dict[str, TextureKind] = {
     "crop": TextureKind(2.4, _crop),
     "soil": TextureKind(3.0, _soil),
     "gravel": TextureKind(1.5, _gravel),
+    "stalks": TextureKind(2.0, _stalks),
 }
 if set(TEXTURES) != set(TEXTURE_NAMES):
     raise RuntimeError(f"textures {sorted(TEXTURES)} do not match catalog.TEXTURE_NAMES {sorted(TEXTURE_NAMES)}")

@@ -36,6 +36,7 @@ FREEWAY_LANE_W = 3.6
 FREEWAY_MEDIAN = 30.0  # wide, planted median: lets buses take the turn-around loops
 ZEBRA_FROM, ZEBRA_LEN = 0.6, 3.0  # zebra stripes: distance of their near end from the kerb line, length
 WALK_LANE_M = 0.7  # sidewalk walking lanes lie this far apart
+RIVER_BANK_M = 3.0  # sloped bank on each side of the river's water
 
 
 # --------------------------------------------------------------------------
@@ -67,6 +68,14 @@ class Layout:
         """Outer edge of the street grid incl. the outer sidewalk/verge."""
         e = self.hw + max(self.sidewalk_w, self.verge_w)
         return (self.xs[0] - e, self.ys[0] - e, self.xs[-1] + e, self.ys[-1] + e)
+
+    @property
+    def river_band(self) -> tuple[float, float] | None:
+        """(y min, y max) of the river with its banks, or None without a river."""
+        if self.river is None:
+            return None
+        yc, w = self.river
+        return (yc - w / 2 - RIVER_BANK_M, yc + w / 2 + RIVER_BANK_M)
 
     @property
     def road_length_m(self) -> float:
@@ -245,7 +254,7 @@ def _loops(lay: Layout) -> tuple[Loop, ...]:
     xs, ys = lay.xs, lay.ys
     jxy = np.array([(x, y) for x in xs for y in ys])
     loops = []
-    urban = lay.parking_w > 0
+    urban = t.urban
     c = corner_offset(lay)
     clear = c + 6.0
     for k in range(t.lanes):

@@ -128,11 +128,13 @@ def test_shifts_command_on_a_tiny_run(shift_root, tmp_path):
     result = CliRunner().invoke(cli_app(), ["shifts", str(shift_root), *TINY, "--json", str(out)])
     assert result.exit_code == 0, result.output
     lines = result.output.splitlines()
-    assert lines[0].split() == ["case", "source", "target", "source", "mIoU", "target", "mIoU", "kept", "paper", "kept"]
+    assert lines[0].split() == ["case", "source", "target", "source", "mIoU", "target", "mIoU", "kept",
+                                "target*", "mIoU", "oracle", "mIoU", "kept*", "paper", "kept"]
     rows = [line.split() for line in lines[2:5]]
     assert [r[:3] for r in rows] == [[c.name, c.pair.source, c.pair.target] for c in CASES]
-    assert [r[6] for r in rows] == ["0.79", "0.51", "0.28"]
-    assert "kept:" in lines[-2] and "(paper: viewpoint > weather > city)" in lines[-2]
+    assert [r[9] for r in rows] == ["0.79", "0.51", "0.28"]
+    assert lines[-3].startswith("kept: ") and lines[-2].startswith("kept*: ")
+    assert "(paper: viewpoint > weather > city)" in lines[-2]
 
     report = json.loads(out.read_text())
     assert report["device"] == "cpu" and 300_000 < report["parameters"] < 700_000
@@ -140,11 +142,15 @@ def test_shifts_command_on_a_tiny_run(shift_root, tmp_path):
         for key in ("source_miou", "target_miou", "constant_miou"):
             assert 0.0 <= r[key] <= 1.0, (r["case"], key)
         assert r["kept"] == pytest.approx(r["target_miou"] / r["source_miou"])
+        assert r["oracle_kept"] == pytest.approx(r["target_held_out_miou"] / r["oracle_miou"])
         assert r["source_miou"] > 2 * r["constant_miou"], r  # it learned something on the source
-        assert (r["train_frames"], r["held_out_frames"], r["target_frames"]) == (8, 2, 10)
+        assert (r["train_frames"], r["held_out_frames"], r["target_frames"], r["target_held_out_frames"]) == (8, 2, 10, 2)
         assert r["held_out_rule"] == "tail"
         assert set(r["source_iou"]) == set(EVAL_CLASSES)
     assert [f"{r['source_miou']:.3f}" for r in report["results"]] == [r[3] for r in rows]
+    # one network per domain: the weather case's source network is the viewpoint case's oracle
+    viewpoint, weather = report["results"][:2]
+    assert viewpoint["oracle_miou"] == weather["source_miou"]
 
     # Deterministic: the same config gives the same numbers.
     again = CliRunner().invoke(cli_app(), ["shifts", str(shift_root), *TINY, "--cases", "city",

@@ -348,6 +348,10 @@ def test_unknown_surface_style_and_kit_are_rejected():
         replace(STYLES[0], trees=(("palm", 1.0),))
     with pytest.raises(ValueError, match="unknown surface"):
         surface("chrome")
+    with pytest.raises(ValueError, match="tall_crop_share must be in"):
+        replace(STYLES[0], tall_crops=("maize",))  # tall crops but none sown
+    with pytest.raises(ValueError, match="unknown surface 'bamboo'"):
+        replace(style("farmland"), tall_crops=("bamboo",))
     with pytest.raises(ValueError, match="unknown style 'gothic town'; valid styles: european old town"):
         replace(town_row("T01"), style="gothic town").look
     assert isinstance(town_row("T01"), Town) and style("farmland").architecture == "farm"
@@ -382,3 +386,19 @@ def test_a_style_row_changes_the_world():
                for p in restyled.static)
     farm = W.build_town(replace(t01, style="farmland"), 0)
     assert class_id("sidewalk") not in _tri_counts(farm) and class_id("sidewalk") in _tri_counts(base)
+
+
+def test_roofs_and_tall_crops_wear_their_textures(worlds):
+    """House roofs are painted in their surface (terracotta tiles, concrete), and the
+    farmland's maize stands are vegetation textured with stalks."""
+    from manifests.catalog import surface
+
+    tiles = [p for p in worlds["T01"].static
+             if p.class_id == class_id("building") and p.texture == surface("roof terracotta").texture]
+    slope = np.concatenate([np.abs(p.mesh.face_normals[:, 2]) for p in tiles])
+    assert ((slope > 0.3) & (slope < 0.95)).sum() > 100  # pitched roof faces, not only brick walls
+    t07 = worlds["T07"].static
+    maize = [p for p in t07 if p.texture == "stalks"]
+    assert maize and {p.class_id for p in maize} == {class_id("vegetation")}
+    tops = np.concatenate([p.mesh.vertices[:, 2] for p in maize])
+    assert 1.8 < tops.max() < 3.5  # taller than a person, lower than the trees

@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario
+from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario, weather as lookup_weather
 from manifests.encoding import decode_png
 
 IMAGE_SIZE = (72, 128)  # (height, width) every frame is resized to
@@ -426,7 +426,6 @@ def format_distance_table(report: DistanceReport) -> str:
     return "\n".join(lines)
 
 
-_WEATHER_MARKERS = dict(zip((w.code for w in WEATHERS), ("o", "s", "^")))
 
 
 def embedding_png(report: DistanceReport, title: str = "Domains: 2-D PCA of the domain mean features") -> bytes:
@@ -443,14 +442,14 @@ def embedding_png(report: DistanceReport, title: str = "Domains: 2-D PCA of the 
     paper_domains = {d for p in PAPER_PAIRS for d in (p.source, p.target)}
     for code, (x, y) in zip(report.domains, report.embedding):
         town, weather, view = code.split("_")
-        ax.scatter(x, y, s=70, color=town_color[town], marker=_WEATHER_MARKERS[weather], edgecolors="black", linewidths=0.5)
+        ax.scatter(x, y, s=70, color=town_color[town], marker=lookup_weather(weather).marker, edgecolors="black", linewidths=0.5)
         ax.annotate(view, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
         if code in paper_domains:
             ax.scatter(x, y, s=260, facecolors="none", edgecolors="black", linewidths=1.0)
     towns = sorted({d.split("_")[0] for d in report.domains})
-    weathers = sorted({d.split("_")[1] for d in report.domains}, key=list(_WEATHER_MARKERS).index)
+    weathers = sorted({d.split("_")[1] for d in report.domains}, key=[w.code for w in WEATHERS].index)
     handles = [Line2D([], [], marker="o", ls="", color=town_color[t], label=t) for t in towns]
-    handles += [Line2D([], [], marker=_WEATHER_MARKERS[w], ls="", color="grey", label=w) for w in weathers]
+    handles += [Line2D([], [], marker=lookup_weather(w).marker, ls="", color="grey", label=w) for w in weathers]
     handles += [Line2D([], [], marker="o", ls="", mfc="none", mec="black", ms=12, label="paper's pairs")]
     ax.legend(handles=handles, loc="best", fontsize=8)
     ax.set_xlabel("component 1")
