@@ -48,7 +48,7 @@ print(time.perf_counter() - start)
 """
 
 _RAY = """
-import sys, time
+import os, sys, time
 import ray
 from pipeline.driver import ProduceConfig, produce
 from manifests.outputs import SEED_OUTPUTS
@@ -64,7 +64,12 @@ def warm():
     import pipeline.episode_job, render_workers.episode  # noqa: F401
     time.sleep(1.0)  # hold this worker so the next warm-up lands on another
 
-ray.get([warm.remote() for _ in range(workers)])
+# produce() hands tasks the variables it forwards (IDDA_WORLD_CACHE here) as a runtime_env on a
+# cluster it did not start; Ray keeps workers per runtime_env, so warm those.
+from pipeline.driver import _FORWARDED_ENV
+env = {k: os.environ[k] for k in _FORWARDED_ENV if k in os.environ}
+options = {"runtime_env": {"env_vars": env}} if env else {}
+ray.get([warm.options(**options).remote() for _ in range(workers)])
 startup = time.perf_counter() - t0
 plan = PlanConfig(domains=sys.argv[1], frames_per_scenario=int(sys.argv[2]), width=int(sys.argv[3]), height=int(sys.argv[4]), outputs=SEED_OUTPUTS)
 start = time.perf_counter()

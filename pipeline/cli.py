@@ -406,7 +406,7 @@ def preview(
     """Render one frame per scenario into a contact sheet (rows = viewpoints,
     columns = towns, one sheet per weather) plus one frame's six outputs."""
     from manifests.selection import parse_selection
-    from render_workers.episode import check_world
+    from render_workers.registry import check_world
     from render_workers.preview import write_preview
 
     with user_errors():

@@ -47,7 +47,7 @@ class ProduceConfig:
     repair: bool = False
 
     def validate(self) -> None:
-        from render_workers.episode import check_world
+        from render_workers.registry import check_world
 
         self.run.plan.validate()
         check_world(self.run.world)  # here, not in each of the Ray tasks
@@ -309,7 +309,11 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         if config.gpus_per_task:
             options["num_gpus"] = config.gpus_per_task
         env = {k: os.environ[k] for k in _FORWARDED_ENV if k in os.environ}
-        if env:  # per task, so it also reaches workers of an existing cluster
+        if env and not (started and not _address(config)):
+            # Per task, so it also reaches workers of an existing cluster. A local
+            # cluster this call started inherited our environment already, and a
+            # runtime_env would make Ray start fresh workers instead of its
+            # prestarted ones (a second or more of imports on each).
             options["runtime_env"] = {"env_vars": env}
         task = ray.remote(_episode_task).options(**options)
         storage_ref = ray.put(storage)

@@ -37,16 +37,10 @@ from render_workers.camera import measured_hood_fraction
 from render_workers.instances import frame_objects, instance_classes
 from render_workers.renderer import Renderer
 from render_workers.scene import EpisodeScene, Frame, World
+from render_workers.registry import DEFAULT_WORLD, WORLDS, check_world  # noqa: F401 (re-exported: the API since before the registry)
 
 log = logging.getLogger(__name__)
 
-# World builders by name: the modules providing build_world(town_code, seed) and
-# populate(world, viewpoint_code, episode_seed). Imported on first use.
-WORLDS: dict[str, tuple[str, str]] = {
-    "procedural": ("render_workers.world", "render_workers.traffic"),
-    "test": ("render_workers.testworld", "render_workers.testworld"),
-}
-DEFAULT_WORLD = "procedural"
 _FX_STREAM = 404  # rng stream id of per-frame post effects
 
 FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "sink", "sink_wait")
@@ -72,12 +66,6 @@ def _function(module_name: str, fn: str, world: str) -> Callable:
     if not callable(function):
         raise ImportError(f"world {world!r}: module {module_name} has no {fn}() function")
     return function
-
-
-def check_world(name: str) -> None:
-    """ValueError naming the valid worlds unless ``name`` is registered."""
-    if name not in WORLDS:
-        raise ValueError(f"unknown world {name!r}; valid worlds: {', '.join(WORLDS)}")
 
 
 def world_builder(name: str) -> WorldBuilder:
