@@ -16,7 +16,6 @@ The ``World`` carries the lane loops, zebra crossings and walking lanes that
 
 from __future__ import annotations
 
-from functools import lru_cache
 
 import numpy as np
 
@@ -43,8 +42,9 @@ FEATURES = (
 )
 
 
-@lru_cache(maxsize=8)
 def _built(t: Town, seed: int):
+    """The town's merged parts and building footprints (not cached here: ``render_workers.episode.cached_world``
+    is the process's one world cache)."""
     kit = Kit(plan(t, seed))
     for feature in FEATURES:
         feature(kit)
