@@ -110,8 +110,9 @@ def object_counts(instance: np.ndarray, instance_classes: np.ndarray) -> dict[st
     ``instance`` is a frame's HxW instance ids; ``instance_classes[i]`` is the
     class id of instance id ``i`` (-1 for ids that are not objects, like 0
     and the hood)."""
-    present = np.unique(instance)
-    classes = np.asarray(instance_classes)[present]
+    classes = np.asarray(instance_classes)
+    present = np.flatnonzero(np.bincount(instance.ravel(), minlength=len(classes)))  # ids in the frame
+    classes = classes[present]
     return {label.object_column: int(np.count_nonzero(classes == label.id)) for label in INSTANCE_LABELS}
 
 

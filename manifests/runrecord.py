@@ -28,6 +28,9 @@ CONFIG_TYPES: dict[str, tuple[type, ...]] = {
 }
 
 
+REPAIR_HINT = "`idda produce --repair` with the run's options rewrites it"  # said with every RunRecordError
+
+
 class RunRecordError(ValueError):
     """run.json is unreadable, of the wrong shape, or fails its checksum."""
 

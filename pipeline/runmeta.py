@@ -20,7 +20,7 @@ from importlib import metadata
 from pathlib import Path
 
 from manifests.outputs import SEED_OUTPUTS
-from manifests.runrecord import RunRecordError, read_record, record_bytes
+from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE
 from pipeline.planner import PlanConfig
 
@@ -76,7 +76,7 @@ def read_run(storage) -> dict | None:
     try:
         return read_record(storage)
     except RunRecordError as exc:
-        raise RunConfigError(f"{exc}; `idda produce --repair` with the run's options rewrites it") from None
+        raise RunConfigError(f"{exc}; {REPAIR_HINT}") from None
 
 
 def _differences(old: dict, new: dict) -> list[str]:
@@ -161,7 +161,7 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
         record = read_record(storage)
     except RunRecordError as exc:
         if not repair:
-            raise RunConfigError(f"{exc}; `idda produce --repair` with the run's options rewrites it") from None
+            raise RunConfigError(f"{exc}; {REPAIR_HINT}") from None
         if storage.is_local and not os.path.isfile(storage.path(RUN_FILE)):
             raise RunConfigError(f"{exc}; move it away, then run again") from None
         log.warning("rewriting the damaged %s from this run's options", storage.join(RUN_FILE))

@@ -271,7 +271,7 @@ def write_card(config: CardConfig) -> CardResult:
     """Write ``README.md`` and ``class_shares.png`` into the root (and a contact sheet if asked)."""
     from manifests.reader import read_manifest
     from manifests.stats import bar_chart_png, share_table
-    from manifests.runrecord import RunRecordError, read_record
+    from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record
     from storage import Storage
 
     storage = Storage.from_uri(config.root)
@@ -284,7 +284,7 @@ def write_card(config: CardConfig) -> CardResult:
     try:
         record = read_record(storage)
     except RunRecordError as exc:
-        raise ValueError(f"{exc}; `idda produce --repair` with the run's options rewrites it") from None
+        raise ValueError(f"{exc}; {REPAIR_HINT}") from None
     if config.contact_sheet:
         render_contact_sheet(storage, record, sorted(set(table.column("scenario").to_pylist())))
     previews = find_previews(storage)
