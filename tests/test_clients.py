@@ -247,3 +247,33 @@ def test_hf_export_loads_with_image_features(root, manifest, tmp_path):
     assert [s["name"] for s in card["dataset_info"]["splits"]] == ["train", "val", "test"]
     again = load_dataset(str(target), cache_dir=str(tmp_path / "cache2"))
     assert sorted(again) == ["test", "train", "val"] and isinstance(again["val"].features["rgb"], HFImage)
+
+
+# --------------------------------------------------------------- Ray Data ----
+def test_ray_data_reads_the_manifest_and_frames_with_its_own_readers(root, manifest):
+    """Ray Data's own readers, no project code: read_parquet on manifest/
+    (hive partitions as columns) and read_images on the paths it lists."""
+    import ray
+    import ray.data
+
+    want = {r["scenario"]: r for r in manifest.to_pylist() if r["frame"] == 0}
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    try:
+        ds = ray.data.read_parquet(f"{root}/manifest")
+        assert ds.count() == len(manifest)
+        rows = ds.filter(lambda r: r["weather"] == "HRN").take_all()
+        assert len(rows) == FRAMES and {r["town"] for r in rows} == {"T01"} and {r["viewpoint"] for r in rows} == {"J"}
+        assert sum(r["px_vehicle"] for r in rows) == sum(r["px_vehicle"] for r in manifest.to_pylist() if r["weather"] == "HRN")
+        firsts = sorted(want.values(), key=lambda r: r["scenario"])
+        rgb = ray.data.read_images([str(root / r["rgb_path"]) for r in firsts], include_paths=True).take_all()
+        semantic = ray.data.read_images([str(root / r["semantic_raw_path"]) for r in firsts], include_paths=True).take_all()
+    finally:
+        ray.shutdown()
+    by_path = {Path(r["path"]).resolve(): r["image"] for r in rgb + semantic}
+    for row in firsts:
+        image = by_path[(root / row["rgb_path"]).resolve()]
+        assert image.shape == (HEIGHT, WIDTH, 3)
+        assert np.array_equal(image, np.array(Image.open(root / row["rgb_path"]).convert("RGB")))
+        classes = by_path[(root / row["semantic_raw_path"]).resolve()][..., 0]  # CARLA: the class id in the red channel
+        counts = np.bincount(classes.ravel(), minlength=24)
+        assert int(counts[10]) == row["px_vehicle"] and int(counts.sum()) == WIDTH * HEIGHT
