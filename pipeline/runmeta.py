@@ -25,7 +25,7 @@ from manifests.schema import RUN_FILE
 from pipeline.planner import PlanConfig
 
 # Changing these would make new frames inconsistent with the ones on disk.
-FRAME_DEFINING = ("seed", "width", "height", "world", "outputs")
+FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format")
 _PACKAGES = ("idda-pipeline", "numpy", "pyrender", "PyOpenGL", "trimesh", "ray", "pyarrow", "opencv-python-headless")
 
 
@@ -111,8 +111,9 @@ def check_rows(storage, config: RunConfig) -> None:
 
 
 def _with_outputs(config: dict) -> dict:
-    """A recorded config; roots from before ``--outputs`` hold the six seed outputs."""
-    return {"outputs": list(SEED_OUTPUTS), **config}
+    """A recorded config; roots from before ``--outputs`` hold the six seed outputs, roots
+    from before ``--rgb-format`` PNG rgb files."""
+    return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", **config}
 
 
 def _fresh_record(new: dict, history: list[dict] | None = None) -> dict:
@@ -123,19 +124,19 @@ def _fresh_record(new: dict, history: list[dict] | None = None) -> dict:
         "history": (history or []) + [new],
         "versions": package_versions(),
         "git_revision": git_revision(),
-        "encoder": encoder_identity(),
+        "encoder": encoder_identity(new["rgb_format"]),
     }
 
 
 UNRECORDED_ENCODER = "not recorded (OpenCV's PNG encoder, before encoders were recorded)"
 
 
-def check_encoder(storage, record: dict) -> dict:
+def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
     """Refuse to add frames encoded otherwise than the root's; records the encoder in an empty root."""
     from manifests.encoding import encoder_identity
     from manifests.reader import episode_frames
 
-    ours, theirs = encoder_identity(), record.get("encoder", UNRECORDED_ENCODER)
+    ours, theirs = encoder_identity(rgb_format), record.get("encoder", UNRECORDED_ENCODER)
     if theirs == ours:
         return record
     if episode_frames(storage):
@@ -175,7 +176,7 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
         record = read_run(storage)  # another driver was first: compare with its record
         if record is None:
             raise RunConfigError(f"cannot create {storage.join(RUN_FILE)}")
-    record = check_encoder(storage, record)
+    record = check_encoder(storage, record, config.plan.rgb_format)
     old = _with_outputs(record["config"])
     if old == new:
         check_rows(storage, config)
