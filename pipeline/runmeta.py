@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from manifests.outputs import SEED_OUTPUTS
+from manifests.outputs import SEED_OUTPUTS, file_of_path
 from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE
 from pipeline.planner import PlanConfig
@@ -90,10 +90,16 @@ def check_rows(storage, config: RunConfig) -> None:
     from manifests.reader import read_manifest
     from manifests.spec import episode_seed
 
-    table = read_manifest(storage, columns=["scenario", "episode", "seed", "width", "height"])
+    table = read_manifest(storage, columns=["scenario", "episode", "seed", "width", "height", "rgb_path"])
     if len(table) == 0:
         return
     plan = config.plan
+    formats = {file_of_path("rgb", p) for p in table.column("rgb_path").to_pylist() if p is not None}
+    if formats - {plan.rgb_format}:
+        raise RunConfigError(
+            f"{storage.uri} holds {', '.join(sorted(formats))} rgb files, this run asks for {plan.rgb_format}; "
+            "frames would not match: use a new --out"
+        )
     sizes = set(zip(table.column("width").to_pylist(), table.column("height").to_pylist()))
     if sizes != {(plan.width, plan.height)}:
         found = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))

@@ -112,6 +112,10 @@ def test_resume_or_extend_never_mixes_rgb_formats(jpeg_root, tmp_path):
         with pytest.raises(RunConfigError, match="another encoder"):
             prepare_root(storage, run_config(fmt, frames=3), extend=extend)
     prepare_root(storage, run_config("jpg"))  # the same format resumes
+    from pipeline.runmeta import check_rows
+
+    with pytest.raises(RunConfigError, match="holds jpg rgb files, this run asks for png"):
+        check_rows(storage, run_config("png"))  # the rows say so too, whatever run.json says
     png_root = tmp_path / "png"
     produce_into(png_root, run_config("png"))
     with pytest.raises(RunConfigError, match="another encoder"):
