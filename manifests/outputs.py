@@ -21,13 +21,17 @@ import numpy as np
 
 from manifests.catalog import lookup
 from manifests.encoding import (
+    RGB_FORMATS,
+    check_rgb_format,
     decode_depth_raw,
+    decode_jpeg,
     decode_png,
     decode_png16,
     encode_depth_gray,
     encode_depth_log,
     encode_depth_raw,
     encode_instance,
+    encode_jpeg,
     encode_png,
     encode_png16,
     encode_rgb,
@@ -58,6 +62,7 @@ class FileFormat:
 FORMATS: dict[str, FileFormat] = {
     "png": FileFormat("png", encode_png, decode_png),  # HxWx3 uint8 RGB
     "png16": FileFormat("png", encode_png16, decode_png16),  # HxW uint16
+    "jpg": FileFormat("jpg", encode_jpeg, decode_jpeg),  # HxWx3 uint8 RGB, lossy (the rgb output's option)
     "parquet": FileFormat("parquet", write_objects, read_objects),  # a table
 }
 
@@ -85,6 +90,7 @@ class Output:
     dtype: str  # dtype of the loaders' array ("table" for a sidecar)
     channels: int  # channels of the loaders' array (0 for a sidecar)
     description: str  # one line for the card, the README and the loaders' docs
+    other_files: tuple[str, ...] = ()  # FORMATS keys a root may choose instead of ``file`` (rgb: --rgb-format)
 
     @property
     def format(self) -> FileFormat:
@@ -94,10 +100,19 @@ class Output:
     def extension(self) -> str:
         return self.format.extension
 
+    @property
+    def files(self) -> tuple[str, ...]:
+        """Every FORMATS key this output can be written in, the default first."""
+        return (self.file,) + self.other_files
+
+    def file_in(self, rgb_format: str = "png") -> str:
+        """The FORMATS key of this output in a root whose rgb format is ``rgb_format``."""
+        return rgb_format if check_rgb_format(rgb_format) in self.other_files else self.file
+
 
 OUTPUT_TABLE: tuple[Output, ...] = (
     Output("rgb", "rgb", encode_rgb, "png", _same, "rgb", "uint8", 3,
-           "lit colour image with bloom, lens flare, motion blur and weather grading"),
+           "lit colour image with bloom, lens flare, motion blur and weather grading", other_files=("jpg",)),
     Output("depth_raw", "depth", encode_depth_raw, "png", _depth_metres, "depth", "float32", 1,
            "planar depth, 24 bits in R, G, B: `depth_m = 1000 * (R + G*256 + B*65536) / (256**3 - 1)`; sky = 1000 m"),
     Output("depth_gray", "depth", encode_depth_gray, "png", _first_channel, "depth_gray", "uint8", 1,
@@ -121,10 +136,13 @@ SEED_OUTPUTS: tuple[str, ...] = OUTPUTS[:6]  # the six images of the IDDA paper
 DEFAULT_OUTPUTS: tuple[str, ...] = OUTPUTS  # what `idda produce` writes unless --outputs says otherwise
 IMAGE_OUTPUTS: tuple[str, ...] = tuple(o.name for o in OUTPUT_TABLE if o.channels)
 
-for _output in OUTPUT_TABLE:  # every row reads a known buffer and writes a known format
+for _output in OUTPUT_TABLE:  # every row reads a known buffer and writes known formats
     lookup(BUFFERS, _output.source, "buffer")
-    lookup(FORMATS, _output.file, "file format")
-del _output
+    for _file in _output.files:
+        lookup(FORMATS, _file, "file format")
+del _output, _file
+# --rgb-format picks the rgb output's file: every choice but the default is one of its other files.
+assert set(RGB_FORMATS[1:]) <= set(OUTPUT_TABLE[0].other_files) and OUTPUT_TABLE[0].file == RGB_FORMATS[0]
 
 
 def output(name: str) -> Output:
@@ -161,18 +179,39 @@ def encode_outputs(buffers: dict[str, Any], names: tuple[str, ...] = DEFAULT_OUT
     return out
 
 
-def file_bytes(name: str, content) -> bytes:
-    """The bytes of one output's file."""
-    return output(name).format.write(content, name)
+def extension(name: str, rgb_format: str = "png") -> str:
+    """The file extension of output ``name`` in a root whose rgb format is ``rgb_format``."""
+    return FORMATS[output(name).file_in(rgb_format)].extension
+
+
+def file_bytes(name: str, content, rgb_format: str = "png") -> bytes:
+    """The bytes of one output's file (in a root whose rgb format is ``rgb_format``)."""
+    return FORMATS[output(name).file_in(rgb_format)].write(content, name)
+
+
+def file_of_path(name: str, path: str) -> str:
+    """The FORMATS key of output ``name``'s file at ``path`` (by its extension; the default otherwise)."""
+    row = output(name)
+    for file in row.other_files:
+        if path.endswith("." + FORMATS[file].extension):
+            return file
+    return row.file
 
 
 def read_output(name: str, data: bytes, where: str = "") -> Any:
-    """One output's file content from its bytes (an image array or a table)."""
-    return output(name).format.read(data, where or name)
+    """One output's file content from its bytes (an image array or a table); ``where`` is its
+    path (or URI), whose extension tells the rgb output's PNG from its JPEG."""
+    return FORMATS[file_of_path(name, where)].read(data, where or name)
 
 
-def markdown_table(names: tuple[str, ...] = OUTPUTS) -> list[str]:
-    """The outputs as a Markdown table (the card and the README show it)."""
+def markdown_table(names: tuple[str, ...] = OUTPUTS, rgb_format: str | None = None) -> list[str]:
+    """The outputs as a Markdown table (the card and the README show it). With ``rgb_format``
+    None the file column lists every choice; with one, the root's."""
+    def files(o: Output) -> str:
+        if rgb_format is not None:
+            return o.file_in(rgb_format)
+        return o.file + "".join(f" (or {f}: `--rgb-format {f}`)" for f in o.other_files)
+
     lines = ["| output | file | content |", "|---|---|---|"]
-    lines += [f"| `{o.name}` | {o.file} | {o.description} |" for o in OUTPUT_TABLE if o.name in names]
+    lines += [f"| `{o.name}` | {files(o)} | {o.description} |" for o in OUTPUT_TABLE if o.name in names]
     return lines

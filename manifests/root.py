@@ -20,7 +20,7 @@ import re
 
 import pyarrow.fs as pafs
 
-from manifests.outputs import OUTPUT_TABLE, OUTPUTS
+from manifests.outputs import FORMATS, OUTPUT_TABLE, OUTPUTS
 from manifests.schema import MANIFEST_DIR, RUN_FILE
 
 ROOT_MARKER = "idda-root.json"  # <root>/idda-root.json: "this directory is an idda output root"
@@ -31,14 +31,15 @@ EXPORT_MARKER = "EXPORT.json"  # written last into an export: a finished export 
 # only files repair may delete from a scenario folder.
 _BY_EXTENSION: dict[str, list[str]] = {}
 for _o in OUTPUT_TABLE:
-    _BY_EXTENSION.setdefault(_o.extension, []).append(_o.name)
+    for _file in _o.files:  # the rgb output's PNG or JPEG
+        _BY_EXTENSION.setdefault(FORMATS[_file].extension, []).append(_o.name)
 FRAME_FILE_RE = re.compile(
     r"^(?P<scenario>T\d\d_[A-Z]+_[A-Z])/"
     + "(?=" + "|".join(f"(?:{'|'.join(names)})/[^/]*\\.{ext}$" for ext, names in _BY_EXTENSION.items()) + ")"
     + r"(?P<output>" + "|".join(OUTPUTS) + r")/"
     r"(?P<episode>\d{4})_(?P<frame>\d{3})_(?P=scenario)\.[a-z0-9]+$"
 )
-del _o
+del _o, _file
 
 
 class RootError(ValueError):

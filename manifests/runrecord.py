@@ -25,7 +25,9 @@ CONFIG_TYPES: dict[str, tuple[type, ...]] = {
     "seed": (int,),
     "world": (str,),
     "outputs": (list,),  # absent in roots from before --outputs: the six seed outputs
+    "rgb_format": (str,),  # absent in roots from before --rgb-format: png
 }
+OPTIONAL_CONFIG = ("world", "outputs", "rgb_format")  # keys older records lack
 
 
 REPAIR_HINT = "`idda produce --repair` with the run's options rewrites it"  # said with every RunRecordError
@@ -52,7 +54,7 @@ def check_record(record, where: str) -> dict:
         raise RunRecordError(f"{where} is not a run record (expected an object with a 'config' object)")
     config = record["config"]
     for key, types in CONFIG_TYPES.items():
-        if key not in config and type(None) not in types and key not in ("world", "outputs"):
+        if key not in config and type(None) not in types and key not in OPTIONAL_CONFIG:
             raise RunRecordError(f"{where} is damaged: its config lacks {key!r}")
         value = config.get(key)
         if key in config and (not isinstance(value, types) or isinstance(value, bool)):

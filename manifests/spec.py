@@ -42,6 +42,7 @@ class EpisodeSpec:
     split: str  # train | val | test
     run_seed: int  # the run's seed; the town's world derives from it
     outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # which outputs to write (manifests.outputs)
+    rgb_format: str = "png"  # the rgb output's file format (manifests.encoding.RGB_FORMATS)
 
     @property
     def town(self) -> str:

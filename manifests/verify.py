@@ -21,6 +21,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from manifests.catalog import SCENARIO_BY_CODE
+from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
 from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_table, part_files
 from manifests.root import FRAME_FILE_RE
@@ -88,11 +89,13 @@ def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | No
         return "rows of another scenario or episode"
     if col["frame"] != list(range(n)) or col["frame_id"] != [frame_id(episode, i) for i in range(n)]:
         return "frames are not numbered 0.." + str(n - 1)
+    # the rgb files' format: run.json's (older records: png); without run.json, any one format
+    formats = [config.get("rgb_format", RGB_FORMATS[0])] if config is not None else list(RGB_FORMATS)
     for output in OUTPUTS:
         paths = table.column(output_columns(output)[0]).to_pylist()
         if paths == [None] * n:  # an output the run did not ask for
             continue
-        if paths != [frame_path(scenario, output, f) for f in col["frame_id"]]:
+        if all(paths != [frame_path(scenario, output, f, fmt) for f in col["frame_id"]] for fmt in formats):
             return f"{output} paths do not follow the layout"
     if len(set(col["seed"])) != 1 or len(set(zip(col["width"], col["height"]))) != 1:
         return "mixed seeds or resolutions"

@@ -42,7 +42,7 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
     for name in OUTPUTS:
         data = files.get(name)
         path_col, bytes_col, sha_col = output_columns(name)
-        row[path_col] = None if data is None else frame_path(spec.scenario, name, fid)
+        row[path_col] = None if data is None else frame_path(spec.scenario, name, fid, spec.rgb_format)
         row[bytes_col] = None if data is None else len(data)
         row[sha_col] = None if data is None else sha256_bytes(data)
     counts = np.asarray(frame.class_counts, dtype=np.int64)

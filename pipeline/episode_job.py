@@ -65,9 +65,9 @@ def _fault_after() -> int | None:
 
 def store_frame(spec: EpisodeSpec, frame, storage) -> dict:
     """Write one frame's output files; return its manifest row."""
-    files = {name: file_bytes(name, content) for name, content in frame.outputs.items()}
+    files = {name: file_bytes(name, content, spec.rgb_format) for name, content in frame.outputs.items()}
     for name, data in files.items():
-        storage.write_bytes(frame_path(spec.scenario, name, frame_id(spec.episode, frame.index)), data)
+        storage.write_bytes(frame_path(spec.scenario, name, frame_id(spec.episode, frame.index), spec.rgb_format), data)
     return frame_row(spec, frame, files)
 
 

@@ -17,6 +17,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Scenario, Town
+from manifests.encoding import check_rgb_format
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
 from manifests.query import SPLIT_SHARES
 from manifests.selection import parse_selection
@@ -81,6 +82,7 @@ class PlanConfig:
     height: int = 1080
     seed: int = 0
     outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # what every frame writes (manifests.outputs)
+    rgb_format: str = "png"  # the rgb output's file format: png (lossless) or jpg (IDDA's released format)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
@@ -109,6 +111,7 @@ class PlanConfig:
         parse_selection(self.domains)
         if check_outputs(self.outputs) != self.outputs:
             raise ValueError(f"outputs must be listed once each in table order, got {', '.join(self.outputs)}")
+        check_rgb_format(self.rgb_format)
 
     def to_dict(self) -> dict:
         return {**asdict(self), "outputs": list(self.outputs)}  # as JSON holds it
@@ -169,6 +172,7 @@ def make_plan(config: PlanConfig) -> Plan:
                     split=split,
                     run_seed=config.seed,
                     outputs=config.outputs,
+                    rgb_format=config.rgb_format,
                 )
             )
     return Plan(config=config, episodes=tuple(episodes))

@@ -19,13 +19,13 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
-from manifests.outputs import SEED_OUTPUTS
+from manifests.outputs import SEED_OUTPUTS, file_of_path
 from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE
 from pipeline.planner import PlanConfig
 
 # Changing these would make new frames inconsistent with the ones on disk.
-FRAME_DEFINING = ("seed", "width", "height", "world", "outputs")
+FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format")
 _PACKAGES = ("idda-pipeline", "numpy", "pyrender", "PyOpenGL", "trimesh", "ray", "pyarrow", "opencv-python-headless")
 
 
@@ -90,10 +90,16 @@ def check_rows(storage, config: RunConfig) -> None:
     from manifests.reader import read_manifest
     from manifests.spec import episode_seed
 
-    table = read_manifest(storage, columns=["scenario", "episode", "seed", "width", "height"])
+    table = read_manifest(storage, columns=["scenario", "episode", "seed", "width", "height", "rgb_path"])
     if len(table) == 0:
         return
     plan = config.plan
+    formats = {file_of_path("rgb", p) for p in table.column("rgb_path").to_pylist() if p is not None}
+    if formats - {plan.rgb_format}:
+        raise RunConfigError(
+            f"{storage.uri} holds {', '.join(sorted(formats))} rgb files, this run asks for {plan.rgb_format}; "
+            "frames would not match: use a new --out"
+        )
     sizes = set(zip(table.column("width").to_pylist(), table.column("height").to_pylist()))
     if sizes != {(plan.width, plan.height)}:
         found = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))
@@ -111,8 +117,9 @@ def check_rows(storage, config: RunConfig) -> None:
 
 
 def _with_outputs(config: dict) -> dict:
-    """A recorded config; roots from before ``--outputs`` hold the six seed outputs."""
-    return {"outputs": list(SEED_OUTPUTS), **config}
+    """A recorded config; roots from before ``--outputs`` hold the six seed outputs, roots
+    from before ``--rgb-format`` PNG rgb files."""
+    return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", **config}
 
 
 def _fresh_record(new: dict, history: list[dict] | None = None) -> dict:
@@ -123,19 +130,19 @@ def _fresh_record(new: dict, history: list[dict] | None = None) -> dict:
         "history": (history or []) + [new],
         "versions": package_versions(),
         "git_revision": git_revision(),
-        "encoder": encoder_identity(),
+        "encoder": encoder_identity(new["rgb_format"]),
     }
 
 
 UNRECORDED_ENCODER = "not recorded (OpenCV's PNG encoder, before encoders were recorded)"
 
 
-def check_encoder(storage, record: dict) -> dict:
+def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
     """Refuse to add frames encoded otherwise than the root's; records the encoder in an empty root."""
     from manifests.encoding import encoder_identity
     from manifests.reader import episode_frames
 
-    ours, theirs = encoder_identity(), record.get("encoder", UNRECORDED_ENCODER)
+    ours, theirs = encoder_identity(rgb_format), record.get("encoder", UNRECORDED_ENCODER)
     if theirs == ours:
         return record
     if episode_frames(storage):
@@ -175,7 +182,7 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
         record = read_run(storage)  # another driver was first: compare with its record
         if record is None:
             raise RunConfigError(f"cannot create {storage.join(RUN_FILE)}")
-    record = check_encoder(storage, record)
+    record = check_encoder(storage, record, config.plan.rgb_format)
     old = _with_outputs(record["config"])
     if old == new:
         check_rows(storage, config)

@@ -28,6 +28,7 @@ from typing import Callable
 import numpy as np
 
 from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario
+from manifests.encoding import check_rgb_format
 from manifests.objects import object_counts
 from manifests.outputs import check_outputs, encode_outputs, file_bytes
 from manifests.spec import EpisodeSpec
@@ -115,6 +116,7 @@ def validate_spec(spec: EpisodeSpec) -> None:
     if spec.seed < 0 or spec.run_seed < 0:
         raise ValueError(f"{spec.key}: seeds must be non-negative")
     check_outputs(spec.outputs)
+    check_rgb_format(spec.rgb_format)
 
 
 def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WORLD) -> tuple[EpisodeScene, dict]:
@@ -211,6 +213,6 @@ def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: s
                        frames=spec.frames, timings=timings)
 
 
-def encode_frame(frame: Frame) -> dict[str, bytes]:
+def encode_frame(frame: Frame, rgb_format: str = "png") -> dict[str, bytes]:
     """The file bytes of each of a frame's outputs, in table order."""
-    return {name: file_bytes(name, content) for name, content in frame.outputs.items()}
+    return {name: file_bytes(name, content, rgb_format) for name, content in frame.outputs.items()}

@@ -162,7 +162,8 @@ def _clip_near(poly: np.ndarray) -> np.ndarray:
 
 
 def _project(points: np.ndarray, focal: float, cx: float, cy: float) -> np.ndarray:
-    return np.stack([cx + focal * points[:, 0] / points[:, 2], cy + focal * points[:, 1] / points[:, 2]], axis=1)
+    """(..., 3) camera points -> (..., 2) pixels."""
+    return np.stack([cx + focal * points[..., 0] / points[..., 2], cy + focal * points[..., 1] / points[..., 2]], axis=-1)
 
 
 def _silhouette(tri_cam: np.ndarray, window: tuple[slice, slice], shape: tuple[int, int], focal: float,
@@ -174,21 +175,31 @@ def _silhouette(tri_cam: np.ndarray, window: tuple[slice, slice], shape: tuple[i
     h, w = shape
     front = tri_cam[:, :, 2] >= NEAR_M
     whole = front.all(axis=1)
-    polys = [tri_cam[i] for i in np.flatnonzero(whole)]
-    polys += [p for p in (_clip_near(tri_cam[i]) for i in np.flatnonzero(front.any(axis=1) & ~whole)) if len(p) >= 3]
     limit = 8.0 * max(h, w)
-    pixels = [np.clip(_project(poly, focal, cx, cy) - 0.5, -limit, limit) for poly in polys]  # centres at +0.5
+
+    def to_pixels(points: np.ndarray) -> np.ndarray:  # pixel centres at +0.5
+        return np.clip(_project(points, focal, cx, cy) - 0.5, -limit, limit)
+
+    # triangles wholly in front, projected at once; then those the near plane cuts, one by one
+    pixels = list(to_pixels(tri_cam[whole]))
+    pixels += [to_pixels(p) for p in (_clip_near(tri_cam[i]) for i in np.flatnonzero(front.any(axis=1) & ~whole))
+               if len(p) >= 3]
     ys, xs = window
     x0, y0, x1, y1 = xs.start, ys.start, xs.stop, ys.stop
     if pixels:
-        lo, hi = np.min([p.min(axis=0) for p in pixels], axis=0), np.max([p.max(axis=0) for p in pixels], axis=0)
+        every = np.concatenate(pixels)
+        lo, hi = every.min(axis=0), every.max(axis=0)
         x0, y0 = min(x0, max(0, int(np.floor(lo[0])))), min(y0, max(0, int(np.floor(lo[1]))))
         x1, y1 = max(x1, min(w, int(np.ceil(hi[0])) + 1)), max(y1, min(h, int(np.ceil(hi[1])) + 1))
     mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
     shift = 4
-    for px in pixels:
-        pts = np.rint((px - (x0, y0)) * (1 << shift)).astype(np.int32)
+    origin = np.array([x0, y0], np.float64)
+    whole_pts = np.rint((np.asarray(pixels[:int(whole.sum())]).reshape(-1, 3, 2) - origin) * (1 << shift)).astype(np.int32)
+    for pts in whole_pts:
         cv2.fillConvexPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=shift)
+    for px in pixels[len(whole_pts):]:
+        cv2.fillConvexPoly(mask, np.rint((px - origin) * (1 << shift)).astype(np.int32), 1, lineType=cv2.LINE_8,
+                           shift=shift)
     return (slice(y0, y1), slice(x0, x1)), mask.astype(bool)
 
 

@@ -31,7 +31,7 @@ the ground from :data:`SHADOW_BACK_M` behind the camera, up to
 :data:`SHADOW_MAP_PX` map has texels of ~0.1-0.15 m, and picks as casters the
 nodes whose bounding spheres reach into it (including ones culled from the
 view, e.g. a car beside the ego at sunset; the hood casts nothing). The colour
-pass samples the map with a 4-tap hardware PCF (a 3x3-texel tent) and scales
+pass samples the map with one hardware PCF tap (2x2 texels, bilinear) and scales
 only the sun's term: ambient and emissive light stay. Shadow strength is
 ``1 - cloudiness`` (CN 0.9, CS 0.85); below :data:`MIN_SHADOW_STRENGTH` (HRN:
 0.05, at most ~2 grey levels) the shadow pass is skipped and the light stays

@@ -10,7 +10,7 @@ struct DirectionalLight {
     float intensity;
     vec3 direction;
 #ifdef DIRECTIONAL_LIGHT_SHADOWS
-    sampler2DShadow shadow_map;  // depth compare on: each tap is a 2x2 PCF
+    sampler2DShadow shadow_map;  // depth compare on: a tap is a 2x2 PCF
     mat4 light_matrix;
 #endif
 };
@@ -53,11 +53,9 @@ float sun_visibility(sampler2DShadow map, mat4 light_matrix, vec3 n, float nl)
     vec3 p = frag_position + n * (shadow_params.y * (2.0 - nl));
     vec3 c = (light_matrix * vec4(p, 1.0)).xyz * 0.5 + 0.5;
     if (any(lessThan(c, vec3(0.0))) || any(greaterThan(c, vec3(1.0)))) return 1.0;
-    vec2 t = 0.5 / vec2(textureSize(map, 0));
-    float lit = 0.25 * (texture(map, vec3(c.xy + vec2(-t.x, -t.y), c.z))
-                      + texture(map, vec3(c.xy + vec2( t.x, -t.y), c.z))
-                      + texture(map, vec3(c.xy + vec2(-t.x,  t.y), c.z))
-                      + texture(map, vec3(c.xy + vec2( t.x,  t.y), c.z)));
+    // one tap: the hardware's 2x2 bilinear PCF. Four taps (a 3x3-texel tent) cost
+    // ~0.05 CPU-s more per full-HD frame on llvmpipe for a slightly softer edge.
+    float lit = texture(map, c);
     float fade = clamp((shadow_params.w - dist) / max(shadow_params.w - shadow_params.z, 1e-3), 0.0, 1.0);
     return 1.0 - shadow_params.x * fade * (1.0 - lit);
 }

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import pyarrow as pa
 
 from manifests.catalog import LABELS, SCENARIO_BY_CODE
-from manifests.outputs import OUTPUTS, markdown_table
+from manifests.outputs import OUTPUTS, file_of_path, markdown_table
 from manifests.schema import output_columns
 from training.export import few_episode_scenarios
 from training.hf import card_header, citation_section
@@ -132,13 +132,14 @@ def _preview_section(previews: list[str]) -> list[str]:
 def _encoding_section(table: pa.Table) -> list[str]:
     held = tuple(o for o in OUTPUTS if table.column(output_columns(o)[0]).null_count < len(table))
     example = table.column("depth_raw_path")[0].as_py() if "depth_raw" in held else "<depth_raw path>"
+    rgb_format = file_of_path("rgb", table.column("rgb_path")[0].as_py()) if "rgb" in held else "png"
     return [
         "## Files and encodings",
         "",
-        "`<scenario>/<output>/<episode>_<frame>_<scenario>.<png|parquet>`, per frame one file per output "
+        "`<scenario>/<output>/<episode>_<frame>_<scenario>.<png|jpg|parquet>`, per frame one file per output "
         f"this root holds ({', '.join(held)}; image encodings follow CARLA's conventions):",
         "",
-        *markdown_table(held),
+        *markdown_table(held, rgb_format),
         "",
         "Depth in metres from `depth_raw`: `depth_m = 1000 * (R + G*256 + B*65536) / (256**3 - 1)`. "
         "OpenCV reads BGR, so R is channel 2:",

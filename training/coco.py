@@ -2,7 +2,7 @@
 
 ::
 
-    images/<split>/<frameid>_<scenario>.png     the rgb (linked)
+    images/<split>/<frameid>_<scenario>.png     the rgb (linked; .jpg from a root made with --rgb-format jpg)
     annotations/instances_<split>.json          COCO instances, one file per split
 
 Categories are the instance classes (``Label.instances``) with their IDDA
@@ -73,7 +73,7 @@ def write_coco(storage, frames: list, tmp: str, place, threads: int = 8) -> tupl
     _mask_api()
 
     def one(frame) -> tuple[str, list[dict]]:
-        rel = f"images/{frame.split}/{frame.frame_id}_{frame.scenario}.png"
+        rel = f"images/{frame.split}/{frame.frame_id}_{frame.scenario}{os.path.splitext(frame.rgb_path)[1]}"
         place(storage, frame.rgb_path, os.path.join(tmp, rel))
         anns = frame_annotations(_read(storage, frame.instance_path, "instance"),
                                  _read(storage, frame.objects_path, "objects"))

@@ -49,7 +49,7 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario, weather as lookup_weather
-from manifests.encoding import decode_png
+from manifests.outputs import read_output
 
 IMAGE_SIZE = (72, 128)  # (height, width) every frame is resized to
 VAR_FLOOR = 1e-12
@@ -372,7 +372,7 @@ def first_frames(table: pa.Table, samples: int) -> dict[str, list[str]]:
 def domain_features(storage, paths: dict[str, list[str]], bank: FilterBank, threads: int = 4) -> dict[str, np.ndarray]:
     """Feature arrays per domain for the given RGB files."""
     def one(rel: str) -> np.ndarray:
-        return bank(decode_png(storage.read_bytes(rel), name=storage.join(rel)))
+        return bank(read_output("rgb", storage.read_bytes(rel), storage.join(rel)))  # PNG or JPEG
 
     jobs = [(code, rel) for code in sorted(paths) for rel in paths[code]]
     with ThreadPoolExecutor(max_workers=threads) as pool:

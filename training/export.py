@@ -4,7 +4,8 @@ Two layouts, chosen by name (see ``LAYOUTS``):
 
 * ``cityscapes``: what cityscapesScripts and Cityscapes data loaders expect::
 
-      leftImg8bit/<split>/<scenario>/<name>_leftImg8bit.png       the rgb (linked)
+      leftImg8bit/<split>/<scenario>/<name>_leftImg8bit.png       the rgb (linked; from a root made with
+                                                                  --rgb-format jpg: the JPEG's pixels as a PNG)
       gtFine/<split>/<scenario>/<name>_gtFine_labelIds.png        Cityscapes label ids
       gtFine/<split>/<scenario>/<name>_gtFine_labelTrainIds.png   trainIds, 255 = ignore
       gtFine/<split>/<scenario>/<name>_gtFine_color.png           Cityscapes colours
@@ -23,7 +24,8 @@ Two layouts, chosen by name (see ``LAYOUTS``):
 
 * ``idda``: the published IDDA layout::
 
-      <scenario>/RGB/<frameid>_<scenario>.jpg        the rgb as JPEG, quality 95
+      <scenario>/RGB/<frameid>_<scenario>.jpg        the rgb as JPEG, quality 95 (linked from a
+                                                     root made with --rgb-format jpg)
       <scenario>/Semantic/<frameid>_<scenario>.png   the semantic_raw image (linked)
       train.json, val.json, test.json                {scenario: [frame ids]} per split
 
@@ -63,7 +65,8 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
-from manifests.encoding import decode_png, decode_png16
+from manifests.encoding import decode_png16, encode_jpeg
+from manifests.outputs import file_of_path, read_output
 from manifests.query import SPLIT_SHARES, SPLITS, Query, run_query
 from manifests.objects import HOOD_ID
 from manifests.reader import require_outputs
@@ -71,7 +74,6 @@ from manifests.root import EXPORT_MARKER, check_export_target
 
 MARKER = EXPORT_MARKER  # written last: its presence means the export is complete
 INDEX = "frames.csv"
-JPEG_QUALITY = 95
 
 # Cityscapes label ids and colours (cityscapesScripts helpers/labels.py) for
 # the ids the catalog maps to; the gtFine colour image derives from this.
@@ -158,17 +160,13 @@ def _png(image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def _jpeg(rgb: np.ndarray, quality: int = JPEG_QUALITY) -> bytes:
-    import cv2
-
-    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
-    if not ok:
-        raise ValueError(f"JPEG encoding failed for an image of shape {rgb.shape}")
-    return buf.tobytes()
+def _decode(storage, rel: str, output: str = "semantic_raw") -> np.ndarray:
+    return read_output(output, storage.read_bytes(rel), storage.join(rel))
 
 
-def _decode(storage, rel: str) -> np.ndarray:
-    return decode_png(storage.read_bytes(rel), name=storage.join(rel))
+def _is_jpeg(rel: str) -> bool:
+    """Whether a root's rgb file is a JPEG (``--rgb-format jpg``)."""
+    return file_of_path("rgb", rel) == "jpg"
 
 
 # Cityscapes label ids with instances (helpers/labels.py hasInstances), among those the catalog maps to.
@@ -231,7 +229,10 @@ def _cityscapes_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]
     image_dir = f"leftImg8bit/{frame.split}/{cityscapes_city(frame.scenario)}"
     gt_dir = f"gtFine/{frame.split}/{cityscapes_city(frame.scenario)}"
     rgb_rel = f"{image_dir}/{name}_leftImg8bit.png"
-    place(storage, frame.rgb_path, os.path.join(tmp, rgb_rel))
+    if _is_jpeg(frame.rgb_path):  # Cityscapes names PNGs: the JPEG's pixels, re-encoded losslessly
+        _write(os.path.join(tmp, rgb_rel), _png(_decode(storage, frame.rgb_path, "rgb")))
+    else:
+        place(storage, frame.rgb_path, os.path.join(tmp, rgb_rel))
     classes = _decode(storage, frame.semantic_raw_path)[..., 0]
     instance = None
     if frame.instance_path is not None:
@@ -252,7 +253,10 @@ def _idda_paths(frame: _Frame) -> tuple[str, str]:
 
 def _idda_frame(storage, frame: _Frame, tmp: str, place) -> dict[str, str]:
     rgb_rel, sem_rel = _idda_paths(frame)
-    _write(os.path.join(tmp, rgb_rel), _jpeg(_decode(storage, frame.rgb_path)))
+    if _is_jpeg(frame.rgb_path):  # already IDDA's format: the file itself, not a second lossy pass
+        place(storage, frame.rgb_path, os.path.join(tmp, rgb_rel))
+    else:
+        _write(os.path.join(tmp, rgb_rel), encode_jpeg(_decode(storage, frame.rgb_path, "rgb"), storage.join(frame.rgb_path)))
     _write(os.path.join(tmp, sem_rel), _png(_decode(storage, frame.semantic_raw_path)[..., 0]))
     return {"image": rgb_rel, "semantic": sem_rel}
 

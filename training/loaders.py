@@ -4,7 +4,9 @@ Both read the images through ``storage`` (local roots and s3://) and decode
 them to plain numpy arrays; neither imports torch. Per requested output:
 
 ``manifests.outputs.OUTPUT_TABLE`` lists each output's key, dtype,
-channels and content (``DECODERS`` here is that table by name);
+channels and content (``DECODERS`` here is that table by name; ``rgb`` is
+read from a PNG or, in a root made with ``--rgb-format jpg``, a JPEG, as
+HxWx3 uint8 either way);
 ``semantic_raw`` arrives as ``semantic`` (HxW class ids, or mapped, ``labels``),
 ``depth_raw`` as ``depth`` (HxW float32 metres), ``instance`` as HxW uint16
 instance ids and ``objects`` as a dict of numpy columns (one entry per visible
