@@ -137,6 +137,7 @@ SURFACES: tuple[Surface, ...] = (
     Surface("asphalt blue-grey", (70, 74, 82), 0.12, 7.0, "road", texture="asphalt"),
     Surface("asphalt patched", (124, 118, 106), 0.26, 4.0, "road", texture="asphalt"),
     Surface("asphalt freeway", (80, 80, 84), 0.15, 8.0, "road", texture="asphalt"),
+    Surface("chip seal", (128, 116, 96), 0.22, 3.0, "road", texture="gravel"),
     Surface("marking white", (226, 226, 220), 0.06, 2.0),
     Surface("marking yellow", (214, 178, 58), 0.06, 2.0),
     Surface("kerb granite", (176, 174, 168), 0.08, 1.0),
@@ -155,11 +156,11 @@ SURFACES: tuple[Surface, ...] = (
     Surface("rock", (118, 114, 108), 0.25, 12.0, texture="soil"),
     Surface("snow", (232, 236, 242), 0.05, 10.0),
     Surface("soil", (104, 78, 54), 0.18, 5.0, texture="soil"),
-    Surface("wheat", (196, 170, 92), 0.16, 6.0, texture="crop"),
+    Surface("wheat", (212, 176, 72), 0.16, 6.0, texture="crop"),
     Surface("young crop", (110, 142, 52), 0.18, 6.0, texture="crop"),
-    Surface("hay meadow", (130, 118, 60), 0.25, 8.0, texture="grass"),
+    Surface("hay meadow", (170, 146, 62), 0.25, 8.0, texture="grass"),
     Surface("maize", (136, 142, 60), 0.18, 5.0, texture="stalks"),
-    Surface("ripe maize", (182, 162, 92), 0.18, 5.0, texture="stalks"),
+    Surface("ripe maize", (196, 166, 80), 0.18, 5.0, texture="stalks"),
     Surface("canopy green", (58, 96, 38), 0.25, 1.2),
     Surface("canopy light", (96, 128, 46), 0.25, 1.2),
     Surface("canopy dark", (34, 62, 36), 0.22, 1.2),
@@ -289,12 +290,12 @@ STYLES: tuple[Style, ...] = (
           ("siding beige", "siding grey", "siding blue", "brick brown", "plaster white"),
           ("roof metal", "roof slate", "roof flat"), (("broadleaf", 0.5), ("bush", 0.3), ("conifer", 0.2)),
           ("canopy light", "canopy autumn"), "dry grass", (), 4.0, 0.0),
-    Style("farmland", "asphalt patched", 0.8, "kerb granite", ("paving grey",), "dirt", "dirt",
+    Style("farmland", "chip seal", 0.8, "kerb granite", ("paving grey",), "dirt", "dirt",
           3.0, "none", 0.3, "marking white", "farm",
           ("barn red", "plaster white", "stone wall", "timber dark"),
           ("roof metal", "roof terracotta"), (("poplar", 0.4), ("broadleaf", 0.4), ("bush", 0.2)),
           ("canopy olive", "canopy autumn"), "hay meadow", ("wheat", "young crop", "soil"), 30.0, 0.0,
-          ("maize", "ripe maize"), 0.75),
+          ("maize", "ripe maize"), 0.9),
 )
 STYLE_BY_NAME = {s.name: s for s in STYLES}
 
@@ -348,7 +349,7 @@ TOWNS: tuple[Town, ...] = (
     Town("T04", "Town04", 6.0, "mountain town", 2, 110.0, (7.0, 16.0), 0.60, 0.50, 0.8, False, True, True, False, True),
     Town("T05", "Town05", 3.9, "glass city", 2, 90.0, (18.0, 60.0), 0.85, 0.25, 0.9, False, True, True, True, True),
     Town("T06", "Town06", 5.2, "suburban industrial", 2, 120.0, (5.0, 12.0), 0.65, 0.40, 0.8, False, True, False, True, True),
-    Town("T07", "Town07", 11.0, "farmland", 1, 150.0, (4.0, 9.0), 0.15, 0.65, 0.15, False, True, False, False, False),
+    Town("T07", "Town07", 11.0, "farmland", 1, 150.0, (4.0, 9.0), 0.15, 0.8, 0.15, False, True, False, False, False),
 )
 for _town in TOWNS:
     style(_town.style)  # every town names a known style
@@ -385,8 +386,8 @@ WEATHERS: tuple[Weather, ...] = (
             (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0, 0.02, (1.0, 1.0, 1.0), "o"),
     Weather("CS", "ClearSunset", 15.0, 200.0, (1.0, 0.86, 0.72), 3.6, 0.50,
             (78, 104, 170), (240, 182, 148), 0.15, 0.0, 0.0, 0.0, 0.04, (1.03, 0.99, 0.95), "s"),
-    Weather("HRN", "HardRainNoon", 75.0, 40.0, (0.88, 0.90, 0.94), 2.0, 0.90,
-            (128, 133, 140), (170, 173, 178), 0.90, 0.6, 0.6, 0.2, 0.25, (0.96, 0.98, 1.0), "^"),
+    Weather("HRN", "HardRainNoon", 75.0, 40.0, (0.88, 0.90, 0.94), 2.8, 1.00,
+            (128, 133, 140), (170, 173, 178), 0.90, 0.6, 0.6, 0.2, 0.08, (0.96, 0.98, 1.0), "^"),
 )
 
 

@@ -75,3 +75,16 @@ def test_bad_scenario_codes_name_valid_values(bad):
 def test_unknown_class_name():
     with pytest.raises(ValueError, match="valid classes: unlabeled, building"):
         catalog.class_id("cat")
+
+
+def test_weathers_follow_carla_096():
+    """CARLA 0.9.6's presets (docs/assumptions.md, "Weathers"): no fog parameter, so our haze stays light
+    (HardRainNoon keeps at least 98% contrast at 200 m and its town colours); rain only in HardRainNoon;
+    the ambient share is a share."""
+    by = {w.code: w for w in WEATHERS}
+    for w in WEATHERS:
+        assert 0.0 <= w.ambient <= 1.0 and 0.0 <= w.fog < 1.0
+        assert (1.0 - w.fog) ** (200 / 1000) >= 0.98
+    assert by["HRN"].rain > 0 and by["CN"].rain == by["CS"].rain == 0
+    assert by["HRN"].cloudiness > by["CS"].cloudiness >= by["CN"].cloudiness
+    assert by["CS"].sun_elevation_deg == 15.0  # the same in every CARLA release

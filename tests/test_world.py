@@ -335,6 +335,26 @@ def test_every_town_has_a_style_and_styles_differ():
     assert town_row("T07").look.lane_w_m < town_row("T01").look.lane_w_m
 
 
+def test_farmland_reads_as_farmland_not_as_a_town(worlds):
+    """The country town's own look (issue 9, the city shift): a chip-seal road, not any kerbed town's asphalt,
+    and golden ground and crops where the towns have green lawns; its built road wears that surface."""
+    from manifests.catalog import STYLES, surface
+
+    farm = town_row("T07").look
+    urban = [s for s in STYLES if s.sidewalks]
+    road = surface(farm.asphalt)
+    assert all(road.texture != surface(s.asphalt).texture and road.color != surface(s.asphalt).color for s in urban)
+
+    def golden(name):  # yellow to orange (red at least green) and saturated (red well above blue)
+        r, g, b = surface(name).color
+        return r >= g and r > 1.8 * b
+
+    assert golden(farm.ground) and any(golden(c) for c in farm.crops) and any(golden(c) for c in farm.tall_crops)
+    assert not any(golden(s.ground) for s in urban)  # lawns and dry grass: green or grey
+    roads = [p for p in worlds["T07"].static if p.class_id == class_id("road")]
+    assert roads and {p.texture for p in roads} == {road.texture}
+
+
 def test_unknown_surface_style_and_kit_are_rejected():
     from dataclasses import replace
 
