@@ -135,7 +135,6 @@ SURFACES: tuple[Surface, ...] = (
     Surface("asphalt dark", (56, 57, 61), 0.16, 6.0, "road", texture="asphalt"),
     Surface("asphalt grey", (84, 84, 86), 0.14, 6.0, "road", texture="asphalt"),
     Surface("asphalt blue-grey", (70, 74, 82), 0.12, 7.0, "road", texture="asphalt"),
-    Surface("asphalt patched", (124, 118, 106), 0.26, 4.0, "road", texture="asphalt"),
     Surface("asphalt freeway", (80, 80, 84), 0.15, 8.0, "road", texture="asphalt"),
     Surface("chip seal", (128, 116, 96), 0.22, 3.0, "road", texture="gravel"),
     Surface("marking white", (226, 226, 220), 0.06, 2.0),
