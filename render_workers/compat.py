@@ -31,7 +31,7 @@ different settings can live in one process:
   with ties broken in set (id) order, so coplanar faces could differ between
   runs; the renderer gives its own fixed order;
 * :func:`install_mesh_shader`: a cheaper ``mesh.frag``
-  (``shaders.FAST_MESH_FRAG``) in a private copy of pyrender's shaders;
+  (``shaders.FAST_MESH_FRAG``) in a shared, content-keyed copy of pyrender's shaders;
 * :func:`install_framebuffer`: the colour pass always rasterises into a 4x
   multisampled framebuffer, which on llvmpipe costs about half of the colour
   pass at 1920x1080; here the sample count is a setting (0 = off; the renderer
@@ -77,9 +77,9 @@ live renderer.
 
 from __future__ import annotations
 
-import atexit
 import ctypes
 import ctypes.util
+import hashlib
 import logging
 import os
 import shutil
@@ -264,23 +264,54 @@ def install_framebuffer(offscreen, samples: int) -> None:
     inner._read_main_framebuffer = read
 
 
-def install_mesh_shader(offscreen, fragment_source: str) -> Path:
-    """Point this renderer's shader cache at a copy of pyrender's shaders with ``mesh.frag`` replaced.
+def shader_dir(fragment_source: str) -> Path:
+    """A directory of pyrender's shaders with ``mesh.frag`` replaced, one per content.
 
-    Returns the copy's directory (the caller removes it when the renderer closes;
-    it is also removed at exit)."""
+    Keyed by a digest of pyrender's shaders and ``fragment_source``, under
+    ``$XDG_CACHE_HOME/idda/shaders`` (else ``~/.cache/idda/shaders``; a temp
+    directory named for the user where neither is writable). Every renderer with
+    the same shaders shares it, so nothing is left behind per renderer: a Ray
+    worker killed at shutdown never runs ``atexit``, and one temp copy per
+    renderer used to pile up in /tmp. Built in a temp directory and renamed into
+    place, so concurrent workers never see half of it."""
     pr = import_pyrender()
+    sources = sorted((Path(pr.__file__).parent / "shaders").iterdir())
+    digest = hashlib.sha256(fragment_source.encode())
+    for path in sources:
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    name = digest.hexdigest()[:16]
+    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "idda" / "shaders"
+    try:
+        base.mkdir(parents=True, exist_ok=True)
+    except OSError:
+        base = Path(tempfile.gettempdir()) / f"idda-shaders-{os.getuid()}"
+        base.mkdir(mode=0o700, exist_ok=True)
+    final = base / name
+    if (final / "mesh.frag").is_file():
+        return final
+    staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=base))
+    try:
+        for path in sources:
+            shutil.copy(path, staging / path.name)
+        (staging / "mesh.frag").write_text(fragment_source)  # last: its presence marks a complete copy
+        try:
+            os.rename(staging, final)
+        except OSError:  # another process put its identical copy in place first
+            pass
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return final
+
+
+def install_mesh_shader(offscreen, fragment_source: str) -> Path:
+    """Point this renderer's shader cache at :func:`shader_dir` (pyrender's shaders with ``mesh.frag`` replaced)."""
     from pyrender.shader_program import ShaderProgramCache
 
-    shader_dir = Path(tempfile.mkdtemp(prefix="idda-shaders-"))
-    atexit.register(shutil.rmtree, shader_dir, True)  # also when a renderer is never closed
-    for path in (Path(pr.__file__).parent / "shaders").iterdir():
-        shutil.copy(path, shader_dir / path.name)
-    (shader_dir / "mesh.frag").write_text(fragment_source)
+    directory = shader_dir(fragment_source)
     inner = offscreen._renderer  # pyrender keeps its shader cache on the inner renderer
     inner._program_cache.clear()
-    inner._program_cache = ShaderProgramCache(shader_dir=str(shader_dir))
-    return shader_dir
+    inner._program_cache = ShaderProgramCache(shader_dir=str(directory))
+    return directory
 
 
 def install_draw_order(offscreen, sorted_mesh_nodes: Callable) -> None:

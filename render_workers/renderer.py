@@ -48,9 +48,7 @@ from __future__ import annotations
 
 import logging
 import math
-import shutil
 import time
-from pathlib import Path as FilePath
 from dataclasses import dataclass
 
 import numpy as np
@@ -139,7 +137,6 @@ class Renderer:
         if msaa not in compat.MSAA_CHOICES:
             raise ValueError(f"MSAA samples must be one of {compat.MSAA_CHOICES}, got {msaa}")
         self.msaa = msaa
-        self._shader_dir: FilePath | None = None
         self._offscreen = None
         self._size: tuple[int, int] | None = None
         self._static_world = None  # the World whose static nodes are cached
@@ -159,9 +156,6 @@ class Renderer:
         if self._offscreen is not None:
             compat.delete_offscreen(self._offscreen)
             self._offscreen = None
-        if self._shader_dir is not None:
-            shutil.rmtree(self._shader_dir, ignore_errors=True)
-            self._shader_dir = None
         self._scene = self._static = self._static_world = self._episode = None
         self._draw_list = []
 
@@ -169,7 +163,7 @@ class Renderer:
         if self._offscreen is None:
             self._offscreen = compat.offscreen_renderer(width, height)
             if not self.pbr:
-                self._shader_dir = compat.install_mesh_shader(self._offscreen, FAST_MESH_FRAG)
+                compat.install_mesh_shader(self._offscreen, FAST_MESH_FRAG)
             compat.install_framebuffer(self._offscreen, self.msaa)
             compat.install_shadow_pass(self._offscreen, lambda: self._shadow_frame, depth_compare=not self.pbr)
             # pyrender sorts nodes by distance and breaks ties in set (id) order,
