@@ -31,7 +31,7 @@ different settings can live in one process:
   with ties broken in set (id) order, so coplanar faces could differ between
   runs; the renderer gives its own fixed order;
 * :func:`install_mesh_shader`: a cheaper ``mesh.frag``
-  (``shaders.FAST_MESH_FRAG``) in a shared, content-keyed copy of pyrender's shaders;
+  (``shaders.FAST_MESH_FRAG``) in a shared, content-keyed copy of pyrender's shaders (one per user in the temp dir);
 * :func:`install_framebuffer`: the colour pass always rasterises into a 4x
   multisampled framebuffer, which on llvmpipe costs about half of the colour
   pass at 1920x1080; here the sample count is a setting (0 = off; the renderer
@@ -267,29 +267,25 @@ def install_framebuffer(offscreen, samples: int) -> None:
 def shader_dir(fragment_source: str) -> Path:
     """A directory of pyrender's shaders with ``mesh.frag`` replaced, one per content.
 
-    Keyed by a digest of pyrender's shaders and ``fragment_source``, under
-    ``$XDG_CACHE_HOME/idda/shaders`` (else ``~/.cache/idda/shaders``; a temp
-    directory named for the user where neither is writable). Every renderer with
-    the same shaders shares it, so nothing is left behind per renderer: a Ray
-    worker killed at shutdown never runs ``atexit``, and one temp copy per
-    renderer used to pile up in /tmp. Built in a temp directory and renamed into
-    place, so concurrent workers never see half of it."""
+    ``<tmp>/idda-shaders-<uid>/<digest>``, keyed by pyrender's shaders and
+    ``fragment_source``. Every renderer with the same shaders shares it, so
+    nothing is left behind per renderer (a Ray worker killed at shutdown never
+    runs ``atexit``; one temp copy per renderer used to pile up in /tmp). Built
+    in a staging directory and renamed into place, so concurrent workers never
+    see half of it. RuntimeError if another user owns the directory."""
     pr = import_pyrender()
     sources = sorted((Path(pr.__file__).parent / "shaders").iterdir())
     digest = hashlib.sha256(fragment_source.encode())
     for path in sources:
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
-    name = digest.hexdigest()[:16]
-    base = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "idda" / "shaders"
-    try:
-        base.mkdir(parents=True, exist_ok=True)
-    except OSError:
-        base = Path(tempfile.gettempdir()) / f"idda-shaders-{os.getuid()}"
-        base.mkdir(mode=0o700, exist_ok=True)
-    final = base / name
+    base = Path(tempfile.gettempdir()) / f"idda-shaders-{os.getuid()}"
+    base.mkdir(mode=0o700, exist_ok=True)
+    if base.stat().st_uid != os.getuid():
+        raise RuntimeError(f"{base} belongs to another user; remove it or set TMPDIR")
+    final = base / digest.hexdigest()[:16]
     if (final / "mesh.frag").is_file():
         return final
-    staging = Path(tempfile.mkdtemp(prefix=f".{name}-", dir=base))
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=base))
     try:
         for path in sources:
             shutil.copy(path, staging / path.name)
