@@ -38,20 +38,13 @@ WIDTH, HEIGHT = 64, 36
 @pytest.fixture(scope="module")
 def root(tmp_path_factory) -> Path:
     """A real small run: episodes rendered by the worker function, then compacted as produce does."""
-    from manifests.reader import compact
-    from pipeline.episode_job import run_episode
-    from pipeline.planner import PlanConfig, make_plan
-    from pipeline.runmeta import RunConfig, prepare_root
-    from storage import Storage
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
 
     path = tmp_path_factory.mktemp("clients") / "run"
     config = RunConfig(PlanConfig(domains=DOMAINS, frames_per_scenario=FRAMES, width=WIDTH, height=HEIGHT, seed=7), world="test")
-    storage = Storage.from_uri(str(path))
-    storage.ensure_writable()
-    prepare_root(storage, config)
-    for spec in make_plan(config.plan).episodes:
-        run_episode(spec, storage, world="test")
-    compact(storage)
+    render_root(path, config, compact=True)
     return path
 
 

@@ -28,10 +28,9 @@ TINY_FRAMES = 2
 def make_tiny_root(tmp_path_factory) -> Path:
     """A small rendered root (test world, 64x36), built once per test session
     and shared by the export, loader, distance and card tests (read-only)."""
-    from pipeline.episode_job import run_episode
-    from pipeline.planner import PlanConfig, make_plan
-    from pipeline.runmeta import RunConfig, prepare_root
-    from storage import Storage
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
 
     root = tmp_path_factory.getbasetemp() / "tiny_root"
     done = tmp_path_factory.getbasetemp() / "tiny_root.done"
@@ -41,11 +40,7 @@ def make_tiny_root(tmp_path_factory) -> Path:
     config = RunConfig(
         plan=PlanConfig(domains=TINY_DOMAINS, frames_per_scenario=TINY_FRAMES, width=64, height=36, seed=3), world="test"
     )
-    storage = Storage.from_uri(str(root))
-    storage.ensure_writable()
-    prepare_root(storage, config)
-    for spec in make_plan(config.plan).episodes:
-        run_episode(spec, storage, world="test")
+    render_root(root, config)
     done.write_text("ok")
     return root
 

@@ -45,19 +45,15 @@ def plan_config(outputs):
 @pytest.fixture(scope="module")
 def subset_root(tmp_path_factory):
     """A root produced with --outputs rgb,semantic_raw (test world, 64x36, 2 frames)."""
-    from pipeline.episode_job import run_episode
     from pipeline.planner import make_plan
-    from pipeline.runmeta import RunConfig, prepare_root
-    from storage import Storage
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("subset") / "root"
-    storage = Storage.from_uri(str(root))
-    storage.ensure_writable()
     config = RunConfig(plan=plan_config(SUBSET), world="test")
-    prepare_root(storage, config)
     for spec in make_plan(config.plan).episodes:
         assert spec.outputs == SUBSET
-        run_episode(spec, storage, world="test")
+    render_root(root, config)
     return root
 
 

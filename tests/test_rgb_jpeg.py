@@ -16,6 +16,7 @@ from manifests.reader import read_manifest
 from manifests.schema import frame_path
 from manifests.verify import verify
 from storage import Storage
+from tests.roots import render_root
 
 DOMAINS = "T01_CN_A"
 runner = CliRunner()
@@ -37,23 +38,10 @@ def run_config(rgb_format: str, frames: int = 2):
                                      rgb_format=rgb_format), world="test")
 
 
-def produce_into(root, config):
-    from pipeline.episode_job import run_episode
-    from pipeline.planner import make_plan
-    from pipeline.runmeta import prepare_root
-
-    storage = Storage.from_uri(str(root))
-    storage.ensure_writable()
-    prepare_root(storage, config)
-    for spec in make_plan(config.plan).episodes:
-        run_episode(spec, storage, world="test")
-    return storage
-
-
 @pytest.fixture(scope="module")
 def jpeg_root(tmp_path_factory):
     root = tmp_path_factory.mktemp("jpeg") / "root"
-    produce_into(root, run_config("jpg"))
+    render_root(root, run_config("jpg"))
     return root
 
 
@@ -99,7 +87,7 @@ def test_a_jpeg_root_holds_jpeg_rgb_files_and_verifies(jpeg_root):
 
 def test_the_same_spec_gives_the_same_jpeg_bytes(jpeg_root, tmp_path):
     again = tmp_path / "again"
-    produce_into(again, run_config("jpg"))
+    render_root(again, run_config("jpg"))
     for rel in read_manifest(str(jpeg_root)).column("rgb_path").to_pylist():
         assert (again / rel).read_bytes() == (jpeg_root / rel).read_bytes()
 
@@ -117,7 +105,7 @@ def test_resume_or_extend_never_mixes_rgb_formats(jpeg_root, tmp_path):
     with pytest.raises(RunConfigError, match="holds jpg rgb files, this run asks for png"):
         check_rows(storage, run_config("png"))  # the rows say so too, whatever run.json says
     png_root = tmp_path / "png"
-    produce_into(png_root, run_config("png"))
+    render_root(png_root, run_config("png"))
     with pytest.raises(RunConfigError, match="another encoder"):
         prepare_root(Storage.from_uri(str(png_root)), run_config("jpg", frames=3), extend=True)
 

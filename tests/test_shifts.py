@@ -104,19 +104,14 @@ def test_pipeline_and_renderers_never_import_torch():
 @pytest.fixture(scope="module")
 def shift_root(tmp_path_factory):
     """The paper's five domains, 10 frames each (one episode) at 64x36, test world."""
-    from pipeline.episode_job import run_episode
-    from pipeline.planner import PlanConfig, make_plan
-    from pipeline.runmeta import RunConfig, prepare_root
-    from storage import Storage
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("shifts") / "root"
     config = RunConfig(plan=PlanConfig(domains=SHIFT_DOMAINS, frames_per_scenario=10, width=64, height=36, seed=1),
                        world="test")
-    storage = Storage.from_uri(str(root))
-    storage.ensure_writable()
-    prepare_root(storage, config)
-    for spec in make_plan(config.plan).episodes:
-        run_episode(spec, storage, world="test")
+    render_root(root, config)
     return root
 
 
