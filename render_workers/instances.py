@@ -181,23 +181,20 @@ def _silhouette(tri_cam: np.ndarray, window: tuple[slice, slice], shape: tuple[i
         return np.clip(_project(points, focal, cx, cy) - 0.5, -limit, limit)
 
     # triangles wholly in front, projected at once; then those the near plane cuts, one by one
-    pixels = list(to_pixels(tri_cam[whole]))
-    pixels += [to_pixels(p) for p in (_clip_near(tri_cam[i]) for i in np.flatnonzero(front.any(axis=1) & ~whole))
-               if len(p) >= 3]
+    whole_px = to_pixels(tri_cam[whole])  # (n, 3, 2)
+    cut_px = [to_pixels(p) for p in (_clip_near(tri_cam[i]) for i in np.flatnonzero(front.any(axis=1) & ~whole))
+              if len(p) >= 3]
     ys, xs = window
     x0, y0, x1, y1 = xs.start, ys.start, xs.stop, ys.stop
-    if pixels:
-        every = np.concatenate(pixels)
+    if len(whole_px) or cut_px:
+        every = np.concatenate([whole_px.reshape(-1, 2), *cut_px])
         lo, hi = every.min(axis=0), every.max(axis=0)
         x0, y0 = min(x0, max(0, int(np.floor(lo[0])))), min(y0, max(0, int(np.floor(lo[1]))))
         x1, y1 = max(x1, min(w, int(np.ceil(hi[0])) + 1)), max(y1, min(h, int(np.ceil(hi[1])) + 1))
     mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
     shift = 4
     origin = np.array([x0, y0], np.float64)
-    whole_pts = np.rint((np.asarray(pixels[:int(whole.sum())]).reshape(-1, 3, 2) - origin) * (1 << shift)).astype(np.int32)
-    for pts in whole_pts:
-        cv2.fillConvexPoly(mask, pts, 1, lineType=cv2.LINE_8, shift=shift)
-    for px in pixels[len(whole_pts):]:
+    for px in [*whole_px, *cut_px]:
         cv2.fillConvexPoly(mask, np.rint((px - origin) * (1 << shift)).astype(np.int32), 1, lineType=cv2.LINE_8,
                            shift=shift)
     return (slice(y0, y1), slice(x0, x1)), mask.astype(bool)
