@@ -136,7 +136,7 @@ SURFACES: tuple[Surface, ...] = (
     Surface("asphalt grey", (84, 84, 86), 0.14, 6.0, "road", texture="asphalt"),
     Surface("asphalt blue-grey", (70, 74, 82), 0.12, 7.0, "road", texture="asphalt"),
     Surface("asphalt freeway", (80, 80, 84), 0.15, 8.0, "road", texture="asphalt"),
-    Surface("chip seal", (128, 116, 96), 0.22, 3.0, "road", texture="gravel"),
+    Surface("chip seal", (146, 134, 110), 0.22, 3.0, "road", texture="gravel"),
     Surface("marking white", (226, 226, 220), 0.06, 2.0),
     Surface("marking yellow", (214, 178, 58), 0.06, 2.0),
     Surface("kerb granite", (176, 174, 168), 0.08, 1.0),
@@ -204,6 +204,13 @@ ROAD_EDGES = ("kerb", "gravel", "dirt")  # kerb = raised sidewalks; the others a
 MARKINGS = ("full", "centre", "none")  # centre + lane + edge lines / centre line only / none
 ARCHITECTURES = ("european", "modern", "alpine", "suburban", "farm")  # render_workers.buildings kits
 TREE_SPECIES = ("broadleaf", "conifer", "poplar", "birch", "bush")  # render_workers.kit meshes
+FIELD_BOUNDS = ("hedge", "fence", "wall")  # what may line a countryside block (render_workers.countryside)
+
+
+def _plural(noun: str) -> str:
+    if noun.endswith("s"):
+        return noun
+    return noun[:-1] + "ies" if noun.endswith("y") else noun + "s"
 
 
 @dataclass(frozen=True)
@@ -236,6 +243,8 @@ class Style:
     mountains_m: float  # height of the mountain backdrop (0 = none)
     tall_crops: tuple[str, ...] = ()  # field surfaces of tall crops (maize), labelled vegetation
     tall_crop_share: float = 0.0  # share of the fields sown with tall crops
+    # (boundary, share) of countryside block edges: hedgerows, fences, dry-stone walls; the rest stay open
+    field_bounds: tuple[tuple[str, float], ...] = (("hedge", 0.3), ("fence", 0.25), ("wall", 0.15))
 
     def __post_init__(self) -> None:
         for name in (self.asphalt, self.kerb, self.verge, self.marking, self.ground,
@@ -244,8 +253,12 @@ class Style:
         for value, valid, what in ((self.road_edge, ROAD_EDGES, "road edge"),
                                    (self.markings, MARKINGS, "marking scheme"),
                                    (self.architecture, ARCHITECTURES, "architecture"),
-                                   *((sp, TREE_SPECIES, "tree species") for sp, _ in self.trees)):
-            lookup(dict.fromkeys(valid), value, what, what + "s" if not what.endswith("s") else what)
+                                   *((sp, TREE_SPECIES, "tree species") for sp, _ in self.trees),
+                                   *((b, FIELD_BOUNDS, "field boundary") for b, _ in self.field_bounds)):
+            lookup(dict.fromkeys(valid), value, what, _plural(what))
+        shares = [share for _, share in self.field_bounds]
+        if any(share < 0 for share in shares) or sum(shares) > 1.0 + 1e-9:
+            raise ValueError(f"style {self.name!r}: field_bounds shares must be >= 0 and sum to at most 1")
         if not 0.0 <= self.tall_crop_share <= 1.0 or (self.tall_crop_share > 0) != bool(self.tall_crops):
             raise ValueError(f"style {self.name!r}: tall_crop_share must be in [0, 1], and above 0 exactly when "
                              "there are tall crops")
@@ -294,7 +307,7 @@ STYLES: tuple[Style, ...] = (
           ("barn red", "plaster white", "stone wall", "timber dark"),
           ("roof metal", "roof terracotta"), (("poplar", 0.4), ("broadleaf", 0.4), ("bush", 0.2)),
           ("canopy olive", "canopy autumn"), "hay meadow", ("wheat", "young crop", "soil"), 30.0, 0.0,
-          ("maize", "ripe maize"), 0.9),
+          ("maize", "ripe maize"), 0.9, (("hedge", 0.7), ("fence", 0.1), ("wall", 0.1))),
 )
 STYLE_BY_NAME = {s.name: s for s in STYLES}
 

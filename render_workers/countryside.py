@@ -3,8 +3,8 @@
 * ``farmland_blocks``: for towns without sidewalks, every block becomes a crop
   field (the style's low crops in rows, or a stand of its tall crops, maize,
   right up to the verge), a meadow, a wood or a farmyard (farmhouse, barn,
-  silos, hay bales); all but the tall crops are bounded by hedgerows, fences or
-  stone walls, with tree rows along the roads.
+  silos, hay bales); all but the tall crops are bounded by the style's mix of
+  hedgerows, fences and stone walls (``Style.field_bounds``), with tree rows along the roads.
 * ``outskirts``: the terrain around every town, rising into the style's hills
   (``Style.relief_m``) away from the streets, with woods; and, where the
   style has one (``Style.mountains_m``), a mountain backdrop with rock and snow.
@@ -52,16 +52,9 @@ def countryside(kit: Kit, rect, z) -> None:
     else:
         v, f = M.ground_rect(x0, y0, x1, y1, z, 5.0)
         kit.paint("terrain", v, f, style.ground, tiled=True)
-    # boundary: hedgerows mostly, else fences or dry-stone walls
+    # boundary: the style's mix of hedgerows, fences and dry-stone walls (one draw per edge)
     for q0, q1 in [((x0, y0), (x1, y0)), ((x1, y1), (x0, y1)), ((x0, y1), (x0, y0)), ((x1, y0), (x1, y1))]:
-        q0, q1 = np.array(q0), np.array(q1)
-        u = rng.random()
-        if u < 0.3:
-            kit.hedge_line(q0, q1, z, height=(1.0, 1.7))
-        elif u < 0.55:
-            kit.fence_line(q0, q1, z, 1.1)
-        elif u < 0.7:
-            kit.wall_line(q0, q1, z, 0.8, color=surface("stone wall").color)
+        boundary(kit, np.array(q0), np.array(q1), z, rng.random())
     # tree rows along the block edges
     n_trees = int(t.vegetation_density * (2 * (x1 - x0) + 2 * (y1 - y0)) / 16)
     row = kit.species()
@@ -78,6 +71,21 @@ def countryside(kit: Kit, rect, z) -> None:
             kit.tree(np.array([*q, z]), rng.uniform(1.0, 1.6))
     if kind == "farm":
         farmyard(kit, rect, z)
+
+
+def boundary(kit: Kit, q0, q1, z, u: float) -> None:
+    """The edge q0-q1 of a block, for a uniform draw ``u``: whichever of the style's
+    ``field_bounds`` the draw falls in, or nothing past their summed shares."""
+    for kind, share in kit.style.field_bounds:
+        if u < share:
+            if kind == "hedge":
+                kit.hedge_line(q0, q1, z, height=(1.0, 1.7))
+            elif kind == "fence":
+                kit.fence_line(q0, q1, z, 1.1)
+            else:
+                kit.wall_line(q0, q1, z, 0.8, color=surface("stone wall").color)
+            return
+        u -= share
 
 
 def low_field(kit: Kit, rect, z, crop) -> None:

@@ -344,6 +344,7 @@ def test_farmland_reads_as_farmland_not_as_a_town(worlds):
     urban = [s for s in STYLES if s.sidewalks]
     road = surface(farm.asphalt)
     assert all(road.texture != surface(s.asphalt).texture and road.color != surface(s.asphalt).color for s in urban)
+    assert min(road.color) > max(max(surface(s.asphalt).color) for s in urban) + 20  # pale aggregate, not black top
 
     def golden(name):  # yellow to orange (red at least green) and saturated (red well above blue)
         r, g, b = surface(name).color
@@ -353,6 +354,32 @@ def test_farmland_reads_as_farmland_not_as_a_town(worlds):
     assert not any(golden(s.ground) for s in urban)  # lawns and dry grass: green or grey
     roads = [p for p in worlds["T07"].static if p.class_id == class_id("road")]
     assert roads and {p.texture for p in roads} == {road.texture}
+
+
+def test_field_boundaries_follow_the_style():
+    """Each countryside block edge is one draw against the style's field_bounds: hedgerow
+    (vegetation), fence or dry-stone wall by their shares, open past their sum; the
+    farmland lines most of its fields with hedgerows."""
+    from dataclasses import replace
+
+    from render_workers.countryside import boundary
+    from render_workers.kit import Kit
+    from render_workers.town_plan import plan
+
+    assert dict(town_row("T07").look.field_bounds)["hedge"] >= 0.5
+
+    def drawn(bounds, u):
+        kit = Kit(plan(town_row("T07"), 0))
+        kit.style = replace(kit.style, field_bounds=bounds)
+        boundary(kit, np.array([0.0, 0.0]), np.array([30.0, 0.0]), 0.0, u)
+        return {p.class_id for p in kit.batch.parts()}
+
+    mix = (("wall", 0.2), ("hedge", 0.5), ("fence", 0.1))
+    assert drawn(mix, 0.1) == {class_id("wall")}
+    assert drawn(mix, 0.6) == {class_id("vegetation")}
+    assert drawn(mix, 0.75) == {class_id("fence")}
+    assert drawn(mix, 0.85) == set()
+    assert drawn((), 0.0) == set()
 
 
 def test_unknown_surface_style_and_kit_are_rejected():
@@ -372,6 +399,10 @@ def test_unknown_surface_style_and_kit_are_rejected():
         replace(STYLES[0], tall_crops=("maize",))  # tall crops but none sown
     with pytest.raises(ValueError, match="unknown surface 'bamboo'"):
         replace(style("farmland"), tall_crops=("bamboo",))
+    with pytest.raises(ValueError, match="unknown field boundary 'moat'; valid field boundaries: hedge, fence, wall"):
+        replace(style("farmland"), field_bounds=(("moat", 0.2),))
+    with pytest.raises(ValueError, match="field_bounds shares must be >= 0 and sum to at most 1"):
+        replace(style("farmland"), field_bounds=(("hedge", 0.7), ("wall", 0.4)))
     with pytest.raises(ValueError, match="unknown style 'gothic town'; valid styles: european old town"):
         replace(town_row("T01"), style="gothic town").look
     assert isinstance(town_row("T01"), Town) and style("farmland").architecture == "farm"
