@@ -302,7 +302,7 @@ STYLES: tuple[Style, ...] = (
           ("siding beige", "siding grey", "siding blue", "brick brown", "plaster white"),
           ("roof metal", "roof slate", "roof flat"), (("broadleaf", 0.5), ("bush", 0.3), ("conifer", 0.2)),
           ("canopy light", "canopy autumn"), "dry grass", (), 4.0, 0.0),
-    Style("farmland", "chip seal", 0.8, "kerb granite", ("paving grey",), "dirt", "dirt",
+    Style("farmland", "chip seal", 0.8, "kerb granite", ("paving grey",), "dirt", "dry grass",
           3.0, "none", 0.3, "marking white", "farm",
           ("barn red", "plaster white", "stone wall", "timber dark"),
           ("roof metal", "roof terracotta"), (("poplar", 0.4), ("broadleaf", 0.4), ("bush", 0.2)),
