@@ -389,7 +389,9 @@ def _pct(x: float, digits: int = 2) -> str:
 def _styles() -> dict:
     from manifests.catalog import TOWNS
 
-    return {t.code: {"name": t.look.name, "architecture": t.look.architecture, "road_edge": t.look.road_edge,
+    return {t.code: {"name": t.look.name, "architecture": t.look.architecture, "road": t.look.asphalt,
+                     "road_edge": t.look.road_edge,
+                     "edge_surfaces": list(t.look.paving) if t.look.sidewalks else [t.look.verge],
                      "lane_w_m": t.look.lane_w_m, "markings": t.look.markings,
                      "trees": [sp for sp, _ in t.look.trees], "crops": list(t.look.crops),
                      "relief_m": t.look.relief_m, "mountains_m": t.look.mountains_m} for t in TOWNS}
@@ -418,11 +420,12 @@ def markdown(result: dict) -> str:
         "",
         "*One ClearNoon frame per town (viewpoint A, the middle frame of episode 0), captioned with its style.*",
         "",
-        "| town | style | architecture | road edge | lane m | markings | trees | crops | hills m | mountains m |",
-        "|---|---|---|---|---:|---|---|---|---:|---:|",
+        "| town | style | architecture | road | road edge | lane m | markings | trees | crops | hills m | mountains m |",
+        "|---|---|---|---|---|---:|---|---|---|---:|---:|",
     ]
     for code, row in result["styles"].items():
-        lines.append(f"| {code} | {row['name']} | {row['architecture']} | {row['road_edge']} | {row['lane_w_m']} | "
+        edge = ("kerb, sidewalk of " if row["road_edge"] == "kerb" else "verge of ") + ", ".join(row["edge_surfaces"])
+        lines.append(f"| {code} | {row['name']} | {row['architecture']} | {row['road']} | {edge} | {row['lane_w_m']} | "
                      f"{row['markings']} | {', '.join(row['trees'])} | {', '.join(row['crops']) or '-'} | "
                      f"{row['relief_m']:.0f} | {row['mountains_m']:.0f} |")
     lines += [
