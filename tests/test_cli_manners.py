@@ -43,7 +43,11 @@ IDDA = os.path.join(os.path.dirname(sys.executable), "idda")  # the installed en
 
 
 def test_shell_completion_script_and_completions():
-    script = subprocess.run([IDDA, "--show-completion", "bash"], capture_output=True, text=True, timeout=60)
+    # Typer detects the user's shell from the process tree (shellingham), which has no shell when the suite runs
+    # detached (nohup, a CI agent); its test switch makes --show-completion take the shell's name instead.
+    detached = dict(os.environ, _TYPER_COMPLETE_TEST_DISABLE_SHELL_DETECTION="1")
+    script = subprocess.run([IDDA, "--show-completion", "bash"], env=detached, capture_output=True, text=True,
+                            timeout=60)
     assert script.returncode == 0 and "complete -o default -F _idda_completion idda" in script.stdout, script.stderr
     # What that script asks the program at a <TAB>: the entry point answers with the commands.
     env = dict(os.environ, _IDDA_COMPLETE="complete_bash", COMP_WORDS="idda ex", COMP_CWORD="1")
