@@ -333,13 +333,15 @@ class Renderer:
         background = depth <= 0.0
         classes = seg[..., 0].copy()
         classes[background] = SKY_ID
-        instance = seg[..., 1].astype(np.uint16) | (seg[..., 2].astype(np.uint16) << 8)
+        instance = seg[..., 1].astype(np.uint16)
+        instance |= seg[..., 2].astype(np.uint16) << 8
         instance[background] = 0
         hood = instance == HOOD_ID
-        depth = np.where(background, np.float32(self.zfar), np.minimum(depth, np.float32(self.zfar)))
+        depth = np.minimum(depth, np.float32(self.zfar), dtype=np.float32)
+        depth[background] = self.zfar
         timings["class_pass"] = time.perf_counter() - start
 
-        buffers = {"rgb": rgb, "depth": depth.astype(np.float32), "classes": classes, "instance": instance}
+        buffers = {"rgb": rgb, "depth": depth, "classes": classes, "instance": instance}
         return RenderResult(
             buffers=buffers, hood_mask=hood,
             world_from_camera=cam, rig=self.rig, sun_pixel=self._sun_pixel(cam), timings=timings,
