@@ -323,6 +323,18 @@ def install_draw_order(offscreen, sorted_mesh_nodes: Callable) -> None:
     offscreen._renderer._sorted_mesh_nodes = sorted_mesh_nodes
 
 
+def draw_primitive(primitive) -> None:
+    """Draw a bound primitive (all its instances), as pyrender does."""
+    from OpenGL import GL
+
+    instances = 1 if primitive.poses is None else len(primitive.poses)
+    if primitive.indices is not None:
+        GL.glDrawElementsInstanced(primitive.mode, primitive.indices.size, GL.GL_UNSIGNED_INT, ctypes.c_void_p(0),
+                                   instances)
+    else:
+        GL.glDrawArraysInstanced(primitive.mode, 0, len(primitive.positions), instances)
+
+
 def install_forward_pass(offscreen) -> None:
     """pyrender's forward pass with each program's per-pass uniforms set once, on this renderer only.
 
@@ -331,17 +343,59 @@ def install_forward_pass(offscreen) -> None:
     primitive: about 15 uniform calls through PyOpenGL per primitive, for
     values that are the same for the whole pass (one sun, no light sorting).
     Uniform values stay with their program, so here they are set the first
-    time a program is used in a pass; the model matrix, material, GL state
-    and the draw stay per primitive (pyrender's ``_bind_and_draw_primitive``).
-    A primitive with textures takes pyrender's full per-primitive binding, so
+    time a program is used in a pass; per primitive, the model matrix and the
+    draw, and the material's uniforms and pyrender's blend, polygon, cull and
+    point-size state only when they differ from what the pass last set. A
+    primitive with textures takes pyrender's full per-primitive binding, so
     its texture units are allocated exactly as pyrender allocates them. Same
     GL state at every draw, so the same pixels.
     """
     import_pyrender()
     from OpenGL import GL
-    from pyrender.constants import ProgramFlags, RenderFlags
+    from pyrender.constants import GLTF, ProgramFlags, RenderFlags
+    from pyrender.material import MetallicRoughnessMaterial, SpecularGlossinessMaterial
 
     inner = offscreen._renderer
+
+    def change(state: dict, key, value, apply: Callable) -> None:
+        if key not in state or state[key] != value:
+            apply(value)
+            state[key] = value
+
+    def draw(primitive, pose, program, flags, state: dict) -> None:
+        """pyrender's ``_bind_and_draw_primitive`` for an untextured primitive, with GL state and
+        material uniforms issued only when they differ from what this pass last set."""
+        program.set_uniform("M", pose)
+        primitive._bind()
+        if not (flags & RenderFlags.DEPTH_ONLY or flags & RenderFlags.SEG):
+            material = primitive.material
+            if state.get(program) is not material:  # uniform values stay with the program
+                program.set_uniform("material.emissive_factor", material.emissiveFactor)
+                if isinstance(material, MetallicRoughnessMaterial):
+                    program.set_uniform("material.base_color_factor", material.baseColorFactor)
+                    program.set_uniform("material.metallic_factor", material.metallicFactor)
+                    program.set_uniform("material.roughness_factor", material.roughnessFactor)
+                elif isinstance(material, SpecularGlossinessMaterial):
+                    program.set_uniform("material.diffuse_factor", material.diffuseFactor)
+                    program.set_uniform("material.specular_factor", material.specularFactor)
+                    program.set_uniform("material.glossiness_factor", material.glossinessFactor)
+                state[program] = material
+            blend = (GL.GL_SRC_ALPHA, GL.GL_ONE_MINUS_SRC_ALPHA) if material.alphaMode == "BLEND" else (GL.GL_ONE, GL.GL_ZERO)
+            wireframe = material.wireframe != bool(flags & RenderFlags.FLIP_WIREFRAME)
+            fill = GL.GL_LINE if flags & RenderFlags.ALL_WIREFRAME or wireframe else GL.GL_FILL
+            cull = not (material.doubleSided or flags & RenderFlags.SKIP_CULL_FACES)
+        else:  # pyrender culls back faces in depth and SEG passes, whatever the flags say
+            blend, fill, cull = (GL.GL_ONE, GL.GL_ZERO), GL.GL_FILL, True
+        change(state, "blend", blend, lambda v: (GL.glEnable(GL.GL_BLEND), GL.glBlendFunc(*v)))
+        change(state, "fill", fill, lambda v: GL.glPolygonMode(GL.GL_FRONT_AND_BACK, v))
+        change(state, "cull", cull, lambda v: (GL.glEnable(GL.GL_CULL_FACE), GL.glCullFace(GL.GL_BACK)) if v
+               else GL.glDisable(GL.GL_CULL_FACE))
+        points = primitive.mode == GLTF.POINTS
+        change(state, "points", points, lambda v: GL.glEnable(GL.GL_PROGRAM_POINT_SIZE) if v
+               else GL.glDisable(GL.GL_PROGRAM_POINT_SIZE))
+        if points:
+            GL.glPointSize(inner.point_size)
+        draw_primitive(primitive)
 
     def forward_pass(scene, flags, seg_node_map=None):
         inner._configure_forward_pass_viewport(flags)
@@ -359,7 +413,7 @@ def install_forward_pass(offscreen) -> None:
         V, P = inner._get_camera_matrices(scene)
         cam_pos = scene.get_pose(scene.main_camera_node)[:3, 3]
         lit = not (flags & RenderFlags.DEPTH_ONLY or flags & RenderFlags.FLAT or seg)
-        ready, current, program = set(), None, None
+        ready, current, program, state = set(), None, None, {}
         for node in inner._sorted_mesh_nodes(scene):
             mesh = node.mesh
             if not mesh.is_visible:
@@ -386,9 +440,14 @@ def install_forward_pass(offscreen) -> None:
                         ready.add(program)
                 if seg:
                     program.set_uniform("color", color)
-                inner._bind_and_draw_primitive(primitive=primitive, pose=scene.get_pose(node), program=program,
-                                               flags=flags)
+                if textured:  # pyrender's own binding: texture units, then whatever state it leaves
+                    inner._bind_and_draw_primitive(primitive=primitive, pose=scene.get_pose(node), program=program,
+                                                   flags=flags)
+                    state.clear()
+                else:
+                    draw(primitive, scene.get_pose(node), program, flags, state)
                 inner._reset_active_textures()
+        GL.glBindVertexArray(0)
         if program is not None:
             program._unbind()
         GL.glFlush()
@@ -542,12 +601,7 @@ def install_shadow_pass(offscreen, current: Callable[[], ShadowFrame], *, depth_
                     ready.add(program)
                 program.set_uniform("M", pose)
                 primitive._bind()
-                instances = 1 if primitive.poses is None else len(primitive.poses)
-                if primitive.indices is not None:
-                    GL.glDrawElementsInstanced(primitive.mode, primitive.indices.size, GL.GL_UNSIGNED_INT,
-                                               ctypes.c_void_p(0), instances)
-                else:
-                    GL.glDrawArraysInstanced(primitive.mode, 0, len(primitive.positions), instances)
+                draw_primitive(primitive)
                 primitive._unbind()
         if program is not None:
             program._unbind()
