@@ -236,9 +236,11 @@ def _markdown(result: dict, med: dict) -> str:
     loads = [r["load_average"] for r in before + after + [warm, six, jpg]]
     lines += [
         "",
-        "`sink` (PNG encoding, hashing, writing) runs on a thread beside rendering after; before it was",
-        "part of the frame. `sink_wait` is the time rendering waited for it. Stages overlap and two",
-        "workers share two cores, so these are CPU shares rather than parts of the wall time.",
+        "After, only the GL passes (`scene_update`, `color_pass`, `class_pass`) run on the render thread;",
+        "`post_fx`, `outputs` and `sink` (PNG encoding, hashing, writing) run on a second thread that",
+        "finishes frame i while frame i + 1 is drawn; before, all but the sink were part of the frame.",
+        "`sink_wait` is the time drawing waited for that thread. Stages overlap and two workers share",
+        "two cores, so these are CPU shares rather than parts of the wall time.",
         f"Load average (1 min) after each run: {', '.join(f'{x:.1f}' for x in loads)}.",
         "",
         "## Ray overhead and scaling (after)",

@@ -7,8 +7,8 @@ renders FRAMES frames of each of SCENARIOS after a warm-up frame and times
 every stage: scene update, colour pass (incl. sky), class pass (SEG + depth),
 post effects (each effect apart), output encoders, PNG encoding of the six
 outputs, writing; then one episode through ``render_episode`` with a sink that
-encodes and writes, as production does (after: the sink runs on a thread,
-overlapping the next frame). Process CPU seconds per frame are reported too:
+encodes and writes, as production does (after: post effects, outputs and the
+sink run on a second thread, overlapping the next frame's GL passes). Process CPU seconds per frame are reported too:
 they move less than wall times when other jobs load the machine.
 
 Worker table (this tree): whole frames in 1 and 2 worker processes
@@ -276,7 +276,8 @@ def _markdown(result: dict) -> str:
         "",
         "PNG encoding after: PNG filter Sub in numpy, one IDAT deflated by ISA-L level 1",
         "(`manifests.encoding`); before: OpenCV's libpng at zlib level 1 with its adaptive filters.",
-        "In production the encoding runs on the episode's sink thread, overlapping the next frame.",
+        "In production post effects, outputs and PNG encoding run on the episode's second thread,",
+        "overlapping the next frame's GL passes.",
         "",
         "## Workers (after)",
         "",
@@ -312,6 +313,13 @@ def _markdown(result: dict) -> str:
         "test (no change: the sky is composited behind, not drawn, and overdraw is low), a square",
         "root instead of the gamma power (<0.01), caching pyrender's uniform locations (the Python",
         "side of both passes is ~0.1 CPU-s either way), replacing `cv2.blendLinear` (already ~3-9 ms).",
+        "What did pay on that Python side: setting the camera, light and shadow uniforms once per",
+        "program and pass instead of per primitive, and material uniforms and GL state only when they",
+        "change (`compat.install_forward_pass`; the shadow pass likewise), same pixels: in-process",
+        "12-frame episodes, T03_CS_M 0.61 -> 0.57 and T01_CN_A 0.48 -> 0.47 CPU-s per frame. Did not",
+        "pay: glibc keeping freed memory (`mallopt`; page faults per frame 4,500 -> 500-1,400, CPU per",
+        "frame unchanged within noise); `LP_NUM_THREADS=0` (rasterising on the calling thread) was",
+        "within noise end to end (2.99, 3.19 frames/s against 3.00, 2.99 with 1), so produce keeps 1.",
         "The objects output's silhouettes project their triangles in one numpy pass (0.025 -> 0.010",
         "CPU-s per frame, same bytes).",
         "",

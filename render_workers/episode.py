@@ -5,9 +5,11 @@ the town's world, populate it from the episode seed, load it into the
 process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
 seconds) render the named buffers, post-process the colour, add the ``objects``
 table when asked, encode the spec's outputs (``manifests.outputs``) and call
-``sink(frame)``. The sink runs on one background thread, in frame order, so
-writing frame i (PNG deflate, hashing and file writes release the GIL)
-overlaps rendering frame i + 1; at most ``SINK_AHEAD`` frames wait for it.
+``sink(frame)``. Only the drawing (``Renderer.render``) runs on the calling
+thread; the rest of a frame (post effects, outputs, then the sink) runs on one
+background thread, in frame order, so finishing and writing frame i (numpy,
+OpenCV, PNG deflate, hashing and file writes release the GIL) overlaps drawing
+frame i + 1; at most ``SINK_AHEAD`` frames wait for it.
 
 Every random draw derives from ``spec.seed`` (traffic, sky, puddles, rain) or
 from the town seed (world), so the same spec gives byte-identical PNGs.
@@ -36,7 +38,7 @@ from manifests.spec import FRAME_PERIOD_S, town_seed
 from render_workers import postfx, worldcache
 from render_workers.camera import measured_hood_fraction
 from render_workers.instances import frame_objects, instance_classes
-from render_workers.renderer import Renderer
+from render_workers.renderer import Renderer, RenderResult
 from render_workers.scene import EpisodeScene, Frame, World
 from render_workers.registry import DEFAULT_WORLD, WORLDS, check_world  # noqa: F401 (re-exported: the API since before the registry)
 
@@ -138,9 +140,20 @@ def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WOR
 
 def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, index: int) -> tuple[Frame, dict]:
     """Render frame ``index`` of a loaded episode; returns the frame and its stage timings."""
+    result = renderer.render(index * FRAME_PERIOD_S)
+    frame, timings = finish_frame(result, renderer, scene, spec, index)
+    return frame, {**result.timings, **timings}
+
+
+def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec,
+                 index: int) -> tuple[Frame, dict]:
+    """Frame ``index`` from its rendered buffers: post effects, objects, encoded outputs, counts.
+
+    No GL here: it reads only the episode's fixed state (weather, rig,
+    instances, actors' paths), so it may run on another thread while the
+    renderer draws the next frame."""
     t = index * FRAME_PERIOD_S
-    result = renderer.render(t)
-    timings = dict(result.timings)
+    timings = {}
     start = time.perf_counter()
     buffers = dict(result.buffers)
     ctx = postfx.FxContext(
@@ -169,41 +182,52 @@ def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, ind
     return frame, timings
 
 
-def _timed_sink(sink: Callable[[Frame], None], frame: Frame) -> float:
+def _finish_and_sink(sink: Callable[[Frame], None], result: RenderResult, renderer: Renderer, scene: EpisodeScene,
+                     spec: EpisodeSpec, index: int) -> dict:
+    """The back half of a frame, on the sink thread: finish it, then hand it to ``sink``; returns its timings."""
+    frame, timings = finish_frame(result, renderer, scene, spec, index)
     start = time.perf_counter()
     sink(frame)
-    return time.perf_counter() - start
+    timings["sink"] = time.perf_counter() - start
+    return timings
 
 
 def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: str = DEFAULT_WORLD,
                    renderer: Renderer | None = None) -> EpisodeInfo:
     """Render every frame of ``spec`` and pass each to ``sink``; returns counts and timings.
 
-    ``sink`` is called from one background thread, in frame order; an error it
-    raises stops the episode and is raised here. Timings: ``sink`` is the time
-    spent in it, ``sink_wait`` the time rendering waited for it."""
+    This thread draws (the GL passes); one background thread finishes each
+    frame (post effects, outputs) and calls ``sink`` with it, in frame order,
+    while the next frame is drawn. So a worker alone on the machine (the last
+    episode of a run) keeps two cores busy. An error in either stops the
+    episode and is raised here. Timings: ``sink`` is the time spent in it,
+    ``sink_wait`` the time drawing waited for the background thread."""
     renderer = renderer if renderer is not None else process_renderer()
     scene, timings = load_episode(spec, renderer, world)
     for stage in FRAME_STAGES:
         timings[stage] = 0.0
     pending: deque[Future] = deque()
 
+    def collect(future: Future) -> None:
+        for stage, seconds in future.result().items():
+            timings[stage] += seconds
+
     def settle(limit: int) -> None:
         start = time.perf_counter()
         while len(pending) > limit:
-            timings["sink"] += pending.popleft().result()
+            collect(pending.popleft())
         timings["sink_wait"] += time.perf_counter() - start
 
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
         try:
             for index in range(spec.frames):
-                frame, frame_timings = render_frame(renderer, scene, spec, index)
-                for stage, seconds in frame_timings.items():
-                    timings[stage] = timings.get(stage, 0.0) + seconds
+                result = renderer.render(index * FRAME_PERIOD_S)
+                for stage, seconds in result.timings.items():
+                    timings[stage] += seconds
                 while pending and pending[0].done():  # surface a sink error early
-                    timings["sink"] += pending.popleft().result()
+                    collect(pending.popleft())
                 settle(SINK_AHEAD - 1)
-                pending.append(pool.submit(_timed_sink, sink, frame))
+                pending.append(pool.submit(_finish_and_sink, sink, result, renderer, scene, spec, index))
             settle(0)
         finally:
             for future in pending:  # after an error: drop frames not yet started

@@ -9,13 +9,14 @@ per frame. The hood is a child of the camera node.
 
 Each :meth:`Renderer.render` makes two passes:
 
-* a colour pass (sun as a DirectionalLight plus ambient light, 4x MSAA from
-  pyrender), composited over a procedural sky by its alpha coverage;
+* a colour pass (sun as a DirectionalLight plus ambient light, no
+  multisampling: geometry edges are anti-aliased in post, ``postfx.antialias``),
+  composited over a procedural sky by its alpha coverage;
 * a ``RenderFlags.SEG`` pass where every node is mapped to ``(class_id,
   instance id low byte, high byte)`` (``render_workers.instances``: the hood,
   actors and static traffic lights and signs have ids; merged static tiles 0).
   It gives crisp class and instance ids (background -> sky, 0) and the metric
-  depth (background -> 1000 m), all free of MSAA blending.
+  depth (background -> 1000 m), never blended.
 
 Lighting: pyrender's PBR fragment shader costs ~1 s per 1920x1080 frame on
 llvmpipe, so by default the colour pass swaps in :data:`render_workers.shaders.FAST_MESH_FRAG` (Lambert
@@ -170,6 +171,7 @@ class Renderer:
             # so coplanar faces could resolve differently from run to run: draw
             # the visible nodes in the fixed order load() built them instead.
             compat.install_draw_order(self._offscreen, self._draw_order)
+            compat.install_forward_pass(self._offscreen)
         elif self._size != (width, height):
             self._offscreen.viewport_width, self._offscreen.viewport_height = width, height
         self._size = (width, height)
@@ -333,13 +335,15 @@ class Renderer:
         background = depth <= 0.0
         classes = seg[..., 0].copy()
         classes[background] = SKY_ID
-        instance = seg[..., 1].astype(np.uint16) | (seg[..., 2].astype(np.uint16) << 8)
+        instance = seg[..., 1].astype(np.uint16)
+        instance |= seg[..., 2].astype(np.uint16) << 8
         instance[background] = 0
         hood = instance == HOOD_ID
-        depth = np.where(background, np.float32(self.zfar), np.minimum(depth, np.float32(self.zfar)))
+        depth = np.minimum(depth, np.float32(self.zfar), dtype=np.float32)
+        depth[background] = self.zfar
         timings["class_pass"] = time.perf_counter() - start
 
-        buffers = {"rgb": rgb, "depth": depth.astype(np.float32), "classes": classes, "instance": instance}
+        buffers = {"rgb": rgb, "depth": depth, "classes": classes, "instance": instance}
         return RenderResult(
             buffers=buffers, hood_mask=hood,
             world_from_camera=cam, rig=self.rig, sun_pixel=self._sun_pixel(cam), timings=timings,

@@ -158,3 +158,19 @@ def test_closing_one_renderer_leaves_another_intact():
         gc.collect()  # the closed renderer's leftovers go now, while that context is current
         after = _render(kept, scene, "CN", True).buffers["rgb"]
     assert np.array_equal(before, after)
+
+
+@pytest.mark.parametrize("code", ["CN", "HRN"])
+def test_forward_pass_patch_draws_pyrenders_pixels(code):
+    """compat.install_forward_pass sets per-pass uniforms once per program; colour, classes,
+    instances and depth stay byte for byte what pyrender's own forward pass draws (test world,
+    actors and traffic lights included, shadows on where the weather has them)."""
+    spec = EpisodeSpec(f"T01_{code}_A", 0, 5, 1, 320, 180, "train", 0)
+    with Renderer() as r:
+        scene, _ = episode.load_episode(spec, r, world="test")
+        patched = r.render(3.0)
+        inner = r._offscreen._renderer
+        del inner._forward_pass  # back to pyrender's method
+        plain = r.render(3.0)
+    for name, buffer in patched.buffers.items():
+        assert buffer.dtype == plain.buffers[name].dtype and buffer.tobytes() == plain.buffers[name].tobytes(), name
