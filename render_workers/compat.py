@@ -413,7 +413,7 @@ def install_forward_pass(offscreen) -> None:
         V, P = inner._get_camera_matrices(scene)
         cam_pos = scene.get_pose(scene.main_camera_node)[:3, 3]
         lit = not (flags & RenderFlags.DEPTH_ONLY or flags & RenderFlags.FLAT or seg)
-        ready, current, program, state = set(), None, None, {}
+        ready, program, state = set(), None, {}
         for node in inner._sorted_mesh_nodes(scene):
             mesh = node.mesh
             if not mesh.is_visible:
@@ -425,10 +425,10 @@ def install_forward_pass(offscreen) -> None:
                 color = np.repeat(color, 3) if not isinstance(color, (list, tuple, np.ndarray)) else np.asanyarray(color)
                 color = color / 255.0
             for primitive in mesh.primitives:
-                program = inner._get_primitive_program(primitive, flags, ProgramFlags.USE_MATERIAL)
-                if program is not current:
+                shader = inner._get_primitive_program(primitive, flags, ProgramFlags.USE_MATERIAL)
+                if shader is not program:
+                    program = shader
                     program._bind()
-                    current = program
                 textured = lit and bool(primitive.material.tex_flags)
                 if textured or program not in ready:
                     program.set_uniform("V", V)
