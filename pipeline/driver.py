@@ -21,6 +21,7 @@ from typing import Callable
 from manifests.reader import compact, episode_frames
 from manifests.schema import STATS_DIR, index_path, part_path
 from pipeline.planner import make_plan
+from pipeline.ray_task import Fatal, FrameCounter, episode_task
 from pipeline.runmeta import RunConfig, RunConfigError, prepare_root
 
 log = logging.getLogger(__name__)
@@ -113,13 +114,6 @@ class ProduceInterrupted(Exception):
         self.report = report
 
 
-@dataclass(frozen=True)
-class _Fatal:
-    """A worker's error that retrying cannot fix (full disk, read-only root)."""
-
-    message: str
-
-
 RAY_AUTH_MODE = "RAY_AUTH_MODE"
 _RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 _AUTH_HINT = (
@@ -201,61 +195,7 @@ def _connect(ray, config: ProduceConfig) -> None:
         ray.init(address="local", num_cpus=config.workers or os.cpu_count(), include_dashboard=False, **common)
 
 
-class _FrameCounter:
-    """Ray actor the render tasks report each written frame to.
-
-    Keeps the highest count per episode, so a retried episode is not counted
-    twice; ``wait_total`` returns as soon as the total moves (or after
-    ``timeout``), which lets the driver wake once per frame."""
-
-    def __init__(self) -> None:
-        import asyncio
-
-        self._done: dict[str, int] = {}
-        self._total = 0
-        self._moved = asyncio.Event()
-
-    async def frame(self, key: str, n: int) -> None:
-        if n > self._done.get(key, 0):
-            self._total += n - self._done.get(key, 0)
-            self._done[key] = n
-            self._moved.set()
-
-    async def forget(self, key: str) -> None:
-        self._total -= self._done.pop(key, 0)
-        self._moved.set()
-
-    async def wait_total(self, seen: int, timeout: float) -> int:
-        import asyncio
-
-        if self._total == seen:
-            self._moved.clear()
-            try:
-                await asyncio.wait_for(self._moved.wait(), timeout)
-            except asyncio.TimeoutError:
-                pass
-        return self._total
-
-
 PROGRESS_WAIT_S = 5.0  # longest the driver waits for a frame before it looks again
-
-
-def _episode_task(spec, storage, world, counter=None, lp_threads=None):
-    from pipeline.episode_job import run_episode
-    from storage import StorageError
-
-    if lp_threads is not None:  # read when this worker's GL context is made (its first episode)
-        os.environ.setdefault("LP_NUM_THREADS", lp_threads)
-    on_frame = None
-    if counter is not None:
-        def on_frame(n: int) -> None:  # fire and forget: progress never slows rendering
-            counter.frame.remote(spec.key, n)
-    try:
-        return run_episode(spec, storage, world=world, on_frame=on_frame)
-    except StorageError as exc:
-        if exc.fatal:  # returned, not raised: Ray would retry it
-            return _Fatal(str(exc))
-        raise
 
 
 def _repair(storage, plan) -> list[str]:
@@ -339,9 +279,9 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
             # runtime_env would make Ray start fresh workers instead of its
             # prestarted ones (a second or more of imports on each).
             options["runtime_env"] = {"env_vars": env}
-        task = ray.remote(_episode_task).options(**options)
+        task = ray.remote(episode_task).options(**options)
         storage_ref = ray.put(storage)
-        counter = ray.remote(num_cpus=0)(_FrameCounter).remote() if progress is not None else None
+        counter = ray.remote(num_cpus=0)(FrameCounter).remote() if progress is not None else None
         queue, in_flight = deque(todo), {}
         frames_total = sum(e.frames for e in todo)
         frames_seen, watch = 0, None
@@ -384,7 +324,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                     if counter is not None:  # its frames are not part of the run
                         ray.get(counter.forget.remote(spec.key))
                     continue
-                if isinstance(result, _Fatal):
+                if isinstance(result, Fatal):
                     from storage import StorageError
 
                     for other in in_flight:
