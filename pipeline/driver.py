@@ -162,11 +162,16 @@ def _import_ray(address: str | None = None):
 # raylet already share the driver's fate (PR_SET_PDEATHSIG); with these the
 # agents notice the raylet's death at once through a pipe (instead of after
 # polling for up to a minute or two), and each worker runs in its own process
-# group that the raylet kills with it.
+# group that the raylet kills with it. Workers run at the driver's priority:
+# Ray's default (nice 15) is for shared machines, where its daemons must stay
+# responsive; on a cluster that exists for this run, it only lets every daemon
+# wake-up preempt rendering (the Ray overhead in docs/bench_produce.md).
 _LOCAL_CLUSTER_ENV = {
     "RAY_enable_pipe_based_agent_to_parent_health_check": "true",
     "RAY_process_group_cleanup_enabled": "true",
+    "RAY_worker_niceness": "0",
 }
+_RAY_INIT_COMMON = dict(log_to_driver=False, logging_level=logging.WARNING)
 
 
 def _address(config: ProduceConfig) -> str | None:
@@ -178,21 +183,25 @@ def _connect(ray, config: ProduceConfig) -> None:
     if ray.is_initialized():
         return
     address = _address(config)
-    common = dict(log_to_driver=False, logging_level=logging.WARNING)
     if address:
         try:
-            ray.init(address=address, **common)
+            ray.init(address=address, **_RAY_INIT_COMMON)
         except ConnectionError as exc:
             raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc}); {_AUTH_HINT}") from exc
     else:
-        # A private cluster for this run: Ray's notice that it turned token
-        # authentication on is not something the user has to act on.
-        logging.getLogger(_RAY_TOKEN_LOGGER).setLevel(logging.ERROR)
-        for name, value in _LOCAL_CLUSTER_ENV.items():  # read by the raylet and agents it starts
-            os.environ.setdefault(name, value)
-        # address="local": a new instance even where `ray start` left a cluster
-        # on this machine (ray.init() with no address would attach to it).
-        ray.init(address="local", num_cpus=config.workers or os.cpu_count(), include_dashboard=False, **common)
+        start_local_cluster(ray, config.workers)
+
+
+def start_local_cluster(ray, cpus: int | None = None) -> None:
+    """Start the private one-machine Ray cluster ``produce`` runs on when given no address
+    (``cpus``: its CPU count, default all cores). Public so benchmarks start the same one."""
+    # Ray's notice that it turned token authentication on is not something the user has to act on.
+    logging.getLogger(_RAY_TOKEN_LOGGER).setLevel(logging.ERROR)
+    for name, value in _LOCAL_CLUSTER_ENV.items():  # read by the raylet and agents it starts
+        os.environ.setdefault(name, value)
+    # address="local": a new instance even where `ray start` left a cluster
+    # on this machine (ray.init() with no address would attach to it).
+    ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, **_RAY_INIT_COMMON)
 
 
 PROGRESS_WAIT_S = 5.0  # longest the driver waits for a frame before it looks again

@@ -345,6 +345,28 @@ def test_s3_end_to_end(reference, tmp_path):
         assert "secret" not in result.output
 
 
+def test_local_cluster_workers_run_at_the_drivers_priority(monkeypatch):
+    """Ray starts workers at nice 15 (for shared machines); on the private cluster
+    of a run they render at the driver's priority, as a plain loop would."""
+    import ray
+
+    from pipeline.driver import start_local_cluster
+
+    if ray.is_initialized():
+        ray.shutdown()
+    monkeypatch.delenv("RAY_worker_niceness", raising=False)
+
+    def niceness() -> int:
+        return os.nice(0)
+
+    start_local_cluster(ray, 1)
+    try:
+        worker = ray.get(ray.remote(num_cpus=1)(niceness).remote())
+    finally:
+        ray.shutdown()
+    assert worker == os.nice(0)
+
+
 def _free_port() -> int:
     import socket
 
