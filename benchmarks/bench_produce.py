@@ -88,8 +88,8 @@ E2E_FRAMES, E2E_WIDTH, E2E_HEIGHT = 60, 1920, 1080
 E2E_ARGS = ["--domains", E2E_DOMAINS, "--frames-per-scenario", str(E2E_FRAMES),
             "--width", str(E2E_WIDTH), "--height", str(E2E_HEIGHT)]
 E2E_COMMAND = "idda produce " + " ".join(E2E_ARGS)
-STAGES = ("world", "populate", "load", "scene_update", "color_pass", "class_pass", "post_fx", "outputs", "sink",
-          "sink_wait")
+STAGES = ("world", "populate", "load", "scene_update", "color_pass", "class_pass", "resolve", "post_fx", "outputs",
+          "sink", "sink_wait")
 
 
 def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...] = ()) -> dict:
@@ -249,7 +249,8 @@ def _markdown(result: dict, med: dict) -> str:
     lines += [
         "",
         "After, only the GL passes (`scene_update`, `color_pass`, `class_pass`) run on the render thread;",
-        "`post_fx`, `outputs` and `sink` (PNG encoding, hashing, writing) run on a second thread that",
+        "`resolve` (the sky behind the colour pass, ids and depth out of the class pass's reads), `post_fx`,",
+        "`outputs` and `sink` (PNG encoding, hashing, writing) run on a second thread that",
         "finishes frame i while frame i + 1 is drawn; before, all but the sink were part of the frame.",
         "`sink_wait` is the time drawing waited for that thread. Stages overlap and two workers share",
         "two cores, so these are CPU shares rather than parts of the wall time.",

@@ -4,11 +4,12 @@ Per-stage table: the same probe (this file run with ``--probe``) runs in a
 fresh process on the baseline revision ("before", see ``benchmarks.baseline``)
 and on this tree ("after"), alternately, ``BENCH_ROUNDS`` pairs. A probe
 renders FRAMES frames of each of SCENARIOS after a warm-up frame and times
-every stage: scene update, colour pass (incl. sky), class pass (SEG + depth),
-post effects (each effect apart), output encoders, PNG encoding of the six
+every stage: scene update, colour pass, class pass (SEG + depth), resolve (the
+sky behind the colour pass, ids and depth from the class pass; before: part of
+the two passes), post effects (each effect apart), output encoders, PNG encoding of the six
 outputs, writing; then one episode through ``render_episode`` with a sink that
-encodes and writes, as production does (after: post effects, outputs and the
-sink run on a second thread, overlapping the next frame's GL passes). Process CPU seconds per frame are reported too:
+encodes and writes, as production does (after: resolve, post effects, outputs
+and the sink run on a second thread, overlapping the next frame's GL passes). Process CPU seconds per frame are reported too:
 they move less than wall times when other jobs load the machine.
 
 Worker table (this tree): whole frames in 1 and 2 worker processes
@@ -38,7 +39,7 @@ FRAMES = 3  # measured frames per scenario (after one warm-up frame)
 EPISODE_FRAMES = 6  # frames of the render_episode run (production's loop)
 THROUGHPUT_FRAMES = 8  # frames per worker in the throughput runs
 WORLD = os.environ.get("BENCH_WORLD", DEFAULT_WORLD)
-STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "png_encode", "write")
+STAGES = ("scene_update", "color_pass", "class_pass", "resolve", "post_fx", "outputs", "png_encode", "write")
 EFFECTS = ("antialias", "puddles", "wet_road", "fog", "rain", "bloom", "lens_flare", "motion_blur", "grading")
 
 
@@ -112,7 +113,7 @@ def probe(world: str) -> dict:
                 samples["frame"].append(time.perf_counter() - start)
                 samples["frame_cpu"].append(time.process_time() - cpu)
                 for stage in STAGES:
-                    samples[stage].append(timings[stage])
+                    samples[stage].append(timings.get(stage, 0.0))  # older trees: no "resolve"
                 for name in EFFECTS:
                     samples[name].append(fx.get(name, 0.0))
         # production's loop: render_episode with a sink that encodes and writes

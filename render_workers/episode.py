@@ -46,7 +46,7 @@ log = logging.getLogger(__name__)
 
 _FX_STREAM = 404  # rng stream id of per-frame post effects
 
-FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "post_fx", "outputs", "sink", "sink_wait")
+FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "resolve", "post_fx", "outputs", "sink", "sink_wait")
 SINK_AHEAD = 2  # frames handed to the sink thread and not yet written
 
 
@@ -153,9 +153,9 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     instances, actors' paths), so it may run on another thread while the
     renderer draws the next frame."""
     t = index * FRAME_PERIOD_S
-    timings = {}
+    buffers = dict(result.buffers)  # the GL reads are resolved here, off the render thread
+    timings = {"resolve": result.resolve_s}
     start = time.perf_counter()
-    buffers = dict(result.buffers)
     ctx = postfx.FxContext(
         depth=buffers["depth"], classes=buffers["classes"], hood_mask=result.hood_mask, rig=result.rig,
         world_from_camera=result.world_from_camera, weather=renderer.weather,
@@ -197,8 +197,8 @@ def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: s
     """Render every frame of ``spec`` and pass each to ``sink``; returns counts and timings.
 
     This thread draws (the GL passes); one background thread finishes each
-    frame (post effects, outputs) and calls ``sink`` with it, in frame order,
-    while the next frame is drawn. So a worker alone on the machine (the last
+    frame (resolves its GL reads, post effects, outputs) and calls ``sink``
+    with it, in frame order, while the next frame is drawn. So a worker alone on the machine (the last
     episode of a run) keeps two cores busy. An error in either stops the
     episode and is raised here. Timings: ``sink`` is the time spent in it,
     ``sink_wait`` the time drawing waited for the background thread."""

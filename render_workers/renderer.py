@@ -18,6 +18,9 @@ Each :meth:`Renderer.render` makes two passes:
   It gives crisp class and instance ids (background -> sky, 0) and the metric
   depth (background -> 1000 m), never blended.
 
+The render thread only draws and reads back; compositing the sky and decoding
+the SEG colours happen when the frame's :class:`RenderResult` is first used.
+
 Lighting: pyrender's PBR fragment shader costs ~1 s per 1920x1080 frame on
 llvmpipe, so by default the colour pass swaps in :data:`render_workers.shaders.FAST_MESH_FRAG` (Lambert
 diffuse + normalised Blinn-Phong specular from the material's roughness and
@@ -47,10 +50,13 @@ pyrender rules this module follows are listed in ``render_workers.compat``.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
+import threading
 import time
 from dataclasses import dataclass
+from typing import Callable
 
 import numpy as np
 
@@ -84,18 +90,63 @@ MIN_SHADOW_STRENGTH = 0.1  # fainter shadows (overcast: HRN's would be 0.05) are
 # --------------------------------------------------------------------------
 # Renderer
 # --------------------------------------------------------------------------
-@dataclass(frozen=True, eq=False)
 class RenderResult:
-    """The raw buffers of one frame, before post effects."""
+    """One frame as the GL passes left it; its buffers are resolved on first use.
 
-    buffers: dict  # name -> array: "rgb" (HxWx3 uint8, lit geometry over the sky), "depth" (HxW
-    # float32 planar metres, background ZFAR_M), "classes" (HxW uint8, background sky),
-    # "instance" (HxW uint16 instance ids, background 0)
-    hood_mask: np.ndarray  # HxW bool, pixels drawn by the ego hood
-    world_from_camera: np.ndarray  # 4x4
-    rig: CameraRig
-    sun_pixel: tuple[float, float] | None  # sun position in pixels when in front of the camera
-    timings: dict  # stage -> seconds
+    Resolving (the sky behind the colour pass, class and instance ids out of
+    the SEG colours, the background's depth) is numpy and OpenCV with no GL, so
+    the renderer leaves it to whoever first asks for ``buffers`` or
+    ``hood_mask``: in production the episode's second thread, while the render
+    thread draws the next frame. ``resolve_s`` is the time that took.
+
+    ``buffers``: name -> array: "rgb" (HxWx3 uint8, lit geometry over the sky),
+    "depth" (HxW float32 planar metres, background ZFAR_M), "classes" (HxW
+    uint8, background sky), "instance" (HxW uint16 instance ids, background 0).
+    ``hood_mask``: HxW bool, the pixels drawn by the ego hood.
+    """
+
+    def __init__(self, *, rgba: np.ndarray, seg: np.ndarray, depth: np.ndarray, sky: Callable[[], np.ndarray],
+                 zfar: float, world_from_camera: np.ndarray, rig: CameraRig,
+                 sun_pixel: tuple[float, float] | None, timings: dict) -> None:
+        self.world_from_camera = world_from_camera  # 4x4
+        self.rig = rig
+        self.sun_pixel = sun_pixel  # sun position in pixels when in front of the camera
+        self.timings = timings  # stage -> seconds, of the GL passes
+        self.resolve_s = 0.0
+        self._raw = (rgba, seg, depth, sky, zfar)
+        self._buffers: dict | None = None
+        self._hood: np.ndarray | None = None
+        self._lock = threading.Lock()
+
+    @property
+    def buffers(self) -> dict:
+        self._resolve()
+        return self._buffers
+
+    @property
+    def hood_mask(self) -> np.ndarray:
+        self._resolve()
+        return self._hood
+
+    def _resolve(self) -> None:
+        with self._lock:
+            if self._buffers is not None:
+                return
+            start = time.perf_counter()
+            rgba, seg, depth, sky, zfar = self._raw
+            background = depth <= 0.0
+            classes = seg[..., 0].copy()
+            classes[background] = SKY_ID
+            instance = seg[..., 1].astype(np.uint16)
+            instance |= seg[..., 2].astype(np.uint16) << 8
+            instance[background] = 0
+            self._hood = instance == HOOD_ID
+            depth = np.minimum(depth, np.float32(zfar), dtype=np.float32)
+            depth[background] = zfar
+            rgb = composite_sky(rgba, sky())
+            self._buffers = {"rgb": rgb, "depth": depth, "classes": classes, "instance": instance}
+            self._raw = None  # the GL reads are no longer needed
+            self.resolve_s = time.perf_counter() - start
 
 
 @dataclass
@@ -325,27 +376,18 @@ class Renderer:
         flags = pr.RenderFlags.RGBA | pr.RenderFlags.SKIP_CULL_FACES
         if self._shadows_on():
             flags |= pr.RenderFlags.SHADOWS_DIRECTIONAL
-        color, _ = self._offscreen.render(self._scene, flags=flags)
-        rgb = composite_sky(color, sky_image(self.weather, self.rig, cam, self._clouds))
+        rgba, _ = self._offscreen.render(self._scene, flags=flags)
         timings["color_pass"] = time.perf_counter() - start
 
         start = time.perf_counter()
         seg_flags = pr.RenderFlags.SEG | pr.RenderFlags.SKIP_CULL_FACES
         seg, depth = self._offscreen.render(self._scene, flags=seg_flags, seg_node_map=self._seg_map)
-        background = depth <= 0.0
-        classes = seg[..., 0].copy()
-        classes[background] = SKY_ID
-        instance = seg[..., 1].astype(np.uint16)
-        instance |= seg[..., 2].astype(np.uint16) << 8
-        instance[background] = 0
-        hood = instance == HOOD_ID
-        depth = np.minimum(depth, np.float32(self.zfar), dtype=np.float32)
-        depth[background] = self.zfar
         timings["class_pass"] = time.perf_counter() - start
 
-        buffers = {"rgb": rgb, "depth": depth, "classes": classes, "instance": instance}
+        # Fixed for the episode, so the frame may be resolved on another thread later.
+        sky = functools.partial(sky_image, self.weather, self.rig, cam, self._clouds)
         return RenderResult(
-            buffers=buffers, hood_mask=hood,
+            rgba=rgba, seg=seg, depth=depth, sky=sky, zfar=self.zfar,
             world_from_camera=cam, rig=self.rig, sun_pixel=self._sun_pixel(cam), timings=timings,
         )
 

@@ -135,6 +135,31 @@ def test_sink_runs_in_frame_order_off_the_render_thread(renderer):
     assert all(t is not threading.main_thread() for _, t in seen)
 
 
+def test_the_render_thread_only_draws(renderer, monkeypatch):
+    """The sky and the decoding of the class pass run where the frame is finished,
+    off the render thread, and give the same frame as resolving it at once."""
+    import threading
+
+    from render_workers import renderer as renderer_module
+
+    real = renderer_module.sky_image
+    skies = []
+
+    def sky_image(*args):
+        skies.append(threading.current_thread())
+        return real(*args)
+
+    monkeypatch.setattr(renderer_module, "sky_image", sky_image)
+    _, frames = run(spec(frames=3), renderer)
+    assert len(skies) == 3 and all(t is not threading.main_thread() for t in skies)
+    scene, _ = episode.load_episode(spec(frames=3), renderer, "test")
+    result = renderer.render(0.0)
+    assert len(skies) == 3  # drawn, not resolved yet
+    frame, _ = episode.finish_frame(result, renderer, scene, spec(frames=3), 0)
+    assert result.buffers is result.buffers and len(skies) == 4  # resolved once, then kept
+    assert all(np.array_equal(frame.outputs[k], frames[0].outputs[k]) for k in frame.outputs)
+
+
 def test_a_sink_error_stops_the_episode_and_is_raised(renderer):
     seen = []
 
