@@ -206,6 +206,7 @@ def start_local_cluster(ray, cpus: int | None = None) -> None:
     # address="local": a new instance even where `ray start` left a cluster
     # on this machine (ray.init() with no address would attach to it).
     ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, **_RAY_INIT_COMMON)
+    _stop_idle_daemons(ray)
 
 
 PROGRESS_WAIT_S = 5.0  # longest the driver waits for a frame before it looks again
@@ -237,24 +238,32 @@ def _repair(storage, plan) -> list[str]:
     return touched
 
 
-def _stop_monitor(ray) -> None:
-    """Kill the autoscaler monitor of the local cluster this process started, before ``ray.shutdown``.
+# Daemons of a local cluster that do nothing for a private one-node run with
+# log_to_driver=False: the autoscaler monitor (one node, nothing to scale) and
+# the log monitor (it publishes worker logs for drivers that print them).
+_IDLE_DAEMONS = ("monitor", "log_monitor")  # ray_constants.PROCESS_TYPE_*
 
-    A one-node cluster has nothing to scale. ``ray.shutdown`` stops the GCS
-    first and then sends the monitor SIGTERM, which it answers by trying to
-    report to that GCS, so shutdown waits its full second for the monitor
-    before killing it anyway (1.0 of ~1.4 s, in every run). Killed first it
-    has nothing to wait for. Reaches into Ray's node record; where that is
-    missing (another Ray version), shutdown is left as it is.
+
+def _stop_idle_daemons(ray) -> None:
+    """Kill the autoscaler and log monitors of the local cluster this process started.
+
+    Both poll for as long as the cluster lives (about 0.01 CPU-s per second
+    together, taken from render workers that fill the machine), and ``ray.shutdown`` stops the
+    GCS first and then sends the monitor SIGTERM, which it answers by trying
+    to report to that GCS, so shutdown waited its full second for it (1.0 of
+    ~1.4 s). Reaches into Ray's node record; where that is missing (another
+    Ray version), the daemons are left as they are.
     """
     import subprocess
 
     try:
-        processes = ray._private.worker._global_node.all_processes.get(ray._private.ray_constants.PROCESS_TYPE_MONITOR, ())
+        node = ray._private.worker._global_node
+        processes = [info for kind in _IDLE_DAEMONS for info in node.all_processes.get(kind, ())]
     except AttributeError:
         return
     for info in processes:
         info.process.kill()
+    for info in processes:
         try:
             info.process.wait(timeout=1.0)
         except subprocess.TimeoutExpired:  # Ray's shutdown deals with it as before
@@ -352,8 +361,6 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
             report_progress()
     finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
         if started and ray.is_initialized():
-            if not _address(config):
-                _stop_monitor(ray)
             ray.shutdown()
         if reaper is not None:
             reaper.stop()

@@ -347,7 +347,8 @@ def test_s3_end_to_end(reference, tmp_path):
 
 def test_local_cluster_workers_run_at_the_drivers_priority(monkeypatch):
     """Ray starts workers at nice 15 (for shared machines); on the private cluster
-    of a run they render at the driver's priority, as a plain loop would."""
+    of a run they render at the driver's priority, as a plain loop would, and the
+    monitors that only poll are gone."""
     import ray
 
     from pipeline.driver import start_local_cluster
@@ -362,9 +363,11 @@ def test_local_cluster_workers_run_at_the_drivers_priority(monkeypatch):
     start_local_cluster(ray, 1)
     try:
         worker = ray.get(ray.remote(num_cpus=1)(niceness).remote())
+        alive = {kind for kind, _ in ray._private.worker._global_node.live_processes()}
     finally:
         ray.shutdown()
     assert worker == os.nice(0)
+    assert {"raylet", "gcs_server"} <= alive and not alive & {"monitor", "log_monitor"}
 
 
 def _free_port() -> int:
