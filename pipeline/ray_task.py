@@ -2,9 +2,9 @@
 
 Kept apart from ``pipeline.driver`` because Ray ships a remote function or
 actor class by reference, so a worker imports the module that defines it. The
-driver needs the manifest reader (``pyarrow.dataset``, which pulls in pandas:
-0.2 s and more of imports); a worker needs only what an episode needs. Nothing
-here imports Ray.
+driver imports the manifest reader and the planner, the progress actor none of
+that: defined in the driver, the actor was ready 0.9 s later, on cores the
+first frames need (defined here, 0.1 s). Nothing here imports Ray.
 """
 
 from __future__ import annotations
