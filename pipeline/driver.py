@@ -238,27 +238,26 @@ def _repair(storage, plan) -> list[str]:
     return touched
 
 
-# Daemons of a local cluster that do nothing for a private one-node run with
-# log_to_driver=False: the autoscaler monitor (one node, nothing to scale) and
-# the log monitor (it publishes worker logs for drivers that print them).
-_IDLE_DAEMONS = ("monitor", "log_monitor")  # ray_constants.PROCESS_TYPE_*
-
-
 def _stop_idle_daemons(ray) -> None:
     """Kill the autoscaler and log monitors of the local cluster this process started.
 
+    Neither does anything for a private one-node run with log_to_driver=False:
+    one node has nothing to scale, and the log monitor publishes worker logs
+    for drivers that print them.
+
     Both poll for as long as the cluster lives (about 0.01 CPU-s per second
-    together, taken from render workers that fill the machine), and ``ray.shutdown`` stops the
-    GCS first and then sends the monitor SIGTERM, which it answers by trying
-    to report to that GCS, so shutdown waited its full second for it (1.0 of
-    ~1.4 s). Reaches into Ray's node record; where that is missing (another
+    together, taken from render workers that fill the machine), and
+    ``ray.shutdown`` stops the GCS first and then sends the monitor SIGTERM,
+    which it answers by trying to report to that GCS, so shutdown waited its
+    full second for it (1.0 of ~1.4 s). Reaches into Ray's node record; where that is missing (another
     Ray version), the daemons are left as they are.
     """
     import subprocess
 
     try:
-        node = ray._private.worker._global_node
-        processes = [info for kind in _IDLE_DAEMONS for info in node.all_processes.get(kind, ())]
+        constants, node = ray._private.ray_constants, ray._private.worker._global_node
+        kinds = (constants.PROCESS_TYPE_MONITOR, constants.PROCESS_TYPE_LOG_MONITOR)
+        processes = [info for kind in kinds for info in node.all_processes.get(kind, ())]
     except AttributeError:
         return
     for info in processes:

@@ -6,10 +6,11 @@ process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
 seconds) render the named buffers, post-process the colour, add the ``objects``
 table when asked, encode the spec's outputs (``manifests.outputs``) and call
 ``sink(frame)``. Only the drawing (``Renderer.render``) runs on the calling
-thread; the rest of a frame (post effects, outputs, then the sink) runs on one
-background thread, in frame order, so finishing and writing frame i (numpy,
-OpenCV, PNG deflate, hashing and file writes release the GIL) overlaps drawing
-frame i + 1; at most ``SINK_AHEAD`` frames wait for it.
+thread; the rest of a frame (resolving the GL reads, post effects, outputs,
+then the sink) runs on one background thread, in frame order, so finishing
+and writing frame i (numpy, OpenCV, PNG deflate, hashing and file writes
+release the GIL) overlaps drawing frame i + 1; at most ``SINK_AHEAD`` frames
+wait for it.
 
 Every random draw derives from ``spec.seed`` (traffic, sky, puddles, rain) or
 from the town seed (world), so the same spec gives byte-identical PNGs.
@@ -198,10 +199,11 @@ def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: s
 
     This thread draws (the GL passes); one background thread finishes each
     frame (resolves its GL reads, post effects, outputs) and calls ``sink``
-    with it, in frame order, while the next frame is drawn. So a worker alone on the machine (the last
-    episode of a run) keeps two cores busy. An error in either stops the
-    episode and is raised here. Timings: ``sink`` is the time spent in it,
-    ``sink_wait`` the time drawing waited for the background thread."""
+    with it, in frame order, while the next frame is drawn. So a worker alone
+    on the machine (the last episode of a run) keeps two cores busy. An error
+    in either stops the episode and is raised here. Timings: ``sink`` is the
+    time spent in it, ``sink_wait`` the time drawing waited for the background
+    thread."""
     renderer = renderer if renderer is not None else process_renderer()
     scene, timings = load_episode(spec, renderer, world)
     for stage in FRAME_STAGES:
