@@ -228,10 +228,11 @@ def _span(codes: tuple[str, ...]) -> str:
 
 
 def urban_towns() -> tuple[str, ...]:
-    """Towns with sidewalks and buildings (the catalog's ``Town.urban``): the rare-class presence target's frames."""
+    """Towns with sidewalks and buildings (``render_workers.styles.urban``): the rare-class presence target's frames."""
     from manifests.catalog import TOWNS
+    from render_workers.styles import is_urban
 
-    return tuple(t.code for t in TOWNS if t.urban)
+    return tuple(t.code for t in TOWNS if is_urban(t))
 
 
 def town_sheet(root: str, table, out_dir: Path, cell_width: int = TOWN_SHEET_CELL, per_row: int = 4) -> str:
@@ -388,13 +389,15 @@ def _pct(x: float, digits: int = 2) -> str:
 
 def _styles() -> dict:
     from manifests.catalog import TOWNS
+    from render_workers.styles import look
 
-    return {t.code: {"name": t.look.name, "architecture": t.look.architecture, "road": t.look.asphalt,
-                     "road_edge": t.look.road_edge,
-                     "edge_surfaces": list(t.look.paving) if t.look.sidewalks else [t.look.verge],
-                     "lane_w_m": t.look.lane_w_m, "markings": t.look.markings,
-                     "trees": [sp for sp, _ in t.look.trees], "crops": list(t.look.crops),
-                     "relief_m": t.look.relief_m, "mountains_m": t.look.mountains_m} for t in TOWNS}
+    def row(s) -> dict:
+        return {"name": s.name, "architecture": s.architecture, "road": s.asphalt, "road_edge": s.road_edge,
+                "edge_surfaces": list(s.paving) if s.sidewalks else [s.verge], "lane_w_m": s.lane_w_m,
+                "markings": s.markings, "trees": [sp for sp, _ in s.trees], "crops": list(s.crops),
+                "relief_m": s.relief_m, "mountains_m": s.mountains_m}
+
+    return {t.code: row(look(t)) for t in TOWNS}
 
 
 def markdown(result: dict) -> str:

@@ -20,7 +20,8 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import lookup, surface
+from manifests.catalog import lookup
+from render_workers.styles import surface, is_urban
 from render_workers import meshes as M
 from render_workers.kit import PALETTE, Kit
 
@@ -235,7 +236,7 @@ def architecture(name: str):
 # --------------------------------------------------------------------------
 def town_blocks(kit: Kit) -> None:
     """Ground, buildings and fillers of every block (towns with sidewalks)."""
-    if not kit.t.urban:
+    if not is_urban(kit.t):
         return
     z = kit.block_level()
     for rect, sides, river_side in kit.block_rects():

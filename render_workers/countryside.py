@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.catalog import surface
+from render_workers.styles import surface, is_urban
 from render_workers import meshes as M
 from render_workers.kit import Kit, rect_distance
 
@@ -29,7 +29,7 @@ MOUNTAIN_CELL_M = 35.0
 # --------------------------------------------------------------------------
 def farmland_blocks(kit: Kit) -> None:
     """Fields, meadows, woods and farms in every block (towns without sidewalks)."""
-    if kit.t.urban:
+    if is_urban(kit.t):
         return
     z = kit.block_level()
     for rect, _sides, river_side in kit.block_rects():

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.catalog import surface
+from render_workers.styles import surface
 from render_workers import meshes as M
 from render_workers.kit import PALETTE, Kit, split_span
 from render_workers.roadway import asphalt, markings

@@ -17,7 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.catalog import class_id, surface
+from manifests.catalog import class_id
+from render_workers.styles import look, surface
 from render_workers import meshes as M
 from render_workers.textures import TEXTURE_MEAN
 from render_workers.town_plan import CURB_H, FREEWAY_MEDIAN, OUTER_Z, Layout
@@ -75,7 +76,7 @@ class Kit:
     def __init__(self, lay: Layout) -> None:
         self.lay = lay
         self.t = lay.town
-        self.style = lay.town.look
+        self.style = look(lay.town)
         self.rng = np.random.default_rng([lay.seed, lay.town.stream, 2])
         self.batch = M.MeshBatch()
         self.buildings: list[tuple[float, float, float, float, float]] = []  # cx, cy, sx, sy, yaw

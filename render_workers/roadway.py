@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.catalog import surface
+from render_workers.styles import surface
 from render_workers import meshes as M
 from render_workers.kit import Kit
 from render_workers.town_plan import MARK_Z

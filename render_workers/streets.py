@@ -13,6 +13,7 @@ import numpy as np
 from render_workers import meshes as M
 from render_workers.kit import PALETTE, Kit, split_span
 from render_workers.roadway import asphalt, markings, road_marks
+from render_workers.styles import is_urban
 from render_workers.town_plan import CURB_H, MARK_Z, OUTER_Z, ZEBRA_FROM, ZEBRA_LEN, corner_offset
 
 VERGE_LAP = 0.2  # verges reach this far over the road edge
@@ -204,7 +205,7 @@ def furniture(kit: Kit) -> None:
     """Trees, lamps, signs, traffic lights and props along every street."""
     lay, t = kit.lay, kit.t
     xs, ys = lay.xs, lay.ys
-    urban = t.urban
+    urban = is_urban(t)
     z = CURB_H if urban else 0.02
     kerb = 0.75 if urban else 1.6  # distance of the furniture line from the road edge
     spacing = 9.0 if urban else 12.0

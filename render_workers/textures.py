@@ -21,7 +21,8 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import SURFACES, TEXTURE_NAMES, Style, lookup
+from manifests.catalog import lookup
+from render_workers.styles import SURFACES, TEXTURE_NAMES, Style
 
 TEXTURE_PX = 256
 TEXTURE_MEAN = 0.8  # mean of every texture: surfaces under one are drawn 1 / 0.8 brighter

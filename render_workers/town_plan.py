@@ -26,6 +26,7 @@ import numpy as np
 
 from manifests.catalog import Town, town as town_row
 from render_workers.scene import Crosswalk, Loop, Path
+from render_workers.styles import look, is_urban
 
 CURB_H = 0.15  # sidewalk height above the road
 OUTER_Z = -0.25  # terrain level outside the street grid
@@ -118,8 +119,8 @@ def layout(town_code: str, seed: int) -> Layout:
 def plan(t: Town, seed: int) -> Layout:
     """The town's plan: street grid, features and loops' geometry inputs."""
     rng = np.random.default_rng([seed, t.stream, 1])
-    urban = t.urban
-    lane_w = t.look.lane_w_m
+    urban = is_urban(t)
+    lane_w = look(t).lane_w_m
     parking_w = PARKING_W if urban else 0.0
     hw = t.lanes * lane_w + parking_w
     sidewalk_w = (5.0 + 1.0 * (t.lanes - 1)) if urban else 0.0
@@ -254,7 +255,7 @@ def _loops(lay: Layout) -> tuple[Loop, ...]:
     xs, ys = lay.xs, lay.ys
     jxy = np.array([(x, y) for x in xs for y in ys])
     loops = []
-    urban = t.urban
+    urban = is_urban(t)
     c = corner_offset(lay)
     clear = c + 6.0
     for k in range(t.lanes):

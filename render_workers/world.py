@@ -23,6 +23,7 @@ from manifests.catalog import Town, town as town_row
 from render_workers import buildings, countryside, freeway, railway, river, streets
 from render_workers.kit import Kit
 from render_workers.scene import World
+from render_workers.styles import look
 from render_workers.textures import town_textures
 from render_workers.town_plan import Layout, crosswalks, layout, loops, plan, walk_lanes, walkways
 
@@ -71,7 +72,7 @@ def build_town(t: Town, seed: int) -> World:
         loops=lane_loops,
         crosswalks=crosswalks(lay),
         walk_lanes=walk_lanes(lay),
-        textures=town_textures(t.look, seed, t.stream),
+        textures=town_textures(look(t), seed, t.stream),
     )
 
 

@@ -8,6 +8,7 @@ import pytest
 from manifests.catalog import TOWNS, VIEWPOINTS, class_id, town as town_row
 from render_workers import world as W
 from render_workers.scene import MATERIALS
+from render_workers.styles import is_urban
 from render_workers.traffic import populate
 
 TOWN_CODES = [t.code for t in TOWNS]
@@ -62,7 +63,7 @@ def test_town_contains_its_classes(worlds, code):
     present = set(_tri_counts(worlds[code]))
     need = ["road", "road line", "building", "vegetation", "terrain", "pole", "traffic sign",
             "traffic light", "fence", "wall"]
-    if t.urban:
+    if is_urban(t):
         need.append("sidewalk")
     if t.railway:
         need.append("railway")
@@ -72,7 +73,7 @@ def test_town_contains_its_classes(worlds, code):
     assert not missing, f"{code} lacks {missing}"
     if not t.railway:
         assert class_id("railway") not in present
-    if not t.urban:
+    if not is_urban(t):
         assert class_id("sidewalk") not in present
 
 
@@ -325,22 +326,22 @@ def test_town_traffic_has_buses(worlds):
 # Styles: town identity as data
 # --------------------------------------------------------------------------
 def test_every_town_has_a_style_and_styles_differ():
-    from manifests.catalog import STYLES, style
+    from render_workers.styles import STYLES, look, style, is_urban
 
     for t in TOWNS:
-        assert style(t.style) is t.look
+        assert style(t.style) is look(t)
     assert len({t.style for t in TOWNS}) == len(TOWNS)
     assert len({s.name for s in STYLES}) == len(STYLES)
-    assert town_row("T07").look.markings == "none" and not town_row("T07").urban
-    assert town_row("T07").look.lane_w_m < town_row("T01").look.lane_w_m
+    assert look(town_row("T07")).markings == "none" and not is_urban(town_row("T07"))
+    assert look(town_row("T07")).lane_w_m < look(town_row("T01")).lane_w_m
 
 
 def test_farmland_reads_as_farmland_not_as_a_town(worlds):
     """The country town's own look (issue 9, the city shift): a chip-seal road, not any kerbed town's asphalt,
     and golden ground and crops where the towns have green lawns; its built road wears that surface."""
-    from manifests.catalog import STYLES, surface
+    from render_workers.styles import STYLES, look, surface
 
-    farm = town_row("T07").look
+    farm = look(town_row("T07"))
     urban = [s for s in STYLES if s.sidewalks]
     road = surface(farm.asphalt)
     assert all(road.texture != surface(s.asphalt).texture and road.color != surface(s.asphalt).color for s in urban)
@@ -364,9 +365,10 @@ def test_field_boundaries_follow_the_style():
 
     from render_workers.countryside import boundary
     from render_workers.kit import Kit
+    from render_workers.styles import look
     from render_workers.town_plan import plan
 
-    assert dict(town_row("T07").look.field_bounds)["hedge"] >= 0.5
+    assert dict(look(town_row("T07")).field_bounds)["hedge"] >= 0.5
 
     def drawn(bounds, u):
         kit = Kit(plan(town_row("T07"), 0))
@@ -385,7 +387,8 @@ def test_field_boundaries_follow_the_style():
 def test_unknown_surface_style_and_kit_are_rejected():
     from dataclasses import replace
 
-    from manifests.catalog import STYLES, Town, style, surface
+    from manifests.catalog import Town
+    from render_workers.styles import STYLES, look, style, surface
 
     with pytest.raises(ValueError, match="unknown surface 'marble'; valid surfaces: asphalt dark, "):
         replace(STYLES[0], facades=("brick red", "marble"))
@@ -404,7 +407,7 @@ def test_unknown_surface_style_and_kit_are_rejected():
     with pytest.raises(ValueError, match="field_bounds shares must be >= 0 and sum to at most 1"):
         replace(style("farmland"), field_bounds=(("hedge", 0.7), ("wall", 0.4)))
     with pytest.raises(ValueError, match="unknown style 'gothic town'; valid styles: european old town"):
-        replace(town_row("T01"), style="gothic town").look
+        look(replace(town_row("T01"), style="gothic town"))
     assert isinstance(town_row("T01"), Town) and style("farmland").architecture == "farm"
 
 
@@ -442,7 +445,7 @@ def test_a_style_row_changes_the_world():
 def test_roofs_and_tall_crops_wear_their_textures(worlds):
     """House roofs are painted in their surface (terracotta tiles, concrete), and the
     farmland's maize stands are vegetation textured with stalks."""
-    from manifests.catalog import surface
+    from render_workers.styles import surface
 
     tiles = [p for p in worlds["T01"].static
              if p.class_id == class_id("building") and p.texture == surface("roof terracotta").texture]
