@@ -26,6 +26,8 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
+
 import numpy as np
 
 from manifests.catalog import viewpoint as viewpoint_row
@@ -95,157 +97,194 @@ def _min_distance(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.sqrt(((a[:, None, :] - b[None, :, :]) ** 2).sum(-1)).min())
 
 
-def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeScene:
-    """Vehicles, riders, pedestrians and the ego for one episode."""
-    vp = viewpoint_row(viewpoint_code)
-    rng = np.random.default_rng(episode_seed)
-    n_vehicles = int(rng.integers(20, 151))
-    n_pedestrians = int(rng.integers(0, 101))
+@dataclass
+class _Placement:
+    """One episode's placement state, shared by the phases of ``populate`` in draw order."""
+
+    world: World
+    rng: np.random.Generator
+    loops: list
+    lengths: np.ndarray
+    ego_i: int
+    ego_s: float
+    ego: Actor
+    ego_size: tuple
+    speeds: np.ndarray
+    slots: list
+    actors: list = field(default_factory=list)
+
+    @property
+    def ego_loop(self):
+        return self.loops[self.ego_i]
+
+
+def _place_ego(world: World, vp, rng: np.random.Generator) -> _Placement:
+    """The ego: a random loop (longer ones more likely) and spawn point; the loops' speeds."""
     loops = world.loops
     if not loops or len(loops) != len(world.lanes):
         raise ValueError(f"world {world.town} seed {world.seed} carries no lane loops matching its lanes")
     lengths = np.array([lp.path.length for lp in loops])
-
-    # the ego: a random loop (longer ones more likely) and spawn point
     ego_w = lengths * np.array([FREEWAY_EGO_WEIGHT if lp.kind == "freeway" else 1.0 for lp in loops])
     ego_i = int(rng.choice(len(loops), p=ego_w / ego_w.sum()))
-    ego_loop = loops[ego_i]
-    lo, hi = FREEWAY_EGO_SPEED if ego_loop.kind == "freeway" else vp.ego_speed_mps
+    lo, hi = FREEWAY_EGO_SPEED if loops[ego_i].kind == "freeway" else vp.ego_speed_mps
     ego_speed = float(rng.uniform(lo, hi))
     ego_s = float(rng.uniform(0, lengths[ego_i]))
-    ego = Actor(vp.vehicle, (), ego_loop.path, ego_s, ego_speed, 0.0)
-    ego_size = vp.ego_size_m
-
+    ego = Actor(vp.vehicle, (), loops[ego_i].path, ego_s, ego_speed, 0.0)
     speeds = rng.uniform(5.0, 14.0, len(loops))
     speeds[ego_i] = ego_speed
-    slots = [_LoopSlots(L) for L in lengths]
-    ego_half = ego_size[0] / 2
-    actors: list[Actor] = []
-    n_two = min(n_vehicles // 3, max(4, int(round(0.12 * n_vehicles))))
-    n_parked_target = int(round(rng.uniform(0.15, 0.3) * (n_vehicles - n_two)))
+    return _Placement(world, rng, loops, lengths, ego_i, ego_s, ego, vp.ego_size_m, speeds,
+                      [_LoopSlots(L) for L in lengths])
 
-    # riders: some just ahead of the ego, the rest near its route
-    near = [i for i in range(len(loops)) if i == ego_i or _min_distance(loops[i].path.points, ego_loop.path.points) < 20]
+
+def _place_riders(p: _Placement, n_two: int) -> int:
+    """Riders: some just ahead of the ego, the rest near its route; returns how many were placed."""
+    rng, loops, lengths = p.rng, p.loops, p.lengths
+    near = [i for i in range(len(loops))
+            if i == p.ego_i or _min_distance(loops[i].path.points, p.ego_loop.path.points) < 20]
     ahead = rng.uniform(22, 60, size=min(3, n_two))
-    placed_two = 0
+    placed = 0
     for k in range(n_two):
         motor = bool(k % 2)
         if k < len(ahead):
-            i, s = ego_i, ego_s + ego_half + float(ahead[k])
+            i, s = p.ego_i, p.ego_s + p.ego_size[0] / 2 + float(ahead[k])
         else:
             i = int(rng.choice(near)) if rng.random() < 0.7 else int(rng.integers(len(loops)))
             s = float(rng.uniform(0, lengths[i]))
-        if not slots[i].free(s, RIDER_SLOT / 2, 2.0):
+        if not p.slots[i].free(s, RIDER_SLOT / 2, 2.0):
             continue
-        slots[i].take(s, RIDER_SLOT / 2)
+        p.slots[i].take(s, RIDER_SLOT / 2)
         lat = loops[i].kerb_lateral_m + float(rng.uniform(-0.2, 0.2))
-        actors.append(Actor("motorcyclist" if motor else "cyclist", rider_parts(rng, motor),
-                            loops[i].path, s, float(speeds[i]), lat))
-        placed_two += 1
+        p.actors.append(Actor("motorcyclist" if motor else "cyclist", rider_parts(rng, motor),
+                              loops[i].path, s, float(p.speeds[i]), lat))
+        placed += 1
+    return placed
 
-    # free space ahead of and behind the ego (riders may ride in it): no car
-    # closer than about 40 m ahead, on the same loop and at the same speed
-    slots[ego_i].take(ego_s + 12.0, ego_half + 18.0)
 
-    # moving vehicles
-    n_moving = n_vehicles - n_two - n_parked_target
+def _place_moving(p: _Placement, n_moving: int) -> int:
+    """Moving vehicles on the lane loops, spaced by their speed; returns how many were placed."""
+    rng, loops, lengths = p.rng, p.loops, p.lengths
     weights = lengths / lengths.sum()
-    placed_moving = 0
+    placed = 0
     for _ in range(8 * max(1, n_moving)):
-        if placed_moving >= n_moving:
+        if placed >= n_moving:
             break
         i = int(rng.choice(len(loops), p=weights))
-        kinds = _allowed_kinds(loops[i])
-        kind = _pick_kind(rng, kinds)
+        kind = _pick_kind(rng, _allowed_kinds(loops[i]))
         half = VEHICLE_KINDS[kind].length / 2
         s = float(rng.uniform(0, lengths[i]))
-        if not slots[i].free(s, half, 3.0 + 0.4 * speeds[i]):
+        if not p.slots[i].free(s, half, 3.0 + 0.4 * p.speeds[i]):
             continue
-        slots[i].take(s, half)
+        p.slots[i].take(s, half)
         paint = PAINTS[int(rng.integers(len(PAINTS)))]
-        actors.append(Actor(kind, vehicle_parts(kind, paint), loops[i].path, s, float(speeds[i]), 0.0))
-        placed_moving += 1
+        p.actors.append(Actor(kind, vehicle_parts(kind, paint), loops[i].path, s, float(p.speeds[i]), 0.0))
+        placed += 1
+    return placed
 
-    # parked vehicles in the kerbside strips
+
+def _place_parked(p: _Placement, target: int, room: int) -> int:
+    """Parked vehicles in the kerbside strips (at most ``room``); returns how many were placed."""
+    rng, loops = p.rng, p.loops
     parking = [(i, a, b) for i, lp in enumerate(loops) for a, b in lp.parking]
-    parked = [_LoopSlots(L) for L in lengths]
-    n_parked = 0
-    if parking:
-        span_len = np.array([b - a for _, a, b in parking])
-        for _ in range(6 * max(1, n_parked_target)):
-            if n_parked >= n_vehicles - n_two - placed_moving:
+    parked = [_LoopSlots(L) for L in p.lengths]
+    placed = 0
+    if not parking:
+        return 0
+    span_len = np.array([b - a for _, a, b in parking])
+    for _ in range(6 * max(1, target)):
+        if placed >= room:
+            break
+        i, a, b = parking[int(rng.choice(len(parking), p=span_len / span_len.sum()))]
+        kind = _pick_kind(rng, list(PARKED_WEIGHTS), PARKED_WEIGHTS)
+        half = VEHICLE_KINDS[kind].length / 2
+        if b - a < 2 * half:
+            continue
+        s = float(rng.uniform(a + half, b - half))
+        if not parked[i].free(s, half, 0.8):
+            continue
+        parked[i].take(s, half)
+        paint = PAINTS[int(rng.integers(len(PAINTS)))]
+        p.actors.append(Actor(kind, vehicle_parts(kind, paint), loops[i].path, s, 0.0, loops[i].parking_lateral_m))
+        placed += 1
+    return placed
+
+
+def _place_crossing(p: _Placement, n_pedestrians: int) -> list[Actor]:
+    """Pedestrians on zebra crossings, in the gaps of the traffic, most of them on the ego's route."""
+    if not p.world.crosswalks or not n_pedestrians:
+        return []
+    vehicles = [(a, *footprint(a.parts)) for a in p.actors]  # no pedestrians yet
+    vehicles.append((p.ego, np.zeros(2), np.array(p.ego_size) / 2))
+    planner = CrossingPlanner(p.world, p.loops, vehicles)
+    on_route = np.array([p.ego_i in planner.near_loops(k) for k in range(len(p.world.crosswalks))], float)
+    n_cross = int(round(p.rng.uniform(*CROSSING_SHARE) * n_pedestrians))
+    crossing = planner.place(p.rng, n_cross, 1.0 + 8.0 * on_route)
+    p.actors.extend(crossing)
+    return crossing
+
+
+def _place_walkers(p: _Placement, n_sidewalk: int) -> None:
+    """The other pedestrians on the sidewalks, most of them along the ego's route."""
+    rng, world = p.rng, p.world
+    walk_loops = [w for w in world.walkways if w.closed]
+    if not walk_loops or not n_sidewalk:
+        return
+    near_w = np.array([_min_distance(w.points, p.ego_loop.path.points) < 25 for w in walk_loops], float)
+    wts = np.array([w.length for w in walk_loops]) * (1.0 + 8.0 * near_w)
+    wts /= wts.sum()
+    lanes = world.walk_lanes
+    if not lanes or len(lanes[0]) != len(walk_loops):
+        raise RuntimeError("walkway lanes do not match the world's walkways")
+    lane_speed: dict[tuple[int, int], float] = {}
+    lane_slots: dict[tuple[int, int], _LoopSlots] = {}
+    for _ in range(n_sidewalk):
+        i = int(rng.choice(len(walk_loops), p=wts))
+        key = (i, int(rng.integers(len(lanes))))
+        path = lanes[key[1]][i]
+        if key not in lane_speed:  # one pace per lane: nobody walks into the back of another
+            lane_speed[key] = 0.0 if rng.random() < 0.2 else float(rng.uniform(0.8, 1.6))
+            lane_slots[key] = _LoopSlots(path.length)
+        parts = pedestrian_parts(rng)
+        slots = lane_slots[key]
+        for _try in range(WALK_TRIES):
+            s = float(rng.uniform(0, slots.length))
+            if slots.free(s, WALK_SLOT_M / 2, 0.0):
+                slots.take(s, WALK_SLOT_M / 2)
+                p.actors.append(Actor("pedestrian", parts, path, s, lane_speed[key], 0.0))
                 break
-            k = int(rng.choice(len(parking), p=span_len / span_len.sum()))
-            i, a, b = parking[k]
-            kind = _pick_kind(rng, list(PARKED_WEIGHTS), PARKED_WEIGHTS)
-            half = VEHICLE_KINDS[kind].length / 2
-            if b - a < 2 * half:
-                continue
-            s = float(rng.uniform(a + half, b - half))
-            if not parked[i].free(s, half, 0.8):
-                continue
-            parked[i].take(s, half)
-            paint = PAINTS[int(rng.integers(len(PAINTS)))]
-            actors.append(Actor(kind, vehicle_parts(kind, paint), loops[i].path, s, 0.0,
-                                loops[i].parking_lateral_m))
-            n_parked += 1
 
-    # pedestrians on zebra crossings, in the gaps of the traffic, most of them
-    # on the ego's route
-    crossing: list[Actor] = []
-    cws = world.crosswalks
-    if cws and n_pedestrians:
-        vehicles = [(a, *footprint(a.parts)) for a in actors]  # no pedestrians yet
-        vehicles.append((ego, np.zeros(2), np.array(ego_size) / 2))
-        planner = CrossingPlanner(world, loops, vehicles)
-        on_route = np.array([ego_i in planner.near_loops(k) for k in range(len(cws))], float)
-        n_cross = int(round(rng.uniform(*CROSSING_SHARE) * n_pedestrians))
-        crossing = planner.place(rng, n_cross, 1.0 + 8.0 * on_route)
-        actors.extend(crossing)
 
-    # the others on the sidewalks, most of them along the ego's route
-    walk_loops = [p for p in world.walkways if p.closed]
-    n_sidewalk = n_pedestrians - len(crossing)
-    if walk_loops and n_sidewalk:
-        near_w = np.array([_min_distance(p.points, ego_loop.path.points) < 25 for p in walk_loops], float)
-        wts = np.array([p.length for p in walk_loops]) * (1.0 + 8.0 * near_w)
-        wts /= wts.sum()
-        lanes = world.walk_lanes
-        if not lanes or len(lanes[0]) != len(walk_loops):
-            raise RuntimeError("walkway lanes do not match the world's walkways")
-        lane_speed: dict[tuple[int, int], float] = {}
-        lane_slots: dict[tuple[int, int], _LoopSlots] = {}
-        for _ in range(n_sidewalk):
-            i = int(rng.choice(len(walk_loops), p=wts))
-            key = (i, int(rng.integers(len(lanes))))
-            path = lanes[key[1]][i]
-            if key not in lane_speed:  # one pace per lane: nobody walks into the back of another
-                lane_speed[key] = 0.0 if rng.random() < 0.2 else float(rng.uniform(0.8, 1.6))
-                lane_slots[key] = _LoopSlots(path.length)
-            parts = pedestrian_parts(rng)
-            slots = lane_slots[key]
-            for _try in range(WALK_TRIES):
-                s = float(rng.uniform(0, slots.length))
-                if slots.free(s, WALK_SLOT_M / 2, 0.0):
-                    slots.take(s, WALK_SLOT_M / 2)
-                    actors.append(Actor("pedestrian", parts, path, s, lane_speed[key], 0.0))
-                    break
-
+def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeScene:
+    """Vehicles, riders, pedestrians and the ego for one episode (the phases draw from one rng, in this order)."""
+    vp = viewpoint_row(viewpoint_code)
+    rng = np.random.default_rng(episode_seed)
+    n_vehicles = int(rng.integers(20, 151))
+    n_pedestrians = int(rng.integers(0, 101))
+    p = _place_ego(world, vp, rng)
+    n_two = min(n_vehicles // 3, max(4, int(round(0.12 * n_vehicles))))
+    n_parked_target = int(round(rng.uniform(0.15, 0.3) * (n_vehicles - n_two)))
+    placed_two = _place_riders(p, n_two)
+    # free space ahead of and behind the ego (riders may ride in it): no car
+    # closer than about 40 m ahead, on the same loop and at the same speed
+    p.slots[p.ego_i].take(p.ego_s + 12.0, p.ego_size[0] / 2 + 18.0)
+    placed_moving = _place_moving(p, n_vehicles - n_two - n_parked_target)
+    n_parked = _place_parked(p, n_parked_target, n_vehicles - n_two - placed_moving)
+    crossing = _place_crossing(p, n_pedestrians)
+    _place_walkers(p, n_pedestrians - len(crossing))
     return EpisodeScene(
         world=world,
-        actors=tuple(actors),
-        ego=ego,
+        actors=tuple(p.actors),
+        ego=p.ego,
         n_vehicles=n_vehicles,
         n_pedestrians=n_pedestrians,
         extras={
             "viewpoint": vp.code,
             "camera_height_m": vp.camera_height_m,
-            "ego_loop": ego_i,
-            "ego_loop_kind": ego_loop.kind,
+            "ego_loop": p.ego_i,
+            "ego_loop_kind": p.ego_loop.kind,
             "vehicles_placed": placed_moving + n_parked + placed_two,
             "parked": n_parked,
             "two_wheelers": placed_two,
             "crossing_pedestrians": len(crossing),
-            "ego_size_m": ego_size,
+            "ego_size_m": p.ego_size,
         },
     )
