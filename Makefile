@@ -42,7 +42,7 @@ bench: $(STAMP) ## run the benchmarks; figures go to docs/
 	$(BIN)/python -m benchmarks.run
 
 report: $(STAMP) ## render a 105-scenario sample and write docs/worlds.md (class shares, distances, contact sheets)
-	$(BIN)/python -m benchmarks.worlds_report
+	$(BIN)/python -m reports.worlds
 
 clean: ## remove the .venv and caches (never your output)
 	rm -rf $(VENV) .pytest_cache .hypothesis

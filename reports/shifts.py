@@ -6,7 +6,7 @@ T07_HRN_A; 150 frames each at 320x180, procedural world, run seed 0) into
 ``idda shifts SHIFT_ROOT``) and returns the table and the per-case figures.
 :func:`markdown` turns them into the report's "Domain shift" section.
 
-``.venv/bin/python -m benchmarks.shifts_report`` does only this part and
+``.venv/bin/python -m reports.shifts`` does only this part and
 replaces the section in an existing docs/worlds.md (and ``shifts`` in
 docs/worlds.json).
 """
@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 def measure(root: str = SHIFT_ROOT, frames: int = FRAMES, width: int = WIDTH, height: int = HEIGHT,
             workers: int = 2) -> dict:
     """Render the five domains and run the shift table on them; an error dict if torch is missing."""
-    from benchmarks.worlds_report import produce_sample
+    from reports.sample import produce_sample
 
     try:
         from training.shifts import ShiftConfig, format_shift_table, require_torch, run_shifts

@@ -1,0 +1,1 @@
+"""Generators of the docs that `make report` writes (docs/worlds.md and its pictures)."""

@@ -1,0 +1,65 @@
+"""The sample ``make report`` renders: its size, how it is produced, and which towns are urban.
+
+One short episode per scenario at reduced resolution (``pipeline.driver.produce``),
+rebuilt on every run in ``SAMPLE_ROOT``; ``reports.shifts`` renders its five domains
+the same way.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from pathlib import Path
+
+
+SAMPLE_ROOT = "/tmp/idda-worlds-sample"  # outside git; rebuilt on every run
+FRAMES = 8  # per scenario: one episode of 8 frames (21 s of driving)
+WIDTH, HEIGHT = 320, 180
+WORKERS = 2
+SEED = 0
+LARGE = ("sky", "road", "vegetation", "building", "vehicle", "sidewalk", "terrain")
+RARE = ("bicycle", "motorcycle", "rider", "traffic light", "traffic sign", "pedestrian")
+
+log = logging.getLogger(__name__)
+
+
+def produce_sample(root: str, frames: int, width: int, height: int, workers: int, domains: str = "all") -> dict:
+    from pipeline.driver import ProduceConfig, produce
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+    from render_workers.episode import DEFAULT_WORLD
+
+    shutil.rmtree(root, ignore_errors=True)  # a stale root would be resumed, not re-rendered
+    plan = PlanConfig(domains=domains, frames_per_scenario=frames, width=width, height=height, seed=SEED)
+    config = ProduceConfig(run=RunConfig(plan=plan, world=DEFAULT_WORLD), out=root, workers=workers)
+    last = [0.0]
+
+    def progress(p) -> None:
+        if p.elapsed_s - last[0] > 30 or p.episodes_done == p.episodes_total:
+            last[0] = p.elapsed_s
+            log.info("  %d/%d episodes, %.0f s", p.episodes_done, p.episodes_total, p.elapsed_s)
+
+    report = produce(config, progress)
+    if report.failed:
+        raise RuntimeError(f"{len(report.failed)} episodes failed, e.g. {report.failed[0]}")
+    return {"episodes": report.rendered_episodes, "frames": report.rendered_frames,
+            "seconds": round(report.seconds, 1), "workers": workers}
+
+
+def episode_stats(root: str) -> list[dict]:
+    """The per-episode stats files the workers wrote (timings per stage)."""
+    out = []
+    for path in sorted(Path(root, "_stats").glob("T*_e*.json")):
+        data = json.loads(path.read_text())
+        data["scenario"] = path.stem.split("_e")[0]
+        out.append(data)
+    return out
+
+
+def urban_towns() -> tuple[str, ...]:
+    """Towns with sidewalks and buildings (``render_workers.styles.urban``): the rare-class presence target's frames."""
+    from manifests.catalog import TOWNS
+    from render_workers.styles import is_urban
+
+    return tuple(t.code for t in TOWNS if is_urban(t))
