@@ -203,7 +203,7 @@ def _median(runs: list[dict], key: str) -> float:
 
 
 def _markdown(result: dict, med: dict) -> str:
-    e2e, frames, repeats = result["end_to_end"], result["frames"], result["repeats"]
+    e2e = result["end_to_end"]
     before, after, warm, six = e2e["before"], e2e["after"], e2e["after_warm"], e2e["after_six_warm"]
     jpg = e2e["after_jpg_warm"]
     lines = [
@@ -256,6 +256,13 @@ def _markdown(result: dict, med: dict) -> str:
         "two cores, so these are CPU shares rather than parts of the wall time.",
         f"Load average (1 min) after each run: {', '.join(f'{x:.1f}' for x in loads)}.",
         "",
+    ]
+    return "\n".join(lines + _overhead_section(result, med))
+
+
+def _overhead_section(result: dict, med: dict) -> list[str]:
+    frames, repeats = result["frames"], result["repeats"]
+    lines = [
         "## Ray overhead and scaling (after)",
         "",
         f"{result['resolution']}, {frames} frames in 4 episodes (all six outputs encoded and written), median of "
@@ -284,7 +291,7 @@ def _markdown(result: dict, med: dict) -> str:
         "GPU: not measured (no GPU machine was available to these runs).",
         "",
     ]
-    return "\n".join(lines)
+    return lines
 
 
 if __name__ == "__main__":

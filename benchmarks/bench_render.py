@@ -282,6 +282,12 @@ def _markdown(result: dict) -> str:
         "(`manifests.encoding`); before: OpenCV's libpng at zlib level 1 with its adaptive filters.",
         "In production resolve, post effects, outputs and PNG encoding run on the episode's second thread,",
         "overlapping the next frame's GL passes.",
+    ]
+    return "\n".join(lines + _workers_section(result) + list(_NOTES))
+
+
+def _workers_section(result: dict) -> list[str]:
+    lines = [
         "",
         "## Workers (after)",
         "",
@@ -300,39 +306,44 @@ def _markdown(result: dict) -> str:
         f"{result['throughput'][2]['frames_per_s'] / one:.2f}x with one llvmpipe thread per worker. When workers fill the",
         "cores, `idda produce` gives each GL context at most 2 llvmpipe threads (here: the default).",
         "",
-        "## GPU",
-        "",
-        "Not measured: no GPU machine was available to this benchmark's runs. On one, run",
-        "`BENCH=render make bench` with NVIDIA EGL and record the machine here.",
-        "",
-        "What bounds it on CPU: every stage competes for the same cores. The colour pass (llvmpipe",
-        "rasterising and shading 1920x1080 without multisampling; edges are anti-aliased in post) is",
-        "now the largest stage, then the post effects and the class pass.",
-        "",
-        "Profiling notes (process CPU, one llvmpipe thread, T01_CN_A at 1920x1080, in-process A/B so",
-        "that load from other jobs falls on both sides): of the colour pass's ~0.33 CPU-s, drawing the",
-        "2048 px shadow map is ~0.03 (a 1024 px map saves ~0.01; drawing only the casters in view",
-        "~0.02) and sampling it ~0.1. The shader now takes one hardware PCF tap (2x2 texels,",
-        "bilinear) instead of four (a 3x3 tent): 0.325 -> 0.289 CPU-s per colour pass, slightly",
-        "harder shadow edges. Did not pay: drawing nodes front to back for llvmpipe's early depth",
-        "test (no change: the sky is composited behind, not drawn, and overdraw is low), a square",
-        "root instead of the gamma power (<0.01), caching pyrender's uniform locations (the Python",
-        "side of both passes is ~0.1 CPU-s either way), replacing `cv2.blendLinear` (already ~3-9 ms).",
-        "What did pay on that Python side: setting the camera, light and shadow uniforms once per",
-        "program and pass instead of per primitive, and material uniforms and GL state only when they",
-        "change (`compat.install_forward_pass`; the shadow pass likewise), same pixels: in-process",
-        "12-frame episodes, T03_CS_M 0.61 -> 0.57 and T01_CN_A 0.48 -> 0.47 CPU-s per frame. Did not",
-        "pay: glibc keeping freed memory (`mallopt`; page faults per frame 4,500 -> 500-1,400, CPU per",
-        "frame unchanged within noise); `LP_NUM_THREADS=0` (rasterising on the calling thread) was",
-        "within noise end to end (2.99, 3.19 frames/s against 3.00, 2.99 with 1), so produce keeps 1.",
-        "The objects output's silhouettes project their triangles in one numpy pass (0.025 -> 0.010",
-        "CPU-s per frame, same bytes).",
-        "",
-        "For scale: the IDDA paper made 1,006,800 frames in about two weeks on two GPU workstations,",
-        "about 0.42 frames/s per workstation, at the same resolution.",
-        "",
     ]
-    return "\n".join(lines)
+    return lines
+
+
+# Standing notes under the figures: what bounds a CPU run, what was tried.
+_NOTES = (
+    "## GPU",
+    "",
+    "Not measured: no GPU machine was available to this benchmark's runs. On one, run",
+    "`BENCH=render make bench` with NVIDIA EGL and record the machine here.",
+    "",
+    "What bounds it on CPU: every stage competes for the same cores. The colour pass (llvmpipe",
+    "rasterising and shading 1920x1080 without multisampling; edges are anti-aliased in post) is",
+    "now the largest stage, then the post effects and the class pass.",
+    "",
+    "Profiling notes (process CPU, one llvmpipe thread, T01_CN_A at 1920x1080, in-process A/B so",
+    "that load from other jobs falls on both sides): of the colour pass's ~0.33 CPU-s, drawing the",
+    "2048 px shadow map is ~0.03 (a 1024 px map saves ~0.01; drawing only the casters in view",
+    "~0.02) and sampling it ~0.1. The shader now takes one hardware PCF tap (2x2 texels,",
+    "bilinear) instead of four (a 3x3 tent): 0.325 -> 0.289 CPU-s per colour pass, slightly",
+    "harder shadow edges. Did not pay: drawing nodes front to back for llvmpipe's early depth",
+    "test (no change: the sky is composited behind, not drawn, and overdraw is low), a square",
+    "root instead of the gamma power (<0.01), caching pyrender's uniform locations (the Python",
+    "side of both passes is ~0.1 CPU-s either way), replacing `cv2.blendLinear` (already ~3-9 ms).",
+    "What did pay on that Python side: setting the camera, light and shadow uniforms once per",
+    "program and pass instead of per primitive, and material uniforms and GL state only when they",
+    "change (`compat.install_forward_pass`; the shadow pass likewise), same pixels: in-process",
+    "12-frame episodes, T03_CS_M 0.61 -> 0.57 and T01_CN_A 0.48 -> 0.47 CPU-s per frame. Did not",
+    "pay: glibc keeping freed memory (`mallopt`; page faults per frame 4,500 -> 500-1,400, CPU per",
+    "frame unchanged within noise); `LP_NUM_THREADS=0` (rasterising on the calling thread) was",
+    "within noise end to end (2.99, 3.19 frames/s against 3.00, 2.99 with 1), so produce keeps 1.",
+    "The objects output's silhouettes project their triangles in one numpy pass (0.025 -> 0.010",
+    "CPU-s per frame, same bytes).",
+    "",
+    "For scale: the IDDA paper made 1,006,800 frames in about two weeks on two GPU workstations,",
+    "about 0.42 frames/s per workstation, at the same resolution.",
+    "",
+)
 
 
 if __name__ == "__main__":
