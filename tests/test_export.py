@@ -14,7 +14,9 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
+from training import cityscapes as cs_layout, idda
 from training import export as ex
+from training.placing import Layout, per_frame
 from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
 from manifests.query import Query
 from manifests.reader import read_manifest
@@ -94,7 +96,7 @@ def test_cityscapes_layout_and_label_images(root, manifest, cityscapes):
     assert marker["frames"] == len(manifest) and marker["format"] == "cityscapes"
     split_of = {(r["frame_id"], r["scenario"]): r["split"] for r in ex.export_splits(manifest).to_pylist()}
     for row in manifest.to_pylist():
-        name = ex.cityscapes_name(row["scenario"], row["episode"], row["frame"])
+        name = cs_layout.cityscapes_name(row["scenario"], row["episode"], row["frame"])
         info = getCsFileInfo(f"{name}_gtFine_labelIds.png")
         assert (info.city, info.sequenceNb, info.frameNb) == (
             row["scenario"].replace("_", "-"), f"{row['episode']:06d}", f"{row['frame']:06d}"
@@ -263,9 +265,9 @@ def test_failed_export_leaves_nothing_behind(root, tmp_path, monkeypatch):
         calls.append(frame)
         if len(calls) == 3:
             raise OSError("disk full")
-        return ex._idda_frame(storage, frame, tmp, place)
+        return idda.idda_frame(storage, frame, tmp, place)
 
-    monkeypatch.setitem(ex.LAYOUTS, "idda", ex._per_frame(flaky, ex._idda_dirs, ex._idda_split_files))
+    monkeypatch.setattr(idda, "LAYOUT", Layout(idda.LAYOUT.outputs, per_frame(flaky, idda.idda_dirs, idda.split_files)))
     target = tmp_path / "out"
     with pytest.raises(OSError, match="disk full"):
         ex.export(ex.ExportConfig(root=str(root), to=str(target), format="idda", threads=1))
@@ -300,7 +302,7 @@ def test_export_from_s3_root_downloads(root, manifest, tmp_path, s3_server):  # 
     assert marker["source"] == uri and marker["file_mode"] == "copy"
     for row in ex.export_splits(manifest).to_pylist():
         if row["scenario"] == "T07_HRN_A":
-            name = ex.cityscapes_name(row["scenario"], row["episode"], row["frame"])
+            name = cs_layout.cityscapes_name(row["scenario"], row["episode"], row["frame"])
             image = target / "leftImg8bit" / row["split"] / "T07-HRN-A" / f"{name}_leftImg8bit.png"
             assert image.read_bytes() == (root / row["rgb_path"]).read_bytes()
 
@@ -324,3 +326,23 @@ def test_scenarios_with_an_empty_split_are_split_by_frame_blocks():
         got.setdefault(code, []).append(s)
     assert got["T01_CN_A"] == ["train"] * 32 + ["val"] * 4 + ["test"] * 4
     assert got["T02_CN_A"] == split[40:]
+
+
+def test_a_new_format_is_one_module_and_one_registry_line(root, tmp_path, monkeypatch):
+    """A format module only provides LAYOUT (its outputs and builder); FORMATS names it; the rest is shared."""
+    import sys
+    import types
+
+    def frame(storage, f, tmp, place):
+        rel = f"{f.scenario}/{f.frame_id}.png"
+        place(storage, f.path("rgb"), os.path.join(tmp, rel))
+        return {"image": rel}
+
+    module = types.SimpleNamespace(LAYOUT=Layout(("rgb",), per_frame(frame, lambda frames: {f.scenario for f in frames})))
+    monkeypatch.setitem(sys.modules, "tests_toy_format", module)
+    monkeypatch.setitem(ex.FORMATS, "toy", "tests_toy_format")
+    report = ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "toy"), format="toy", threads=1))
+    assert report.frames > 0 and ex.is_complete(str(tmp_path / "toy"))
+    assert len(list((tmp_path / "toy").glob("T*/*.png"))) == report.frames
+    with pytest.raises(ValueError, match="valid formats: .*toy"):
+        ex.ExportConfig(root=str(root), to=str(tmp_path / "x"), format="nope").validate()

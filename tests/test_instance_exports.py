@@ -15,6 +15,7 @@ from manifests.catalog import INSTANCE_LABELS
 from manifests.outputs import read_output
 from manifests.reader import read_manifest
 from tests.test_export import make_tiny_root
+from training import cityscapes as cs_layout
 from training import export as ex
 
 
@@ -39,7 +40,7 @@ def test_instance_ids_follow_cityscapes(cityscapes):
         assert Image.open(path).mode.startswith("I")  # 16 bit
         inst = ids >= 1000
         assert (ids[inst] // 1000 == labels[inst]).all() and (ids[~inst] == labels[~inst]).all()
-        assert set(np.unique(labels[inst])) <= set(ex.CITYSCAPES_INSTANCE_IDS)
+        assert set(np.unique(labels[inst])) <= set(cs_layout.CITYSCAPES_INSTANCE_IDS)
         for cs_id in np.unique(labels[inst]):
             indices = np.unique(ids[inst & (labels == cs_id)] % 1000)
             assert list(indices) == list(range(len(indices)))  # 0, 1, ... per class and frame

@@ -24,7 +24,7 @@ from concurrent.futures import ThreadPoolExecutor
 import numpy as np
 
 from manifests.catalog import INSTANCE_LABELS
-from manifests.outputs import read_output
+from training.placing import FILE_MODES, Layout, decode
 
 ANNOTATIONS = "annotations/instances_{split}.json"
 
@@ -64,19 +64,15 @@ def frame_annotations(instance: np.ndarray, objects) -> list[dict]:
     return out
 
 
-def _read(storage, rel: str, output: str):
-    return read_output(output, storage.read_bytes(rel), storage.join(rel))
-
-
 def write_coco(storage, frames: list, tmp: str, place, threads: int = 8) -> tuple[list[dict], list[str]]:
     """Images and per-split annotation files into ``tmp``; returns each frame's files and the extra files."""
     _mask_api()
 
     def one(frame) -> tuple[str, list[dict]]:
-        rel = f"images/{frame.split}/{frame.frame_id}_{frame.scenario}{os.path.splitext(frame.rgb_path)[1]}"
-        place(storage, frame.rgb_path, os.path.join(tmp, rel))
-        anns = frame_annotations(_read(storage, frame.instance_path, "instance"),
-                                 _read(storage, frame.objects_path, "objects"))
+        rel = f"images/{frame.split}/{frame.frame_id}_{frame.scenario}{os.path.splitext(frame.path('rgb'))[1]}"
+        place(storage, frame.path("rgb"), os.path.join(tmp, rel))
+        anns = frame_annotations(decode(storage, frame.path("instance"), "instance"),
+                                 decode(storage, frame.path("objects"), "objects"))
         return rel, anns
 
     for split in sorted({f.split for f in frames}):
@@ -102,3 +98,10 @@ def write_coco(storage, frames: list, tmp: str, place, threads: int = 8) -> tupl
             json.dump({"info": {"description": "IDDA re-creation, instances"}, **coco}, f)
         extras.append(rel)
     return exported, extras
+
+
+def _build(storage, frames: list, tmp: str, config) -> tuple[list[dict], list[str]]:
+    return write_coco(storage, frames, tmp, FILE_MODES[config.files], threads=config.threads)
+
+
+LAYOUT = Layout(outputs=("rgb", "instance", "objects"), build=_build)

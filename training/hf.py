@@ -26,6 +26,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from manifests.query import SPLITS
+from training.placing import Layout, decode, png
 
 SHARD_FRAMES = 256  # frames per Parquet shard
 LICENSE = "cc-by-4.0"  # declared for the generated frames; edit the card if yours differs
@@ -73,14 +74,12 @@ def features() -> dict:
 
 
 def _row(storage, frame) -> dict:
-    from training.export import _decode, _png  # the export's decoders and encoder
-
-    semantic = _png(_decode(storage, frame.semantic_raw_path)[..., 0])
-    depth_rel = frame.depth_raw_path
+    semantic = png(decode(storage, frame.path("semantic_raw"))[..., 0])
+    depth_rel = frame.path("depth_raw")
     scenario = frame.scenario
     return {
-        "rgb": {"bytes": storage.read_bytes(frame.rgb_path), "path": os.path.basename(frame.rgb_path)},
-        "semantic": {"bytes": semantic, "path": os.path.basename(frame.semantic_raw_path)},
+        "rgb": {"bytes": storage.read_bytes(frame.path("rgb")), "path": os.path.basename(frame.path("rgb"))},
+        "semantic": {"bytes": semantic, "path": os.path.basename(frame.path("semantic_raw"))},
         "depth": {"bytes": storage.read_bytes(depth_rel), "path": os.path.basename(depth_rel)},
         "frame_id": frame.frame_id,
         "scenario": scenario,
@@ -159,3 +158,10 @@ def card_header(split_counts: dict[str, int], data_files: dict[str, str], config
 
 def citation_section() -> str:
     return "## Citation\n\nThe dataset re-creates IDDA; please cite its paper:\n\n```bibtex\n" + CITATION + "\n```\n"
+
+
+def _build(storage, frames: list, tmp: str, config) -> tuple[list[dict], list[str]]:
+    return write_hf(storage, frames, tmp, threads=config.threads)
+
+
+LAYOUT = Layout(outputs=("rgb", "semantic_raw", "depth_raw"), build=_build)
