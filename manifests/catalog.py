@@ -21,6 +21,12 @@ import numpy as np
 
 RGB = tuple[int, int, int]
 
+# The axes of a scenario, in the order of its code ``<town>_<weather>_<viewpoint>``
+# (e.g. T01_CS_A) and of the manifest's hive partitions. The code is parsed by
+# split_code and formatted by format_code, and nowhere else.
+AXES: tuple[str, ...] = ("town", "weather", "viewpoint")
+CODE_SEPARATOR = "_"
+
 
 def lookup(table: dict, key: str, what: str, plural: str | None = None):
     """``table[key]``; an unknown key raises ValueError naming the valid keys."""
@@ -208,6 +214,7 @@ VIEWPOINTS: tuple[Viewpoint, ...] = (
     Viewpoint("B", "Bus", 2.50, 0.0, (230, 180, 20), 0.0, 0.0, (11.0, 2.55), (8.0, 11.0)),
 )
 
+AXIS_TABLES: dict[str, tuple] = dict(zip(AXES, (TOWNS, WEATHERS, VIEWPOINTS)))  # each axis's table, in AXES order
 TOWN_BY_CODE = {t.code: t for t in TOWNS}
 WEATHER_BY_CODE = {w.code: w for w in WEATHERS}
 VIEWPOINT_BY_CODE = {v.code: v for v in VIEWPOINTS}
@@ -228,6 +235,29 @@ def viewpoint(code: str) -> Viewpoint:
 # --------------------------------------------------------------------------
 # Scenarios = town x weather x viewpoint
 # --------------------------------------------------------------------------
+
+
+def split_code(code: str) -> tuple[str, ...]:
+    """``T01_CS_A`` -> ``("T01", "CS", "A")``, one part per axis; ValueError if malformed."""
+    parts = code.split(CODE_SEPARATOR)
+    if len(parts) != len(AXES) or not all(parts):
+        raise ValueError(
+            f"malformed scenario code {code!r}; expected TOWN_WEATHER_VIEWPOINT such as T01_CS_A"
+        )
+    return tuple(parts)
+
+
+def format_code(*parts: str) -> str:
+    """``("T01", "CS", "A")`` -> ``T01_CS_A``."""
+    if len(parts) != len(AXES):
+        raise ValueError(f"a scenario code has {len(AXES)} parts ({', '.join(AXES)}), got {parts!r}")
+    return CODE_SEPARATOR.join(parts)
+
+
+def code_axes(code: str) -> dict[str, str]:
+    """``T01_CS_A`` -> ``{"town": "T01", "weather": "CS", "viewpoint": "A"}``."""
+    return dict(zip(AXES, split_code(code)))
+
 @dataclass(frozen=True)
 class Scenario:
     town: Town
@@ -236,7 +266,7 @@ class Scenario:
 
     @cached_property
     def code(self) -> str:
-        return f"{self.town.code}_{self.weather.code}_{self.viewpoint.code}"
+        return format_code(self.town.code, self.weather.code, self.viewpoint.code)
 
     @property
     def key(self) -> tuple[int, int, int]:
@@ -259,12 +289,8 @@ SCENARIO_BY_CODE = {s.code: s for s in ALL_SCENARIOS}
 
 def scenario(code: str) -> Scenario:
     """Parse a scenario code such as ``T01_CS_A``."""
-    parts = code.split("_")
-    if len(parts) != 3:
-        raise ValueError(
-            f"malformed scenario code {code!r}; expected TOWN_WEATHER_VIEWPOINT such as T01_CS_A"
-        )
-    return Scenario(town(parts[0]), weather(parts[1]), viewpoint(parts[2]))
+    t, w, v = split_code(code)
+    return Scenario(town(t), weather(w), viewpoint(v))
 
 
 def scenarios(codes: Iterable[str]) -> list[Scenario]:

@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
-from manifests.catalog import ALL_SCENARIOS, NAME2LABEL, class_id, lookup
+from manifests.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup
 from manifests.outputs import OUTPUTS
 from manifests.schema import output_columns
 from manifests.selection import parse_selection
@@ -81,7 +81,7 @@ def _partition_filter(query: Query) -> ds.Expression:
     chosen = parse_selection(query.domains)
     codes = sorted({s.code for s in chosen})
     expr = ds.field("scenario").isin(codes)
-    for key in ("town", "weather", "viewpoint"):
+    for key in AXES:
         values = sorted({getattr(s, key).code for s in chosen})
         expr = expr & ds.field(key).isin(values)
     if query.splits:

@@ -18,6 +18,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
+from manifests.catalog import split_code
 from manifests.schema import (
     INDEX_DIR,
     INDEX_EPISODES_KEY,
@@ -161,7 +162,7 @@ def index_table(parts: list[pa.Table], scenario: str, episodes: list[int]) -> pa
     """A scenario's index: its parts' rows with the partition columns, and the
     covered episodes in the footer."""
     table = pa.concat_tables(parts)
-    for key, value in zip(PARTITION_KEYS, scenario.split("_")):
+    for key, value in zip(PARTITION_KEYS, split_code(scenario)):
         table = table.append_column(key, pa.array([value] * len(table), pa.string()))
     meta = {INDEX_EPISODES_KEY: json.dumps(episodes).encode()}
     return table.cast(MANIFEST_SCHEMA).replace_schema_metadata(meta)

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pyarrow as pa
 
-from manifests.catalog import INSTANCE_LABELS, LABELS
+from manifests.catalog import AXES, INSTANCE_LABELS, LABELS, code_axes
 from manifests.outputs import OUTPUTS, extension
 
 # ---------------------------------------------------------------- plan ----
@@ -28,7 +28,7 @@ PLAN_CONFIG_KEY = b"idda.plan_config"  # Parquet metadata key holding the config
 # ------------------------------------------------------------ manifest ----
 # Hive partition keys: directories town=T01/weather=CN/viewpoint=A. They are
 # not stored inside the part files; readers get them back from the path.
-PARTITION_KEYS = ("town", "weather", "viewpoint")
+PARTITION_KEYS = AXES
 PARTITION_SCHEMA = pa.schema([(k, pa.string()) for k in PARTITION_KEYS])
 
 
@@ -99,8 +99,5 @@ def index_path(scenario: str) -> str:
 
 def part_path(scenario: str, episode: int) -> str:
     """Relative path of an episode's manifest part (its "done" marker)."""
-    town, weather, viewpoint = scenario.split("_")
-    return (
-        f"{MANIFEST_DIR}/town={town}/weather={weather}/viewpoint={viewpoint}/"
-        f"{scenario}_e{episode:04d}.parquet"
-    )
+    hive = "/".join(f"{axis}={value}" for axis, value in code_axes(scenario).items())
+    return f"{MANIFEST_DIR}/{hive}/{scenario}_e{episode:04d}.parquet"

@@ -21,9 +21,9 @@ import re
 
 from manifests.catalog import (
     ALL_SCENARIOS,
-    TOWNS,
-    VIEWPOINTS,
-    WEATHERS,
+    AXES,
+    AXIS_TABLES,
+    CODE_SEPARATOR,
     Scenario,
 )
 
@@ -33,11 +33,7 @@ SELECTION_HELP = (
     "'towns=T01-T06 weathers=CN viewpoints=A,M'."
 )
 
-_AXES = {
-    "towns": ("town", [t.code for t in TOWNS]),
-    "weathers": ("weather", [w.code for w in WEATHERS]),
-    "viewpoints": ("viewpoint", [v.code for v in VIEWPOINTS]),
-}
+_AXES = {f"{axis}s": (axis, [row.code for row in rows]) for axis, rows in AXIS_TABLES.items()}
 _ALIASES = {name: name for name in _AXES} | {name[:-1]: name for name in _AXES}
 
 
@@ -67,8 +63,8 @@ def _expand_values(axis: str, text: str) -> set[str]:
 
 
 def _match_code(pattern: str) -> list[Scenario]:
-    parts = pattern.upper().split("_")
-    if len(parts) != 3 or not all(parts):
+    parts = pattern.upper().split(CODE_SEPARATOR)
+    if len(parts) != len(AXES) or not all(parts):
         raise ValueError(
             f"malformed scenario code {pattern!r}; expected TOWN_WEATHER_VIEWPOINT such as T01_CS_A "
             "(parts may be *), or an axis filter such as towns=T01-T06"

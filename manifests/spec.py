@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from manifests.catalog import TOWNS, Scenario, Town
+from manifests.catalog import TOWNS, Scenario, Town, code_axes
 from manifests.outputs import DEFAULT_OUTPUTS
 
 FRAME_PERIOD_S = 3.0  # one frame every 3 s of simulated time
@@ -46,15 +46,15 @@ class EpisodeSpec:
 
     @property
     def town(self) -> str:
-        return self.scenario.split("_")[0]
+        return code_axes(self.scenario)["town"]
 
     @property
     def weather(self) -> str:
-        return self.scenario.split("_")[1]
+        return code_axes(self.scenario)["weather"]
 
     @property
     def viewpoint(self) -> str:
-        return self.scenario.split("_")[2]
+        return code_axes(self.scenario)["viewpoint"]
 
     @property
     def key(self) -> str:

@@ -28,6 +28,7 @@ from pathlib import Path
 
 import numpy as np
 
+from manifests.catalog import split_code
 from reports.shifts import measure as measure_shifts
 from reports.charts import CELL_WIDTH, MAX_PNG_BYTES, contact_sheets, presence_png, town_share_png, town_sheet
 from reports.sample import FRAMES, HEIGHT, LARGE, RARE, SAMPLE_ROOT, SEED, WIDTH, WORKERS, episode_stats, produce_sample, urban_towns
@@ -98,8 +99,8 @@ def distances(root: str, images: Path) -> dict:
     by_kind: dict[str, list[float]] = {"viewpoint": [], "weather": [], "city": []}
     for i, a in enumerate(codes):
         for b in codes[i + 1:]:
-            ta, wa, va = a.split("_")
-            tb, wb, vb = b.split("_")
+            ta, wa, va = split_code(a)
+            tb, wb, vb = split_code(b)
             diff = (ta != tb, wa != wb, va != vb)
             if sum(diff) != 1:
                 continue

@@ -2,7 +2,7 @@ import numpy as np
 import pytest
 
 from manifests import catalog
-from manifests.catalog import LABELS, PALETTE, TOWNS, VIEWPOINTS, WEATHERS
+from manifests.catalog import ALL_SCENARIOS, LABELS, PALETTE, TOWNS, VIEWPOINTS, WEATHERS
 
 
 def test_class_ids_are_unique_and_dense():
@@ -88,3 +88,17 @@ def test_weathers_follow_carla_096():
     assert by["HRN"].rain > 0 and by["CN"].rain == by["CS"].rain == 0
     assert by["HRN"].cloudiness > by["CS"].cloudiness >= by["CN"].cloudiness
     assert by["CS"].sun_elevation_deg == 15.0  # the same in every CARLA release
+
+
+def test_the_scenario_code_is_parsed_and_formatted_in_one_place():
+    from manifests.catalog import AXES, code_axes, format_code, split_code
+    from manifests.schema import PARTITION_KEYS, part_path
+
+    assert AXES == PARTITION_KEYS == ("town", "weather", "viewpoint")
+    for s in ALL_SCENARIOS:
+        assert format_code(*split_code(s.code)) == s.code
+        assert code_axes(s.code) == {"town": s.town.code, "weather": s.weather.code, "viewpoint": s.viewpoint.code}
+    assert part_path("T07_HRN_B", 3) == "manifest/town=T07/weather=HRN/viewpoint=B/T07_HRN_B_e0003.parquet"
+    for bad in ("T01_CS", "T01__A", "T01_CS_A_X", ""):
+        with pytest.raises(ValueError, match="malformed scenario code"):
+            split_code(bad)

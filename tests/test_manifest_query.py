@@ -7,7 +7,7 @@ import pyarrow.parquet as pq
 import pytest
 
 from manifests import query as q
-from manifests.catalog import LABELS
+from manifests.catalog import LABELS, split_code
 from manifests.reader import done_episodes, manifest_dataset, read_manifest
 from manifests.schema import MANIFEST_SCHEMA, PART_SCHEMA, part_path
 from manifests.stats import PAPER_SHARES, bar_chart_png, class_pixels, share_table
@@ -217,5 +217,5 @@ def test_what_is_in_the_files_and_what_in_the_paths(root, tmp_path):
     assert part.schema.names == PART_SCHEMA.names and not set(PARTITION_KEYS) & set(part.schema.names)
     index = pq.read_table(copy.path(index_path(spec.scenario)))
     assert index.schema.names == MANIFEST_SCHEMA.names
-    for key, value in zip(PARTITION_KEYS, spec.scenario.split("_")):
+    for key, value in zip(PARTITION_KEYS, split_code(spec.scenario)):
         assert set(index.column(key).to_pylist()) == {value}

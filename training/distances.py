@@ -48,7 +48,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario, weather as lookup_weather
+from manifests.catalog import (TOWNS, VIEWPOINTS, WEATHERS, code_axes, scenario as lookup_scenario, split_code,
+                               weather as lookup_weather)
 from manifests.outputs import read_output
 
 IMAGE_SIZE = (72, 128)  # (height, width) every frame is resized to
@@ -441,13 +442,13 @@ def embedding_png(report: DistanceReport, title: str = "Domains: 2-D PCA of the 
     fig, ax = plt.subplots(figsize=(7.5, 6), dpi=110)
     paper_domains = {d for p in PAPER_PAIRS for d in (p.source, p.target)}
     for code, (x, y) in zip(report.domains, report.embedding):
-        town, weather, view = code.split("_")
+        town, weather, view = split_code(code)
         ax.scatter(x, y, s=70, color=town_color[town], marker=lookup_weather(weather).marker, edgecolors="black", linewidths=0.5)
         ax.annotate(view, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
         if code in paper_domains:
             ax.scatter(x, y, s=260, facecolors="none", edgecolors="black", linewidths=1.0)
-    towns = sorted({d.split("_")[0] for d in report.domains})
-    weathers = sorted({d.split("_")[1] for d in report.domains}, key=[w.code for w in WEATHERS].index)
+    towns = sorted({code_axes(d)["town"] for d in report.domains})
+    weathers = sorted({code_axes(d)["weather"] for d in report.domains}, key=[w.code for w in WEATHERS].index)
     handles = [Line2D([], [], marker="o", ls="", color=town_color[t], label=t) for t in towns]
     handles += [Line2D([], [], marker=lookup_weather(w).marker, ls="", color="grey", label=w) for w in weathers]
     handles += [Line2D([], [], marker="o", ls="", mfc="none", mec="black", ms=12, label="paper's pairs")]

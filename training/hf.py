@@ -25,6 +25,7 @@ from concurrent.futures import ThreadPoolExecutor
 import pyarrow as pa
 import pyarrow.parquet as pq
 
+from manifests.catalog import code_axes
 from manifests.query import SPLITS
 from training.placing import Layout, decode, png
 
@@ -83,9 +84,7 @@ def _row(storage, frame) -> dict:
         "depth": {"bytes": storage.read_bytes(depth_rel), "path": os.path.basename(depth_rel)},
         "frame_id": frame.frame_id,
         "scenario": scenario,
-        "town": scenario.split("_")[0],
-        "weather": scenario.split("_")[1],
-        "viewpoint": scenario.split("_")[2],
+        **code_axes(scenario),
         "episode": frame.episode,
         "frame": frame.frame,
         "split": frame.split,

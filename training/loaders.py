@@ -35,14 +35,14 @@ from typing import Any, Callable
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import CITYSCAPES_ID_LUT, TRAIN_ID_LUT
+from manifests.catalog import AXES, CITYSCAPES_ID_LUT, TRAIN_ID_LUT
 from manifests.outputs import OUTPUT_BY_NAME as DECODERS, OUTPUTS, read_output
 from manifests.query import Query, run_query
 from manifests.reader import as_storage, read_manifest, require_outputs
 from manifests.schema import output_columns
 
 # Per-frame metadata returned with the arrays.
-META_COLUMNS = ("frame_id", "scenario", "town", "weather", "viewpoint", "episode", "frame", "split", "width", "height")
+META_COLUMNS = ("frame_id", "scenario", *AXES, "episode", "frame", "split", "width", "height")
 # The numeric ones: what ray_dataset keeps by default, because Ray's
 # iter_torch_batches turns every column into a tensor and strings cannot be.
 NUMERIC_META = ("episode", "frame", "width", "height")
