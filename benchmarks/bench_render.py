@@ -332,7 +332,7 @@ _NOTES = (
     "side of both passes is ~0.1 CPU-s either way), replacing `cv2.blendLinear` (already ~3-9 ms).",
     "What did pay on that Python side: setting the camera, light and shadow uniforms once per",
     "program and pass instead of per primitive, and material uniforms and GL state only when they",
-    "change (`compat.install_forward_pass`; the shadow pass likewise), same pixels: in-process",
+    "change (`passes.install_forward_pass`; the shadow pass likewise), same pixels: in-process",
     "12-frame episodes, T03_CS_M 0.61 -> 0.57 and T01_CN_A 0.48 -> 0.47 CPU-s per frame. Did not",
     "pay: glibc keeping freed memory (`mallopt`; page faults per frame 4,500 -> 500-1,400, CPU per",
     "frame unchanged within noise); `LP_NUM_THREADS=0` (rasterising on the calling thread) was",

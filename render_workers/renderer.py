@@ -42,7 +42,7 @@ only the sun's term: ambient and emissive light stay. Shadow strength is
 flat. Shadows fade out between :data:`SHADOW_FADE_M` and :data:`SHADOW_FAR_M`
 from the camera (receivers farther away stay lit).
 The class pass is untouched (no shadow pass, no lights), so class ids and
-depth are identical with shadows on or off. See ``render_workers.compat`` for
+depth are identical with shadows on or off. See ``render_workers.passes`` for
 the pyrender internals this overrides.
 
 pyrender rules this module follows are listed in ``render_workers.compat``.
@@ -61,7 +61,7 @@ from typing import Callable
 import numpy as np
 
 from manifests.catalog import Viewpoint, Weather, class_id, lookup
-from render_workers import compat
+from render_workers import compat, passes
 from render_workers.camera import CameraRig, hood_mesh, sun_direction
 from render_workers.sky import cloud_texture, composite_sky, sky_image
 from render_workers.instances import HOOD_ID, episode_instances, split_static
@@ -183,11 +183,11 @@ class Renderer:
         self.pbr = pbr
         self.shadows = shadows  # may be toggled between frames
         self.shadow_map_px = shadow_map_px
-        self._shadow_frame: compat.ShadowFrame | None = None
+        self._shadow_frame: passes.ShadowFrame | None = None
         # 0: no multisampling (half the colour pass on llvmpipe); edges are
         # anti-aliased in post instead (postfx.antialias).
-        if msaa not in compat.MSAA_CHOICES:
-            raise ValueError(f"MSAA samples must be one of {compat.MSAA_CHOICES}, got {msaa}")
+        if msaa not in passes.MSAA_CHOICES:
+            raise ValueError(f"MSAA samples must be one of {passes.MSAA_CHOICES}, got {msaa}")
         self.msaa = msaa
         self._offscreen = None
         self._size: tuple[int, int] | None = None
@@ -215,14 +215,14 @@ class Renderer:
         if self._offscreen is None:
             self._offscreen = compat.offscreen_renderer(width, height)
             if not self.pbr:
-                compat.install_mesh_shader(self._offscreen, FAST_MESH_FRAG)
-            compat.install_framebuffer(self._offscreen, self.msaa)
-            compat.install_shadow_pass(self._offscreen, lambda: self._shadow_frame, depth_compare=not self.pbr)
+                passes.install_mesh_shader(self._offscreen, FAST_MESH_FRAG)
+            passes.install_framebuffer(self._offscreen, self.msaa)
+            passes.install_shadow_pass(self._offscreen, lambda: self._shadow_frame, depth_compare=not self.pbr)
             # pyrender sorts nodes by distance and breaks ties in set (id) order,
             # so coplanar faces could resolve differently from run to run: draw
             # the visible nodes in the fixed order load() built them instead.
             compat.install_draw_order(self._offscreen, self._draw_order)
-            compat.install_forward_pass(self._offscreen)
+            passes.install_forward_pass(self._offscreen)
         elif self._size != (width, height):
             self._offscreen.viewport_width, self._offscreen.viewport_height = width, height
         self._size = (width, height)
@@ -274,7 +274,7 @@ class Renderer:
         sun = sun_direction(weather.sun_elevation_deg, weather.sun_azimuth_deg)
         light = pr.DirectionalLight(color=np.asarray(weather.light_color),
                                     intensity=weather.light_intensity * SUN_SCALE)
-        light.shadow_texture = compat.shadow_texture(self.shadow_map_px)
+        light.shadow_texture = passes.shadow_texture(self.shadow_map_px)
         prs.add(light, pose=_look_along(-sun))
         self._sun = sun
         self._shadow_strength = shadow_strength(weather)
@@ -351,7 +351,7 @@ class Renderer:
     def _shadows_on(self) -> bool:
         return self.shadows and self._shadow_strength >= MIN_SHADOW_STRENGTH
 
-    def _fit_shadows(self, cam: np.ndarray, actor_centres: np.ndarray) -> compat.ShadowFrame:
+    def _fit_shadows(self, cam: np.ndarray, actor_centres: np.ndarray) -> passes.ShadowFrame:
         view, proj, box = fit_shadow_frame(self._sun, cam, self.rig)
         casters = set()
         for nodes, centres, radii in ((self._static.nodes, self._static.centres, self._static.radii),
@@ -362,7 +362,7 @@ class Renderer:
         ordered = [node for node in self._draw_list if node in casters]  # fixed order
         texel = max(box[1] - box[0], box[3] - box[2]) / self.shadow_map_px
         params = np.array([self._shadow_strength, 1.5 * texel, SHADOW_FADE_M, SHADOW_FAR_M], np.float32)
-        return compat.ShadowFrame(view=view, proj=proj, casters=ordered, uniforms={"shadow_params": params})
+        return passes.ShadowFrame(view=view, proj=proj, casters=ordered, uniforms={"shadow_params": params})
 
     def render(self, t: float) -> RenderResult:
         """Render the loaded episode at simulated time ``t`` (seconds)."""

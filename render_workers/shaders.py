@@ -1,5 +1,5 @@
 """The colour pass's fragment shader, a cheaper drop-in for pyrender's ``mesh.frag``
-(a renderer installs it with ``compat.install_mesh_shader``; see ``render_workers.renderer``).
+(a renderer installs it with ``passes.install_mesh_shader``; see ``render_workers.renderer``).
 
 It lights with the first directional light only: the renderer adds exactly one, the sun.
 """

@@ -169,15 +169,15 @@ def test_renderers_share_one_shader_copy_and_leave_nothing_per_renderer(tmp_path
     import os
     import tempfile
 
-    from render_workers import compat
+    from render_workers import passes
     from render_workers.shaders import FAST_MESH_FRAG
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
-    first = compat.shader_dir(FAST_MESH_FRAG)
+    first = passes.shader_dir(FAST_MESH_FRAG)
     assert first.parent == tmp_path / f"idda-shaders-{os.getuid()}"
     assert (first / "mesh.frag").read_text() == FAST_MESH_FRAG and (first / "mesh.vert").is_file()
-    other = compat.shader_dir(FAST_MESH_FRAG + "\n// changed\n")
-    assert other != first and compat.shader_dir(FAST_MESH_FRAG) == first
+    other = passes.shader_dir(FAST_MESH_FRAG + "\n// changed\n")
+    assert other != first and passes.shader_dir(FAST_MESH_FRAG) == first
     for _ in range(2):
         with Renderer() as r:
             r.load(flat_scene(), weather("CN"), VIEWPOINTS[3], W, H)

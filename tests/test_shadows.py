@@ -162,7 +162,7 @@ def test_closing_one_renderer_leaves_another_intact():
 
 @pytest.mark.parametrize("code", ["CN", "HRN"])
 def test_forward_pass_patch_draws_pyrenders_pixels(code):
-    """compat.install_forward_pass sets per-pass uniforms once per program; colour, classes,
+    """passes.install_forward_pass sets per-pass uniforms once per program; colour, classes,
     instances and depth stay byte for byte what pyrender's own forward pass draws (test world,
     actors and traffic lights included, shadows on where the weather has them)."""
     spec = EpisodeSpec(f"T01_{code}_A", 0, 5, 1, 320, 180, "train", 0)
