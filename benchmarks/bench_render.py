@@ -65,6 +65,10 @@ def _frame_files(frame) -> dict[str, bytes]:
     """A frame's file bytes, through whichever encoding API the measured tree has."""
     from render_workers import episode
 
+    if hasattr(frame, "buffers"):  # trees where the episode job encodes the renderer's buffers
+        from manifests.outputs import SEED_OUTPUTS, encode_outputs, file_bytes
+
+        return {name: file_bytes(name, content) for name, content in encode_outputs(frame.buffers, SEED_OUTPUTS).items()}
     if hasattr(episode, "encode_frame"):  # the Output table's trees
         return episode.encode_frame(frame)
     encode = _png_encoder()

@@ -10,7 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 
 from manifests.catalog import TOWNS, Scenario, Town, code_axes
-from manifests.outputs import DEFAULT_OUTPUTS
+from manifests.encoding import check_rgb_format
+from manifests.outputs import DEFAULT_OUTPUTS, check_outputs, output
 
 FRAME_PERIOD_S = 3.0  # one frame every 3 s of simulated time
 _EPISODE_STREAM = 2  # rng stream ids keep seeds of different uses apart
@@ -55,6 +56,16 @@ class EpisodeSpec:
     @property
     def viewpoint(self) -> str:
         return code_axes(self.scenario)["viewpoint"]
+
+    @property
+    def buffers(self) -> frozenset[str]:
+        """The renderer's named buffers this spec's outputs are encoded from (each output row names one)."""
+        return frozenset(output(name).source for name in self.outputs)
+
+    def check_outputs(self) -> None:
+        """ValueError for an unknown output or rgb format."""
+        check_outputs(self.outputs)
+        check_rgb_format(self.rgb_format)
 
     @property
     def key(self) -> str:

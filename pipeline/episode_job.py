@@ -17,7 +17,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from manifests.outputs import OUTPUTS, file_bytes
+from manifests.outputs import OUTPUTS, encode_outputs, file_bytes
 from manifests.schema import STATS_DIR, frame_id, frame_path, part_path
 from manifests.spec import EpisodeSpec
 from manifests.writer import frame_row, write_part
@@ -63,9 +63,19 @@ def _fault_after() -> int | None:
     return int(count)
 
 
+def frame_outputs(spec: EpisodeSpec, frame) -> dict:
+    """The spec's outputs of a rendered frame, encoded from its named buffers (arrays, or a table)."""
+    return encode_outputs(frame.buffers, spec.outputs)
+
+
+def frame_files(spec: EpisodeSpec, frame) -> dict[str, bytes]:
+    """The file bytes of each of the spec's outputs of a frame, in table order."""
+    return {name: file_bytes(name, content, spec.rgb_format) for name, content in frame_outputs(spec, frame).items()}
+
+
 def store_frame(spec: EpisodeSpec, frame, storage) -> dict:
-    """Write one frame's output files; return its manifest row."""
-    files = {name: file_bytes(name, content, spec.rgb_format) for name, content in frame.outputs.items()}
+    """Encode one frame's outputs, write their files; return its manifest row."""
+    files = frame_files(spec, frame)
     for name, data in files.items():
         storage.write_bytes(frame_path(spec.scenario, name, frame_id(spec.episode, frame.index), spec.rgb_format), data)
     return frame_row(spec, frame, files)

@@ -4,8 +4,8 @@ Reads top to bottom like a worker script: look up the scenario, build (or reuse)
 the town's world, populate it from the episode seed, load it into the
 process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
 seconds) render the named buffers, post-process the colour, add the ``objects``
-table when asked, encode the spec's outputs (``manifests.outputs``) and call
-``sink(frame)``. Only the drawing (``Renderer.render``) runs on the calling
+table when asked and call ``sink(frame)``; encoding the spec's outputs and
+writing them is the sink's business (``pipeline.episode_job``). Only the drawing (``Renderer.render``) runs on the calling
 thread; the rest of a frame (resolving the GL reads, post effects, outputs,
 then the sink) runs on one background thread, in frame order, so finishing
 and writing frame i (numpy, OpenCV, PNG deflate, hashing and file writes
@@ -31,9 +31,7 @@ from typing import Callable
 import numpy as np
 
 from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario
-from manifests.encoding import check_rgb_format
 from manifests.objects import object_counts
-from manifests.outputs import check_outputs, encode_outputs, file_bytes
 from manifests.spec import EpisodeSpec
 from manifests.spec import FRAME_PERIOD_S, town_seed
 from render_workers import postfx, worldcache
@@ -47,6 +45,7 @@ log = logging.getLogger(__name__)
 
 _FX_STREAM = 404  # rng stream id of per-frame post effects
 
+# outputs: the objects table and the counts; encoding the outputs into files is part of the sink.
 FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "resolve", "post_fx", "outputs", "sink", "sink_wait")
 SINK_AHEAD = 2  # frames handed to the sink thread and not yet written
 
@@ -118,8 +117,7 @@ def validate_spec(spec: EpisodeSpec) -> None:
         raise ValueError(f"{spec.key}: image size must be positive, got {spec.width}x{spec.height}")
     if spec.seed < 0 or spec.run_seed < 0:
         raise ValueError(f"{spec.key}: seeds must be non-negative")
-    check_outputs(spec.outputs)
-    check_rgb_format(spec.rgb_format)
+    spec.check_outputs()
 
 
 def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WORLD) -> tuple[EpisodeScene, dict]:
@@ -148,7 +146,7 @@ def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, ind
 
 def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec,
                  index: int) -> tuple[Frame, dict]:
-    """Frame ``index`` from its rendered buffers: post effects, objects, encoded outputs, counts.
+    """Frame ``index`` from its rendered buffers: post effects, the objects table (when asked), counts.
 
     No GL here: it reads only the episode's fixed state (weather, rig,
     instances, actors' paths), so it may run on another thread while the
@@ -166,16 +164,15 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     buffers["rgb"] = postfx.apply(buffers["rgb"], ctx)
     timings["post_fx"] = time.perf_counter() - start
     start = time.perf_counter()
-    if "objects" in spec.outputs:
+    if "objects" in spec.buffers:
         poses = [actor.pose(t) for actor in scene.actors]
         buffers["objects"] = frame_objects(buffers["instance"], renderer.instances, poses,
                                            result.world_from_camera, result.rig.focal_px)
-    outputs = encode_outputs(buffers, spec.outputs)
     counts = np.bincount(buffers["classes"].ravel(), minlength=NUM_CLASSES).astype(np.int64)
     objects = object_counts(buffers["instance"], instance_classes(renderer.instances))
     timings["outputs"] = time.perf_counter() - start
     frame = Frame(
-        index=index, sim_time_s=t, outputs=outputs, class_counts=counts, object_counts=objects,
+        index=index, sim_time_s=t, buffers=buffers, class_counts=counts, object_counts=objects,
         camera_height_m=renderer.rig.viewpoint.camera_height_m,
         hood_fraction=measured_hood_fraction(result.hood_mask), ego_speed_mps=float(scene.ego.speed_mps),
         n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
@@ -237,8 +234,3 @@ def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: s
     log.debug("%s: %d frames, timings %s", spec.key, spec.frames, timings)
     return EpisodeInfo(n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
                        frames=spec.frames, timings=timings)
-
-
-def encode_frame(frame: Frame, rgb_format: str = "png") -> dict[str, bytes]:
-    """The file bytes of each of a frame's outputs, in table order."""
-    return {name: file_bytes(name, content, rgb_format) for name, content in frame.outputs.items()}

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario
-from manifests.outputs import SEED_OUTPUTS
+from manifests.outputs import SEED_OUTPUTS, encode_outputs
 from manifests.spec import EpisodeSpec
 from manifests.spec import episode_seed
 from manifests.encoding import encode_png
@@ -70,7 +70,8 @@ def contact_sheet(cells: dict[tuple[str, str], np.ndarray], rows: list[str], col
 
 def output_strip(frame: Frame, width: int) -> np.ndarray:
     """The six outputs of a frame side by side, captioned."""
-    panels = [_thumbnail(frame.outputs[name], width) for name in SEED_OUTPUTS]
+    outputs = encode_outputs(frame.buffers, SEED_OUTPUTS)
+    panels = [_thumbnail(outputs[name], width) for name in SEED_OUTPUTS]
     h, w = panels[0].shape[:2]
     canvas = np.full((MARGIN_PX + h, len(panels) * w, 3), BACKGROUND, np.uint8)
     for k, (name, panel) in enumerate(zip(SEED_OUTPUTS, panels)):
@@ -113,7 +114,7 @@ def write_preview(out_dir, scenario_codes, width: int, height: int, seed: int,
             continue
         rows = [v.code for v in VIEWPOINTS if any(s.viewpoint == v for s in chosen)]
         cols = [t.code for t in TOWNS if any(s.town == t for s in chosen)]
-        cells = {(s.viewpoint.code, s.town.code): _thumbnail(frames[s.code].outputs["rgb"], cell_w) for s in chosen}
+        cells = {(s.viewpoint.code, s.town.code): _thumbnail(frames[s.code].buffers["rgb"], cell_w) for s in chosen}
         sheet = contact_sheet(cells, rows, cols, title=f"{weather.code} ({weather.name})")
         written.append(_write(out / f"preview_{weather.code}.png", sheet))
 

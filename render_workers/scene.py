@@ -166,11 +166,14 @@ class EpisodeScene:
 
 @dataclass(frozen=True, eq=False)
 class Frame:
-    """One rendered frame: its outputs and what the manifest records (``manifests.writer.frame_row``)."""
+    """One rendered frame: its named buffers and what the manifest records (``manifests.writer.frame_row``).
+
+    The episode job (``pipeline.episode_job``) encodes the buffers into the
+    spec's outputs and files; rendering knows no output table."""
 
     index: int  # frame index within the episode
     sim_time_s: float  # simulated time of the frame (index * 3 s)
-    outputs: dict  # output name (manifests.outputs) -> its file content (an array or a table)
+    buffers: dict  # rgb (post effects applied), depth, classes, instance, and objects (a table) when asked
     class_counts: np.ndarray  # (24,) int64 pixel count per class id, sums to W*H
     object_counts: dict  # manifest column obj_<class> -> visible objects of that class
     camera_height_m: float

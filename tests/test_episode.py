@@ -9,6 +9,7 @@ from manifests.catalog import NUM_CLASSES, PALETTE
 from manifests.outputs import IMAGE_OUTPUTS, OUTPUTS, read_output
 from manifests.spec import EpisodeSpec
 from manifests.spec import FRAME_PERIOD_S
+from pipeline.episode_job import frame_files, frame_outputs
 from render_workers import episode, testworld
 from manifests.encoding import decode_depth_raw
 from render_workers.renderer import Renderer
@@ -40,15 +41,16 @@ def test_small_episode_renders_headless(renderer):
         assert info.timings[stage] >= 0.0
     for index, frame in enumerate(frames):
         assert frame.index == index and frame.sim_time_s == index * FRAME_PERIOD_S
-        assert tuple(frame.outputs) == OUTPUTS
+        outputs = frame_outputs(spec(), frame)
+        assert tuple(outputs) == OUTPUTS
         for name in IMAGE_OUTPUTS:
-            image = frame.outputs[name]
+            image = outputs[name]
             assert image.shape[:2] == (H, W) and image.dtype == (np.uint16 if name == "instance" else np.uint8), name
         assert frame.class_counts.shape == (NUM_CLASSES,)
         assert frame.class_counts.sum() == W * H
-        ids = frame.outputs["semantic_raw"][..., 0]
-        assert ids.max() < NUM_CLASSES and not frame.outputs["semantic_raw"][..., 1:].any()
-        assert (frame.outputs["semantic_color"] == PALETTE[ids]).all()
+        ids = outputs["semantic_raw"][..., 0]
+        assert ids.max() < NUM_CLASSES and not outputs["semantic_raw"][..., 1:].any()
+        assert (outputs["semantic_color"] == PALETTE[ids]).all()
         assert (np.bincount(ids.ravel(), minlength=NUM_CLASSES) == frame.class_counts).all()
         assert frame.camera_height_m == 1.20 and frame.ego_speed_mps > 0
         assert 0.1108 - 1 / H <= frame.hood_fraction <= 0.1399 + 1 / H
@@ -56,7 +58,7 @@ def test_small_episode_renders_headless(renderer):
 
 def test_depth_outputs_agree(renderer):
     _, frames = run(spec(frames=1), renderer)
-    images = frames[0].outputs
+    images = frame_outputs(spec(frames=1), frames[0])
     depth = decode_depth_raw(images["depth_raw"])
     assert depth.max() <= 1000.0 and depth.min() > 0.0
     sky = images["semantic_raw"][..., 0] == 20
@@ -83,20 +85,21 @@ def test_same_spec_gives_identical_pngs(renderer):
     with Renderer() as fresh:  # a fresh process-like renderer: no cached static nodes
         _, second = run(s, fresh)
     for a, b in zip(first, second):
-        assert episode.encode_frame(a) == episode.encode_frame(b)
+        assert frame_files(s, a) == frame_files(s, b)
     _, other = run(spec("T02_HRN_M", seed=12), renderer)
-    assert episode.encode_frame(other[0])["rgb"] != episode.encode_frame(first[0])["rgb"]
+    assert frame_files(s, other[0])["rgb"] != frame_files(s, first[0])["rgb"]
 
 
 def test_encode_frame_round_trips(renderer):
     _, frames = run(spec(frames=1), renderer)
-    data = episode.encode_frame(frames[0])
+    data = frame_files(spec(frames=1), frames[0])
+    outputs = frame_outputs(spec(frames=1), frames[0])
     assert tuple(data) == OUTPUTS
     for name, blob in data.items():
         if name in IMAGE_OUTPUTS:
-            assert (read_output(name, blob) == frames[0].outputs[name]).all()
+            assert (read_output(name, blob) == outputs[name]).all()
         else:
-            assert read_output(name, blob).equals(frames[0].outputs[name])
+            assert read_output(name, blob).equals(outputs[name])
 
 
 def test_populate_counts_follow_idda():
@@ -157,7 +160,7 @@ def test_the_render_thread_only_draws(renderer, monkeypatch):
     assert len(skies) == 3  # drawn, not resolved yet
     frame, _ = episode.finish_frame(result, renderer, scene, spec(frames=3), 0)
     assert result.buffers is result.buffers and len(skies) == 4  # resolved once, then kept
-    assert all(np.array_equal(frame.outputs[k], frames[0].outputs[k]) for k in frame.outputs)
+    assert frame_files(spec(frames=3), frame) == frame_files(spec(frames=3), frames[0])
 
 
 def test_a_sink_error_stops_the_episode_and_is_raised(renderer):

@@ -8,6 +8,7 @@ import pytest
 from manifests.catalog import INSTANCE_LABELS, LABELS, class_id
 from manifests.objects import box_corners, object_counts
 from manifests.spec import FRAME_PERIOD_S, EpisodeSpec
+from pipeline.episode_job import frame_outputs
 from render_workers import episode
 from render_workers.camera import CameraRig
 from render_workers.instances import CV_FROM_GL, HOOD_ID, instance_classes
@@ -35,20 +36,20 @@ def town(renderer):
 
 
 def test_every_object_class_gets_ids_and_static_geometry_none(town):
-    _, _, instances, frames = town
+    spec, _, instances, frames = town
     ids = [i.id for i in instances]
     assert ids == list(range(HOOD_ID + 1, HOOD_ID + 1 + len(ids)))  # dense, the hood first
     assert {i.class_id for i in instances} == INSTANCE_IDS  # traffic lights and signs too
     classes = instance_classes(instances)
     for frame in frames:
-        inst, cls = frame.outputs["instance"], frame.outputs["semantic_raw"][..., 0]
+        inst, cls = frame_outputs(spec, frame)["instance"], frame_outputs(spec, frame)["semantic_raw"][..., 0]
         assert inst.dtype == np.uint16
         objects = inst > HOOD_ID
         assert (classes[inst[objects]] == cls[objects]).all()  # an id always sits on its own class
         assert not np.isin(cls[inst == 0], list(INSTANCE_IDS)).any()  # every object pixel has an id
         assert (cls[inst == HOOD_ID] == class_id("vehicle")).all()
         assert frame.object_counts == object_counts(inst, classes)
-        table = frame.outputs["objects"]
+        table = frame_outputs(spec, frame)["objects"]
         for label in INSTANCE_LABELS:
             assert frame.object_counts[label.object_column] == table.column("class_id").to_pylist().count(label.id)
 
@@ -63,7 +64,7 @@ def test_instance_ids_are_stable_across_the_episode(town):
     for frame in frames:
         t = frame.index * FRAME_PERIOD_S
         cam = rig.world_from_camera(scene.ego.pose(t))
-        rows = frame.outputs["objects"].to_pylist()
+        rows = frame_outputs(spec, frame)["objects"].to_pylist()
         for row in rows:
             inst = by_id[row["instance_id"]]
             assert row["class_id"] == inst.class_id
@@ -83,10 +84,10 @@ def scene_viewpoint(spec):
 
 
 def test_2d_boxes_are_tight_against_the_mask(town):
-    _, _, _, frames = town
+    spec, _, _, frames = town
     for frame in frames:
-        inst = frame.outputs["instance"]
-        for row in frame.outputs["objects"].to_pylist():
+        inst = frame_outputs(spec, frame)["instance"]
+        for row in frame_outputs(spec, frame)["objects"].to_pylist():
             ys, xs = np.nonzero(inst == row["instance_id"])
             assert row["pixels"] == len(xs) > 0
             assert (row["x0"], row["y0"], row["x1"], row["y1"]) == (xs.min(), ys.min(), xs.max() + 1, ys.max() + 1)
@@ -97,11 +98,11 @@ def test_2d_boxes_are_tight_against_the_mask(town):
 def test_3d_box_projects_inside_the_2d_box(town):
     """The projected 3D box encloses the visible 2D box, and for objects well in view
     its projected centre lies inside the 2D box."""
-    _, _, _, frames = town
+    spec, _, _, frames = town
     focal = W / 2.0  # 90 degree horizontal field of view
     checked = 0
     for frame in frames:
-        for row in frame.outputs["objects"].to_pylist():
+        for row in frame_outputs(spec, frame)["objects"].to_pylist():
             corners = box_corners((row["cx"], row["cy"], row["cz"]), (row["length"], row["width"], row["height"]), row["yaw"])
             if (corners[:, 2] <= 0.1).any():
                 continue

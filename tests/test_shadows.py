@@ -10,6 +10,7 @@ import trimesh
 
 from manifests.catalog import weather
 from manifests.spec import EpisodeSpec
+from pipeline.episode_job import frame_files
 from render_workers import episode
 from render_workers.camera import CameraRig, sun_direction
 from render_workers.renderer import (
@@ -135,7 +136,7 @@ def test_same_spec_gives_identical_pngs_with_shadows(renderer):
                 episode.render_episode(spec, frames.append, world="test", renderer=fresh)
         else:
             episode.render_episode(spec, frames.append, world="test", renderer=r)
-        runs.append([episode.encode_frame(f) for f in frames])
+        runs.append([frame_files(spec, f) for f in frames])
     assert runs[0] == runs[1]
 
 
