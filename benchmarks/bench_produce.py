@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 from manifests.outputs import SEED_OUTPUTS  # the paper's six
-from render_workers.episode import DEFAULT_WORLD
+from render_workers.render.episode import DEFAULT_WORLD
 
 WIDTH, HEIGHT = 960, 540
 DOMAINS = "towns=T01,T02 weathers=CN viewpoints=A,B"
@@ -36,7 +36,7 @@ WORLD = os.environ.get("BENCH_WORLD", DEFAULT_WORLD)
 # The modules both sides import before their clocks start: the plain loop in its
 # process, Ray in each worker (a warm-up task), so the timings compare rendering
 # and orchestration, not imports. (pyarrow imports pandas at its first table.)
-_IMPORTS = "import pipeline.episode_job, pipeline.planner, render_workers.episode, storage, pandas"
+_IMPORTS = "import pipeline.episode_job, pipeline.planner, render_workers.render.episode, storage, pandas"
 
 _PLAIN = _IMPORTS + """
 import sys, time

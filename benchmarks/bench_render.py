@@ -31,7 +31,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from render_workers.episode import DEFAULT_WORLD
+from render_workers.render.episode import DEFAULT_WORLD
 
 WIDTH, HEIGHT = 1920, 1080
 SCENARIOS = ("T01_CN_A", "T01_HRN_A", "T01_CS_M")  # clear, worst-case effects, low sun
@@ -63,7 +63,7 @@ def _png_encoder():
 
 def _frame_files(frame) -> dict[str, bytes]:
     """A frame's file bytes, through whichever encoding API the measured tree has."""
-    from render_workers import episode
+    from render_workers.render import episode
 
     if hasattr(frame, "buffers"):  # trees where the episode job encodes the renderer's buffers
         from manifests.outputs import SEED_OUTPUTS, encode_outputs, file_bytes
@@ -83,8 +83,8 @@ def _encode_and_write(frame, out: Path) -> None:
 # -- the probe: runs inside the tree it measures ------------------------------
 def probe(world: str) -> dict:
     """Stage samples (seconds per frame) of whichever code is first on sys.path."""
-    from render_workers import episode, postfx
-    from render_workers.renderer import Renderer
+    from render_workers.render import episode, postfx
+    from render_workers.render.renderer import Renderer
 
     fx: dict[str, float] = {}
     original = postfx.apply
@@ -174,8 +174,8 @@ def stage_tables(world: str) -> dict:
 def _worker(world: str, code: str, seed: int, barrier, lp_threads: str | None, queue) -> None:
     if lp_threads is not None:
         os.environ["LP_NUM_THREADS"] = lp_threads
-    from render_workers.episode import load_episode, render_episode, render_frame
-    from render_workers.renderer import Renderer
+    from render_workers.render.episode import load_episode, render_episode, render_frame
+    from render_workers.render.renderer import Renderer
 
     spec = _spec(code, THROUGHPUT_FRAMES, seed)
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:

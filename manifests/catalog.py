@@ -120,7 +120,7 @@ class Town:
     code: str  # T01..T07, as in IDDA scenario codes
     name: str  # CARLA map this town stands in for
     road_km: float  # drivable road length; sizes the town's shards
-    style: str  # name of its look in render_workers.styles.STYLES
+    style: str  # name of its look in render_workers.worlds.styles.STYLES
     lanes: int  # lanes per direction on main roads
     block_m: float  # typical block edge length (junction spacing)
     building_height_m: tuple[float, float]  # min / max building height

@@ -9,7 +9,7 @@ table.
 
 Adding an output is one row here plus its encoder (a function in
 ``manifests.encoding``, or a buffer the renderer does not make yet in
-``render_workers.episode.render_frame``).
+``render_workers.render.episode.render_frame``).
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
     """The manifest row of one rendered frame, column by column from PART_SCHEMA.
 
     ``spec`` is the episode's ``EpisodeSpec``; ``frame`` a rendered frame
-    (``render_workers.scene.Frame``: the FIELD_SOURCE "frame" columns as
+    (``render_workers.worlds.scene.Frame``: the FIELD_SOURCE "frame" columns as
     attributes, ``index``, ``class_counts`` per class id and ``object_counts``
     per object column); ``files`` the bytes written per output (outputs not
     asked for get null columns)."""

@@ -52,7 +52,7 @@ class ProduceConfig:
     repair: bool = False
 
     def validate(self) -> None:
-        from render_workers.registry import check_world
+        from render_workers.worlds.registry import check_world
 
         self.run.plan.validate()
         check_world(self.run.world)  # here, not in each of the Ray tasks

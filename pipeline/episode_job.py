@@ -87,7 +87,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
 
     ``on_frame(n)``, if given, is called after each frame's files are written
     with the number of frames written so far (the driver's progress)."""
-    from render_workers.episode import render_episode
+    from render_workers.render.episode import render_episode
 
     start = time.perf_counter()
     for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
@@ -106,7 +106,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
         if kill_after is not None and len(rows) >= kill_after:
             os._exit(17)
 
-    # The process keeps one renderer alive across episodes (render_workers.episode).
+    # The process keeps one renderer alive across episodes (render_workers.render.episode).
     info = render_episode(spec, sink, world=world)
     if len(rows) != spec.frames:
         raise RuntimeError(f"{spec.key}: rendered {len(rows)} frames, expected {spec.frames}")

@@ -7,6 +7,8 @@ from pathlib import Path
 
 import numpy as np
 
+from reports.sample import LARGE, span, urban_towns
+
 
 CELL_WIDTH = 320  # contact sheet cell width (px)
 TOWN_SHEET_CELL = 480  # the one-frame-per-town sheet's cell width (px)
@@ -32,7 +34,7 @@ def presence_png(stats: dict) -> bytes:
     x = np.arange(len(idx))
     fig, ax = plt.subplots(figsize=(10, 4.2), dpi=100)
     ax.bar(x - 0.2, [100 * stats["presence"][i] for i in idx], 0.4, label="all frames", color="#4c72b0")
-    ax.bar(x + 0.2, [100 * stats["presence_urban"][i] for i in idx], 0.4, label=f"urban frames ({_span(urban_towns())})", color="#dd8452")
+    ax.bar(x + 0.2, [100 * stats["presence_urban"][i] for i in idx], 0.4, label=f"urban frames ({span(urban_towns())})", color="#dd8452")
     ax.axhline(10, color="black", ls="--", lw=1, label="10% target (rare classes, urban)")
     ax.set_xticks(x, names, rotation=50, ha="right")
     ax.set_ylabel("frames showing the class (%)")
@@ -141,7 +143,7 @@ def contact_sheets(root: str, table, out_dir: Path, cell_width: int) -> list[str
 
     from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS
     from manifests.encoding import decode_png
-    from render_workers.preview import contact_sheet
+    from render_workers.render.preview import contact_sheet
 
     first = table.filter(pc.and_(pc.equal(table.column("episode"), 0), pc.equal(table.column("frame"), 0)))
     paths = dict(zip(first.column("scenario").to_pylist(), first.column("rgb_path").to_pylist()))

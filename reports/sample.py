@@ -28,7 +28,7 @@ def produce_sample(root: str, frames: int, width: int, height: int, workers: int
     from pipeline.driver import ProduceConfig, produce
     from pipeline.planner import PlanConfig
     from pipeline.runmeta import RunConfig
-    from render_workers.episode import DEFAULT_WORLD
+    from render_workers.render.episode import DEFAULT_WORLD
 
     shutil.rmtree(root, ignore_errors=True)  # a stale root would be resumed, not re-rendered
     plan = PlanConfig(domains=domains, frames_per_scenario=frames, width=width, height=height, seed=SEED)
@@ -58,8 +58,19 @@ def episode_stats(root: str) -> list[dict]:
 
 
 def urban_towns() -> tuple[str, ...]:
-    """Towns with sidewalks and buildings (``render_workers.styles.urban``): the rare-class presence target's frames."""
+    """Towns with sidewalks and buildings (``render_workers.worlds.styles.urban``): the rare-class presence target's frames."""
     from manifests.catalog import TOWNS
-    from render_workers.styles import is_urban
+    from render_workers.worlds.styles import is_urban
 
     return tuple(t.code for t in TOWNS if is_urban(t))
+
+
+def span(codes: tuple[str, ...]) -> str:
+    """Town codes as a range when they are consecutive in the catalog (T01-T06), else listed."""
+    from manifests.catalog import TOWNS
+
+    order = [t.code for t in TOWNS]
+    at = [order.index(c) for c in codes]
+    if len(codes) > 2 and at == list(range(at[0], at[0] + len(at))):
+        return f"{codes[0]}-{codes[-1]}"
+    return ", ".join(codes)

@@ -9,12 +9,12 @@ episode per scenario at reduced resolution, frames 3 s apart), then writes
   and per town;
 * class presence (share of frames showing a class), overall and over the
   urban towns T01-T06;
-* the paper's three domain distances (``training.distances``) and a 2-D
+* the paper's three domain distances (``analysis.distances``) and a 2-D
   embedding of all domains;
 * the paper's domain-shift table (``reports.shifts``: ``idda shifts``
   on its five domains, 150 frames each);
 * one contact sheet per weather (7 towns x 5 viewpoints): frame 0 of episode 0
-  of every scenario, i.e. exactly what ``render_workers.preview.write_preview``
+  of every scenario, i.e. exactly what ``render_workers.render.preview.write_preview``
   renders for the same seed and size;
 * build_world / populate times per town next to the sample's render times.
 """
@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import json
 import logging
+import statistics
 import time
 from pathlib import Path
 
@@ -83,7 +84,7 @@ def checks(stats: dict) -> dict:
 
 
 def distances(root: str, images: Path) -> dict:
-    from training.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table
+    from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table
 
     report = domain_distances(DistanceConfig(root=root, samples=500, threads=2))
     (images / "worlds_domain_embedding.png").write_bytes(embedding_png(report))
@@ -122,7 +123,7 @@ def world_timings(stats: list[dict]) -> dict:
     from manifests.catalog import TOWNS
     from manifests.spec import town_seed
     from pipeline.planner import EPISODE_FRAMES
-    from render_workers import traffic, world
+    from render_workers.worlds import traffic, world
 
     out = {}
     for t in TOWNS:
@@ -164,7 +165,7 @@ def bench_render(docs: Path) -> dict | None:
 
 def _styles() -> dict:
     from manifests.catalog import TOWNS
-    from render_workers.styles import look
+    from render_workers.worlds.styles import look
 
     def row(s) -> dict:
         return {"name": s.name, "architecture": s.architecture, "road": s.asphalt, "road_edge": s.road_edge,
@@ -179,7 +180,7 @@ def _bench_summary(bench: dict | None) -> str | None:
     """One line of whole-frame seconds per world from bench_render.json, whatever its exact layout."""
     if not bench:
         return None
-    from render_workers.episode import WORLDS
+    from render_workers.render.episode import WORLDS
 
     parts = []
     for world in WORLDS:
@@ -221,8 +222,8 @@ def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height
     log.info("domain distances")
     try:
         dist = distances(root, images)
-    except ImportError as exc:  # training.distances not available
-        dist = {"error": f"training.distances unavailable ({exc})"}
+    except ImportError as exc:  # analysis.distances not available
+        dist = {"error": f"analysis.distances unavailable ({exc})"}
 
     log.info("domain shift table")
     shifts = measure_shifts(workers=workers)

@@ -5,23 +5,12 @@ from __future__ import annotations
 from pathlib import Path
 
 from reports.shifts import markdown as shifts_markdown
-from reports.sample import LARGE, SEED, urban_towns
+from reports.sample import LARGE, SEED, span, urban_towns
 
 
 
 def _pct(x: float, digits: int = 2) -> str:
     return f"{100 * x:.{digits}f}"
-
-
-def _span(codes: tuple[str, ...]) -> str:
-    """Town codes as a range when they are consecutive in the catalog (T01-T06), else listed."""
-    from manifests.catalog import TOWNS
-
-    order = [t.code for t in TOWNS]
-    at = [order.index(c) for c in codes]
-    if len(codes) > 2 and at == list(range(at[0], at[0] + len(at))):
-        return f"{codes[0]}-{codes[-1]}"
-    return ", ".join(codes)
 
 
 def markdown(result: dict) -> str:
@@ -50,7 +39,7 @@ def _styles_section(result: dict) -> list[str]:
     lines = [
         "## Towns by style",
         "",
-        "Each town is built from its style row in `render_workers/styles.py` (surfaces, road edge, lane width, "
+        "Each town is built from its style row in `render_workers/worlds/styles.py` (surfaces, road edge, lane width, "
         "markings, architecture kit, tree species, crops, relief); the builder never reads a town's code.",
         "",
         f"![towns](images/{Path(result['town_sheet']).name})",
@@ -124,7 +113,7 @@ def _presence_section(result: dict) -> list[str]:
         "",
         "![class presence](images/worlds_class_presence.png)",
         "",
-        f"Rare classes in urban frames ({_span(urban_towns())}, {st['urban_frames']} frames; target at least 10%):",
+        f"Rare classes in urban frames ({span(urban_towns())}, {st['urban_frames']} frames; target at least 10%):",
         "",
         "| class | urban frames % | all frames % | ok |",
         "|---|---:|---:|:---:|",
@@ -142,7 +131,7 @@ def _distance_section(result: dict) -> list[str]:
         lines += [f"Not computed: {d['error']}", ""]
     else:
         lines += [
-            "The paper's method via `training.distances`: image features of the first 500 frames of each domain "
+            "The paper's method via `analysis.distances`: image features of the first 500 frames of each domain "
             f"(here all {', '.join(map(str, d['samples_per_domain']))} of them), PCA to {d['components']} components "
             f"({100 * d['explained']:.1f}% of the feature variance), Euclidean and cosine distance between the "
             "domains' mean vectors, per-feature Bhattacharyya distance. The features are a fixed filter bank, not "

@@ -17,7 +17,7 @@ from typer.testing import CliRunner
 from manifests.catalog import LABELS
 from manifests.reader import read_manifest
 from manifests.stats import share_table
-from training import card as card_mod
+from exports import card as card_mod
 from manifests.encoding import decode_depth_raw
 from tests.test_export import cli_app, make_tiny_root
 
@@ -120,7 +120,7 @@ def test_card_links_and_renders_previews(root, monkeypatch):
         Image.new("RGB", (width, height)).save(path)
         return [path]
 
-    monkeypatch.setitem(sys.modules, "render_workers.preview", types.SimpleNamespace(write_preview=write_preview))
+    monkeypatch.setitem(sys.modules, "render_workers.render.preview", types.SimpleNamespace(write_preview=write_preview))
     result = CliRunner().invoke(cli_app(), ["card", str(root), "--contact-sheet"])
     assert result.exit_code == 0, result.output
     codes = sorted({r["scenario"] for r in read_manifest(str(root)).to_pylist()})

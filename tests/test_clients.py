@@ -23,7 +23,7 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from training import export as ex
+from exports import export as ex
 from manifests.catalog import EVALUATED_IDS
 from manifests.reader import read_manifest
 

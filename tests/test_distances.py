@@ -10,7 +10,7 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from training import distances as d
+from analysis import distances as d
 from tests.test_export import cli_app, make_tiny_root
 
 

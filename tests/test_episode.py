@@ -10,9 +10,10 @@ from manifests.outputs import IMAGE_OUTPUTS, OUTPUTS, read_output
 from manifests.spec import EpisodeSpec
 from manifests.spec import FRAME_PERIOD_S
 from pipeline.episode_job import frame_files, frame_outputs
-from render_workers import episode, testworld
+from render_workers.render import episode
+from render_workers.worlds import testworld
 from manifests.encoding import decode_depth_raw
-from render_workers.renderer import Renderer
+from render_workers.render.renderer import Renderer
 
 W, H = 160, 90
 
@@ -143,7 +144,7 @@ def test_the_render_thread_only_draws(renderer, monkeypatch):
     off the render thread, and give the same frame as resolving it at once."""
     import threading
 
-    from render_workers import renderer as renderer_module
+    from render_workers.render import renderer as renderer_module
 
     real = renderer_module.sky_image
     skies = []

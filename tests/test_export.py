@@ -14,9 +14,9 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from training import cityscapes as cs_layout, idda
-from training import export as ex
-from training.placing import Layout, per_frame
+from exports import cityscapes as cs_layout, idda
+from exports import export as ex
+from exports.placing import Layout, per_frame
 from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
 from manifests.query import Query
 from manifests.reader import read_manifest
@@ -58,7 +58,7 @@ def upload_root(root: Path, uri: str) -> None:
 
 
 def cli_app():
-    from pipeline import cli_data
+    from pipeline.cli import data as cli_data
     from pipeline.cli import app
 
     cli_data.register(app)
@@ -128,7 +128,7 @@ def test_cityscapes_layout_and_label_images(root, manifest, cityscapes):
 
 def _evaluate(cityscapes: Path, predictions: Path):
     """cityscapesScripts' pixel-level evaluation through ``idda evaluate``'s API (val split)."""
-    from training.evaluate import EvaluateConfig, evaluate
+    from analysis.evaluate import EvaluateConfig, evaluate
 
     report = evaluate(EvaluateConfig(export=str(cityscapes), predictions=str(predictions), split="val"))
     gts = sorted(glob.glob(str(cityscapes / "gtFine" / "val" / "*" / "*_gtFine_labelIds.png")))
@@ -312,7 +312,7 @@ def test_scenarios_with_an_empty_split_are_split_by_frame_blocks():
     planner's val/test start at 6 episodes) must get val and test frames too."""
     import pyarrow as pa
 
-    from training.export import export_splits, few_episode_scenarios
+    from exports.export import export_splits, few_episode_scenarios
 
     rows = [("T01_CN_A", e, f, "train") for e in range(4) for f in range(10)]  # 4 episodes, all train
     rows += [("T02_CN_A", e, f, ("train", "val", "test")[e % 3] if e < 6 else "train")

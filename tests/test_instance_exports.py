@@ -15,8 +15,8 @@ from manifests.catalog import INSTANCE_LABELS
 from manifests.outputs import read_output
 from manifests.reader import read_manifest
 from tests.test_export import make_tiny_root
-from training import cityscapes as cs_layout
-from training import export as ex
+from exports import cityscapes as cs_layout
+from exports import export as ex
 
 
 @pytest.fixture(scope="module")
@@ -49,7 +49,7 @@ def test_instance_ids_follow_cityscapes(cityscapes):
 
 
 def test_cityscapes_instance_evaluation_of_ground_truth_gives_ap_1(cityscapes, tmp_path):
-    from training.evaluate import evaluate_instances
+    from analysis.evaluate import evaluate_instances
 
     predictions = tmp_path / "pred"
     predictions.mkdir()
@@ -98,7 +98,7 @@ def test_coco_export_loads_in_pycocotools_and_masks_round_trip(root, tmp_path):
 
 
 def test_frame_dataset_returns_instance_and_objects(root):
-    from training.loaders import FrameDataset
+    from analysis.loaders import FrameDataset
 
     data = FrameDataset(root, outputs=("semantic_raw", "instance", "objects"))
     sample = data[0]

@@ -9,10 +9,10 @@ from manifests.catalog import INSTANCE_LABELS, LABELS, class_id
 from manifests.objects import box_corners, object_counts
 from manifests.spec import FRAME_PERIOD_S, EpisodeSpec
 from pipeline.episode_job import frame_outputs
-from render_workers import episode
-from render_workers.camera import CameraRig
-from render_workers.instances import CV_FROM_GL, HOOD_ID, instance_classes
-from render_workers.renderer import Renderer
+from render_workers.render import episode
+from render_workers.render.camera import CameraRig
+from render_workers.render.instances import CV_FROM_GL, HOOD_ID, instance_classes
+from render_workers.render.renderer import Renderer
 
 W, H = 192, 108
 INSTANCE_IDS = {label.id for label in INSTANCE_LABELS}

@@ -206,7 +206,7 @@ def test_unrelated_non_empty_directory_is_refused_as_out(tmp_path):
 
 
 def test_card_keeps_a_users_readme(copy):
-    from pipeline.cli_data import register
+    from pipeline.cli.data import register
 
     register(app)
     (copy / "README.md").write_text("# my notes\n")
@@ -318,7 +318,7 @@ def test_full_disk_fails_fast_in_one_line(tmp_path):
 
 
 def test_stats_and_card_on_a_read_only_root(copy, tmp_path, monkeypatch):
-    from pipeline.cli_data import register
+    from pipeline.cli.data import register
 
     register(app)
     before = tree_digest(copy)

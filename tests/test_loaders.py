@@ -13,7 +13,7 @@ from PIL import Image
 
 from manifests.catalog import TRAIN_ID_LUT
 from manifests.outputs import SEED_OUTPUTS as OUTPUTS
-from training.loaders import DECODERS, META_COLUMNS, FrameDataset, ray_dataset
+from analysis.loaders import DECODERS, META_COLUMNS, FrameDataset, ray_dataset
 from manifests.query import Query, run_query
 from manifests.reader import read_manifest
 from tests.s3_server import s3_server  # noqa: F401  (fixture)

@@ -22,7 +22,7 @@ DOMAINS = "T01_CN_A"
 
 
 def cli_app():
-    from pipeline import cli_data
+    from pipeline.cli import data as cli_data
     from pipeline.cli import app
 
     cli_data.register(app)
@@ -74,7 +74,7 @@ def test_a_subset_root_holds_only_its_outputs(subset_root):
 
 
 def test_missing_outputs_are_named_in_one_line(subset_root, tmp_path):
-    from training.loaders import FrameDataset
+    from analysis.loaders import FrameDataset
 
     app = cli_app()
     line = one_line_error(runner.invoke(app, ["export", str(subset_root), "--format", "coco", "--to", str(tmp_path / "c")]))

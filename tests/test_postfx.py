@@ -5,8 +5,8 @@ import numpy as np
 import pytest
 
 from manifests.catalog import class_id, weather
-from render_workers import postfx
-from render_workers.camera import camera_rig
+from render_workers.render import postfx
+from render_workers.render.camera import camera_rig
 
 W, H = 96, 54
 ROAD, SKY, BUILDING = class_id("road"), class_id("sky"), class_id("building")

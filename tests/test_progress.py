@@ -11,7 +11,7 @@ import time
 
 import pytest
 
-from pipeline.cli import ProgressDisplay, format_progress
+from pipeline.cli.app import ProgressDisplay, format_progress
 from pipeline.driver import ProduceConfig, Progress, produce
 from pipeline.planner import PlanConfig
 from pipeline.runmeta import RunConfig

@@ -7,10 +7,10 @@ import pytest
 import trimesh
 
 from manifests.catalog import NUM_CLASSES, VIEWPOINTS, viewpoint, weather
-from render_workers import camera
-from render_workers.renderer import Renderer
-from render_workers.soups import look
-from render_workers.scene import Actor, EpisodeScene, Part, Path, World
+from render_workers.render import camera
+from render_workers.render.renderer import Renderer
+from render_workers.render.soups import look
+from render_workers.worlds.scene import Actor, EpisodeScene, Part, Path, World
 
 W, H = 160, 90
 ROAD, WALL = 7, 11
@@ -143,7 +143,7 @@ def test_render_before_load_raises():
 
 
 def test_framebuffer_patch_is_per_renderer_and_multisampling_still_works(renderer):
-    from render_workers import compat
+    from render_workers.render import compat
 
     pr = compat.import_pyrender()
     plain = render(renderer, flat_scene(), "V")
@@ -169,8 +169,8 @@ def test_renderers_share_one_shader_copy_and_leave_nothing_per_renderer(tmp_path
     import os
     import tempfile
 
-    from render_workers import passes
-    from render_workers.shaders import FAST_MESH_FRAG
+    from render_workers.render import passes
+    from render_workers.render.shaders import FAST_MESH_FRAG
 
     monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
     first = passes.shader_dir(FAST_MESH_FRAG)

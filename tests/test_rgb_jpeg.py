@@ -23,7 +23,7 @@ runner = CliRunner()
 
 
 def cli_app():
-    from pipeline import cli_data
+    from pipeline.cli import data as cli_data
     from pipeline.cli import app
 
     cli_data.register(app)
@@ -112,7 +112,7 @@ def test_resume_or_extend_never_mixes_rgb_formats(jpeg_root, tmp_path):
 
 def test_loaders_read_the_jpeg(jpeg_root):
     from manifests.query import Query
-    from training.loaders import FrameDataset
+    from analysis.loaders import FrameDataset
 
     data = FrameDataset(str(jpeg_root), Query(), outputs=("rgb", "semantic_raw"))
     sample = data[0]
@@ -121,7 +121,7 @@ def test_loaders_read_the_jpeg(jpeg_root):
 
 
 def test_exports_of_a_jpeg_root(jpeg_root, tmp_path):
-    from training import export as ex
+    from exports import export as ex
 
     cs = tmp_path / "cs"
     ex.export(ex.ExportConfig(root=str(jpeg_root), to=str(cs), format="cityscapes", files="copy"))

@@ -11,12 +11,12 @@ import trimesh
 from manifests.catalog import weather
 from manifests.spec import EpisodeSpec
 from pipeline.episode_job import frame_files
-from render_workers import episode
-from render_workers.camera import CameraRig, sun_direction
-from render_workers.renderer import (
+from render_workers.render import episode
+from render_workers.render.camera import CameraRig, sun_direction
+from render_workers.render.renderer import (
     MIN_SHADOW_STRENGTH, SHADOW_FAR_M, Renderer, fit_shadow_frame, shadow_strength,
 )
-from render_workers.scene import Part
+from render_workers.worlds.scene import Part
 from tests.test_renderer import flat_scene
 from manifests.catalog import viewpoint
 

@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 
 from manifests.catalog import EVALUATED_IDS, LABELS, class_id
 from tests.test_export import cli_app
-from training.metrics import EVAL_CLASSES, IGNORE, NUM_EVAL, TRAIN_INDEX_LUT, class_iou, confusion, mean_iou
-from training.shifts import CASES, ShiftConfig, held_out_mask
+from analysis.metrics import EVAL_CLASSES, IGNORE, NUM_EVAL, TRAIN_INDEX_LUT, class_iou, confusion, mean_iou
+from analysis.shifts import CASES, ShiftConfig, held_out_mask
 
 SHIFT_DOMAINS = "T01_CS_A,T01_CS_J,T01_HRN_J,T01_HRN_A,T07_HRN_A"
 
@@ -82,8 +82,8 @@ def test_config_is_checked_and_cases_come_from_the_paper():
     assert [(c.name, c.pair.source, c.pair.target) for c in CASES] == [
         ("viewpoint", "T01_CS_A", "T01_CS_J"), ("weather", "T01_CS_J", "T01_HRN_J"), ("city", "T01_HRN_A", "T07_HRN_A")]
     assert [round(c.paper_kept, 2) for c in CASES] == [0.79, 0.51, 0.28]
-    from training.segnet import STRIDE
-    from training.shifts import INPUT_MULTIPLE
+    from analysis.segnet import STRIDE
+    from analysis.shifts import INPUT_MULTIPLE
 
     assert INPUT_MULTIPLE == STRIDE
     assert ShiftConfig(root="x", cases=("city",)).domains == ["T01_HRN_A", "T07_HRN_A"]
@@ -95,7 +95,7 @@ def test_config_is_checked_and_cases_come_from_the_paper():
 
 
 def test_pipeline_and_renderers_never_import_torch():
-    code = ("import sys, pipeline.cli, pipeline.driver, render_workers.episode, training.loaders, training.metrics; "
+    code = ("import sys, pipeline.cli, pipeline.driver, render_workers.render.episode, analysis.loaders, analysis.metrics; "
             "sys.exit(1 if 'torch' in sys.modules else 0)")
     assert subprocess.run([sys.executable, "-c", code]).returncode == 0
 
@@ -157,7 +157,7 @@ def test_shifts_command_on_a_tiny_run(shift_root, tmp_path):
 
 
 def test_shifts_command_errors_are_one_line(shift_root, tmp_path, monkeypatch):
-    from training.loaders import FrameDataset  # noqa: F401  (imported before torch is hidden)
+    from analysis.loaders import FrameDataset  # noqa: F401  (imported before torch is hidden)
 
     missing = CliRunner().invoke(cli_app(), ["shifts", str(tmp_path), "--json", str(tmp_path / "x.json")])
     assert missing.exit_code == 2

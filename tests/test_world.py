@@ -1,4 +1,4 @@
-"""Procedural towns and per-episode traffic (render_workers.world / traffic)."""
+"""Procedural towns and per-episode traffic (render_workers.worlds.world / traffic)."""
 
 from __future__ import annotations
 
@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 
 from manifests.catalog import TOWNS, VIEWPOINTS, class_id, town as town_row
-from render_workers import world as W
-from render_workers.scene import MATERIALS
-from render_workers.styles import is_urban
-from render_workers.traffic import populate
+from render_workers.worlds import world as W
+from render_workers.worlds.scene import MATERIALS
+from render_workers.worlds.styles import is_urban
+from render_workers.worlds.traffic import populate
 
 TOWN_CODES = [t.code for t in TOWNS]
 MOVING_CLASSES = {class_id("vehicle"), class_id("bicycle"), class_id("motorcycle")}
@@ -247,7 +247,7 @@ def test_no_car_right_ahead_of_the_ego(worlds):
 
 
 def test_ego_prefers_streets_to_the_freeway(worlds):
-    from render_workers.traffic import FREEWAY_EGO_WEIGHT
+    from render_workers.worlds.traffic import FREEWAY_EGO_WEIGHT
 
     loops = worlds["T04"].loops
     lengths = np.array([lp.path.length for lp in loops])
@@ -326,7 +326,7 @@ def test_town_traffic_has_buses(worlds):
 # Styles: town identity as data
 # --------------------------------------------------------------------------
 def test_every_town_has_a_style_and_styles_differ():
-    from render_workers.styles import STYLES, look, style, is_urban
+    from render_workers.worlds.styles import STYLES, look, style, is_urban
 
     for t in TOWNS:
         assert style(t.style) is look(t)
@@ -339,7 +339,7 @@ def test_every_town_has_a_style_and_styles_differ():
 def test_farmland_reads_as_farmland_not_as_a_town(worlds):
     """The country town's own look (issue 9, the city shift): a chip-seal road, not any kerbed town's asphalt,
     and golden ground and crops where the towns have green lawns; its built road wears that surface."""
-    from render_workers.styles import STYLES, look, surface
+    from render_workers.worlds.styles import STYLES, look, surface
 
     farm = look(town_row("T07"))
     urban = [s for s in STYLES if s.sidewalks]
@@ -363,10 +363,10 @@ def test_field_boundaries_follow_the_style():
     farmland lines most of its fields with hedgerows."""
     from dataclasses import replace
 
-    from render_workers.countryside import boundary
-    from render_workers.kit import Kit
-    from render_workers.styles import look
-    from render_workers.town_plan import plan
+    from render_workers.worlds.countryside import boundary
+    from render_workers.worlds.kit import Kit
+    from render_workers.worlds.styles import look
+    from render_workers.worlds.town_plan import plan
 
     assert dict(look(town_row("T07")).field_bounds)["hedge"] >= 0.5
 
@@ -388,7 +388,7 @@ def test_unknown_surface_style_and_kit_are_rejected():
     from dataclasses import replace
 
     from manifests.catalog import Town
-    from render_workers.styles import STYLES, look, style, surface
+    from render_workers.worlds.styles import STYLES, look, style, surface
 
     with pytest.raises(ValueError, match="unknown surface 'marble'; valid surfaces: asphalt dark, "):
         replace(STYLES[0], facades=("brick red", "marble"))
@@ -445,7 +445,7 @@ def test_a_style_row_changes_the_world():
 def test_roofs_and_tall_crops_wear_their_textures(worlds):
     """House roofs are painted in their surface (terracotta tiles, concrete), and the
     farmland's maize stands are vegetation textured with stalks."""
-    from render_workers.styles import surface
+    from render_workers.worlds.styles import surface
 
     tiles = [p for p in worlds["T01"].static
              if p.class_id == class_id("building") and p.texture == surface("roof terracotta").texture]

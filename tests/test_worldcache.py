@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from render_workers import testworld, worldcache
+from render_workers.worlds import testworld, worldcache
 
 
 @pytest.fixture

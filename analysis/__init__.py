@@ -1,0 +1,1 @@
+"""Analysis for people who train on the data: loaders, metrics, the small segmentation net, domain distances, the domain-shift table, evaluation. Torch comes with the optional `analysis` extra; producing data never needs it."""

@@ -1,0 +1,296 @@
+"""The dataset card: a README.md written into an output root.
+
+It describes what the root holds (domains and frames per split, class pixel
+shares with a bar chart, a contact sheet if one exists), how the files are
+encoded and decoded, where the data came from (run.json: config, seed,
+package versions, git revision), and how to query, export and load it. All
+numbers come from the manifest; the card is deterministic (no timestamps).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from dataclasses import dataclass
+
+import pyarrow as pa
+
+from manifests.catalog import LABELS, SCENARIO_BY_CODE
+from manifests.outputs import OUTPUTS, file_of_path, markdown_table
+from manifests.schema import output_columns
+from exports.export import few_episode_scenarios
+from exports.hf import card_header, citation_section
+from manifests.query import SPLIT_SHARES, SPLITS
+
+CARD_FILE = "README.md"
+CHART_FILE = "class_shares.png"
+PREVIEW_DIR = "preview"
+PREVIEW_MAX_WIDTH = 480  # contact-sheet frames are rendered at most this wide
+CARD_MARK = "<!-- written by idda card: it replaces this file when run again -->"
+_OUR_CARD_SIGNS = (CARD_MARK.encode(), b"# IDDA-style synthetic driving dataset")  # the second: cards before the mark
+
+
+def is_our_card(data: bytes) -> bool:
+    """True if a README.md was written by ``idda card`` (so it may be replaced)."""
+    return any(sign in data for sign in _OUR_CARD_SIGNS)
+
+
+@dataclass(frozen=True)
+class CardConfig:
+    root: str  # output root: local path or s3:// URI
+    contact_sheet: bool = False  # render a contact sheet into <root>/preview/ first
+
+
+@dataclass
+class CardResult:
+    card: str  # URI of the README.md
+    chart: str  # URI of the class-share chart
+    previews: list[str]  # root-relative preview images linked from the card
+    frames: int
+
+
+# -------------------------------------------------------------- sections ----
+def split_counts(table: pa.Table) -> dict[str, dict[str, int]]:
+    """Frames per scenario and split: {scenario: {split: n}} (every split present)."""
+    counts: dict[str, dict[str, int]] = {}
+    for code, split in zip(table.column("scenario").to_pylist(), table.column("split").to_pylist()):
+        row = counts.setdefault(code, {s: 0 for s in SPLITS})
+        row[split] = row.get(split, 0) + 1
+    return dict(sorted(counts.items()))
+
+
+def _domain_section(table: pa.Table) -> list[str]:
+    counts = split_counts(table)
+    lines = [
+        "## Domains and splits",
+        "",
+        "| scenario | town | weather | viewpoint | " + " | ".join(SPLITS) + " | total |",
+        "|---|---|---|---|" + "---:|" * (len(SPLITS) + 1),
+    ]
+    for code, row in counts.items():
+        s = SCENARIO_BY_CODE[code]
+        cells = " | ".join(f"{row[split]:,}" for split in SPLITS)
+        lines.append(
+            f"| {code} | {s.town.code} ({s.town.name}) | {s.weather.code} ({s.weather.name}) | "
+            f"{s.viewpoint.code} ({s.viewpoint.vehicle}) | {cells} | {sum(row.values()):,} |"
+        )
+    totals = {split: sum(row[split] for row in counts.values()) for split in SPLITS}
+    cells = " | ".join(f"**{totals[split]:,}**" for split in SPLITS)
+    lines.append(f"| **total** ({len(counts)} scenarios) | | | | {cells} | **{sum(totals.values()):,}** |")
+    lines += ["", "Splits are by episode: all frames of an episode share its split (above)."]
+    few = few_episode_scenarios(table)
+    if few:
+        shares = "/".join(f"{round(100 * x)}" for x in SPLIT_SHARES)
+        lines.append(
+            f"{len(few)} scenario(s) have fewer than 3 episodes or none in val or test ({', '.join(few)}): "
+            f"`idda export` splits their frames by frame blocks instead, {shares} % train/val/test in frame "
+            "order, so that every split has frames (`--as-split` puts an export in one split)."
+        )
+    return lines
+
+
+def _class_section(table: pa.Table) -> list[str]:
+    from manifests.stats import share_table
+
+    lines = [
+        "## Classes and pixel shares",
+        "",
+        f"![class pixel shares]({CHART_FILE})",
+        "",
+        "Share of all pixels per class in this root, next to the IDDA paper's full-scale shares. "
+        "\\* marks the classes excluded from evaluation (Cityscapes ignores them).",
+        "",
+        "| id | class | colour | Cityscapes id | trainId | share % | paper % | in frames % |",
+        "|---:|---|---|---:|---:|---:|---:|---:|",
+    ]
+    for row in share_table(table).to_pylist():
+        label = LABELS[row["class_id"]]
+        star = "" if label.evaluated else "\\*"
+        train = "ignore" if label.train_id == 255 else str(label.train_id)
+        lines.append(
+            f"| {label.id} | {label.name}{star} | {label.color} | {label.cityscapes_id} | {train} | "
+            f"{100 * row['share']:.3f} | {100 * row['paper_share']:.3f} | {100 * row['presence']:.1f} |"
+        )
+    return lines
+
+
+def _preview_section(previews: list[str]) -> list[str]:
+    if not previews:
+        return [
+            "## Preview",
+            "",
+            "No preview in this root yet: `idda card ROOT --contact-sheet` renders one "
+            "(one frame per scenario; rows are viewpoints, columns towns).",
+        ]
+    lines = ["## Preview", ""]
+    for rel in previews:
+        lines += [f"![{os.path.basename(rel)}]({rel})", ""]
+    return lines[:-1]
+
+
+def _encoding_section(table: pa.Table) -> list[str]:
+    held = tuple(o for o in OUTPUTS if table.column(output_columns(o)[0]).null_count < len(table))
+    example = table.column("depth_raw_path")[0].as_py() if "depth_raw" in held else "<depth_raw path>"
+    rgb_format = file_of_path("rgb", table.column("rgb_path")[0].as_py()) if "rgb" in held else "png"
+    return [
+        "## Files and encodings",
+        "",
+        "`<scenario>/<output>/<episode>_<frame>_<scenario>.<png|jpg|parquet>`, per frame one file per output "
+        f"this root holds ({', '.join(held)}; image encodings follow CARLA's conventions):",
+        "",
+        *markdown_table(held, rgb_format),
+        "",
+        "Depth in metres from `depth_raw`: `depth_m = 1000 * (R + G*256 + B*65536) / (256**3 - 1)`. "
+        "OpenCV reads BGR, so R is channel 2:",
+        "",
+        "```python",
+        "import cv2, numpy as np",
+        f'bgr = cv2.imread("{example}", cv2.IMREAD_COLOR).astype(np.float64)',
+        "depth_m = 1000 * (bgr[..., 2] + bgr[..., 1] * 256 + bgr[..., 0] * 65536) / (256**3 - 1)",
+        "```",
+    ]
+
+
+def _provenance_section(record: dict | None) -> list[str]:
+    lines = ["## Provenance", ""]
+    if record is None:
+        return lines + ["This root has no `run.json`; its config and versions are unknown."]
+    config = record.get("config", {})
+    lines += [
+        f"Produced by idda-pipeline at git revision `{record.get('git_revision', 'unknown')}` "
+        f"with run seed {config.get('seed')} and the `{config.get('world', 'procedural')}` world. "
+        "The same config and seed give the same bytes. Config (from `run.json`):",
+        "",
+        "```json",
+        json.dumps(config, indent=2, sort_keys=True),
+        "```",
+        "",
+        "| package | version |",
+        "|---|---|",
+    ]
+    lines += [f"| {name} | {version} |" for name, version in sorted(record.get("versions", {}).items())]
+    history = record.get("history", [])
+    if len(history) > 1:
+        lines += ["", f"The root was extended {len(history) - 1} time(s); `run.json` keeps every config."]
+    return lines
+
+
+def _usage_section(uri: str) -> list[str]:
+    where = "this directory" if uri == "." else f"`{uri}`"
+    return [
+        "## Query, export and load",
+        "",
+        f"Commands and code below read the dataset at {where}.",
+        "",
+        "```sh",
+        f"idda status {uri}                      # done / pending per scenario",
+        f"idda verify {uri}                      # recompute every checksum",
+        f"idda query {uri} --preset best-case --out best.txt",
+        f"idda query {uri} --domains 'towns=T01 weathers=CN' --split train --has rider --total 100 --out sample.csv",
+        f"idda export {uri} --format cityscapes --to export/cityscapes --split val",
+        f"idda export {uri} --format idda --to export/idda",
+        f"idda distances {uri} --chart domains.png",
+        "```",
+        "",
+        "In Python (numpy arrays; works with `torch.utils.data.DataLoader`, or Ray Data "
+        "with `analysis.loaders.ray_dataset`):",
+        "",
+        "```python",
+        "from analysis.loaders import FrameDataset",
+        "from manifests.query import Query",
+        "from manifests.reader import read_manifest",
+        "",
+        f'table = read_manifest("{uri}")          # one row per frame (pyarrow)',
+        f'data = FrameDataset("{uri}", Query(splits=("train",)), outputs=("rgb", "semantic_raw", "depth_raw"))',
+        'sample = data[0]   # sample["rgb"] HxWx3 uint8, sample["semantic"] HxW class ids, sample["depth"] metres',
+        "```",
+    ]
+
+
+def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list[str]) -> str:
+    """The card's text for a manifest ``table`` (all frames of the root); ``uri``
+    is how the usage examples name the root."""
+    if len(table) == 0:
+        raise ValueError(f"{uri} has no frames yet; produce some before writing its card")
+    sizes = sorted({(w, h) for w, h in zip(table.column("width").to_pylist(), table.column("height").to_pylist())})
+    resolution = ", ".join(f"{w}x{h}" for w, h in sizes)
+    episodes = len(set(zip(table.column("scenario").to_pylist(), table.column("episode").to_pylist())))
+    scenarios = len(set(table.column("scenario").to_pylist()))
+    intro = [
+        "# IDDA-style synthetic driving dataset",
+        "",
+        f"{len(table):,} frames in {episodes:,} episodes over {scenarios} scenarios (town x weather x viewpoint), "
+        f"at {resolution}, each with six images: RGB, depth (raw, grayscale, log-grayscale) and semantic "
+        f"segmentation (raw, coloured) with {len(LABELS)} classes. Made in the manner of IDDA "
+        "(Alberti et al., 2020) by idda-pipeline; every frame is listed with checksums and per-class "
+        "pixel counts in the Parquet manifest under `manifest/`.",
+    ]
+    header = card_header({"frames": len(table)}, {"frames": "manifest/**/*.parquet"}, config="manifest")
+    sections = [
+        intro,
+        _domain_section(table),
+        _class_section(table),
+        _preview_section(previews),
+        _encoding_section(table),
+        _provenance_section(record),
+        _usage_section(uri),
+        [citation_section()],
+    ]
+    return header + "\n" + "\n\n".join("\n".join(s) for s in sections) + "\n" + CARD_MARK + "\n"
+
+
+# --------------------------------------------------------------- writing ----
+def find_previews(storage) -> list[str]:
+    """Preview PNGs under ``preview/``: contact sheets first, then the rest, sorted."""
+    files = [rel for rel in storage.list_files(PREVIEW_DIR + "/", suffix=".png")]
+    return sorted(files, key=lambda rel: (not os.path.basename(rel).startswith("contact_sheet"), rel))
+
+
+def render_contact_sheet(storage, record: dict | None, codes: list[str]) -> list[str]:
+    """Render a contact sheet of ``codes`` with the run's seed and world into ``preview/``."""
+    try:
+        from render_workers.render.preview import write_preview
+    except ImportError as exc:
+        raise ImportError(f"rendering a contact sheet needs render_workers.render.preview ({exc})") from exc
+    config = (record or {}).get("config", {})
+    width, height = int(config.get("width", 1920)), int(config.get("height", 1080))
+    if width > PREVIEW_MAX_WIDTH:
+        width, height = PREVIEW_MAX_WIDTH, max(2, round(height * PREVIEW_MAX_WIDTH / width / 2) * 2)
+    written = []
+    with tempfile.TemporaryDirectory() as tmp:
+        paths = write_preview(tmp, codes, width, height, int(config.get("seed", 0)), world=config.get("world", "procedural"))
+        for path in sorted(str(p) for p in paths):
+            rel = f"{PREVIEW_DIR}/{os.path.basename(path)}"
+            with open(path, "rb") as f:
+                storage.write_bytes(rel, f.read())
+            written.append(rel)
+    return written
+
+
+def write_card(config: CardConfig) -> CardResult:
+    """Write ``README.md`` and ``class_shares.png`` into the root (and a contact sheet if asked)."""
+    from manifests.reader import read_manifest
+    from manifests.stats import bar_chart_png, share_table
+    from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record
+    from storage import Storage
+
+    storage = Storage.from_uri(config.root)
+    if storage.exists(CARD_FILE) and not is_our_card(storage.read_bytes(CARD_FILE)):
+        raise ValueError(f"{storage.join(CARD_FILE)} exists and was not written by `idda card`; move it away first")
+    storage.ensure_writable()  # the card goes into the root: say so before any work if it cannot
+    table = read_manifest(storage)
+    if len(table) == 0:
+        raise ValueError(f"{storage.uri} has no frames yet; produce some before writing its card")
+    try:
+        record = read_record(storage)
+    except RunRecordError as exc:
+        raise ValueError(f"{exc}; {REPAIR_HINT}") from None
+    if config.contact_sheet:
+        render_contact_sheet(storage, record, sorted(set(table.column("scenario").to_pylist())))
+    previews = find_previews(storage)
+    # Local cards say "." (run the commands in the root, which may move); s3 cards the URI.
+    text = card_markdown(table, record, "." if storage.is_local else storage.uri, previews)
+    storage.write_bytes(CHART_FILE, bar_chart_png(share_table(table), title=f"Class pixel shares, {len(table):,} frames"))
+    storage.write_bytes(CARD_FILE, text.encode())
+    return CardResult(storage.join(CARD_FILE), storage.join(CHART_FILE), previews, len(table))

@@ -1,0 +1,243 @@
+"""Export a query's frames into layouts that existing training code reads.
+
+One module per format, each a ``Layout`` (the outputs it reads and its
+builder); ``FORMATS`` names them, so a new format is one module plus one line
+there:
+
+* ``cityscapes`` (``exports.cityscapes``): leftImg8bit/ + gtFine/ as
+  cityscapesScripts and Cityscapes loaders expect;
+* ``idda`` (``exports.idda``): the published IDDA layout and its split files
+  (or FedDrive's federated splits);
+* ``coco`` (``exports.coco``): images and COCO instance annotations (RLE masks
+  and boxes); needs the ``instance`` and ``objects`` outputs;
+* ``hf`` (``exports.hf``): Parquet shards with embedded images and a card.
+
+What they share (the frames, file placing, decoders) is ``exports.placing``.
+Every layout also gets ``frames.csv`` (one row per frame: source frame id,
+scenario, split and the exported paths) and, written last, ``EXPORT.json``
+(format, source root, query, counts): an export without it is unfinished.
+
+Files are never re-rendered. Unchanged images are hard-linked into the
+target (falling back to a copy across file systems), symlinked, or copied;
+s3:// roots are always downloaded. The export is built in a hidden temp
+directory next to the target and renamed into place when complete, so a
+half-finished export is never mistaken for a finished one.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import shutil
+import time
+import uuid
+from dataclasses import asdict, dataclass, field, replace
+
+import pyarrow as pa
+
+from manifests.query import SPLIT_SHARES, SPLITS, Query, run_query
+from manifests.reader import require_outputs
+from manifests.root import EXPORT_MARKER, check_export_target
+from exports.idda import SPLIT_FILES
+from exports.placing import FILE_MODES, Layout, frames_of, index_csv, write
+
+MARKER = EXPORT_MARKER  # written last: its presence means the export is complete
+INDEX = "frames.csv"
+
+# Export formats by name: the module whose LAYOUT writes each (imported on use,
+# so a format's optional dependency, e.g. pycocotools, is needed only by it).
+FORMATS: dict[str, str] = {
+    "cityscapes": "exports.cityscapes",
+    "idda": "exports.idda",
+    "hf": "exports.hf",
+    "coco": "exports.coco",
+}
+
+
+def layout(name: str) -> Layout:
+    """The layout of export format ``name``; ValueError naming the valid formats."""
+    if name not in FORMATS:
+        raise ValueError(f"unknown export format {name!r}; valid formats: {', '.join(FORMATS)}")
+    return importlib.import_module(FORMATS[name]).LAYOUT
+
+
+# Scenarios whose episodes leave a split empty (the planner gives val and test
+# episodes only from 6 episodes on) get their splits by frame blocks inside the
+# episodes (exports only; the manifest keeps per-episode splits).
+
+
+def block_splits(n: int) -> list[str]:
+    """Splits of ``n`` consecutive frames: a train block, then val, then test
+    (at least one frame each from 3 frames on)."""
+    if n < len(SPLITS):
+        return ["train"] * n
+    n_val = max(1, round(SPLIT_SHARES[1] * n))
+    n_test = max(1, round(SPLIT_SHARES[2] * n))
+    return ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
+
+
+def few_episode_scenarios(table: pa.Table) -> list[str]:
+    """Scenarios with too few episodes for every split: some split has none of their frames in ``table``."""
+    splits: dict[str, set] = {}
+    for code, split in zip(table.column("scenario").to_pylist(), table.column("split").to_pylist()):
+        splits.setdefault(code, set()).add(split)
+    return sorted(code for code, present in splits.items() if set(SPLITS) - present)
+
+
+def export_splits(table: pa.Table, few: list[str] | None = None) -> pa.Table:
+    """The manifest with the splits exports use: unchanged for scenarios whose
+    episodes fill every split; by frame blocks in (episode, frame) order for the
+    others, so small runs have frames in every split."""
+    few = set(few_episode_scenarios(table) if few is None else few)
+    if not few:
+        return table
+    scenarios = table.column("scenario").to_pylist()
+    keys = list(zip(table.column("episode").to_pylist(), table.column("frame").to_pylist()))
+    splits = table.column("split").to_pylist()
+    for code in few:
+        rows = sorted((i for i, s in enumerate(scenarios) if s == code), key=lambda i: keys[i])
+        for i, split in zip(rows, block_splits(len(rows))):
+            splits[i] = split
+    index = table.column_names.index("split")
+    return table.set_column(index, table.field("split"), pa.array(splits, type=table.field("split").type))
+
+
+# ---------------------------------------------------------------- export ----
+@dataclass(frozen=True)
+class ExportConfig:
+    root: str  # source output root: local path or s3:// URI
+    to: str  # target directory (local)
+    format: str = "cityscapes"  # a key of FORMATS
+    query: Query = field(default_factory=Query)
+    files: str = "hardlink"  # a key of FILE_MODES; s3 sources are always copied
+    force: bool = False  # replace a non-empty target
+    threads: int = 8  # frames converted in parallel
+    as_split: str | None = None  # put every exported frame in this split
+    splits: str = "scenario"  # idda layout: a key of exports.idda.SPLIT_FILES
+    holdout: str | None = None  # feddrive splits: domains for test_user_diff_domain
+
+    def validate(self) -> None:
+        if self.format not in FORMATS:
+            raise ValueError(f"unknown export format {self.format!r}; valid formats: {', '.join(FORMATS)}")
+        if self.as_split is not None and self.as_split not in SPLITS:
+            raise ValueError(f"unknown split {self.as_split!r}; valid splits: {', '.join(SPLITS)}")
+        if self.splits not in SPLIT_FILES:
+            raise ValueError(f"unknown split files {self.splits!r}; valid: {', '.join(SPLIT_FILES)}")
+        if self.splits != "scenario" and self.format != "idda":
+            raise ValueError(f"split files {self.splits!r} are for the idda format, not {self.format!r}")
+        if self.holdout is not None:
+            from manifests.selection import parse_selection
+
+            if self.splits != "feddrive":
+                raise ValueError("a holdout selection needs --splits feddrive")
+            parse_selection(self.holdout)
+        if self.files not in FILE_MODES:
+            raise ValueError(f"unknown file mode {self.files!r}; valid modes: {', '.join(FILE_MODES)}")
+        if "://" in self.to and not self.to.startswith("file://"):
+            raise ValueError(f"export target must be a local directory, got {self.to}")
+        if self.threads < 1:
+            raise ValueError(f"threads must be at least 1, got {self.threads}")
+        self.query.validate()
+
+
+@dataclass
+class ExportReport:
+    target: str
+    format: str
+    frames: int
+    files: int
+    per_split: dict[str, int]
+    shortfall: dict[str, int]
+    seconds: float
+
+
+def _target_dir(to: str) -> str:
+    from storage import Storage
+
+    storage = Storage.from_uri(to)
+    return storage.path()
+
+
+def _is_within(path: str, directory: str) -> bool:
+    path, directory = os.path.realpath(path), os.path.realpath(directory)
+    return os.path.commonpath([path, directory]) == directory
+
+
+def _commit(tmp: str, target: str) -> None:
+    """Move the finished temp directory to ``target``, replacing what is there."""
+    if os.path.isdir(target) and os.listdir(target):
+        old = os.path.join(os.path.dirname(target), f".{os.path.basename(target)}.{uuid.uuid4().hex}.old")
+        os.rename(target, old)
+        os.rename(tmp, target)
+        shutil.rmtree(old, ignore_errors=True)
+    else:
+        os.replace(tmp, target)  # an empty directory is replaced atomically
+
+
+def export(config: ExportConfig) -> ExportReport:
+    """Export the frames of ``config.query`` from ``config.root`` into ``config.to``."""
+    from manifests.reader import read_manifest
+    from storage import Storage
+
+    config.validate()
+    start = time.perf_counter()
+    storage = Storage.from_uri(config.root)
+    target = _target_dir(config.to)
+    check_export_target(target, config.force)  # never inside or over an output root
+    if storage.is_local and _is_within(storage.path(), target):
+        raise ValueError(f"export target {target} must not be the source root {storage.uri} or contain it")
+    manifest = read_manifest(storage)
+    few = few_episode_scenarios(manifest)
+    result = run_query(export_splits(manifest, few), config.query)
+    if len(result.table) == 0:
+        raise ValueError(f"no frames in {storage.uri} match the query; nothing to export")
+    chosen = layout(config.format)
+    require_outputs(result.table, chosen.outputs, f"{storage.uri} ({config.format} export)")
+    frames = frames_of(result.table)
+    if config.as_split is not None:
+        frames = [replace(f, split=config.as_split) for f in frames]
+
+    parent = os.path.dirname(target)
+    os.makedirs(parent, exist_ok=True)
+    tmp = os.path.join(parent, f".{os.path.basename(target)}.{uuid.uuid4().hex}.tmp")
+    os.makedirs(tmp)
+    try:
+        exported, extras = chosen.build(storage, frames, tmp, config)
+        write(os.path.join(tmp, INDEX), index_csv(frames, exported))
+        per_split = {s: sum(f.split == s for f in frames) for s in SPLITS}
+        per_scenario: dict[str, int] = {}
+        for f in frames:
+            per_scenario[f.scenario] = per_scenario.get(f.scenario, 0) + 1
+        files = sum(len(paths) for paths in exported) + len(extras) + 2
+        marker = {
+            "format": config.format,
+            "source": storage.uri,
+            "query": asdict(config.query),
+            "frames": len(frames),
+            "files": files,
+            "file_mode": config.files if storage.is_local else "copy",
+            "per_split": per_split,
+            "per_scenario": per_scenario,
+            "block_split_scenarios": [] if config.as_split else sorted(set(few) & set(per_scenario)),
+            "as_split": config.as_split,
+        }
+        write(os.path.join(tmp, MARKER), (json.dumps(marker, indent=2, sort_keys=True) + "\n").encode())
+        _commit(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    return ExportReport(
+        target=target,
+        format=config.format,
+        frames=len(frames),
+        files=files,
+        per_split=per_split,
+        shortfall=dict(result.shortfall),
+        seconds=time.perf_counter() - start,
+    )
+
+
+def is_complete(target: str) -> bool:
+    """True if ``target`` holds a finished export (its marker exists)."""
+    return os.path.isfile(os.path.join(target, MARKER))

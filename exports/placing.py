@@ -1,0 +1,170 @@
+"""What every export format shares: the frames it exports, how files are
+placed into the target, the decoders and the PNG encoder, and the per-frame
+builder. A format module (``cityscapes``, ``idda``, ``coco``, ``hf``) adds only
+its own layout; ``exports.export`` runs any of them through one registry.
+"""
+
+from __future__ import annotations
+
+import csv
+import errno
+import io
+import json
+import os
+import shutil
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
+from typing import Callable, Mapping
+
+import numpy as np
+import pyarrow as pa
+
+from manifests.outputs import OUTPUTS, file_of_path, read_output
+from manifests.schema import output_columns
+
+# ------------------------------------------------------------ the frames ----
+_META = ("frame_id", "scenario", "episode", "frame", "split", "width", "height")
+
+
+@dataclass(frozen=True)
+class ExportFrame:
+    """One manifest row as an export needs it: identity, split, size, and the
+    root-relative file of every output the root holds (None where it has not)."""
+
+    frame_id: str
+    scenario: str
+    episode: int
+    frame: int
+    split: str
+    width: int
+    height: int
+    paths: Mapping[str, str | None]
+
+    def path(self, output: str) -> str | None:
+        """The frame's file of ``output`` (a name of the output table), None if the root lacks it."""
+        if output not in OUTPUTS:
+            raise ValueError(f"unknown output {output!r}; valid outputs: {', '.join(OUTPUTS)}")
+        return self.paths.get(output)
+
+
+def frames_of(table: pa.Table) -> list[ExportFrame]:
+    """The export frames of a manifest table, in its row order."""
+    meta = {name: table.column(name).to_pylist() for name in _META}
+    paths = {o: table.column(output_columns(o)[0]).to_pylist()
+             for o in OUTPUTS if output_columns(o)[0] in table.column_names}
+    return [ExportFrame(**{name: meta[name][i] for name in _META}, paths={o: p[i] for o, p in paths.items()})
+            for i in range(len(table))]
+
+
+# ------------------------------------------------------------ file modes ----
+_NO_LINK = {errno.EPERM, errno.EXDEV, errno.EMLINK, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EACCES}
+
+
+def _place_copy(storage, rel: str, dest: str) -> None:
+    if storage.is_local:
+        shutil.copyfile(storage.path(rel), dest)
+    else:
+        with open(dest, "wb") as f:
+            f.write(storage.read_bytes(rel))
+
+
+def _place_hardlink(storage, rel: str, dest: str) -> None:
+    if not storage.is_local:
+        return _place_copy(storage, rel, dest)
+    try:
+        os.link(storage.path(rel), dest)
+    except OSError as exc:
+        if exc.errno not in _NO_LINK:
+            raise
+        _place_copy(storage, rel, dest)  # another file system: copy instead
+
+
+def _place_symlink(storage, rel: str, dest: str) -> None:
+    if not storage.is_local:
+        return _place_copy(storage, rel, dest)
+    os.symlink(storage.path(rel), dest)
+
+
+FILE_MODES: dict[str, Callable[[object, str, str], None]] = {
+    "hardlink": _place_hardlink,
+    "symlink": _place_symlink,
+    "copy": _place_copy,
+}
+
+
+# ---------------------------------------------------------------- images ----
+def png(image: np.ndarray) -> bytes:
+    """Lossless PNG of an HxW (uint8 or uint16), HxWx3 RGB or HxWx4 RGBA uint8 array."""
+    import cv2
+
+    if image.ndim == 3:
+        to_bgr = cv2.COLOR_RGBA2BGRA if image.shape[2] == 4 else cv2.COLOR_RGB2BGR
+        image = cv2.cvtColor(np.ascontiguousarray(image), to_bgr)
+    ok, buf = cv2.imencode(".png", np.ascontiguousarray(image), [cv2.IMWRITE_PNG_COMPRESSION, 1])
+    if not ok:
+        raise ValueError(f"PNG encoding failed for an array of shape {image.shape}")
+    return buf.tobytes()
+
+
+def decode(storage, rel: str, output: str = "semantic_raw") -> np.ndarray:
+    """A root file decoded as the output table's loader decodes ``output``."""
+    return read_output(output, storage.read_bytes(rel), storage.join(rel))
+
+
+def is_jpeg(rel: str) -> bool:
+    """Whether a root's rgb file is a JPEG (``--rgb-format jpg``)."""
+    return file_of_path("rgb", rel) == "jpg"
+
+
+# ------------------------------------------------------------ the files -----
+def write(path: str, data: bytes) -> None:
+    with open(path, "wb") as f:
+        f.write(data)
+
+
+def write_json(tmp: str, rel: str, body) -> str:
+    """``body`` as indented JSON at ``tmp/rel``; returns ``rel``."""
+    os.makedirs(os.path.dirname(os.path.join(tmp, rel)), exist_ok=True)
+    write(os.path.join(tmp, rel), (json.dumps(body, indent=1, sort_keys=True) + "\n").encode())
+    return rel
+
+
+def index_csv(frames: list[ExportFrame], exported: list[dict[str, str]]) -> bytes:
+    """frames.csv: one row per frame, its source identity and the files it became."""
+    kinds = list(exported[0]) if exported else []
+    buf = io.StringIO()
+    writer = csv.writer(buf, lineterminator="\n")
+    writer.writerow(["frame_id", "scenario", "episode", "frame", "split", *kinds])
+    for f, paths in zip(frames, exported):
+        writer.writerow([f.frame_id, f.scenario, f.episode, f.frame, f.split, *(paths[k] for k in kinds)])
+    return buf.getvalue().encode()
+
+
+def no_extras(frames: list[ExportFrame], tmp: str, config) -> list[str]:
+    return []
+
+
+# A layout builder: (storage, frames, tmp dir, config) -> ([{kind: exported rel path}] per frame, [per-export files])
+Builder = Callable[[object, list, str, object], tuple[list[dict], list[str]]]
+
+
+def per_frame(frame: Callable, directories: Callable, extras: Callable = no_extras) -> Builder:
+    """A layout builder that writes each frame's files (in parallel), then the per-export files."""
+
+    def build(storage, frames: list[ExportFrame], tmp: str, config):
+        for rel in sorted(directories(frames)):
+            os.makedirs(os.path.join(tmp, rel), exist_ok=True)
+        place = FILE_MODES[config.files]
+        with ThreadPoolExecutor(max_workers=config.threads) as pool:
+            exported = list(pool.map(lambda f: frame(storage, f, tmp, place), frames))
+        return exported, extras(frames, tmp, config)
+
+    return build
+
+
+@dataclass(frozen=True)
+class Layout:
+    """An export format: the outputs it reads and the builder that writes it."""
+
+    outputs: tuple[str, ...]  # outputs the root must hold (a format may also use others when present)
+    build: Builder

@@ -1,0 +1,433 @@
+"""The ``idda`` command line: thin typer commands that build one config and
+call one function. Errors reach the user as one line and exit code 2."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from pipeline.cli import data as cli_data
+from pipeline.cli.common import (
+    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
+    build_query, count, user_errors, write_local,
+)
+from manifests.outputs import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
+from manifests.reader import require_outputs
+from pipeline.planner import PlanConfig, make_plan
+from storage import StorageError
+
+app = typer.Typer(
+    help="Produce large multi-domain synthetic driving datasets (IDDA-style).\n\n"
+    "Domains are selected with one grammar everywhere: 'all'; scenario codes such as "
+    "T01_CS_A,T07_HRN_* ; or axis filters such as 'towns=T01-T06 weathers=CN viewpoints=A,M'.\n\n"
+    "Exit codes: 0 done; 1 the data has a problem (verify found damage, episodes failed); "
+    "2 a usage error, including a selection that matches no frames; 130 interrupted.",
+    no_args_is_help=True,
+    context_settings={"help_option_names": ["-h", "--help"]},
+    pretty_exceptions_enable=False,
+    rich_markup_mode=None,
+)
+
+
+def _print_version(value: bool) -> None:
+    if value:
+        from importlib.metadata import version
+
+        typer.echo(f"idda {version('idda-pipeline')}")
+        raise typer.Exit()
+
+
+@app.callback()
+def _root(
+    version: bool = typer.Option(
+        False, "--version", "-V", callback=_print_version, is_eager=True, help="Print the version and exit."
+    ),
+) -> None:
+    """Produce large multi-domain synthetic driving datasets (IDDA-style)."""
+
+
+def format_plan_table(plan) -> str:
+    """One line per scenario (episodes, frames), then totals."""
+    rows = [("scenario", "episodes", "frames", "frames/episode")]
+    for code, episodes in plan.by_scenario().items():
+        lengths = [e.frames for e in episodes]
+        span = f"{min(lengths)}-{max(lengths)}" if min(lengths) != max(lengths) else str(lengths[0])
+        rows.append((code, str(len(episodes)), f"{sum(lengths):,}", span))
+    rows.append(
+        (
+            f"total ({len(plan.scenarios())} scenarios)",
+            f"{len(plan.episodes):,}",
+            f"{plan.total_frames:,}",
+            "",
+        )
+    )
+    widths = [max(len(r[i]) for r in rows) for i in range(4)]
+    lines = []
+    for i, row in enumerate(rows):
+        if i == len(rows) - 1:
+            lines.append("-" * (sum(widths) + 6))
+        lines.append(
+            f"{row[0]:<{widths[0]}}  {row[1]:>{widths[1]}}  {row[2]:>{widths[2]}}  {row[3]:>{widths[3]}}"
+        )
+    cfg = plan.config
+    lines.append(f"resolution {cfg.width}x{cfg.height}, seed {cfg.seed}")
+    return "\n".join(lines)
+
+
+@app.command()
+def plan(
+    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
+    scale: Optional[float] = typer.Option(None, help="Fraction (0, 1] of the paper's full-scale frame counts."),
+    frames_per_scenario: Optional[int] = typer.Option(None, help="Frames per scenario (instead of --scale)."),
+    width: int = typer.Option(1920, help="Image width in pixels."),
+    height: int = typer.Option(1080, help="Image height in pixels."),
+    seed: int = typer.Option(0, help="Run seed; every episode's seed derives from it."),
+    out: Optional[Path] = typer.Option(None, help="Write the plan as Parquet (one row per episode)."),
+) -> None:
+    """Expand a domain selection into shards and episodes, and print them.
+
+    Without --scale or --frames-per-scenario the plan is full scale: all 105
+    scenarios hold the paper's 1,006,800 frames.
+    """
+    with user_errors():
+        the_plan = make_plan(PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width, height=height, seed=seed))
+        typer.echo(format_plan_table(the_plan))
+        if out is not None:
+            from pipeline.planio import write_plan
+
+            write_plan(the_plan, out)
+            typer.echo(f"wrote {len(the_plan.episodes):,} episodes to {out}")
+
+
+def _storage(root: str):
+    from storage import Storage
+
+    return Storage.from_uri(root)
+
+
+def _output_root(root: str):
+    """The storage of a root that ``idda produce`` wrote to; ValueError for any other path."""
+    from manifests.reader import manifest_files
+    from manifests.schema import RUN_FILE
+
+    storage = _storage(root)
+    if not storage.exists(RUN_FILE) and not manifest_files(storage):
+        raise ValueError(f"{storage.uri} is not an output root (no run.json, no manifest); run `idda produce` first")
+    return storage
+
+
+@app.command()
+def produce(
+    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
+    out: str = typer.Option("output", "--out", "-o", help="Output root: a local path or s3://bucket/prefix."),
+    scale: Optional[float] = typer.Option(None, help="Fraction (0, 1] of the paper's full-scale frame counts; 1 is the full dataset."),
+    frames_per_scenario: Optional[int] = typer.Option(None, help="Frames per scenario (default 2 when --scale is not given)."),
+    width: int = typer.Option(1920, help="Image width in pixels."),
+    height: int = typer.Option(1080, help="Image height in pixels."),
+    seed: int = typer.Option(0, help="Run seed; every episode's seed derives from it."),
+    world: str = typer.Option("procedural", help="World builder: procedural (the seven towns) or test (simple test world)."),
+    address: Optional[str] = typer.Option(None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster)."),
+    workers: Optional[int] = typer.Option(None, help="CPUs for a local Ray cluster (default: all cores)."),
+    gpus_per_task: float = typer.Option(0.0, help="GPU share per render task, e.g. 0.25 to run four per GPU."),
+    max_retries: int = typer.Option(3, help="Retries per episode after a worker, node or renderer failure."),
+    extend: bool = typer.Option(False, "--extend", help="Allow a different selection or size than the root was made with."),
+    repair: bool = typer.Option(False, "--repair", help="Verify first and re-render exactly the damaged episodes."),
+    outputs: str = typer.Option(",".join(DEFAULT_OUTPUTS), "--outputs", help=f"Outputs to write, comma-separated: any of {', '.join(OUTPUTS)}. A root keeps the outputs it was made with."),
+    rgb_format: str = typer.Option("png", "--rgb-format", help="File format of the rgb output: png (lossless, the default) or jpg (quality 95, the released IDDA format; about a quarter of the bytes). A root keeps its format."),
+) -> None:
+    """Render the selected scenarios into an output root (resumable).
+
+    Re-running the same command skips finished episodes: kill it at any time
+    and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
+    """
+    from pipeline.driver import ProduceConfig, ProduceInterrupted, produce as run_produce
+    from pipeline.runmeta import RunConfig
+
+    with user_errors():
+        if scale is None and frames_per_scenario is None:
+            frames_per_scenario = 2
+        plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
+                              height=height, seed=seed, outputs=parse_outputs(outputs), rgb_format=rgb_format)
+        config = ProduceConfig(
+            run=RunConfig(plan=plan_cfg, world=world),
+            out=out,
+            address=address,
+            workers=workers,
+            gpus_per_task=gpus_per_task,
+            max_retries=max_retries,
+            extend=extend,
+            repair=repair,
+        )
+        bar = ProgressDisplay()
+        try:
+            report = run_produce(config, progress=bar.update)
+        except ProduceInterrupted as stop:
+            bar.close()
+            typer.echo(format_interrupted(stop.report), err=True)
+            raise typer.Exit(code=130) from None
+        finally:
+            bar.close()
+        typer.echo(format_produce_report(report))
+        if not report.ok:
+            raise typer.Exit(code=1)
+
+
+def format_progress(p) -> str:
+    """One progress line: frames, the run's true average rate, ETA, episodes."""
+    from pipeline.status import format_duration
+
+    share = 100 * p.frames_done / p.frames_total if p.frames_total else 100.0
+    rate = f"{p.rate:,.2f}" if p.rate < 100 else f"{p.rate:,.0f}"
+    eta = format_duration(p.eta_s) if p.eta_s is not None else "?"
+    line = (
+        f"rendering {p.frames_done:,}/{p.frames_total:,} frames ({share:.0f}%), {rate} frame/s, ETA {eta}, "
+        f"episodes {p.episodes_done:,}/{p.episodes_total:,}, {format_duration(p.elapsed_s)} elapsed"
+    )
+    return line + (f", {p.failed} failed" if p.failed else "")
+
+
+class ProgressDisplay:
+    """Produce's progress on ``stream`` (stderr): on a terminal one line,
+    redrawn at every frame the workers report; otherwise (a log file, CI) one
+    line per finished episode."""
+
+    def __init__(self, stream=None) -> None:
+        import sys
+
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self._finished = 0
+        self._width = 0
+
+    def update(self, p) -> None:
+        text = format_progress(p)
+        if self.tty:
+            self.stream.write("\r" + text.ljust(self._width))
+            self._width = len(text)
+        elif p.episodes_done + p.failed > self._finished:
+            self._finished = p.episodes_done + p.failed
+            self.stream.write(text + "\n")
+        else:
+            return
+        self.stream.flush()
+
+    def close(self) -> None:
+        if self.tty and self._width:
+            self.stream.write("\n")
+            self.stream.flush()
+            self._width = 0
+
+
+def format_interrupted(report) -> str:
+    """What an interrupted run did, and how to go on."""
+    return (
+        f"interrupted: {report.out} gained {count(report.rendered_frames, 'frame')} in "
+        f"{count(report.rendered_episodes, 'episode')} this run; run the same command again to resume "
+        "(finished episodes are kept, the rest render again)"
+    )
+
+
+def format_produce_report(report) -> str:
+    from pipeline.status import format_duration
+
+    lines = []
+    if report.repaired:
+        lines.append(f"repair: re-rendering {len(report.repaired)} damaged episode(s): {', '.join(report.repaired[:10])}"
+                     + (" ..." if len(report.repaired) > 10 else ""))
+    if report.per_scenario:
+        lines.append(f"{'scenario':<10} {'episodes':>8} {'frames':>8} {'worker s/frame':>15}")
+        for code, row in sorted(report.per_scenario.items()):
+            lines.append(f"{code:<10} {row['episodes']:>8} {row['frames']:>8} {row['seconds'] / max(row['frames'], 1):>15.2f}")
+    if not report.rendered_episodes and not report.failed:
+        lines.append(f"{report.out}: nothing to render; all {report.planned_episodes:,} planned episodes are done")
+        return "\n".join(lines)
+    rate = report.rendered_frames / report.seconds if report.seconds else 0.0
+    lines.append(
+        f"{report.out}: rendered {count(report.rendered_frames, 'frame')} in "
+        f"{count(report.rendered_episodes, 'episode')} "
+        f"({format_duration(report.seconds)}, {rate:.2f} frames/s on {count(report.workers, 'worker')}); "
+        f"{report.skipped_episodes:,} of {report.planned_episodes:,} episodes were already done"
+    )
+    for key, error in report.failed:
+        lines.append(f"FAILED {key}: {error}")
+    if report.failed:
+        lines.append(f"{len(report.failed)} episode(s) failed; run the same command again to retry them")
+    return "\n".join(lines)
+
+
+@app.command()
+def status(root: str = typer.Argument(..., help=ROOT_HELP)) -> None:
+    """Done / pending episodes and frames per scenario, and the time left."""
+    from pipeline.status import format_duration, root_status
+
+    with user_errors():
+        st = root_status(_storage(root))
+        typer.echo(f"{'scenario':<10} {'episodes':>13} {'frames':>17}")
+        for s in st.scenarios:
+            mark = "done" if s.frames_done == s.frames_total else ""
+            typer.echo(f"{s.scenario:<10} {s.episodes_done:>6}/{s.episodes_total:<6} {s.frames_done:>8}/{s.frames_total:<8} {mark}")
+        pct = 100 * st.frames_done / max(st.frames_total, 1)
+        line = f"{st.uri}: {st.frames_done:,} of {st.frames_total:,} frames done ({pct:.1f}%)"
+        if st.frames_done < st.frames_total:
+            eta = st.eta_s
+            line += f"; about {format_duration(eta)} left at the last run's {st.frames_per_s:.2f} frames/s" if eta is not None else "; no rate measured yet"
+        if st.extra_episodes:
+            line += f"; {st.extra_episodes} more episode(s) from earlier --extend runs"
+        typer.echo(line)
+
+
+@app.command()
+def verify(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    threads: int = typer.Option(8, help="Files checked in parallel."),
+) -> None:
+    """Recompute every checksum; report missing, corrupt and extra files.
+
+    Exits 1 when anything is wrong; `idda produce --repair` fixes it.
+    """
+    from manifests.verify import verify as run_verify
+
+    with user_errors():
+        report = run_verify(_output_root(root), threads=threads)
+        for p in report.problems[:50]:
+            typer.echo(f"{p.kind:<8} {p.path}" + (f"  ({p.detail})" if p.detail else ""))
+        if len(report.problems) > 50:
+            typer.echo(f"... and {len(report.problems) - 50} more")
+        mb = report.bytes_checked / 1e6
+        rate = mb / report.seconds if report.seconds else 0.0
+        summary = f"checked {report.files_checked:,} files, {mb:,.1f} MB in {report.seconds:.1f} s ({rate:.0f} MB/s)"
+        if report.ok:
+            typer.echo(f"OK: {summary}")
+            return
+        counts = ", ".join(f"{n} {kind}" for kind, n in sorted(report.counts().items()))
+        typer.echo(f"FAILED: {counts}; {summary}. Fix with: idda produce --repair (same options as the run)")
+        raise typer.Exit(code=1)
+
+
+@app.command()
+def query(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    preset: Preset = None,
+    domains: Domains = None,
+    split: Splits = [],
+    episode: list[int] = typer.Option([], help="Keep this episode index; repeatable."),
+    has_class: HasClass = [],
+    min_share: MinShare = [],
+    per_scenario: PerScenario = None,
+    total: Total = None,
+    seed: SampleSeed = None,
+    out: Optional[Path] = typer.Option(None, help="Write the frames: .txt/.lst (file list), .csv or .parquet."),
+    fmt: Optional[str] = typer.Option(None, "--format", help="list, csv or parquet (default: from --out's suffix)."),
+    outputs: str = typer.Option("rgb,semantic_raw", help="Outputs listed per frame in file lists (CSV and Parquet hold every manifest column)."),
+) -> None:
+    """Filter frames and draw seeded stratified samples, e.g. --preset best-case."""
+    from manifests import query as q
+    from manifests.reader import scan_manifest
+
+    with user_errors():
+        the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
+        storage = _output_root(root)
+        result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
+        for code, missing in sorted(result.shortfall.items()):
+            typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
+        if len(result.table) == 0:
+            raise ValueError(f"no frames in {storage.uri} match the query ({result.matched:,} match the filters)")
+        chosen = parse_outputs(outputs)
+        if out is not None:
+            fmt = fmt or q.FORMAT_BY_SUFFIX.get(out.suffix)
+            if fmt is None:
+                raise ValueError(f"cannot tell the format of {out}; use --format list|csv|parquet")
+            if fmt == "list":
+                require_outputs(result.table, chosen, storage.uri)
+            data = q.encode_result(result.table, fmt, chosen)
+            write_local(out, data)
+        counts: dict[str, int] = {}
+        for code in result.table.column("scenario").to_pylist():
+            counts[code] = counts.get(code, 0) + 1
+        for code, n in sorted(counts.items()):
+            typer.echo(f"{code:<10} {n:>8}")
+        where = f"; wrote {out}" if out is not None else ""
+        typer.echo(f"{len(result.table):,} frames selected of {result.matched:,} matching the filters{where}")
+
+
+def _writable(storage) -> bool:
+    """Whether files can be written into a root (checked before any output)."""
+    try:
+        storage.ensure_writable()
+        return True
+    except StorageError:
+        return False
+
+
+@app.command()
+def stats(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
+    per_scenario: bool = typer.Option(False, "--per-scenario", help="One table and one chart panel per scenario instead of overall."),
+    chart: Optional[Path] = typer.Option(None, help="Write a log-scale bar chart PNG (default: <root>/class_shares.png for local roots)."),
+) -> None:
+    """Class pixel shares as a table and a log-scale bar chart (paper's Fig. pixeldistr)."""
+    from manifests import query as q
+    from manifests.reader import read_manifest
+    from manifests.stats import bar_chart_png, format_share_table, share_table
+
+    with user_errors():
+        storage = _storage(root)
+        chart_in_root = chart is None and storage.is_local and _writable(storage)
+        table = q.filter_frames(read_manifest(storage), q.Query(domains=domains))
+        if len(table) == 0:
+            raise ValueError(f"{storage.uri} has no frames for {domains!r} yet")
+        shares = share_table(table, by_scenario=per_scenario)
+        typer.echo(format_share_table(shares))
+        png = bar_chart_png(shares, title=f"Class pixel shares, {len(table):,} frames")
+        if chart is None:
+            if not chart_in_root:
+                typer.echo("(pass --chart FILE.png to save the chart: the root is read-only or on s3://)")
+                return
+            storage.write_bytes("class_shares.png", png)
+            chart_where = storage.join("class_shares.png")
+        else:
+            write_local(chart, png)
+            chart_where = str(chart)
+        typer.echo(f"chart: {chart_where}")
+
+
+@app.command()
+def preview(
+    out: Path = typer.Option(..., "--out", "-o", help="Directory for the contact sheet(s) and the six-output strip."),
+    domains: str = typer.Option("weathers=CN", "--domains", "-d", help=DOMAINS_HELP),
+    width: int = typer.Option(480, help="Width of each rendered frame."),
+    height: int = typer.Option(270, help="Height of each rendered frame."),
+    seed: int = typer.Option(0, help="Run seed."),
+    world: str = typer.Option("procedural", help="World builder: procedural or test."),
+) -> None:
+    """Render one frame per scenario into a contact sheet (rows = viewpoints,
+    columns = towns, one sheet per weather) plus one frame's six outputs."""
+    from manifests.selection import parse_selection
+    from render_workers.worlds.registry import check_world
+    from render_workers.render.preview import write_preview
+
+    with user_errors():
+        PlanConfig(domains=domains, width=width, height=height, seed=seed, frames_per_scenario=1).validate()
+        check_world(world)
+        out.mkdir(parents=True, exist_ok=True)
+        codes = [s.code for s in parse_selection(domains)]
+        paths = write_preview(out, codes, width, height, seed, world=world)
+        for path in paths:
+            typer.echo(f"wrote {path}")
+
+
+cli_data.register(app)  # export, distances, card
+
+
+def main() -> None:
+    """Entry point of the ``idda`` script."""
+    logging.basicConfig(level=logging.WARNING, format="%(levelname)s %(name)s: %(message)s")
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,101 @@
+"""What every ``idda`` command shares: error handling, file writing and the
+query options. ``pipeline.cli`` and ``pipeline.cli.data`` both import this
+module and never each other."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from pathlib import Path
+from typing import Annotated, Iterator, Optional
+
+import typer
+
+from manifests.lease import LeaseError
+from manifests.selection import SELECTION_HELP
+from manifests.writer import ManifestError
+from pipeline.runmeta import RunConfigError
+from storage import StorageError
+
+ROOT_HELP = "Output root (path or s3:// URI)."
+DOMAINS_HELP = SELECTION_HELP
+
+# The query options `idda query` and `idda export` share, declared once.
+Preset = Annotated[Optional[str], typer.Option(help="Ready-made subset: best-case or worst-case (the paper's).")]
+Domains = Annotated[Optional[str], typer.Option("--domains", "-d", help=DOMAINS_HELP)]
+Splits = Annotated[list[str], typer.Option("--split", help="Keep frames of this split (train, val, test); repeatable.")]
+HasClass = Annotated[list[str], typer.Option("--has", help="Keep frames containing this class, e.g. --has rider; repeatable.")]
+MinShare = Annotated[list[str], typer.Option(
+    "--min-share", help="CLASS=SHARE: keep frames where the class covers at least SHARE (0-1); repeatable.")]
+PerScenario = Annotated[Optional[int], typer.Option(help="Sample this many frames per scenario.")]
+Total = Annotated[Optional[int], typer.Option(help="Sample this many frames in total, stratified by scenario.")]
+SampleSeed = Annotated[Optional[int], typer.Option("--seed", help="Sampling seed (default 0).")]
+
+
+@contextlib.contextmanager
+def user_errors() -> Iterator[None]:
+    """Turn expected failures into one readable line and exit code 2."""
+    try:
+        yield
+    except typer.Exit:
+        raise
+    except (ValueError, OSError, ImportError, StorageError, ManifestError, RunConfigError, LeaseError) as exc:
+        message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())  # one line, always
+        typer.echo(f"error: {message}", err=True)
+        raise typer.Exit(code=2) from None
+    except KeyboardInterrupt:
+        typer.echo("interrupted", err=True)
+        raise typer.Exit(code=130) from None
+
+
+def count(n: int, noun: str) -> str:
+    """'1 frame', '2 frames', '1,000 frames'."""
+    return f"{n:,} {noun}" + ("" if n == 1 else "s")
+
+
+def write_local(path: Path, data: bytes) -> None:
+    """Write ``data`` to a local file atomically (a temporary file, then a rename)."""
+    if not path.parent.exists():
+        raise ValueError(f"cannot write {path}: directory {path.parent} does not exist")
+    tmp = path.with_name(f".{path.name}.tmp-{os.getpid()}")
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def build_query(
+    preset: Optional[str],
+    domains: Optional[str],
+    split: list[str],
+    has_class: list[str],
+    min_share: list[str],
+    per_scenario: Optional[int],
+    total: Optional[int],
+    seed: Optional[int],
+    episode: tuple[int, ...] = (),
+):
+    """A validated Query from the shared query options (as in `idda query`)."""
+    from manifests import query as q
+
+    shares = []
+    for item in min_share:
+        name, sep, value = item.rpartition("=")
+        if not sep:
+            raise ValueError(f"--min-share takes CLASS=SHARE, got {item!r}")
+        try:
+            shares.append((name, float(value)))
+        except ValueError:
+            raise ValueError(f"--min-share takes CLASS=SHARE with SHARE a number in [0, 1], got {item!r}") from None
+    fields = dict(
+        domains=domains, splits=tuple(split) or None, episodes=tuple(episode) or None,
+        classes=tuple(has_class) or None,
+        min_share=tuple(shares) or None, per_scenario=per_scenario, total=total, seed=seed,
+    )
+    if preset is not None:
+        the_query = q.preset(preset, **fields)
+    else:
+        the_query = q.Query(**{k: v for k, v in fields.items() if v is not None})
+    the_query.validate()
+    return the_query

@@ -1,0 +1,172 @@
+"""CLI commands for the people who train on a dataset: export, evaluate, distances, card, shifts.
+
+``register(app)`` adds them to the ``idda`` typer app (``pipeline.cli`` calls
+it at its bottom); it is idempotent. Like every command, each one parses its
+options, builds one config and calls one library function; expected errors
+become one line and exit code 2 via ``pipeline.cli.common.user_errors``.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import typer
+
+from pipeline.cli.common import (
+    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
+    build_query, user_errors, write_local,
+)
+
+
+def export(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    fmt: str = typer.Option(..., "--format", "-f", help="Layout: cityscapes, idda, hf (HuggingFace Parquet shards) or coco (instances as RLE masks and boxes; needs the instance and objects outputs)."),
+    to: Path = typer.Option(..., "--to", help="Target directory (local); must be empty or absent unless --force."),
+    preset: Preset = None,
+    domains: Domains = None,
+    split: Splits = [],
+    has_class: HasClass = [],
+    min_share: MinShare = [],
+    per_scenario: PerScenario = None,
+    total: Total = None,
+    seed: SampleSeed = None,
+    copy: bool = typer.Option(False, "--copy", help="Copy files instead of hard-linking them."),
+    symlink: bool = typer.Option(False, "--symlink", help="Symlink files instead of hard-linking them."),
+    force: bool = typer.Option(False, "--force", help="Replace a non-empty target directory."),
+    threads: int = typer.Option(8, help="Frames converted in parallel."),
+    as_split: Optional[str] = typer.Option(None, "--as-split", help="Put every exported frame in this split (train, val or test)."),
+    splits: str = typer.Option("scenario", "--splits", help="idda split files: scenario (train/val/test.json) or feddrive (FedDrive's federated splits)."),
+    holdout: Optional[str] = typer.Option(None, help="With --splits feddrive: domains whose frames form test_user_diff_domain, e.g. 'towns=T07'."),
+) -> None:
+    """Export a query's frames as a Cityscapes, IDDA or HuggingFace layout (never re-renders).
+
+    cityscapes: leftImg8bit/ and gtFine/ (labelIds, labelTrainIds, RGBA color,
+    instanceIds) that cityscapesScripts and torchvision read. idda:
+    <scenario>/RGB/*.jpg, <scenario>/Semantic/*.png (class ids) and split
+    files. hf: Parquet shards with embedded images and a card. Scenarios with
+    no val or test episode (fewer than 6 episodes) are split by frame blocks (80/10/10 in frame order).
+    """
+    from exports.export import ExportConfig, export as run_export
+
+    with user_errors():
+        if copy and symlink:
+            raise ValueError("give at most one of --copy and --symlink")
+        query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed)
+        config = ExportConfig(
+            root=root, to=str(to), format=fmt, query=query,
+            files="copy" if copy else "symlink" if symlink else "hardlink", force=force, threads=threads,
+            as_split=as_split, splits=splits, holdout=holdout,
+        )
+        report = run_export(config)
+        for code, missing in sorted(report.shortfall.items()):
+            typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
+        splits = ", ".join(f"{n:,} {s}" for s, n in report.per_split.items() if n)
+        typer.echo(
+            f"exported {report.frames:,} frames ({splits}) as {report.format} to {report.target}: "
+            f"{report.files:,} files in {report.seconds:.1f} s"
+        )
+
+
+def evaluate(
+    export: Path = typer.Argument(..., help="A Cityscapes export (idda export --format cityscapes)."),
+    predictions: Path = typer.Option(..., "--predictions", "-p", help="Directory of <city>_<seq>_<frame>*.png label-id predictions."),
+    split: str = typer.Option("val", help="Ground-truth split: train, val or test."),
+    json_out: Optional[Path] = typer.Option(None, "--json", help="Also write cityscapesScripts' result JSON here."),
+) -> None:
+    """Score predictions on a Cityscapes export with cityscapesScripts' pixel-level
+    evaluation (its instance part, broken on numpy 2.4, is off)."""
+    from analysis.evaluate import EvaluateConfig, evaluate as run_evaluate, format_report
+
+    with user_errors():
+        config = EvaluateConfig(export=str(export), predictions=str(predictions), split=split,
+                                json_out=str(json_out) if json_out else None)
+        typer.echo(format_report(run_evaluate(config)))
+
+
+def distances(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    pairs: str = typer.Option("", help="Extra SOURCE:TARGET scenario pairs, comma-separated (the paper's three are always tried)."),
+    samples: int = typer.Option(500, help="First N frames per domain (the paper uses 500)."),
+    components: int = typer.Option(50, help="PCA components kept (the paper keeps 50)."),
+    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP + " Sampled and embedded."),
+    split: list[str] = typer.Option([], help="Sample only frames of this split; repeatable."),
+    chart: Optional[Path] = typer.Option(None, "--chart", help="Write a 2-D embedding of all sampled domains to this PNG."),
+    seed: int = typer.Option(0, help="Seed of the feature extractor's random filters."),
+    threads: int = typer.Option(4, help="Images read and featurised in parallel."),
+) -> None:
+    """Domain distances as in the paper: features of the first N frames per
+    domain, PCA to 50 components, Euclidean / cosine distance of the domain
+    means and per-feature Bhattacharyya distance, next to the paper's values."""
+    from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
+
+    with user_errors():
+        config = DistanceConfig(
+            root=root, pairs=parse_pairs(pairs), samples=samples, components=components,
+            domains=domains, splits=tuple(split), seed=seed, threads=threads,
+        )
+        report = domain_distances(config)
+        typer.echo(format_distance_table(report))
+        if chart is not None:
+            write_local(chart, embedding_png(report))
+            typer.echo(f"chart: {chart}")
+
+
+def card(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    contact_sheet: bool = typer.Option(False, "--contact-sheet", help="Render a contact sheet into <root>/preview/ and show it."),
+) -> None:
+    """Write a dataset card (README.md and class_shares.png) into the root."""
+    from exports.card import CardConfig, write_card
+
+    with user_errors():
+        result = write_card(CardConfig(root=root, contact_sheet=contact_sheet))
+        typer.echo(f"wrote {result.card} ({result.frames:,} frames) and {result.chart}")
+        for rel in result.previews:
+            typer.echo(f"linked preview {rel}")
+
+
+def shifts(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    cases: str = typer.Option("viewpoint,weather,city", help="Which of the paper's cases to run, comma-separated."),
+    steps: int = typer.Option(800, help="Training steps per case."),
+    batch_size: int = typer.Option(8, help="Frames per training step."),
+    width: int = typer.Option(160, help="Network input width (multiple of 16)."),
+    height: int = typer.Option(96, help="Network input height (multiple of 16)."),
+    max_frames: Optional[int] = typer.Option(None, help="Use only the first N frames of each domain."),
+    seed: int = typer.Option(0, help="Seed of the weights, batch order and flips."),
+    threads: int = typer.Option(2, help="torch CPU threads."),
+    device: str = typer.Option("auto", help="auto (a CUDA GPU when torch sees one), cpu or cuda."),
+    json_out: Path = typer.Option(Path("shifts.json"), "--json", help="Write the full results (per-class IoU) here."),
+) -> None:
+    """The paper's domain-shift table: train a small segmentation net from scratch
+    on each source domain (T01_CS_A, T01_CS_J, T01_HRN_A), score it on held-out
+    source frames and on the target (T01_CS_J, T01_HRN_J, T07_HRN_A), and print the
+    share of mIoU kept next to the paper's. Needs PyTorch: pip install -e '.[analysis]'."""
+    import json
+
+    with user_errors():
+        from analysis.shifts import ShiftConfig, format_shift_table, run_shifts
+
+        config = ShiftConfig(
+            root=root, cases=tuple(c.strip() for c in cases.split(",") if c.strip()), steps=steps,
+            batch_size=batch_size, width=width, height=height, max_frames=max_frames, seed=seed,
+            threads=threads, device=device,
+        )
+        if not json_out.parent.is_dir():  # fail before minutes of training, not after
+            raise ValueError(f"cannot write {json_out}: directory {json_out.parent} does not exist")
+        report = run_shifts(config)
+        typer.echo(format_shift_table(report))
+        write_local(json_out, (json.dumps(report.to_json(), indent=1) + "\n").encode())
+        typer.echo(f"wrote {json_out}")
+
+
+COMMANDS = {"export": export, "evaluate": evaluate, "distances": distances, "card": card, "shifts": shifts}
+
+
+def register(app: typer.Typer) -> None:
+    """Add the commands to ``app`` (once; calling again changes nothing)."""
+    present = {c.name or (c.callback.__name__ if c.callback else None) for c in app.registered_commands}
+    for name, function in COMMANDS.items():
+        if name not in present:
+            app.command(name=name)(function)

@@ -1,0 +1,237 @@
+"""Render one episode: spec -> world -> traffic -> frames handed to a sink. No Ray here.
+
+Reads top to bottom like a worker script: look up the scenario, build (or reuse)
+the town's world, populate it from the episode seed, load it into the
+process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
+seconds) render the named buffers, post-process the colour, add the ``objects``
+table when asked and call ``sink(frame)``; encoding the spec's outputs and
+writing them is the sink's business (``pipeline.episode_job``). Only the drawing (``Renderer.render``) runs on the calling
+thread; the rest of a frame (resolving the GL reads, post effects, outputs,
+then the sink) runs on one background thread, in frame order, so finishing
+and writing frame i (numpy, OpenCV, PNG deflate, hashing and file writes
+release the GIL) overlaps drawing frame i + 1; at most ``SINK_AHEAD`` frames
+wait for it.
+
+Every random draw derives from ``spec.seed`` (traffic, sky, puddles, rain) or
+from the town seed (world), so the same spec gives byte-identical PNGs.
+"""
+
+from __future__ import annotations
+
+import atexit
+import functools
+import importlib
+import logging
+import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from dataclasses import dataclass, field
+from typing import Callable
+
+import numpy as np
+
+from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario
+from manifests.objects import object_counts
+from manifests.spec import EpisodeSpec
+from manifests.spec import FRAME_PERIOD_S, town_seed
+from render_workers.render import postfx
+from render_workers.worlds import worldcache
+from render_workers.render.camera import measured_hood_fraction
+from render_workers.render.instances import frame_objects, instance_classes
+from render_workers.render.renderer import Renderer, RenderResult
+from render_workers.worlds.scene import EpisodeScene, Frame, World
+from render_workers.worlds.registry import DEFAULT_WORLD, WORLDS, check_world  # noqa: F401 (re-exported: the API since before the registry)
+
+log = logging.getLogger(__name__)
+
+_FX_STREAM = 404  # rng stream id of per-frame post effects
+
+# outputs: the objects table and the counts; encoding the outputs into files is part of the sink.
+FRAME_STAGES = ("scene_update", "color_pass", "class_pass", "resolve", "post_fx", "outputs", "sink", "sink_wait")
+SINK_AHEAD = 2  # frames handed to the sink thread and not yet written
+
+
+@dataclass(frozen=True)
+class WorldBuilder:
+    """The two functions a world provides."""
+
+    build_world: Callable[[str, int], World]
+    populate: Callable[[World, str, int], EpisodeScene]
+
+
+def _function(module_name: str, fn: str, world: str) -> Callable:
+    try:
+        module = importlib.import_module(module_name)
+    except ModuleNotFoundError as exc:
+        if exc.name != module_name:
+            raise
+        raise ImportError(f"world {world!r} needs module {module_name}, which is not available") from exc
+    function = getattr(module, fn, None)
+    if not callable(function):
+        raise ImportError(f"world {world!r}: module {module_name} has no {fn}() function")
+    return function
+
+
+def world_builder(name: str) -> WorldBuilder:
+    """The world registered as ``name``; ValueError for unknown names, ImportError if missing."""
+    check_world(name)
+    build_module, populate_module = WORLDS[name]
+    return WorldBuilder(_function(build_module, "build_world", name), _function(populate_module, "populate", name))
+
+
+@functools.lru_cache(maxsize=8)
+def cached_world(world: str, town_code: str, seed: int) -> World:
+    """A town's static world, loaded (or built) once per process and reused across its episodes.
+
+    The process's one world cache; behind it, built worlds are kept on disk
+    (``render_workers.worlds.worldcache``), so a new worker loads instead of building."""
+    return worldcache.load_or_build(world, town_code, seed, world_builder(world).build_world)
+
+
+@functools.lru_cache(maxsize=1)
+def process_renderer() -> Renderer:
+    """The worker process's long-lived renderer (its first frame compiles shaders).
+
+    It is closed at interpreter exit, while PyOpenGL can still free it cleanly.
+    """
+    renderer = Renderer()
+    atexit.register(renderer.close)
+    return renderer
+
+
+@dataclass(frozen=True)
+class EpisodeInfo:
+    """What rendering an episode reports back (small and serialisable)."""
+
+    n_vehicles: int
+    n_pedestrians: int
+    frames: int
+    timings: dict = field(default_factory=dict)  # stage -> total seconds over the episode
+
+
+def validate_spec(spec: EpisodeSpec) -> None:
+    """Raise ValueError for a spec no frame could be rendered from."""
+    lookup_scenario(spec.scenario)
+    if spec.frames < 1:
+        raise ValueError(f"{spec.key}: frames must be at least 1, got {spec.frames}")
+    if spec.width < 1 or spec.height < 1:
+        raise ValueError(f"{spec.key}: image size must be positive, got {spec.width}x{spec.height}")
+    if spec.seed < 0 or spec.run_seed < 0:
+        raise ValueError(f"{spec.key}: seeds must be non-negative")
+    spec.check_outputs()
+
+
+def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WORLD) -> tuple[EpisodeScene, dict]:
+    """Build/reuse the world, populate it and load it into ``renderer``; returns scene and timings."""
+    validate_spec(spec)
+    scen = lookup_scenario(spec.scenario)
+    timings = {}
+    start = time.perf_counter()
+    static = cached_world(world, scen.town.code, town_seed(spec.run_seed, scen.town))
+    timings["world"] = time.perf_counter() - start
+    start = time.perf_counter()
+    scene = world_builder(world).populate(static, scen.viewpoint.code, spec.seed)
+    timings["populate"] = time.perf_counter() - start
+    start = time.perf_counter()
+    renderer.load(scene, scen.weather, scen.viewpoint, spec.width, spec.height, sky_seed=spec.seed)
+    timings["load"] = time.perf_counter() - start
+    return scene, timings
+
+
+def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, index: int) -> tuple[Frame, dict]:
+    """Render frame ``index`` of a loaded episode; returns the frame and its stage timings."""
+    result = renderer.render(index * FRAME_PERIOD_S)
+    frame, timings = finish_frame(result, renderer, scene, spec, index)
+    return frame, {**result.timings, **timings}
+
+
+def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec,
+                 index: int) -> tuple[Frame, dict]:
+    """Frame ``index`` from its rendered buffers: post effects, the objects table (when asked), counts.
+
+    No GL here: it reads only the episode's fixed state (weather, rig,
+    instances, actors' paths), so it may run on another thread while the
+    renderer draws the next frame."""
+    t = index * FRAME_PERIOD_S
+    buffers = dict(result.buffers)  # the GL reads are resolved here, off the render thread
+    timings = {"resolve": result.resolve_s}
+    start = time.perf_counter()
+    ctx = postfx.FxContext(
+        depth=buffers["depth"], classes=buffers["classes"], hood_mask=result.hood_mask, rig=result.rig,
+        world_from_camera=result.world_from_camera, weather=renderer.weather,
+        ego_speed_mps=scene.ego.speed_mps, sun_pixel=result.sun_pixel,
+        rng=np.random.default_rng([spec.seed, _FX_STREAM, index]), episode_seed=spec.seed,
+    )
+    buffers["rgb"] = postfx.apply(buffers["rgb"], ctx)
+    timings["post_fx"] = time.perf_counter() - start
+    start = time.perf_counter()
+    if "objects" in spec.buffers:
+        poses = [actor.pose(t) for actor in scene.actors]
+        buffers["objects"] = frame_objects(buffers["instance"], renderer.instances, poses,
+                                           result.world_from_camera, result.rig.focal_px)
+    counts = np.bincount(buffers["classes"].ravel(), minlength=NUM_CLASSES).astype(np.int64)
+    objects = object_counts(buffers["instance"], instance_classes(renderer.instances))
+    timings["outputs"] = time.perf_counter() - start
+    frame = Frame(
+        index=index, sim_time_s=t, buffers=buffers, class_counts=counts, object_counts=objects,
+        camera_height_m=renderer.rig.viewpoint.camera_height_m,
+        hood_fraction=measured_hood_fraction(result.hood_mask), ego_speed_mps=float(scene.ego.speed_mps),
+        n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
+    )
+    return frame, timings
+
+
+def _finish_and_sink(sink: Callable[[Frame], None], result: RenderResult, renderer: Renderer, scene: EpisodeScene,
+                     spec: EpisodeSpec, index: int) -> dict:
+    """The back half of a frame, on the sink thread: finish it, then hand it to ``sink``; returns its timings."""
+    frame, timings = finish_frame(result, renderer, scene, spec, index)
+    start = time.perf_counter()
+    sink(frame)
+    timings["sink"] = time.perf_counter() - start
+    return timings
+
+
+def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: str = DEFAULT_WORLD,
+                   renderer: Renderer | None = None) -> EpisodeInfo:
+    """Render every frame of ``spec`` and pass each to ``sink``; returns counts and timings.
+
+    This thread draws (the GL passes); one background thread finishes each
+    frame (resolves its GL reads, post effects, outputs) and calls ``sink``
+    with it, in frame order, while the next frame is drawn. So a worker alone
+    on the machine (the last episode of a run) keeps two cores busy. An error
+    in either stops the episode and is raised here. Timings: ``sink`` is the
+    time spent in it, ``sink_wait`` the time drawing waited for the background
+    thread."""
+    renderer = renderer if renderer is not None else process_renderer()
+    scene, timings = load_episode(spec, renderer, world)
+    for stage in FRAME_STAGES:
+        timings[stage] = 0.0
+    pending: deque[Future] = deque()
+
+    def collect(future: Future) -> None:
+        for stage, seconds in future.result().items():
+            timings[stage] += seconds
+
+    def settle(limit: int) -> None:
+        start = time.perf_counter()
+        while len(pending) > limit:
+            collect(pending.popleft())
+        timings["sink_wait"] += time.perf_counter() - start
+
+    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
+        try:
+            for index in range(spec.frames):
+                result = renderer.render(index * FRAME_PERIOD_S)
+                for stage, seconds in result.timings.items():
+                    timings[stage] += seconds
+                while pending and pending[0].done():  # surface a sink error early
+                    collect(pending.popleft())
+                settle(SINK_AHEAD - 1)
+                pending.append(pool.submit(_finish_and_sink, sink, result, renderer, scene, spec, index))
+            settle(0)
+        finally:
+            for future in pending:  # after an error: drop frames not yet started
+                future.cancel()
+    log.debug("%s: %d frames, timings %s", spec.key, spec.frames, timings)
+    return EpisodeInfo(n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
+                       frames=spec.frames, timings=timings)

@@ -1,0 +1,464 @@
+"""How the renderer changes pyrender's passes, on one renderer instance at a time.
+
+Every change to pyrender's behaviour is made here, by a function that patches
+one renderer instance (never pyrender's modules or classes), so renderers with
+different settings can live in one process:
+
+* :func:`install_forward_pass`: pyrender sets the camera and every light
+  uniform again for each primitive; here once per program and pass (same
+  GL state at every draw, ~0.03 CPU-s less per full-HD frame);
+* :func:`install_mesh_shader`: a cheaper ``mesh.frag``
+  (``shaders.FAST_MESH_FRAG``) in a shared, content-keyed copy of pyrender's shaders (one per user in the temp dir);
+* :func:`install_framebuffer`: the colour pass always rasterises into a 4x
+  multisampled framebuffer, which on llvmpipe costs about half of the colour
+  pass at 1920x1080; here the sample count is a setting (0 = off; the renderer
+  then anti-aliases geometry edges in post, ``postfx.antialias``). pyrender
+  also reads back and linearises depth after every pass, with boolean-mask
+  indexing, even for the colour pass whose depth the renderer discards; here
+  colour passes skip it and depth is linearised in one vectorised pass.
+
+Sun shadows (:func:`install_shadow_pass`, :func:`shadow_texture`) override
+private parts of pyrender's inner renderer, on that instance only:
+
+* ``_shadow_mapping_pass`` is replaced. pyrender's version draws every
+  ``is_visible`` mesh node with back faces culled into a map fitted around the
+  whole scene (``_get_light_cam_matrices`` uses the scene's centroid and
+  scale: kilometres for a town, so blurry shadows). The replacement draws the
+  caster nodes the renderer chose for the frame (some are culled from the
+  view but still cast into it), with no face culling and a slope-scaled
+  polygon offset, through the renderer's own light-space matrices;
+* ``_get_light_cam_matrices`` returns those same matrices, so the colour pass
+  (``_bind_lighting`` sets ``directional_lights[i].light_matrix`` from it)
+  samples the map where it was drawn;
+* ``_bind_lighting`` is wrapped to also set the renderer's extra shadow
+  uniforms (``shadow_params``) that pyrender does not know about;
+* the shadow texture is made here rather than by pyrender
+  (``DirectionalLight._generate_shadow_texture`` hard-codes 2048 px, nearest
+  filtering and repeat wrapping): any size, linear filtering and clamped edges,
+  and the pass turns on depth comparison so ``FAST_MESH_FRAG`` samples it as
+  a ``sampler2DShadow`` (hardware 2x2 PCF per tap). pyrender's own PBR shader
+  reads the map as a plain ``sampler2D``, so comparison is off when it is used.
+
+The SEG pass never takes a shadow pass (pyrender skips it for ``SEG``) and
+binds no lights, so class ids and depth do not change with shadows on.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import hashlib
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable
+
+import numpy as np
+
+from render_workers.render.compat import import_pyrender
+
+MSAA_CHOICES = (0, 2, 4, 8)
+
+
+def _renderbuffer(GL, fmt, width: int, height: int, samples: int):
+    """A renderbuffer of ``fmt``; multisampled with ``samples`` > 0."""
+    name = GL.glGenRenderbuffers(1)
+    GL.glBindRenderbuffer(GL.GL_RENDERBUFFER, name)
+    if samples:
+        GL.glRenderbufferStorageMultisample(GL.GL_RENDERBUFFER, samples, fmt, width, height)
+    else:
+        GL.glRenderbufferStorage(GL.GL_RENDERBUFFER, fmt, width, height)
+    return name
+
+
+def _framebuffer(GL, colour, depth):
+    name = GL.glGenFramebuffers(1)
+    GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, name)
+    GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_COLOR_ATTACHMENT0, GL.GL_RENDERBUFFER, colour)
+    GL.glFramebufferRenderbuffer(GL.GL_DRAW_FRAMEBUFFER, GL.GL_DEPTH_ATTACHMENT, GL.GL_RENDERBUFFER, depth)
+    return name
+
+
+def _linear_depth(window: np.ndarray, z_near: float, z_far: float | None) -> np.ndarray:
+    """pyrender's depth linearisation, step by step in one float32 buffer (same values, fewer passes)."""
+    depth = np.multiply(window, 2.0, dtype=np.float32)
+    depth -= 1.0  # ndc
+    if z_far is None:
+        np.subtract(1.0, depth, out=depth)
+        np.divide(2 * z_near, depth, out=depth)
+    else:
+        depth *= z_far - z_near
+        np.subtract(z_far + z_near, depth, out=depth)
+        np.divide(2.0 * z_near * z_far, depth, out=depth)
+    depth[window == 1.0] = 0.0
+    return depth
+
+
+def _read_framebuffer(GL, RenderFlags, inner, scene, flags):
+    """The read-back: resolve the multisampled buffers, then colour and (SEG, depth-only) linear depth."""
+    width, height = inner._main_fb_dims
+    want_colour = not flags & RenderFlags.DEPTH_ONLY
+    want_depth = bool(flags & (RenderFlags.DEPTH_ONLY | RenderFlags.SEG))
+    if inner._main_fb_ms != inner._main_fb:
+        GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, inner._main_fb_ms)
+        GL.glBindFramebuffer(GL.GL_DRAW_FRAMEBUFFER, inner._main_fb)
+        if want_colour:
+            GL.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, GL.GL_COLOR_BUFFER_BIT, GL.GL_LINEAR)
+        if want_depth:
+            GL.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
+    GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, inner._main_fb)
+    depth = None
+    if want_depth:
+        raw = GL.glReadPixels(0, 0, width, height, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
+        window = np.flip(np.frombuffer(raw, dtype=np.float32).reshape(height, width), axis=0)
+        camera = scene.main_camera_node.camera
+        depth = _linear_depth(window, camera.znear, camera.zfar)
+        if not want_colour:
+            return depth
+    fmt, channels = (GL.GL_RGBA, 4) if flags & RenderFlags.RGBA else (GL.GL_RGB, 3)
+    raw = GL.glReadPixels(0, 0, width, height, fmt, GL.GL_UNSIGNED_BYTE)
+    colour = np.flip(np.frombuffer(raw, dtype=np.uint8).reshape(height, width, channels), axis=0)
+    return colour, depth
+
+
+def install_framebuffer(offscreen, samples: int) -> None:
+    """This renderer's main framebuffer and its read-back (pyrender hard-codes 4x MSAA).
+
+    On this instance only: ``samples`` (0 = none) sets the colour framebuffer's
+    multisampling; with 0 the passes draw straight into the framebuffer that
+    is read, so there is no blit. Colour passes (no ``SEG``, no
+    ``DEPTH_ONLY``) return ``(color, None)``: pyrender would read and linearise
+    a depth buffer the renderer throws away. Depth is linearised in one
+    vectorised pass (pyrender indexes it with boolean masks), same formula,
+    same float32 values.
+    """
+    import_pyrender()
+    from OpenGL import GL
+    from pyrender.constants import RenderFlags
+
+    if samples not in MSAA_CHOICES:
+        raise ValueError(f"MSAA samples must be one of {', '.join(map(str, MSAA_CHOICES))}, got {samples}")
+    inner = offscreen._renderer
+
+    def delete():
+        if inner._main_fb is not None:
+            GL.glDeleteFramebuffers(len({inner._main_fb, inner._main_fb_ms}), list({inner._main_fb, inner._main_fb_ms}))
+            buffers = list({inner._main_cb, inner._main_db, inner._main_cb_ms, inner._main_db_ms})
+            GL.glDeleteRenderbuffers(len(buffers), buffers)
+        inner._main_fb = inner._main_cb = inner._main_db = None
+        inner._main_fb_ms = inner._main_cb_ms = inner._main_db_ms = None
+
+    def configure():
+        width, height = inner.viewport_width, inner.viewport_height
+        if inner._main_fb is not None and (width, height) != tuple(inner._main_fb_dims):
+            delete()
+        if inner._main_fb is None:
+            inner._main_cb = _renderbuffer(GL, GL.GL_RGBA, width, height, 0)
+            inner._main_db = _renderbuffer(GL, GL.GL_DEPTH_COMPONENT24, width, height, 0)
+            inner._main_fb = _framebuffer(GL, inner._main_cb, inner._main_db)
+            if samples:  # drawn into, then resolved into the plain one by a blit
+                inner._main_cb_ms = _renderbuffer(GL, GL.GL_RGBA, width, height, samples)
+                inner._main_db_ms = _renderbuffer(GL, GL.GL_DEPTH_COMPONENT24, width, height, samples)
+                inner._main_fb_ms = _framebuffer(GL, inner._main_cb_ms, inner._main_db_ms)
+            else:
+                inner._main_cb_ms, inner._main_db_ms, inner._main_fb_ms = inner._main_cb, inner._main_db, inner._main_fb
+            inner._main_fb_dims = (width, height)
+
+    inner._configure_main_framebuffer = configure
+    inner._delete_main_framebuffer = delete
+    inner._read_main_framebuffer = lambda scene, flags: _read_framebuffer(GL, RenderFlags, inner, scene, flags)
+
+
+def shader_dir(fragment_source: str) -> Path:
+    """A directory of pyrender's shaders with ``mesh.frag`` replaced, one per content.
+
+    ``<tmp>/idda-shaders-<uid>/<digest>``, keyed by pyrender's shaders and
+    ``fragment_source``. Every renderer with the same shaders shares it, so
+    nothing is left behind per renderer (a Ray worker killed at shutdown never
+    runs ``atexit``; one temp copy per renderer used to pile up in /tmp). Built
+    in a staging directory and renamed into place, so concurrent workers never
+    see half of it. RuntimeError if another user owns the directory."""
+    pr = import_pyrender()
+    sources = sorted((Path(pr.__file__).parent / "shaders").iterdir())
+    digest = hashlib.sha256(fragment_source.encode())
+    for path in sources:
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    base = Path(tempfile.gettempdir()) / f"idda-shaders-{os.getuid()}"
+    base.mkdir(mode=0o700, exist_ok=True)
+    if base.stat().st_uid != os.getuid():
+        raise RuntimeError(f"{base} belongs to another user; remove it or set TMPDIR")
+    final = base / digest.hexdigest()[:16]
+    if (final / "mesh.frag").is_file():
+        return final
+    staging = Path(tempfile.mkdtemp(prefix=f".{final.name}-", dir=base))
+    try:
+        for path in sources:
+            shutil.copy(path, staging / path.name)
+        (staging / "mesh.frag").write_text(fragment_source)  # last: its presence marks a complete copy
+        try:
+            os.rename(staging, final)
+        except OSError:  # another process put its identical copy in place first
+            pass
+    finally:
+        shutil.rmtree(staging, ignore_errors=True)
+    return final
+
+
+def install_mesh_shader(offscreen, fragment_source: str) -> Path:
+    """Point this renderer's shader cache at :func:`shader_dir` (pyrender's shaders with ``mesh.frag`` replaced)."""
+    from pyrender.shader_program import ShaderProgramCache
+
+    directory = shader_dir(fragment_source)
+    inner = offscreen._renderer  # pyrender keeps its shader cache on the inner renderer
+    inner._program_cache.clear()
+    inner._program_cache = ShaderProgramCache(shader_dir=str(directory))
+    return directory
+
+
+def draw_primitive(primitive) -> None:
+    """Draw a bound primitive (all its instances), as pyrender does."""
+    from OpenGL import GL
+
+    instances = 1 if primitive.poses is None else len(primitive.poses)
+    if primitive.indices is not None:
+        GL.glDrawElementsInstanced(primitive.mode, primitive.indices.size, GL.GL_UNSIGNED_INT, ctypes.c_void_p(0),
+                                   instances)
+    else:
+        GL.glDrawArraysInstanced(primitive.mode, 0, len(primitive.positions), instances)
+
+
+def _change(state: dict, key, value, apply: Callable) -> None:
+    if key not in state or state[key] != value:
+        apply(value)
+        state[key] = value
+
+
+def _set_material(program, material, state: dict) -> None:
+    """The material's uniforms, when this program last drew another material (uniform values stay with it)."""
+    from pyrender.material import MetallicRoughnessMaterial, SpecularGlossinessMaterial
+
+    if state.get(program) is material:
+        return
+    program.set_uniform("material.emissive_factor", material.emissiveFactor)
+    if isinstance(material, MetallicRoughnessMaterial):
+        program.set_uniform("material.base_color_factor", material.baseColorFactor)
+        program.set_uniform("material.metallic_factor", material.metallicFactor)
+        program.set_uniform("material.roughness_factor", material.roughnessFactor)
+    elif isinstance(material, SpecularGlossinessMaterial):
+        program.set_uniform("material.diffuse_factor", material.diffuseFactor)
+        program.set_uniform("material.specular_factor", material.specularFactor)
+        program.set_uniform("material.glossiness_factor", material.glossinessFactor)
+    state[program] = material
+
+
+def _draw_untextured(inner, primitive, pose, program, flags, state: dict) -> None:
+    """pyrender's ``_bind_and_draw_primitive`` for an untextured primitive, with GL state and
+    material uniforms issued only when they differ from what this pass last set."""
+    from OpenGL import GL
+    from pyrender.constants import GLTF, RenderFlags
+
+    program.set_uniform("M", pose)
+    primitive._bind()
+    if not (flags & RenderFlags.DEPTH_ONLY or flags & RenderFlags.SEG):
+        material = primitive.material
+        _set_material(program, material, state)
+        blend = (GL.GL_SRC_ALPHA, GL.GL_ONE_MINUS_SRC_ALPHA) if material.alphaMode == "BLEND" else (GL.GL_ONE, GL.GL_ZERO)
+        wireframe = material.wireframe != bool(flags & RenderFlags.FLIP_WIREFRAME)
+        fill = GL.GL_LINE if flags & RenderFlags.ALL_WIREFRAME or wireframe else GL.GL_FILL
+        cull = not (material.doubleSided or flags & RenderFlags.SKIP_CULL_FACES)
+    else:  # pyrender culls back faces in depth and SEG passes, whatever the flags say
+        blend, fill, cull = (GL.GL_ONE, GL.GL_ZERO), GL.GL_FILL, True
+    _change(state, "blend", blend, lambda v: (GL.glEnable(GL.GL_BLEND), GL.glBlendFunc(*v)))
+    _change(state, "fill", fill, lambda v: GL.glPolygonMode(GL.GL_FRONT_AND_BACK, v))
+    _change(state, "cull", cull, lambda v: (GL.glEnable(GL.GL_CULL_FACE), GL.glCullFace(GL.GL_BACK)) if v
+            else GL.glDisable(GL.GL_CULL_FACE))
+    points = primitive.mode == GLTF.POINTS
+    _change(state, "points", points, lambda v: GL.glEnable(GL.GL_PROGRAM_POINT_SIZE) if v
+            else GL.glDisable(GL.GL_PROGRAM_POINT_SIZE))
+    if points:
+        GL.glPointSize(inner.point_size)
+    draw_primitive(primitive)
+
+
+def _clear_for_pass(inner, scene, flags) -> bool:
+    """Viewport, clear colour and multisampling of a forward pass; True for a SEG pass."""
+    from OpenGL import GL
+    from pyrender.constants import RenderFlags
+
+    inner._configure_forward_pass_viewport(flags)
+    seg = bool(flags & RenderFlags.SEG)
+    GL.glClearColor(*((0.0, 0.0, 0.0, 1.0) if seg else scene.bg_color))
+    GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)
+    if seg:
+        GL.glDisable(GL.GL_MULTISAMPLE)
+    else:
+        GL.glEnable(GL.GL_MULTISAMPLE)
+    return seg
+
+
+def _seg_color(seg_node_map: dict, node) -> np.ndarray:
+    color = seg_node_map[node]
+    color = np.repeat(color, 3) if not isinstance(color, (list, tuple, np.ndarray)) else np.asanyarray(color)
+    return color / 255.0
+
+
+def install_forward_pass(offscreen) -> None:
+    """pyrender's forward pass with each program's per-pass uniforms set once, on this renderer only.
+
+    pyrender sets the camera (``V``, ``P``, ``cam_pos``) and, in lit passes,
+    every light uniform and the shadow map's texture unit again for every
+    primitive: about 15 uniform calls through PyOpenGL per primitive, for
+    values that are the same for the whole pass (one sun, no light sorting).
+    Uniform values stay with their program, so here they are set the first
+    time a program is used in a pass; per primitive, the model matrix and the
+    draw, and the material's uniforms and pyrender's blend, polygon, cull and
+    point-size state only when they differ from what the pass last set. A
+    primitive with textures takes pyrender's full per-primitive binding, so
+    its texture units are allocated exactly as pyrender allocates them. Same
+    GL state at every draw, so the same pixels.
+    """
+    import_pyrender()
+    from OpenGL import GL
+    from pyrender.constants import ProgramFlags, RenderFlags
+
+    inner = offscreen._renderer
+
+    def forward_pass(scene, flags, seg_node_map=None):
+        seg = _clear_for_pass(inner, scene, flags)
+        seg_node_map = {} if seg and seg_node_map is None else seg_node_map
+        V, P = inner._get_camera_matrices(scene)
+        cam_pos = scene.get_pose(scene.main_camera_node)[:3, 3]
+        lit = not (flags & RenderFlags.DEPTH_ONLY or flags & RenderFlags.FLAT or seg)
+        ready, program, state = set(), None, {}
+        for node in inner._sorted_mesh_nodes(scene):
+            if not node.mesh.is_visible or (seg and node not in seg_node_map):
+                continue
+            color = _seg_color(seg_node_map, node) if seg else None
+            for primitive in node.mesh.primitives:
+                shader = inner._get_primitive_program(primitive, flags, ProgramFlags.USE_MATERIAL)
+                if shader is not program:
+                    program = shader
+                    program._bind()
+                textured = lit and bool(primitive.material.tex_flags)
+                if textured or program not in ready:
+                    program.set_uniform("V", V)
+                    program.set_uniform("P", P)
+                    program.set_uniform("cam_pos", cam_pos)
+                    if lit:
+                        inner._bind_lighting(scene, program, node, flags)
+                    if not textured:
+                        ready.add(program)
+                if seg:
+                    program.set_uniform("color", color)
+                if textured:  # pyrender's own binding: texture units, then whatever state it leaves
+                    inner._bind_and_draw_primitive(primitive=primitive, pose=scene.get_pose(node), program=program,
+                                                   flags=flags)
+                    state.clear()
+                else:
+                    _draw_untextured(inner, primitive, scene.get_pose(node), program, flags, state)
+                inner._reset_active_textures()
+        GL.glBindVertexArray(0)
+        if program is not None:
+            program._unbind()
+        GL.glFlush()
+        return inner._read_main_framebuffer(scene, flags) if flags & RenderFlags.OFFSCREEN else None
+
+    inner._forward_pass = forward_pass
+
+
+# --------------------------------------------------------------------------
+# Sun shadows
+# --------------------------------------------------------------------------
+SHADOW_POLYGON_OFFSET = (2.0, 4.0)  # glPolygonOffset(factor, units) in the shadow pass
+
+
+@dataclass(eq=False)
+class ShadowFrame:
+    """What the shadow pass of one frame needs (set by the renderer before each render)."""
+
+    view: np.ndarray  # 4x4 world -> light eye space
+    proj: np.ndarray  # 4x4 orthographic light projection
+    casters: list  # mesh nodes drawn into the shadow map, in a fixed order
+    uniforms: dict = field(default_factory=dict)  # extra colour-pass uniforms, name -> value
+
+
+def shadow_texture(size: int):
+    """A square depth texture for a directional light's shadow map (linear filter, clamped)."""
+    pyrender = import_pyrender()
+    from OpenGL.GL import GL_FLOAT
+    from pyrender.constants import GLTF
+
+    if size < 16 or size & (size - 1):
+        raise ValueError(f"shadow map size must be a power of two >= 16, got {size}")
+    sampler = pyrender.Sampler(magFilter=GLTF.LINEAR, minFilter=GLTF.LINEAR,
+                               wrapS=GLTF.CLAMP_TO_EDGE, wrapT=GLTF.CLAMP_TO_EDGE)
+    return pyrender.Texture(sampler=sampler, source_channels="D", width=size, height=size, data_format=GL_FLOAT)
+
+
+def install_shadow_pass(offscreen, current: Callable[[], ShadowFrame], *, depth_compare: bool = True) -> None:
+    """Route pyrender's directional shadow mapping through ``current()`` (see the module notes)."""
+    import_pyrender()
+    from OpenGL import GL
+    from pyrender.constants import ProgramFlags, RenderFlags
+
+    inner = offscreen._renderer
+    original_bind_lighting = inner._bind_lighting
+
+    def light_cam_matrices(scene, light_node, flags):
+        frame = current()
+        return frame.view, frame.proj
+
+    def bind_lighting(scene, program, node, flags):
+        original_bind_lighting(scene, program, node, flags)
+        if flags & RenderFlags.SHADOWS_DIRECTIONAL:
+            for name, value in current().uniforms.items():
+                program.set_uniform(name, value)
+
+    def shadow_pass(scene, light_node, flags):
+        frame = current()
+        texture = light_node.light.shadow_texture
+        inner._configure_shadow_framebuffer()
+        GL.glBindFramebuffer(GL.GL_FRAMEBUFFER, inner._shadow_fb)
+        GL.glActiveTexture(GL.GL_TEXTURE0)
+        texture._bind()
+        texture._bind_as_depth_attachment()
+        compare = GL.GL_COMPARE_REF_TO_TEXTURE if depth_compare else GL.GL_NONE
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_MODE, compare)
+        GL.glTexParameteri(GL.GL_TEXTURE_2D, GL.GL_TEXTURE_COMPARE_FUNC, GL.GL_LEQUAL)
+        GL.glDrawBuffer(GL.GL_NONE)
+        GL.glReadBuffer(GL.GL_NONE)
+        GL.glViewport(0, 0, texture.width, texture.height)
+        GL.glEnable(GL.GL_DEPTH_TEST)
+        GL.glDepthMask(GL.GL_TRUE)
+        GL.glDepthFunc(GL.GL_LESS)
+        GL.glDepthRange(0.0, 1.0)
+        GL.glClear(GL.GL_DEPTH_BUFFER_BIT)
+        GL.glDisable(GL.GL_CULL_FACE)
+        GL.glDisable(GL.GL_BLEND)
+        GL.glEnable(GL.GL_POLYGON_OFFSET_FILL)
+        GL.glPolygonOffset(*SHADOW_POLYGON_OFFSET)
+        program, ready = None, set()
+        for node in frame.casters:
+            pose = scene.get_pose(node)
+            for primitive in node.mesh.primitives:
+                shader = inner._get_primitive_program(primitive, flags, ProgramFlags.NONE)
+                if shader is not program:
+                    program = shader
+                    program._bind()
+                if program not in ready:  # uniform values stay with the program: once per pass
+                    program.set_uniform("V", frame.view)
+                    program.set_uniform("P", frame.proj)
+                    ready.add(program)
+                program.set_uniform("M", pose)
+                primitive._bind()
+                draw_primitive(primitive)
+                primitive._unbind()
+        if program is not None:
+            program._unbind()
+        GL.glDisable(GL.GL_POLYGON_OFFSET_FILL)
+        GL.glBindTexture(GL.GL_TEXTURE_2D, 0)
+
+    inner._get_light_cam_matrices = light_cam_matrices
+    inner._bind_lighting = bind_lighting
+    inner._shadow_mapping_pass = shadow_pass

@@ -1,0 +1,344 @@
+"""RGB post effects: a registry of cheap, vectorised, deterministic image operations.
+
+Each effect takes a float32 HxWx3 image in [0, 1] (sRGB) and an :class:`FxContext`
+(the frame's depth, classes, camera, weather, ego speed and rng) and returns a
+new image. :data:`ORDER` applies them scene first (puddles, wet road, fog), then
+atmosphere (rain), then lens and camera (bloom, flare, motion blur), then the
+weather's colour grading. An effect whose weather strength is zero is a no-op.
+
+Randomness comes only from ``FxContext.rng`` (per frame) and
+``FxContext.episode_seed`` (world-anchored puddles), so a frame is reproducible.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from typing import Callable
+
+import numpy as np
+
+from manifests.catalog import Weather, class_id
+from render_workers.render.camera import CameraRig
+
+ROAD_IDS = np.array([class_id("road"), class_id("road line")])
+WET_IDS = np.array([class_id("road"), class_id("road line"), class_id("sidewalk")])
+SKY_ID = class_id("sky")
+EXPOSURE_S = 1.0 / 30.0  # shutter time for motion blur
+BLUR_REF_M = 3.0  # objects this close get the full radial blur
+BLOOM_THRESHOLD = 0.72
+
+
+@dataclass(frozen=True, eq=False)
+class FxContext:
+    """Everything an effect may read besides the image."""
+
+    depth: np.ndarray  # HxW float32 planar metres (sky = 1000)
+    classes: np.ndarray  # HxW uint8 class ids
+    hood_mask: np.ndarray  # HxW bool
+    rig: CameraRig
+    world_from_camera: np.ndarray  # 4x4
+    weather: Weather
+    ego_speed_mps: float
+    sun_pixel: tuple[float, float] | None
+    rng: np.random.Generator  # per-frame randomness (rain streaks)
+    episode_seed: int  # world-anchored patterns (puddles) stay put between frames
+
+
+Effect = Callable[[np.ndarray, FxContext], np.ndarray]
+
+
+def _resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    import cv2
+
+    interp = cv2.INTER_AREA if width < image.shape[1] else cv2.INTER_LINEAR
+    return cv2.resize(image, (width, height), interpolation=interp)
+
+
+def _flat(shape: tuple, colour) -> np.ndarray:
+    """An HxWx3 float32 image of one colour (per-channel fills: numpy's broadcast over a last axis of 3 is slow)."""
+    import cv2
+
+    return cv2.merge([np.full(shape[:2], np.float32(c), np.float32) for c in colour])
+
+
+def _add_scaled(img: np.ndarray, layer: np.ndarray, scale: float) -> np.ndarray:
+    """img + scale * layer (both HxWx3 float32) in one pass."""
+    import cv2
+
+    return cv2.scaleAdd(layer, float(scale), img)
+
+
+def _class_lut(ids) -> np.ndarray:
+    lut = np.zeros(256, dtype=bool)
+    lut[np.asarray(ids)] = True
+    return lut
+
+
+_ROAD_LUT = _class_lut(ROAD_IDS)
+_WET_LUT = _class_lut(WET_IDS)
+
+
+def _mirror_rows(height: int, cy: float) -> np.ndarray:
+    """Row seen in a flat mirror at each row (about the horizon ``cy`` of a level camera)."""
+    return np.clip(np.round(2.0 * cy - np.arange(height) - 1.0), 0, height - 1).astype(np.intp)
+
+
+def _lerp(a: np.ndarray, b: np.ndarray, weight: np.ndarray) -> np.ndarray:
+    """a * (1 - weight) + b * weight with an HxW weight, in one cv2 pass."""
+    import cv2
+
+    weight = weight.astype(np.float32, copy=False)
+    return cv2.blendLinear(a, b, 1.0 - weight, weight)
+
+
+def _ground_points(ctx: FxContext, rows: np.ndarray, cols: np.ndarray, z: np.ndarray) -> np.ndarray:
+    """World (x, y) of pixels (full-resolution row/col centres) at planar depth ``z``."""
+    f = ctx.rig.focal_px
+    cam = np.stack([(cols + 0.5 - ctx.rig.cx) / f * z, (ctx.rig.cy - rows - 0.5) / f * z, -z], axis=1)
+    return cam @ ctx.world_from_camera[:3, :3].T[:, :2] + ctx.world_from_camera[:2, 3]
+
+
+def _puddle_waves(seed: int, count: int = 6) -> tuple[np.ndarray, np.ndarray, float]:
+    """Random plane waves (metres) whose sum thresholds into puddle shapes."""
+    rng = np.random.default_rng([seed, 303])
+    angle = rng.uniform(0, 2 * math.pi, count)
+    wavelength = rng.uniform(2.5, 9.0, count)
+    k = np.stack([np.cos(angle), np.sin(angle)], axis=1) * (2 * math.pi / wavelength)[:, None]
+    phase = rng.uniform(0, 2 * math.pi, count)
+    return k, phase, math.sqrt(count / 2.0)  # std of a sum of unit sines
+
+
+def puddles(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Mirror the scene about the horizon inside world-anchored puddles on the road.
+
+    The puddle pattern is a thresholded sum of plane waves on the ground (world
+    x, y from depth), evaluated at 1/4 resolution and upsampled; the threshold
+    makes about ``weather.puddles`` of the road reflective.
+    """
+    amount = ctx.weather.puddles
+    if amount <= 0:
+        return img
+    import cv2
+
+    h, w = ctx.rig.height, ctx.rig.width
+    road = _ROAD_LUT[ctx.classes] & ~ctx.hood_mask & (ctx.depth < 150.0)
+    step = 4
+    rows, cols = np.nonzero(road[step // 2::step, step // 2::step])
+    if rows.size == 0:
+        return img
+    full_rows, full_cols = rows * step + step // 2, cols * step + step // 2
+    k, phase, std = _puddle_waves(ctx.episode_seed)
+    xy = _ground_points(ctx, full_rows, full_cols, ctx.depth[full_rows, full_cols].astype(np.float64))
+    noise = np.sin(xy @ k.T + phase).sum(axis=1) / std
+    small = np.zeros(((h + step - 1 - step // 2) // step, (w + step - 1 - step // 2) // step), np.float32)
+    small[rows, cols] = np.clip((noise - _normal_quantile(1.0 - amount)) / 0.35, 0.0, 1.0)
+    weight = cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR) * (0.85 * road)
+    mirrored = img[_mirror_rows(h, ctx.rig.cy)] * np.float32(0.85)
+    return _lerp(img, mirrored, weight)
+
+
+def _normal_quantile(p: float) -> float:
+    """Inverse standard normal CDF (Abramowitz & Stegun 26.2.23, |error| < 4.5e-4)."""
+    p = min(max(p, 1e-6), 1 - 1e-6)
+    t = math.sqrt(-2.0 * math.log(min(p, 1 - p)))
+    q = t - (2.515517 + 0.802853 * t + 0.010328 * t * t) / (1 + 1.432788 * t + 0.189269 * t * t + 0.001308 * t**3)
+    return q if p > 0.5 else -q
+
+
+def wet_road(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Darken wet ground and add a blurred mirror sheen, strongest at grazing angles."""
+    wet = ctx.weather.wetness
+    if wet <= 0:
+        return img
+    import cv2
+
+    h, w = ctx.rig.height, ctx.rig.width
+    mask = _WET_LUT[ctx.classes] & ~ctx.hood_mask
+    sw, sh = max(1, w // 4), max(1, h // 4)
+    small = _resize(img, sw, sh)[_mirror_rows(sh, ctx.rig.cy * sh / h)]
+    sheen = _resize(cv2.GaussianBlur(small, (0, 0), 2.0), w, h)
+    below = np.clip((np.arange(h) + 0.5 - ctx.rig.cy) / max(1.0, h - ctx.rig.cy), 0.0, 1.0)
+    fresnel = ((0.08 + 0.5 * (1.0 - below) ** 4) * wet).astype(np.float32)  # per row
+    darkened = img * (1.0 - np.float32(0.35 * wet) * mask)[..., None]
+    return _lerp(darkened, sheen, mask * fresnel[:, None])
+
+
+def fog(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Blend towards the horizon colour with transmittance (1 - fog) ** (depth / 1000 m)."""
+    density = ctx.weather.fog
+    if density <= 0:
+        return img
+    import cv2
+
+    transmittance = cv2.exp(ctx.depth * np.float32(math.log(1.0 - min(density, 0.999)) / 1000.0))
+    return _lerp(_flat(img.shape, np.asarray(ctx.weather.sky_horizon, np.float32) / 255.0), img, transmittance)
+
+
+def rain(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Bright slanted streaks (count and length follow rain and speed) and a grey veil."""
+    amount = ctx.weather.rain
+    if amount <= 0:
+        return img
+    import cv2
+
+    h, w = ctx.rig.height, ctx.rig.width
+    n = int(amount * w * h / 1800)
+    x = ctx.rng.uniform(0, w, n)
+    y = ctx.rng.uniform(-0.1 * h, h, n)
+    length = ctx.rng.uniform(0.03, 0.09, n) * h * (1.0 + ctx.ego_speed_mps / 20.0)
+    slant = 0.12 + ctx.rng.normal(0.0, 0.03, n)
+    x1, y1 = x + slant * length, y + length
+    lines = np.stack([np.stack([x, y], 1), np.stack([x1, y1], 1)], 1).round().astype(np.int32)
+    layer = np.zeros((h, w), np.uint8)
+    thickness = max(1, int(round(w / 1400)))
+    cv2.polylines(layer, list(lines), False, 255, thickness, cv2.LINE_AA)
+    streaks = cv2.GaussianBlur(layer, (0, 0), max(0.6, w / 2400)).astype(np.float32) * (0.22 * amount / 255.0)
+    veil = 0.1 * amount
+    grey = float(img.mean())
+    veiled = cv2.addWeighted(img, 1.0 - veil, img, 0.0, grey * veil)
+    return cv2.add(veiled, cv2.merge([streaks, streaks, streaks]))
+
+
+def bloom(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Glow around bright areas: threshold at 1/4 size, blur at two scales, upsample and add back."""
+    import cv2
+
+    h, w = img.shape[:2]
+    strength = 0.55 * (1.0 - 0.6 * ctx.weather.cloudiness)
+    small = _resize(img, max(1, w // 4), max(1, h // 4))
+    bright = np.maximum(small - BLOOM_THRESHOLD, 0.0)
+    if not bright.any():
+        return img
+    sigma = max(1.0, w / 400.0)
+    sh, sw = bright.shape[:2]
+    # the wide glow (4 sigma) is blurred at a further quarter size: same look, 1/16 of the pixels
+    wide = cv2.GaussianBlur(_resize(bright, max(1, sw // 4), max(1, sh // 4)), (0, 0), sigma)
+    glow = cv2.GaussianBlur(bright, (0, 0), sigma) + _resize(wide, sw, sh)
+    return _add_scaled(img, _resize(glow, w, h), strength)
+
+
+def lens_flare(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Halo and ghost discs along the sun-centre line when the sun is in (or near) view."""
+    if ctx.sun_pixel is None:
+        return img
+    import cv2
+
+    h, w = img.shape[:2]
+    sx, sy = ctx.sun_pixel
+    outside = max(0.0, -sx, sx - w, -sy, sy - h) / (0.15 * w)
+    if outside >= 1.0:
+        return img
+    visibility = 1.0 - outside
+    if 0 <= sx < w and 0 <= sy < h:  # how much of the sun's surroundings is open sky
+        r = max(2, w // 80)
+        patch = ctx.classes[max(0, int(sy) - r): int(sy) + r + 1, max(0, int(sx) - r): int(sx) + r + 1]
+        visibility *= float(np.mean(patch == SKY_ID))
+    strength = visibility * (1.0 - 0.9 * ctx.weather.cloudiness)
+    if strength <= 0.01:
+        return img
+    scale = 4
+    lw, lh = max(1, w // scale), max(1, h // scale)
+    layer = np.zeros((lh, lw, 3), np.float32)
+    tint = np.asarray(ctx.weather.light_color, np.float32)
+    sun = np.array([sx, sy]) / scale
+    centre = np.array([lw / 2, lh / 2])
+    cv2.circle(layer, tuple(int(v) for v in sun.round()), max(1, lw // 25), tuple(float(c) * 0.9 for c in tint), -1)
+    cv2.line(layer, (int(sun[0] - lw * 0.3), int(sun[1])), (int(sun[0] + lw * 0.3), int(sun[1])),
+             tuple(float(c) * 0.35 for c in tint), max(1, lh // 200))
+    ghosts = ((0.55, 0.035, (0.35, 0.55, 1.0)), (0.85, 0.02, (0.5, 1.0, 0.6)),
+              (1.25, 0.05, (1.0, 0.6, 0.3)), (1.6, 0.08, (0.4, 0.4, 1.0)), (1.95, 0.03, (1.0, 0.9, 0.5)))
+    for t, radius, colour in ghosts:
+        p = sun + (centre - sun) * t
+        cv2.circle(layer, tuple(int(v) for v in p.round()), max(1, int(radius * lw)),
+                   tuple(0.12 * c for c in colour), -1)
+    layer = cv2.GaussianBlur(layer, (0, 0), max(1.0, lw / 200))
+    return _add_scaled(img, _resize(layer, w, h), strength)
+
+
+def motion_blur(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Radial blur from the focus of expansion, weighted by speed / depth (hood stays sharp)."""
+    if ctx.ego_speed_mps <= 0:
+        return img
+    import cv2
+
+    h, w = img.shape[:2]
+    travel = ctx.ego_speed_mps * EXPOSURE_S  # metres moved during the exposure
+    max_zoom = min(0.08, travel / BLUR_REF_M)
+    if max_zoom * max(w, h) / 2 < 0.5:  # under half a pixel at the image corners
+        return img
+    sw, sh = max(1, w // 2), max(1, h // 2)
+    small = _resize(img, sw, sh)
+    cx, cy = ctx.rig.cx / 2, ctx.rig.cy / 2
+    acc = np.zeros_like(small)
+    steps = 5
+    for k in range(steps):
+        s = 1.0 - max_zoom * k / (steps - 1)  # sample towards the focus of expansion
+        m = np.array([[s, 0, (1 - s) * cx], [0, s, (1 - s) * cy]], np.float32)
+        acc += cv2.warpAffine(small, m, (sw, sh), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_REFLECT)
+    blurred = _resize(acc * np.float32(1.0 / steps), w, h)
+    weight = cv2.min(cv2.divide(float(travel / max_zoom), cv2.max(ctx.depth, 0.1)), 1.0)
+    np.copyto(weight, np.float32(0.0), where=ctx.hood_mask)
+    return _lerp(img, blurred, weight)
+
+
+def grading(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Per-channel colour gain of the weather (sunset warmth, rainy blue-grey)."""
+    import cv2
+
+    gain = np.asarray(ctx.weather.grading, np.float32)
+    if np.all(gain == 1.0):
+        return img
+    return cv2.multiply(img, (*map(float, gain), 0.0))
+
+
+def antialias(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Soften geometry edges (class or depth discontinuities) with a 3x3 blur.
+
+    Stands in for multisampling, which costs half the colour pass on llvmpipe.
+    """
+    import cv2
+
+    cls, depth = ctx.classes, ctx.depth
+    edge = np.zeros(cls.shape, dtype=np.uint8)
+    for here, there, out in ((np.s_[:, 1:], np.s_[:, :-1], edge[:, 1:]), (np.s_[1:, :], np.s_[:-1, :], edge[1:, :])):
+        a, b = depth[here], depth[there]
+        jump = cv2.compare(cv2.absdiff(a, b), cv2.min(a, b) * np.float32(0.05) + np.float32(0.05), cv2.CMP_GT)
+        out |= jump | cv2.compare(cls[here], cls[there], cv2.CMP_NE)
+    edge = cv2.dilate(edge, np.ones((2, 2), np.uint8))
+    return cv2.copyTo(cv2.blur(img, (3, 3)), edge, img.copy())
+
+
+EFFECTS: dict[str, Effect] = {
+    "antialias": antialias,
+    "puddles": puddles,
+    "wet_road": wet_road,
+    "fog": fog,
+    "rain": rain,
+    "bloom": bloom,
+    "lens_flare": lens_flare,
+    "motion_blur": motion_blur,
+    "grading": grading,
+}
+ORDER: tuple[str, ...] = tuple(EFFECTS)
+
+
+def apply(rgb: np.ndarray, ctx: FxContext, order: tuple[str, ...] = ORDER,
+          timings: dict | None = None) -> np.ndarray:
+    """Run effects in ``order`` on an HxWx3 uint8 image; returns uint8. Unknown names raise."""
+    unknown = [name for name in order if name not in EFFECTS]
+    if unknown:
+        raise ValueError(f"unknown post effect(s) {unknown}; valid: {', '.join(EFFECTS)}")
+    if rgb.dtype != np.uint8 or rgb.ndim != 3 or rgb.shape[2] != 3:
+        raise ValueError(f"rgb: expected HxWx3 uint8, got {rgb.dtype} {rgb.shape}")
+    import cv2
+
+    img = np.multiply(rgb, np.float32(1.0 / 255.0), dtype=np.float32)
+    for name in order:
+        start = time.perf_counter()
+        img = EFFECTS[name](img, ctx)
+        if timings is not None:
+            timings[name] = timings.get(name, 0.0) + time.perf_counter() - start
+    return cv2.multiply(img, (255.0, 255.0, 255.0, 0.0), dtype=cv2.CV_8U)  # rounded, saturated

@@ -1,0 +1,81 @@
+"""Procedural towns: one data-driven builder for all seven IDDA towns.
+
+``build_world(town_code, seed)`` reads the town's row in
+``manifests.catalog.TOWNS`` and its style row in ``STYLES``, lays out the plan
+(``render_workers.worlds.town_plan``) and runs the features in :data:`FEATURES` over
+one :class:`~render_workers.worlds.kit.Kit`. Each feature is a function of the kit in
+its own module and decides from the plan and the style whether it applies
+(a freeway only where the plan has one, farmland only without sidewalks...);
+nothing here or there reads a town's code. A new town is a catalog row (and
+a style row); a new kind of thing is a feature module added to the list.
+
+Static geometry is merged into one Part per (200 m tile, class, material).
+The ``World`` carries the lane loops, zebra crossings and walking lanes that
+``render_workers.worlds.traffic`` populates.
+"""
+
+from __future__ import annotations
+
+
+import numpy as np
+
+from manifests.catalog import Town, town as town_row
+from render_workers.worlds import buildings, countryside, freeway, railway, river, streets
+from render_workers.worlds.kit import Kit
+from render_workers.worlds.scene import World
+from render_workers.worlds.styles import look
+from render_workers.worlds.textures import town_textures
+from render_workers.worlds.town_plan import Layout, crosswalks, layout, loops, plan, walk_lanes, walkways
+
+__all__ = ["FEATURES", "build_town", "build_world", "building_footprints", "layout", "plan"]
+
+# In order: later features may sit on earlier ones (furniture on sidewalks).
+FEATURES = (
+    streets.streets,
+    streets.sidewalks,
+    buildings.town_blocks,
+    countryside.farmland_blocks,
+    streets.furniture,
+    river.river,
+    freeway.freeway,
+    railway.railway,
+    countryside.outskirts,
+)
+
+
+def _built(t: Town, seed: int):
+    """The town's merged parts and building footprints (not cached here: ``render_workers.render.episode.cached_world``
+    is the process's one world cache)."""
+    kit = Kit(plan(t, seed))
+    for feature in FEATURES:
+        feature(kit)
+    return kit.batch.parts(), tuple(kit.buildings)
+
+
+def building_footprints(town_code: str, seed: int) -> np.ndarray:
+    """(N, 5) building footprints: centre x, y, size along, size across, yaw."""
+    return np.array(_built(town_row(town_code), seed)[1], dtype=np.float64).reshape(-1, 5)
+
+
+def build_town(t: Town, seed: int) -> World:
+    """A town row's static geometry, lanes and walkways, deterministic from ``seed``."""
+    lay: Layout = plan(t, seed)
+    parts, _ = _built(t, seed)
+    lane_loops = loops(lay)
+    return World(
+        town=t.code,
+        seed=seed,
+        static=parts,
+        lanes=tuple(loop.path for loop in lane_loops),
+        walkways=walkways(lay),
+        bounds=lay.bounds,
+        loops=lane_loops,
+        crosswalks=crosswalks(lay),
+        walk_lanes=walk_lanes(lay),
+        textures=town_textures(look(t), seed, t.stream),
+    )
+
+
+def build_world(town_code: str, seed: int) -> World:
+    """The catalog town ``town_code``'s world."""
+    return build_town(town_row(town_code), seed)
