@@ -241,7 +241,7 @@ class Storage:
         if self.is_local:
             try:
                 return sorted(os.listdir(self.path(rel)))
-            except FileNotFoundError:
+            except (FileNotFoundError, NotADirectoryError):  # as pyarrow's allow_not_found: nothing there
                 return []
             except OSError as exc:
                 raise storage_error("list", self.join(rel), exc) from exc
