@@ -16,6 +16,18 @@ background thread), so a killed holder blocks nobody for longer than that.
 Expiry times are wall-clock seconds: machines sharing a root need clocks
 within a few seconds of each other.
 
+Fencing: ``_lease/generation.json`` holds the root's lease generation. A
+producer records it in its lease when it registers and every episode's part
+commit re-checks it (``check_fence``), before and after writing the part.
+Whoever removes a dead producer's lease (repair, through ``live_producers``)
+bumps the generation first, so a producer that was stopped past its lease's
+expiry and wakes up afterwards can no longer mark an episode done: its commit
+fails with LeaseLost, and its refresh thread does not bring the lease back.
+
+A lease of a process on this same host (same host name and pid namespace)
+whose pid no longer exists is dead at once, whatever its expiry: the next
+run takes it over and says so in a warning.
+
 Exclusive creation: a local root uses an atomic hard link; on S3 (no
 conditional write through pyarrow) the holder writes its lease, waits
 ``S3_SETTLE_S`` and reads it back: of concurrent writers only the last PUT
@@ -25,6 +37,7 @@ reads itself back, so at most one wins (S3 reads are strongly consistent).
 from __future__ import annotations
 
 import json
+import logging
 import os
 import socket
 import threading
@@ -32,25 +45,119 @@ import time
 import uuid
 from dataclasses import dataclass, field
 
+from storage import StorageError
+
 LEASE_DIR = "_lease"
 EXCLUSIVE = f"{LEASE_DIR}/exclusive.json"
 PRODUCER_PREFIX = f"{LEASE_DIR}/producer-"
+GENERATION = f"{LEASE_DIR}/generation.json"
 TTL_S = 120.0  # a lease not refreshed for this long is dead
+TTL_ENV = "IDDA_LEASE_TTL_S"  # read by the CLI (tests shorten it)
 S3_SETTLE_S = 2.0
+
+log = logging.getLogger(__name__)
 
 
 class LeaseError(Exception):
     """The root is locked by another operation."""
 
 
+class LeaseLost(StorageError):
+    """This producer's lease was taken over (or its generation bumped): it may not commit."""
+
+    def __init__(self, message: str) -> None:
+        super().__init__(message, cause="lease lost", fatal=True)
+
+
+def ttl_from_env(environ=os.environ) -> float:
+    """The lease TTL: ``IDDA_LEASE_TTL_S`` if set (ValueError if it is not a positive number), else TTL_S."""
+    raw = environ.get(TTL_ENV)
+    if raw is None:
+        return TTL_S
+    try:
+        ttl = float(raw)
+    except ValueError:
+        ttl = -1.0
+    if not ttl > 0:
+        raise ValueError(f"{TTL_ENV} must be a positive number of seconds, got {raw!r}")
+    return ttl
+
+
 def new_owner() -> str:
     return f"{socket.gethostname()}-{os.getpid()}-{uuid.uuid4().hex[:8]}"
 
 
-def _body(owner: str, purpose: str, ttl_s: float) -> bytes:
-    info = {"owner": owner, "host": socket.gethostname(), "pid": os.getpid(), "purpose": purpose,
-            "expires": time.time() + ttl_s}
+def _pid_namespace() -> str | None:
+    try:
+        return os.readlink("/proc/self/ns/pid")
+    except OSError:
+        return None
+
+
+def _body(owner: str, purpose: str, ttl_s: float, generation: int | None = None) -> bytes:
+    info = {"owner": owner, "host": socket.gethostname(), "pid": os.getpid(), "pidns": _pid_namespace(),
+            "purpose": purpose, "expires": time.time() + ttl_s}
+    if generation is not None:
+        info["generation"] = generation
     return json.dumps(info, sort_keys=True).encode()
+
+
+def read_generation(storage) -> int:
+    """The root's lease generation (0 before the first takeover)."""
+    try:
+        value = json.loads(storage.read_bytes(GENERATION)).get("generation", 0)
+    except FileNotFoundError:
+        return 0
+    except (ValueError, AttributeError):  # torn or odd: nobody can match it, so every fence fails
+        return -1
+    return int(value) if isinstance(value, int) else -1
+
+
+def bump_generation(storage) -> int:
+    """Invalidate every producer fence taken so far; call under the exclusive lease."""
+    generation = max(read_generation(storage), 0) + 1
+    storage.write_bytes(GENERATION, json.dumps({"generation": generation}).encode())
+    return generation
+
+
+@dataclass(frozen=True)
+class Fence:
+    """What a producer's part commit checks (small and picklable: it travels to workers)."""
+
+    rel: str  # the producer's lease file
+    owner: str
+    generation: int
+
+
+def check_fence(storage, fence: Fence | None) -> None:
+    """LeaseLost unless ``fence``'s lease still exists, is ours, and the root's
+    generation is unchanged (``None``: no fencing, e.g. a plain-loop benchmark)."""
+    if fence is None:
+        return
+    info = read_lease(storage, fence.rel)
+    if info is None or info.get("owner") != fence.owner:
+        raise LeaseLost(f"lost the lease on {storage.uri}: it was taken over (this producer was stopped or "
+                        "cut off past its expiry); nothing more is committed, run again to resume")
+    generation = read_generation(storage)
+    if generation != fence.generation:
+        raise LeaseLost(f"lost the lease on {storage.uri}: a repair or takeover ran meanwhile (lease generation "
+                        f"{fence.generation} -> {generation}); nothing more is committed, run again to resume")
+
+
+def _process_gone(info: dict) -> bool:
+    """True if the lease's holder ran on this host (same name and pid namespace) and its pid is gone."""
+    if info.get("host") != socket.gethostname() or info.get("pidns") != _pid_namespace() or info.get("pidns") is None:
+        return False
+    pid = info.get("pid")
+    if not isinstance(pid, int) or pid <= 0:
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:  # exists, another user's
+        return False
+    return False
 
 
 def read_lease(storage, rel: str) -> dict | None:
@@ -63,7 +170,14 @@ def read_lease(storage, rel: str) -> dict | None:
 
 
 def is_live(info: dict | None) -> bool:
-    return info is not None and info["expires"] > time.time()
+    """A lease not yet expired whose holder is not known to be gone."""
+    return info is not None and info["expires"] > time.time() and not _process_gone(info)
+
+
+def _say_taken_over(storage, info: dict | None) -> None:
+    if info is not None and info["expires"] > time.time():  # live by its expiry: its process is gone
+        log.warning("took over the lease of %s on %s: its process %s on this host is gone",
+                    describe(info).split(" (")[0], storage.uri, info.get("pid"))
 
 
 def describe(info: dict) -> str:
@@ -80,11 +194,28 @@ class Lease:
     owner: str
     purpose: str
     ttl_s: float = TTL_S
+    generation: int | None = None  # producer leases: the root's generation when registered
+    lost: bool = False  # set once the lease is found taken over; it is never refreshed again
     _stop: threading.Event = field(default_factory=threading.Event, repr=False)
     _thread: threading.Thread | None = field(default=None, repr=False)
 
+    @property
+    def fence(self) -> Fence | None:
+        return None if self.generation is None else Fence(self.rel, self.owner, self.generation)
+
     def refresh(self) -> None:
-        self.storage.write_bytes(self.rel, _body(self.owner, self.purpose, self.ttl_s))
+        """Extend the lease; a fenced lease that was taken over is marked lost instead, never revived."""
+        if self.lost:
+            return
+        if self.generation is not None:
+            try:
+                check_fence(self.storage, self.fence)
+            except LeaseLost as exc:
+                log.warning("%s", exc)
+                self.lost = True
+                self._stop.set()
+                return
+        self.storage.write_bytes(self.rel, _body(self.owner, self.purpose, self.ttl_s, self.generation))
 
     def keep_alive(self) -> Lease:
         """Refresh from a daemon thread every quarter of the TTL until released."""
@@ -92,7 +223,7 @@ class Lease:
             while not self._stop.wait(self.ttl_s / 4):
                 try:
                     self.refresh()
-                except Exception:  # a failed refresh: the next one may succeed; expiry is the backstop
+                except Exception:  # a failed refresh: the next one may succeed; the fence is the backstop
                     pass
 
         self._thread = threading.Thread(target=loop, name=f"lease-{self.purpose}", daemon=True)
@@ -137,6 +268,7 @@ def acquire_exclusive(storage, purpose: str, owner: str | None = None, wait_s: f
             return Lease(storage, EXCLUSIVE, owner, purpose, ttl_s).keep_alive()
         info = read_lease(storage, EXCLUSIVE)
         if not is_live(info):
+            _say_taken_over(storage, info)
             storage.delete(EXCLUSIVE)  # its holder died (or the file is torn): take it over
             continue
         if time.monotonic() >= deadline:
@@ -151,22 +283,29 @@ def exclusive_holder(storage) -> dict | None:
 
 
 def register_producer(storage, owner: str | None = None, ttl_s: float = TTL_S) -> Lease:
-    """Announce a running producer (kept alive until released)."""
+    """Announce a running producer (kept alive until released), fenced by the root's generation."""
     owner = owner or new_owner()
-    lease = Lease(storage, f"{PRODUCER_PREFIX}{owner}.json", owner, "produce", ttl_s)
-    lease.refresh()
+    lease = Lease(storage, f"{PRODUCER_PREFIX}{owner}.json", owner, "produce", ttl_s, generation=read_generation(storage))
+    storage.write_bytes(lease.rel, _body(owner, "produce", ttl_s, lease.generation))
     return lease.keep_alive()
 
 
 def live_producers(storage, except_owner: str | None = None) -> list[dict]:
-    """Live producer leases other than ``except_owner``'s; dead ones are removed."""
-    found = []
+    """Live producer leases other than ``except_owner``'s. Dead ones are taken
+    over: their files are removed (their holders can no longer commit). Where
+    no other producer is live (so the caller, a repair under the exclusive
+    lease, goes on to delete files) the root's generation is bumped first,
+    which also fences a holder that refreshed its lease at the very moment it
+    was judged dead, or whose lease file someone else removed."""
+    found, dead = [], []
     for rel in storage.list_files(PRODUCER_PREFIX):
         info = read_lease(storage, rel)
         if info is not None and info.get("owner") == except_owner:
             continue
-        if is_live(info):
-            found.append(info)
-        else:
-            storage.delete(rel)
-    return found
+        (found if is_live(info) else dead).append((rel, info))
+    if not found:
+        bump_generation(storage)
+    for rel, info in dead:
+        _say_taken_over(storage, info)
+        storage.delete(rel)
+    return [info for _, info in found]

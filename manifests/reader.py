@@ -12,8 +12,8 @@ import logging
 import re
 from collections import defaultdict
 from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass
 
-import numpy as np
 import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
@@ -22,12 +22,15 @@ from manifests.catalog import split_code
 from manifests.schema import (
     INDEX_DIR,
     INDEX_EPISODES_KEY,
+    INDEX_PARTS_KEY,
     LEGACY_INDEX_NAME,
     MANIFEST_DIR,
     MANIFEST_SCHEMA,
     PARTITION_KEYS,
     PARTITION_SCHEMA,
+    PART_SCHEMA,
     index_path,
+    part_path,
     output_columns,
 )
 from manifests.outputs import OUTPUTS
@@ -47,14 +50,19 @@ def as_storage(root):
     return root if isinstance(root, Storage) else Storage.from_uri(str(root))
 
 
-def part_files(storage) -> dict[str, dict[int, str]]:
-    """Parts per scenario: {scenario: {episode: relative path}}."""
-    parts: dict[str, dict[int, str]] = defaultdict(dict)
-    for rel in storage.list_files(MANIFEST_DIR + "/", suffix=".parquet"):
+def part_listing(storage) -> dict[str, dict[int, tuple[str, int]]]:
+    """Parts per scenario with their sizes: {scenario: {episode: (relative path, bytes)}}."""
+    parts: dict[str, dict[int, tuple[str, int]]] = defaultdict(dict)
+    for rel, size in storage.list_sizes(MANIFEST_DIR + "/", suffix=".parquet").items():
         match = _PART_RE.match(rel)
         if match:
-            parts[match.group(4)][int(match.group(8))] = rel
+            parts[match.group(4)][int(match.group(8))] = (rel, size)
     return parts
+
+
+def part_files(storage) -> dict[str, dict[int, str]]:
+    """Parts per scenario: {scenario: {episode: relative path}}."""
+    return {scenario: {e: rel for e, (rel, _) in eps.items()} for scenario, eps in part_listing(storage).items()}
 
 
 def index_files(storage) -> dict[str, str]:
@@ -75,26 +83,206 @@ def done_episodes(root) -> set[tuple[str, int]]:
 
 def index_episodes(storage, rel: str) -> set[int] | None:
     """Episodes a scenario index covers (from its footer), or None if unreadable."""
+    meta = _footer_metadata(storage, rel)
     try:
-        with storage.filesystem.open_input_file(storage.path(rel)) as f:
-            meta = pq.read_metadata(f).metadata or {}
-        return set(json.loads(meta[INDEX_EPISODES_KEY]))
-    except Exception:
+        return None if meta is None else set(json.loads(meta[INDEX_EPISODES_KEY]))
+    except (KeyError, ValueError, TypeError):
         return None
 
 
-def manifest_files(root) -> list[str]:
-    """The files that hold the manifest now: a scenario's index where it covers
-    exactly the parts present, else the scenario's parts (relative paths)."""
-    storage = as_storage(root)
-    parts, indexes = part_files(storage), index_files(storage)
-    files = []
-    for scenario in sorted(parts):
-        index = indexes.get(scenario)
-        if index is not None and index_episodes(storage, index) == set(parts[scenario]):
-            files.append(index)
+# ---------------------------------------------------------------- summaries ----
+# What resume, status and the run.json checks need of a part, read from its
+# footer (row count and column statistics) without decoding a row, and carried
+# by the scenario's index for every part it covers: so a scan is O(parts), and
+# O(scenarios) reads where the indexes are current.
+
+
+@dataclass(frozen=True)
+class PartSummary:
+    """One part in a few numbers: its size in bytes (what the listing shows) and rows,
+    and the distinct seeds, resolutions and rgb file formats its rows hold."""
+
+    size: int
+    rows: int
+    seeds: tuple[int, ...]
+    resolutions: tuple[tuple[int, int], ...]
+    rgb: tuple[str, ...]  # FORMATS keys of its rgb files; () without the rgb output
+
+    def to_json(self, episode: int) -> list:
+        return [episode, self.size, self.rows, list(self.seeds), [list(r) for r in self.resolutions], list(self.rgb)]
+
+    @classmethod
+    def from_json(cls, item: list) -> tuple[int, PartSummary]:
+        episode, size, rows, seeds, resolutions, rgb = item
+        return int(episode), cls(int(size), int(rows), tuple(seeds), tuple(tuple(r) for r in resolutions), tuple(rgb))
+
+
+_SUMMARY_COLUMNS = ("seed", "width", "height", "rgb_path")
+
+
+def _summary(size: int, rows: int, bounds: dict[str, tuple]) -> PartSummary:
+    """From each summary column's (min, max); (None, None) for an all-null column."""
+    from manifests.outputs import file_of_path
+
+    def distinct(values) -> tuple:
+        return tuple(sorted(set(v for v in values if v is not None)))
+
+    (w0, w1), (h0, h1) = bounds["width"], bounds["height"]
+    return PartSummary(
+        size=size,
+        rows=rows,
+        seeds=distinct(bounds["seed"]),
+        resolutions=distinct([(w0, h0), (w1, h1)] if rows else []),
+        rgb=distinct(file_of_path("rgb", p) if p is not None else None for p in bounds["rgb_path"]),
+    )
+
+
+def summary_of_table(table: pa.Table, size: int) -> PartSummary:
+    """A part's summary from its rows (``size``: the bytes it was read from)."""
+    import pyarrow.compute as pc
+
+    bounds = {}
+    for name in _SUMMARY_COLUMNS:
+        column = table.column(name)
+        if column.null_count == len(column):
+            bounds[name] = (None, None)
         else:
-            files.extend(parts[scenario][e] for e in sorted(parts[scenario]))
+            found = pc.min_max(column)
+            bounds[name] = (found["min"].as_py(), found["max"].as_py())
+    return _summary(size, len(table), bounds)
+
+
+def summary_of_footer(meta: pq.FileMetaData, size: int) -> PartSummary | None:
+    """A part's summary from its footer's statistics; None where they are missing."""
+    names = meta.schema.names
+    bounds: dict[str, tuple] = {name: (None, None) for name in _SUMMARY_COLUMNS}
+    for g in range(meta.num_row_groups):
+        group = meta.row_group(g)
+        for name in _SUMMARY_COLUMNS:
+            stats = group.column(names.index(name)).statistics
+            if stats is None:
+                return None
+            if not stats.has_min_max:
+                if stats.null_count != group.num_rows:
+                    return None
+                continue
+            lo, hi = bounds[name]
+            bounds[name] = (stats.min if lo is None else min(lo, stats.min), stats.max if hi is None else max(hi, stats.max))
+    return _summary(size, meta.num_rows, bounds)
+
+
+def _footer(storage, rel: str) -> pq.FileMetaData | None:
+    try:
+        with storage.filesystem.open_input_file(storage.path(rel)) as f:
+            return pq.read_metadata(f)
+    except Exception:  # gone, torn or not Parquet: the caller treats it as absent
+        return None
+
+
+def _footer_metadata(storage, rel: str) -> dict | None:
+    meta = _footer(storage, rel)
+    return None if meta is None else (meta.metadata or {})
+
+
+def part_summary(storage, rel: str, size: int) -> PartSummary | None:
+    """The summary of the part at ``rel`` (listed with ``size`` bytes); None if unreadable."""
+    meta = _footer(storage, rel)
+    if meta is None:
+        return None
+    summary = summary_of_footer(meta, size)
+    if summary is None:  # a part written without statistics: read the few columns
+        try:
+            with storage.filesystem.open_input_file(storage.path(rel)) as f:
+                summary = summary_of_table(pq.read_table(f, columns=list(_SUMMARY_COLUMNS)), size)
+        except Exception:
+            return None
+    return summary
+
+
+def _recorded(meta: dict) -> dict[int, PartSummary] | None:
+    try:
+        return dict(PartSummary.from_json(item) for item in json.loads(meta[INDEX_PARTS_KEY]))
+    except (KeyError, ValueError, TypeError):
+        return None
+
+
+def index_summaries(storage, rel: str) -> dict[int, PartSummary] | None:
+    """The parts an index was built from, per episode; None if unreadable or
+    written before indexes recorded them (such an index is never used)."""
+    meta = _footer_metadata(storage, rel)
+    return None if meta is None else _recorded(meta)
+
+
+def _is_current(summaries: dict[int, PartSummary] | None, listed: dict[int, tuple[str, int]]) -> bool:
+    """An index is current while it was built from exactly the parts listed now, size for size."""
+    return summaries is not None and {e: s.size for e, s in summaries.items()} == {e: size for e, (_, size) in listed.items()}
+
+
+FOOTER_THREADS = 32  # footers read at once (one small ranged read each on S3)
+
+
+@dataclass
+class ManifestScan:
+    """What a root's manifest holds now, from one listing and the footers."""
+
+    parts: dict[str, dict[int, tuple[str, int]]]  # {scenario: {episode: (path, bytes)}}
+    indexes: dict[str, str]  # every index file present
+    current: dict[str, dict[int, PartSummary]]  # scenarios whose index is current: its summaries
+
+    def summaries(self, storage, threads: int = FOOTER_THREADS) -> dict[tuple[str, int], PartSummary | None]:
+        """Every part's summary: from its scenario's index where that is current,
+        else from the part's own footer (None: unreadable, so not done)."""
+        found: dict[tuple[str, int], PartSummary | None] = {}
+        unindexed = []
+        for scenario, episodes in self.parts.items():
+            if scenario in self.current:
+                found.update(((scenario, e), s) for e, s in self.current[scenario].items())
+            else:
+                unindexed.extend(((scenario, e), item) for e, item in episodes.items())
+        with ThreadPoolExecutor(max_workers=threads) as pool:  # one small read per part: many at once on S3
+            found.update(zip((k for k, _ in unindexed), pool.map(lambda i: part_summary(storage, *i[1]), unindexed)))
+        return found
+
+
+
+def scan(root) -> ManifestScan:
+    """List the manifest and read each index's footer (in parallel): which indexes are current."""
+    storage = as_storage(root)
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        listing = pool.submit(part_listing, storage)
+        indexes = index_files(storage)
+        parts = listing.result()
+    candidates = sorted(s for s in indexes if s in parts)
+    with ThreadPoolExecutor(max_workers=FOOTER_THREADS) as pool:
+        recorded = dict(zip(candidates, pool.map(lambda s: index_summaries(storage, indexes[s]), candidates)))
+    current = {s: recorded[s] for s in candidates if _is_current(recorded[s], parts[s])}
+    return ManifestScan(parts=dict(parts), indexes=indexes, current=current)
+
+
+def part_summaries(root) -> dict[tuple[str, int], PartSummary | None]:
+    """{(scenario, episode): summary} of every part present (None: unreadable)."""
+    storage = as_storage(root)
+    return scan(storage).summaries(storage)
+
+
+def episode_frames(root, summaries: dict | None = None) -> dict[tuple[str, int], int]:
+    """Frames held by each done episode's part: {(scenario, episode): rows}
+    (0 for an unreadable part). Read from a scenario's index where it is
+    current, else from each part's footer; ``summaries`` if already scanned."""
+    summaries = part_summaries(root) if summaries is None else summaries
+    return {key: (s.rows if s is not None else 0) for key, s in summaries.items()}
+
+
+def manifest_files(root) -> list[str]:
+    """The files that hold the manifest now: a scenario's index where it is
+    current (built from exactly the parts present), else its parts."""
+    state = scan(as_storage(root))
+    files = []
+    for scenario in sorted(state.parts):
+        if scenario in state.current:
+            files.append(state.indexes[scenario])
+        else:
+            files.extend(state.parts[scenario][e][0] for e in sorted(state.parts[scenario]))
     return files
 
 
@@ -123,63 +311,78 @@ def _dataset(storage, files: list[str]) -> ds.Dataset:
     return ds.dataset([part_ds, ds.dataset(indexes, **common)])
 
 
-def episode_frames(root) -> dict[tuple[str, int], int]:
-    """Frames held by each done episode's part: {(scenario, episode): rows}.
-
-    Read from a scenario's index where it covers exactly the parts present (one
-    column), else from each part's footer.
-    """
-    storage = as_storage(root)
-    parts, indexes = part_files(storage), index_files(storage)
-    counts: dict[tuple[str, int], int] = {}
-    unindexed: list[tuple[tuple[str, int], str]] = []
-    for scenario, episodes in parts.items():
-        index = indexes.get(scenario)
-        if index is not None and index_episodes(storage, index) == set(episodes):
-            try:
-                with storage.filesystem.open_input_file(storage.path(index)) as f:
-                    column = pq.read_table(f, columns=["episode"]).column("episode").to_numpy()
-                found = dict(zip(*(v.tolist() for v in np.unique(column, return_counts=True))))
-                counts.update(((scenario, e), found.get(e, 0)) for e in episodes)
-                continue
-            except Exception:  # a damaged index: fall back to the parts
-                pass
-        unindexed.extend(((scenario, episode), rel) for episode, rel in episodes.items())
-
-    def rows(rel: str) -> int:
-        try:
-            with storage.filesystem.open_input_file(storage.path(rel)) as f:
-                return pq.read_metadata(f).num_rows
-        except Exception:
-            return 0  # unreadable: not done
-
-    with ThreadPoolExecutor(max_workers=16) as pool:  # one small read per part: many at once on S3
-        counts.update(zip((key for key, _ in unindexed), pool.map(rows, [rel for _, rel in unindexed])))
-    return counts
+# ------------------------------------------------------------------ indexes ----
 
 
-def index_table(parts: list[pa.Table], scenario: str, episodes: list[int]) -> pa.Table:
-    """A scenario's index: its parts' rows with the partition columns, and the
-    covered episodes in the footer."""
+def index_table(parts: list[pa.Table], scenario: str, episodes: list[int], sizes: dict[int, int] | None = None) -> pa.Table:
+    """A scenario's index: its parts' rows with the partition columns; in the
+    footer, the covered episodes and, given the parts' ``sizes`` (bytes they
+    were read from), each part's summary, which says what the index was built
+    from."""
     table = pa.concat_tables(parts)
     for key, value in zip(PARTITION_KEYS, split_code(scenario)):
         table = table.append_column(key, pa.array([value] * len(table), pa.string()))
     meta = {INDEX_EPISODES_KEY: json.dumps(episodes).encode()}
+    if sizes is not None:
+        items = [summary_of_table(part, sizes[e]).to_json(e) for part, e in zip(parts, episodes)]
+        meta[INDEX_PARTS_KEY] = json.dumps(items, separators=(",", ":")).encode()
     return table.cast(MANIFEST_SCHEMA).replace_schema_metadata(meta)
 
 
 def index_bytes(table: pa.Table) -> bytes:
-    """Serialise an index deterministically: the same parts give the same bytes."""
+    """Serialise an index deterministically: the same parts give the same bytes
+    (whether folded in at once or a few at a time)."""
     sink = io.BytesIO()
-    pq.write_table(table, sink, compression="zstd", row_group_size=1 << 16, write_page_checksum=True)
+    pq.write_table(table.combine_chunks(), sink, compression="zstd", row_group_size=1 << 16, write_page_checksum=True)
     return sink.getvalue()
 
 
 def build_index(storage, scenario: str, episodes: list[int]) -> bytes:
     """The bytes of ``scenario``'s index over ``episodes``, built from its parts."""
-    from manifests.writer import read_part
+    from manifests.writer import read_part_file
 
-    return index_bytes(index_table([read_part(storage, scenario, e) for e in episodes], scenario, episodes))
+    tables, sizes = [], {}
+    for e in episodes:
+        rel = part_path(scenario, e)
+        data = storage.read_bytes(rel)
+        tables.append(read_part_file(storage, rel, PART_SCHEMA, data=data))
+        sizes[e] = len(data)
+    return index_bytes(index_table(tables, scenario, episodes, sizes))
+
+
+def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str | None) -> bytes:
+    """``scenario``'s index over the parts ``listed``: the rows of its current
+    index for every part it was built from that is unchanged, and the rows of
+    the other parts, read now. The sizes recorded are those of the bytes read,
+    so a part rewritten meanwhile leaves the new index stale, never wrong."""
+    from manifests.writer import ManifestError, read_part_file
+
+    kept: dict[int, tuple[pa.Table, int]] = {}
+    try:
+        data = storage.read_bytes(index) if index is not None else None
+        recorded = _recorded(pq.read_metadata(io.BytesIO(data)).metadata or {}) if data else None
+        old = read_part_file(storage, index, MANIFEST_SCHEMA, data=data) if recorded else None
+    except (ManifestError, FileNotFoundError, pa.ArrowException, OSError):  # gone or damaged: from the parts alone
+        recorded = old = None
+    if old is not None:
+        old = old.select(PART_SCHEMA.names)
+        episode = old.column("episode").to_numpy()
+        for e, summary in recorded.items():
+            if e in listed and listed[e][1] == summary.size:
+                rows = old.filter(episode == e)
+                if len(rows) == summary.rows:
+                    kept[e] = (rows, summary.size)
+    tables, sizes = [], {}
+    for e in sorted(listed):
+        if e in kept:
+            table, size = kept[e]
+        else:
+            rel = listed[e][0]
+            data = storage.read_bytes(rel)
+            table, size = read_part_file(storage, rel, PART_SCHEMA, data=data), len(data)
+        tables.append(table)
+        sizes[e] = size
+    return index_bytes(index_table(tables, scenario, sorted(listed), sizes))
 
 
 def _remove_legacyindex_files(storage) -> None:
@@ -189,26 +392,28 @@ def _remove_legacyindex_files(storage) -> None:
 
 
 def compact(root, scenarios: list[str] | None = None) -> list[str]:
-    """Merge each scenario's parts into one index file, where it is stale.
+    """Fold each scenario's new or changed parts into its index, where the index is not current.
 
-    Parts stay the source of truth (they are the "done" markers); an index is
-    only used while it covers exactly the parts present. Returns the scenarios
-    whose index was (re)written.
+    Incremental: the rows of parts an index already holds are taken from it,
+    only the other parts are read. Parts stay the source of truth (they are
+    the "done" markers); an index records the size of every part it was
+    built from and is used only while those are exactly the parts listed, so
+    compaction needs no lock: one racing a writer of parts, or another
+    compaction, leaves an index that is current or one that readers bypass.
+    Returns the scenarios whose index was (re)written.
     """
     storage = as_storage(root)
     _remove_legacyindex_files(storage)
-    parts, indexes = part_files(storage), index_files(storage)
-    for scenario in set(indexes) - set(parts):  # every part of it was removed
-        storage.delete(indexes[scenario])
+    state = scan(storage)
+    for scenario in set(state.indexes) - set(state.parts):  # every part of it was removed
+        storage.delete(state.indexes[scenario])
     written = []
-    for scenario in sorted(parts if scenarios is None else set(scenarios) & set(parts)):
-        episodes = sorted(parts[scenario])
-        index = indexes.get(scenario)
-        if index is not None and index_episodes(storage, index) == set(episodes):
+    for scenario in sorted(state.parts if scenarios is None else set(scenarios) & set(state.parts)):
+        if scenario in state.current:
             continue
         index_dir, _, index_name = index_path(scenario).rpartition("/")
         storage.remove_stale_temp(index_dir, index_name)  # from a compaction that was killed
-        storage.write_bytes(index_path(scenario), build_index(storage, scenario, episodes))
+        storage.write_bytes(index_path(scenario), _fold(storage, scenario, state.parts[scenario], state.indexes.get(scenario)))
         written.append(scenario)
     return written
 

@@ -18,8 +18,6 @@ import json
 import os
 import re
 
-import pyarrow.fs as pafs
-
 from manifests.outputs import FORMATS, OUTPUT_TABLE, OUTPUTS
 from manifests.schema import MANIFEST_DIR, RUN_FILE
 
@@ -51,15 +49,12 @@ def _is_hidden_temp(name: str) -> bool:
 
 
 def root_entries(storage) -> list[str]:
-    """Top-level names under the root (hidden names left out); [] if it does not exist."""
-    selector = pafs.FileSelector(storage.path(), recursive=False, allow_not_found=True)
-    try:
-        infos = storage.filesystem.get_file_info(selector)
-    except (OSError, ValueError) as exc:
-        from storage.errors import storage_error
+    """Top-level names under the root (hidden names left out); [] if it does not exist.
 
-        raise storage_error("list", storage.uri, exc) from exc
-    return sorted(i.base_name for i in infos if not _is_hidden_temp(i.base_name))
+    Names only, no stat: another driver creating the same root at this moment
+    writes and deletes a probe file there, and a listing that stats each entry
+    failed on the vanished probe."""
+    return [name for name in storage.entries() if not _is_hidden_temp(name)]
 
 
 def is_our_root(storage) -> bool:

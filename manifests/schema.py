@@ -90,6 +90,9 @@ def frame_path(scenario: str, name: str, fid: str, rgb_format: str = "png") -> s
 # MANIFEST_SCHEMA, partition columns included.
 INDEX_DIR = "_index"  # <root>/_index/<scenario>.parquet
 INDEX_EPISODES_KEY = b"idda.index_episodes"  # footer metadata: episodes the index covers
+# footer metadata: what the index was built from, one JSON item per part:
+# [episode, part bytes, rows, seeds, resolutions, rgb formats] (manifests.reader.PartSummary)
+INDEX_PARTS_KEY = b"idda.index_parts"
 LEGACY_INDEX_NAME = "_index.parquet"  # where older versions put indexes (inside manifest/); compaction removes them
 
 

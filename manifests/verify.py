@@ -23,7 +23,7 @@ import pyarrow.parquet as pq
 from manifests.catalog import SCENARIO_BY_CODE
 from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
-from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_table, part_files
+from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table, part_files
 from manifests.root import FRAME_FILE_RE
 from manifests.runrecord import RunRecordError, read_record
 from manifests.schema import PART_SCHEMA, RUN_FILE, frame_id, frame_path, output_columns
@@ -133,7 +133,10 @@ def _check_index(storage, rel: str, scenario: str, episodes: dict[int, str] | No
     if covered != set(episodes) or not all((scenario, e) in good for e in episodes):
         return None  # stale (or its parts are being repaired): readers ignore it, compaction rewrites it
     eps = sorted(episodes)
-    rebuilt = index_bytes(index_table([good[(scenario, e)] for e in eps], scenario, eps))  # parts already read
+    sizes = {e: storage.size(episodes[e]) for e in eps}  # what the index records it was built from
+    if {e: p.size for e, p in (index_summaries(storage, rel) or {}).items()} != sizes:
+        return None  # built from other parts (or before indexes recorded them): stale, readers ignore it
+    rebuilt = index_bytes(index_table([good[(scenario, e)] for e in eps], scenario, eps, sizes))  # parts already read
     try:
         same = storage.read_bytes(rel) == rebuilt
     except (ManifestError, StorageError, OSError) as exc:

@@ -12,13 +12,16 @@ from __future__ import annotations
 import json
 import logging
 import os
+import threading
 import time
 from collections import deque
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
-from manifests.reader import compact, episode_frames
+from manifests.lease import TTL_S
+from manifests.reader import compact, episode_frames, part_summaries
 from manifests.schema import STATS_DIR, index_path, part_path
 from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
@@ -50,6 +53,8 @@ class ProduceConfig:
     max_in_flight: int | None = None  # default: twice the cluster's task slots
     extend: bool = False
     repair: bool = False
+    lease_ttl_s: float = TTL_S  # the producer lease's time to live (the CLI reads IDDA_LEASE_TTL_S)
+    index_every_s: float = 180.0  # fold finished parts into their scenarios' indexes this often
 
     def validate(self) -> None:
         from render_workers.worlds.registry import check_world
@@ -66,6 +71,8 @@ class ProduceConfig:
             raise ValueError(f"max retries must be >= 0, got {self.max_retries}")
         if self.max_in_flight is not None and self.max_in_flight < 1:
             raise ValueError(f"max in flight must be at least 1, got {self.max_in_flight}")
+        if not self.lease_ttl_s > 0 or not self.index_every_s > 0:
+            raise ValueError(f"lease ttl and index interval must be positive, got {self.lease_ttl_s}, {self.index_every_s}")
 
 
 @dataclass(frozen=True)
@@ -270,7 +277,7 @@ def _stop_idle_daemons(ray) -> None:
 
 
 def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
-                   progress: Callable[[Progress], None] | None, start: float) -> None:
+                   progress: Callable[[Progress], None] | None, start: float, fence=None) -> None:
     """Run one task per pending episode, at most ``limit`` in flight; fills ``report``."""
     ray = _import_ray(_address(config))
     started = not ray.is_initialized()
@@ -324,7 +331,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         while queue or in_flight:
             while queue and len(in_flight) < limit:
                 spec = queue.popleft()
-                in_flight[task.remote(spec, storage_ref, config.run.world, counter, lp_threads)] = spec
+                in_flight[task.remote(spec, storage_ref, config.run.world, counter, lp_threads, fence)] = spec
             if counter is not None and watch is None:
                 watch = counter.wait_total.remote(frames_seen, PROGRESS_WAIT_S)
             ready, _ = ray.wait(list(in_flight) + ([watch] if watch is not None else []), num_returns=1)
@@ -383,9 +390,6 @@ def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
     return todo
 
 
-COMPACT_WAIT_S = 120.0  # how long compaction waits for another holder of the root's exclusive lease
-
-
 def _check_no_repair_running(storage) -> None:
     from manifests.lease import LeaseError, describe, exclusive_holder
 
@@ -409,20 +413,40 @@ def _repair_alone(storage, config: ProduceConfig, plan, owner: str) -> list[str]
     return repaired
 
 
-def _compact_when_free(storage, owner: str) -> None:
-    """Rebuild stale indexes under the exclusive lease; left to the next run if it stays taken."""
-    from manifests.lease import LeaseError, acquire_exclusive
-
+def _fold_indexes(storage, producer) -> None:
+    """Fold finished parts into their scenarios' indexes (no lock needed: an
+    index records the parts it was built from, see ``manifests.reader.compact``);
+    left to the next fold or run if storage fails, or if this producer lost its lease."""
+    if producer.lost:
+        return
     try:
-        with acquire_exclusive(storage, "compaction", owner=owner, wait_s=COMPACT_WAIT_S):
-            compact(storage)
-    except LeaseError as exc:
-        log.warning("indexes not rebuilt this time (%s); readers use the parts meanwhile", exc)
+        compact(storage)
+    except Exception as exc:  # the parts are the truth; an index is only a cache of them
+        log.warning("indexes not updated this time (%s); readers use the parts meanwhile", exc)
+
+
+@contextmanager
+def _folding(storage, producer, every_s: float):
+    """Fold indexes every ``every_s`` from a background thread while the run
+    renders, so a killed run leaves them at most that stale."""
+    stop = threading.Event()
+
+    def loop() -> None:
+        while not stop.wait(every_s):
+            _fold_indexes(storage, producer)
+
+    thread = threading.Thread(target=loop, name="index-fold", daemon=True)
+    thread.start()
+    try:
+        yield
+    finally:
+        stop.set()
+        thread.join()
 
 
 def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None) -> ProduceReport:
     """Render every pending episode of the plan into ``config.out``."""
-    from manifests.lease import register_producer
+    from manifests.lease import new_owner, register_producer
     from manifests.root import claim_root
     from storage import Storage
 
@@ -437,25 +461,27 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
         planned_frames=plan.total_frames,
         skipped_episodes=0,
     )
-    producer = register_producer(storage)
+    owner = new_owner()
+    if config.repair:  # before this run registers: the repair bumps the lease generation it then reads
+        _check_no_repair_running(storage)
+        report.repaired = _repair_alone(storage, config, plan, owner)
+    producer = register_producer(storage, owner=owner, ttl_s=config.lease_ttl_s)
     try:
         _check_no_repair_running(storage)
-        if config.repair:
-            report.repaired = _repair_alone(storage, config, plan, producer.owner)
-        held = episode_frames(storage)
-        todo = pending_episodes(plan, held)
+        summaries = part_summaries(storage)  # O(parts): footers, or the indexes where current
+        todo = pending_episodes(plan, episode_frames(storage, summaries))
         if not config.repair:
-            prepare_root(storage, config.run, extend=config.extend)
-        for scenario in sorted({e.scenario for e in todo if (e.scenario, e.episode) in held}):
-            storage.delete(index_path(scenario))  # its parts will be rewritten: the index goes stale
+            prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
+        del summaries
         report.skipped_episodes = len(plan.episodes) - len(todo)
         start = time.perf_counter()
         try:
             if todo:
-                _render_on_ray(config, storage, todo, report, progress, start)
+                with _folding(storage, producer, config.index_every_s):
+                    _render_on_ray(config, storage, todo, report, progress, start, fence=producer.fence)
         except KeyboardInterrupt:
             raise ProduceInterrupted(report) from None
-        _compact_when_free(storage, producer.owner)  # also scenarios an earlier (killed) run finished
+        _fold_indexes(storage, producer)  # also scenarios an earlier (killed) run finished
         report.seconds = time.perf_counter() - start
         if report.rendered_frames and report.seconds > 0:
             driver_stats = {

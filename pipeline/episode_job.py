@@ -82,11 +82,15 @@ def store_frame(spec: EpisodeSpec, frame, storage) -> dict:
 
 
 def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
-                on_frame: Callable[[int], None] | None = None) -> EpisodeResult:
+                on_frame: Callable[[int], None] | None = None, fence=None) -> EpisodeResult:
     """Render ``spec`` into ``storage`` and mark it done; returns timings.
 
     ``on_frame(n)``, if given, is called after each frame's files are written
-    with the number of frames written so far (the driver's progress)."""
+    with the number of frames written so far (the driver's progress).
+    ``fence`` (``manifests.lease.Fence``): the producer's lease, checked just
+    before and just after the part is written; LeaseLost, and no part, if the
+    lease was taken over meanwhile (a repair may have deleted this episode's
+    frames)."""
     from render_workers.render.episode import render_episode
 
     start = time.perf_counter()
@@ -114,6 +118,23 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     result = EpisodeResult(spec.scenario, spec.episode, len(rows), seconds, socket.gethostname(), os.getpid())
     stats = {"frames": len(rows), "seconds": round(seconds, 3), "node": result.node, "stages": info.timings}
     storage.write_bytes(f"{STATS_DIR}/{spec.scenario}_e{spec.episode:04d}.json", json.dumps(stats).encode())
-    write_part(storage, spec.scenario, spec.episode, rows)  # last: the "done" marker
+    commit_part(storage, spec, rows, fence)
     log.debug("%s done: %d frames in %.1f s", spec.key, len(rows), seconds)
     return result
+
+
+def commit_part(storage, spec: EpisodeSpec, rows: list[dict], fence=None) -> None:
+    """Write the episode's part, the "done" marker, unless the producer's lease was lost.
+
+    The second check closes the window between the first and the write: a
+    part written after a takeover is deleted again (the episode stays pending;
+    whoever renders it next writes the same bytes)."""
+    from manifests.lease import LeaseLost, check_fence
+
+    check_fence(storage, fence)
+    rel = write_part(storage, spec.scenario, spec.episode, rows)  # last: the "done" marker
+    try:
+        check_fence(storage, fence)
+    except LeaseLost:
+        storage.delete(rel)
+        raise

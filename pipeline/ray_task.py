@@ -20,8 +20,9 @@ class Fatal:
     message: str
 
 
-def episode_task(spec, storage, world, counter=None, lp_threads=None):
-    """Render one episode in a Ray worker; a ``Fatal`` in place of errors retrying cannot help."""
+def episode_task(spec, storage, world, counter=None, lp_threads=None, fence=None):
+    """Render one episode in a Ray worker; a ``Fatal`` in place of errors retrying cannot
+    help (a full disk, or the producer's lease lost: ``fence``)."""
     from pipeline.episode_job import run_episode
     from storage import StorageError
 
@@ -32,7 +33,7 @@ def episode_task(spec, storage, world, counter=None, lp_threads=None):
         def on_frame(n: int) -> None:  # fire and forget: progress never slows rendering
             counter.frame.remote(spec.key, n)
     try:
-        return run_episode(spec, storage, world=world, on_frame=on_frame)
+        return run_episode(spec, storage, world=world, on_frame=on_frame, fence=fence)
     except StorageError as exc:
         if exc.fatal:  # returned, not raised: Ray would retry it
             return Fatal(str(exc))

@@ -83,37 +83,41 @@ def _differences(old: dict, new: dict) -> list[str]:
     return [f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in sorted(new) if old.get(k) != new.get(k)]
 
 
-def check_rows(storage, config: RunConfig) -> None:
+def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> None:
     """Frames already in the root must have this run's resolution and seeds
-    (run.json can be lost or rewritten; the manifest rows cannot lie)."""
+    (run.json can be lost or rewritten; the manifest rows cannot lie).
+
+    Checked from each part's summary (its footer's statistics, or its
+    scenario's index): O(parts), no row is decoded. ``summaries``: from
+    ``manifests.reader.part_summaries`` if the caller has them already."""
     from manifests.catalog import SCENARIO_BY_CODE
-    from manifests.reader import read_manifest
+    from manifests.reader import part_summaries
     from manifests.spec import episode_seed
 
-    table = read_manifest(storage, columns=["scenario", "episode", "seed", "width", "height", "rgb_path"])
-    if len(table) == 0:
+    held = {key: s for key, s in (part_summaries(storage) if summaries is None else summaries).items() if s and s.rows}
+    if not held:
         return
     plan = config.plan
-    formats = {file_of_path("rgb", p) for p in table.column("rgb_path").to_pylist() if p is not None}
+    formats = {f for s in held.values() for f in s.rgb}
     if formats - {plan.rgb_format}:
         raise RunConfigError(
             f"{storage.uri} holds {', '.join(sorted(formats))} rgb files, this run asks for {plan.rgb_format}; "
             "frames would not match: use a new --out"
         )
-    sizes = set(zip(table.column("width").to_pylist(), table.column("height").to_pylist()))
+    sizes = {r for s in held.values() for r in s.resolutions}
     if sizes != {(plan.width, plan.height)}:
         found = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))
         raise RunConfigError(
             f"{storage.uri} holds frames at {found}, this run asks for {plan.width}x{plan.height}; "
             "frames would not match: use a new --out"
         )
-    episodes = set(zip(*(table.column(c).to_pylist() for c in ("scenario", "episode", "seed"))))
-    for scenario, episode, seed in sorted(episodes):
-        if episode_seed(plan.seed, SCENARIO_BY_CODE[scenario], episode) != seed:
-            raise RunConfigError(
-                f"{storage.uri} holds frames made with another run seed than {plan.seed} "
-                f"({scenario} episode {episode}); frames would not match: use a new --out"
-            )
+    for (scenario, episode), summary in sorted(held.items()):
+        for seed in summary.seeds:
+            if episode_seed(plan.seed, SCENARIO_BY_CODE[scenario], episode) != seed:
+                raise RunConfigError(
+                    f"{storage.uri} holds frames made with another run seed than {plan.seed} "
+                    f"({scenario} episode {episode}); frames would not match: use a new --out"
+                )
 
 
 def _with_outputs(config: dict) -> dict:
@@ -140,12 +144,12 @@ UNRECORDED_ENCODER = "not recorded (OpenCV's PNG encoder, before encoders were r
 def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
     """Refuse to add frames encoded otherwise than the root's; records the encoder in an empty root."""
     from manifests.encoding import encoder_identity
-    from manifests.reader import episode_frames
+    from manifests.reader import done_episodes
 
     ours, theirs = encoder_identity(rgb_format), record.get("encoder", UNRECORDED_ENCODER)
     if theirs == ours:
         return record
-    if episode_frames(storage):
+    if done_episodes(storage):
         raise RunConfigError(
             f"{storage.uri} holds frames written by another encoder ({theirs}; this run writes {ours}); "
             "one root never mixes encoders, since a re-rendered frame would not match its files: "
@@ -156,12 +160,14 @@ def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
     return read_record(storage)
 
 
-def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool = False) -> dict:
+def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool = False,
+                 summaries: dict | None = None) -> dict:
     """Record the run in ``run.json``, or check it matches the recorded one.
 
     The manifest rows are checked too (resolution and seeds). With ``repair``
     a damaged run.json is rewritten from ``config`` when the rows agree.
     Returns the record now in force. Raises RunConfigError on a mismatch.
+    ``summaries``: the root's part summaries if the caller has just scanned them.
     """
     new = config.to_dict()
     try:
@@ -172,11 +178,11 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
         if storage.is_local and not os.path.isfile(storage.path(RUN_FILE)):
             raise RunConfigError(f"{exc}; move it away, then run again") from None
         log.warning("rewriting the damaged %s from this run's options", storage.join(RUN_FILE))
-        check_rows(storage, config)
+        check_rows(storage, config, summaries)
         storage.write_bytes(RUN_FILE, record_bytes(_fresh_record(new)))
         return read_record(storage)
     if record is None:
-        check_rows(storage, config)
+        check_rows(storage, config, summaries)
         if storage.create_exclusive(RUN_FILE, record_bytes(_fresh_record(new))):
             return read_record(storage)
         record = read_run(storage)  # another driver was first: compare with its record
@@ -185,7 +191,7 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
     record = check_encoder(storage, record, config.plan.rgb_format)
     old = _with_outputs(record["config"])
     if old == new:
-        check_rows(storage, config)
+        check_rows(storage, config, summaries)
         return record
     diffs = _differences(old, new)
     fixed = [k for k in FRAME_DEFINING if old.get(k) != new.get(k)]
@@ -204,7 +210,7 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
             f"{storage.uri} was produced with another config ({'; '.join(diffs)}); "
             "pass --extend to add to it, or use a new --out"
         )
-    check_rows(storage, config)
+    check_rows(storage, config, summaries)
     record = _fresh_record(new, record.get("history", [old]))
     storage.write_bytes(RUN_FILE, record_bytes(record))
     return record

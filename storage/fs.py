@@ -7,6 +7,7 @@ import errno
 import os
 import stat
 import uuid
+from concurrent.futures import ThreadPoolExecutor
 from typing import Callable
 
 import pyarrow.fs as pafs
@@ -21,6 +22,7 @@ from storage.uri import Location, S3Config, clean_rel, parse_root
 # Arrow completes on close even after a Python-side error, so they are staged
 # under a temp key and published with one server-side copy instead.
 S3_SINGLE_PUT_MAX = 8 * 1024 * 1024
+LIST_THREADS = 32  # S3 folders listed at once
 
 
 def _local_filesystem(_config: S3Config | None) -> pafs.FileSystem:
@@ -209,21 +211,86 @@ class Storage:
         ``prefix`` is a plain string prefix: pass ``"dir/"`` for a directory.
         In-flight temp files are never listed.
         """
+        return sorted(self.list_sizes(prefix, suffix))
+
+    def list_sizes(self, prefix: str = "", suffix: str | None = None) -> dict[str, int]:
+        """``{relative path: size in bytes}`` of the files :meth:`list_files` lists.
+
+        The tree is walked one folder at a time: locally with ``os.scandir``,
+        where a file that vanishes while it is listed (another writer's temp
+        file, renamed or deleted) is simply not listed; on S3 with one
+        delimited LIST per folder, each level's folders listed in parallel
+        (a manifest of 105 scenario folders is four rounds of requests, not
+        one long chain of pages).
+        """
         clean = clean_rel(prefix, allow_empty=True)
         if prefix.endswith("/") and clean:
             clean += "/"
         directory = clean.rpartition("/")[0]
-        base = self._loc.fs_path("")
-        selector = pafs.FileSelector(self.path(directory), recursive=True, allow_not_found=True)
-        infos = self._guard("list", directory, lambda: self.filesystem.get_file_info(selector))
-        found = []
-        for info in infos:
-            if info.type != pafs.FileType.File or atomic.is_temp_name(info.base_name):
+        walk = self._walk_local if self.is_local else self._walk_remote
+        found = self._guard("list", directory, lambda: walk(directory))
+        return {
+            rel: size
+            for rel, size in found.items()
+            if rel.startswith(clean) and (suffix is None or rel.endswith(suffix))
+        }
+
+    def entries(self, rel: str = "") -> list[str]:
+        """Names (files and folders) directly inside the folder ``rel``; [] if it does not exist."""
+        rel = clean_rel(rel, allow_empty=True)
+        if self.is_local:
+            try:
+                return sorted(os.listdir(self.path(rel)))
+            except (FileNotFoundError, NotADirectoryError):  # as pyarrow's allow_not_found: nothing there
+                return []
+            except OSError as exc:
+                raise storage_error("list", self.join(rel), exc) from exc
+        selector = pafs.FileSelector(self.path(rel), recursive=False, allow_not_found=True)
+        infos = self._guard("list", rel, lambda: self.filesystem.get_file_info(selector))
+        return sorted(info.base_name for info in infos)
+
+    def _walk_local(self, directory: str) -> dict[str, int]:
+        found: dict[str, int] = {}
+        stack = [directory]
+        while stack:
+            folder = stack.pop()
+            try:
+                scan = os.scandir(self.path(folder))
+            except (FileNotFoundError, NotADirectoryError):  # absent, or gone while we listed
                 continue
-            rel = info.path[len(base) :].lstrip("/")
-            if rel.startswith(clean) and (suffix is None or rel.endswith(suffix)):
-                found.append(rel)
-        return sorted(found)
+            with scan:
+                for entry in scan:
+                    rel = f"{folder}/{entry.name}" if folder else entry.name
+                    try:
+                        if entry.is_dir():
+                            stack.append(rel)
+                        elif entry.is_file() and not atomic.is_temp_name(entry.name):
+                            found[rel] = entry.stat().st_size
+                    except FileNotFoundError:  # renamed or deleted since the folder was read
+                        continue
+        return found
+
+    def _walk_remote(self, directory: str) -> dict[str, int]:
+        base = self._loc.fs_path("")
+        found: dict[str, int] = {}
+
+        def one(folder: str) -> list[pafs.FileInfo]:
+            selector = pafs.FileSelector(self.path(folder), recursive=False, allow_not_found=True)
+            return self.filesystem.get_file_info(selector)
+
+        level = [directory]
+        with ThreadPoolExecutor(max_workers=LIST_THREADS) as pool:
+            while level:
+                below = []
+                for infos in pool.map(one, level):
+                    for info in infos:
+                        rel = info.path[len(base) :].lstrip("/")
+                        if info.type == pafs.FileType.Directory:
+                            below.append(rel)
+                        elif info.type == pafs.FileType.File and not atomic.is_temp_name(info.base_name):
+                            found[rel] = int(info.size)
+                level = below
+        return found
 
     def remove_stale_temp(self, directory: str, name_prefix: str = "") -> int:
         """Delete leftover temp files in ``directory`` whose target name starts

@@ -50,8 +50,10 @@ class S3Server:
 
 
 @contextlib.contextmanager
-def local_s3_server(bucket: str = "idda-test") -> Iterator[S3Server]:
-    """Start moto on a free port, set the S3 environment, create ``bucket``; undo it all on exit."""
+def local_s3_server(bucket: str = "idda-test", server_class=None) -> Iterator[S3Server]:
+    """Start moto on a free port, set the S3 environment, create ``bucket``; undo it all on exit.
+
+    ``server_class``: a ThreadedMotoServer subclass to run instead (tests.s3_counter counts requests)."""
     try:
         import boto3
         from moto.server import ThreadedMotoServer
@@ -63,7 +65,7 @@ def local_s3_server(bucket: str = "idda-test") -> Iterator[S3Server]:
     werkzeug_log = logging.getLogger("werkzeug")
     old_level = werkzeug_log.level
     werkzeug_log.setLevel(logging.WARNING)  # no line per request
-    server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
+    server = (server_class or ThreadedMotoServer)(ip_address="127.0.0.1", port=0, verbose=False)
     server.start()
     host, port = server.get_host_and_port()
     endpoint = f"http://{host}:{port}"

@@ -143,6 +143,7 @@ def produce(
     Re-running the same command skips finished episodes: kill it at any time
     and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
     """
+    from manifests.lease import ttl_from_env as lease_ttl_from_env
     from pipeline.driver import ProduceConfig, ProduceInterrupted, produce as run_produce
     from pipeline.runmeta import RunConfig
 
@@ -160,6 +161,7 @@ def produce(
             max_retries=max_retries,
             extend=extend,
             repair=repair,
+            lease_ttl_s=lease_ttl_from_env(),
         )
         bar = ProgressDisplay()
         try:

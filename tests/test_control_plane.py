@@ -1,0 +1,387 @@
+"""The manifest control plane: O(parts) scans, incremental and self-checking
+indexes, lease fencing and takeover, a race-free root creation, S3 request
+counts. Real files, real Parquet, read back through the public reader."""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import socket
+import subprocess
+import sys
+import threading
+import time
+from dataclasses import replace
+
+import pytest
+
+from manifests.lease import (
+    EXCLUSIVE,
+    PRODUCER_PREFIX,
+    LeaseLost,
+    acquire_exclusive,
+    live_producers,
+    read_generation,
+    register_producer,
+)
+from manifests.reader import (
+    compact,
+    done_episodes,
+    episode_frames,
+    part_summaries,
+    read_manifest,
+    scan,
+)
+from manifests.root import ROOT_MARKER, claim_root
+from manifests.schema import index_path, part_path
+from manifests.synthetic import episode_table, write_parts
+from manifests.writer import write_part
+from pipeline.planner import PlanConfig, make_plan
+from pipeline.runmeta import RunConfig, check_rows, prepare_root
+from pipeline.status import root_status
+from storage import Storage
+
+# Three scenarios of 2-3 episodes: small, and every code path of a big root.
+PLAN = PlanConfig(domains="towns=T01,T02,T07 weathers=CN viewpoints=A", frames_per_scenario=150, width=64, height=36, seed=3)
+# More parts than requests: two scenarios, 13 episodes each.
+MANY = PlanConfig(domains="towns=T01 weathers=CN viewpoints=A,M", frames_per_scenario=800, width=64, height=36, seed=3)
+
+
+def synthetic_root(uri: str, plan_config: PlanConfig = PLAN) -> Storage:
+    storage = Storage.from_uri(uri)
+    claim_root(storage)
+    prepare_root(storage, RunConfig(plan=plan_config, world="test"))
+    write_parts(storage, make_plan(plan_config).episodes)
+    return storage
+
+
+def expected_frames(plan_config: PlanConfig = PLAN) -> dict:
+    return {(e.scenario, e.episode): e.frames for e in make_plan(plan_config).episodes}
+
+
+@pytest.fixture(scope="module")
+def ray_local():
+    import ray
+
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def longer(spec, frames: int):
+    return replace(spec, frames=frames)
+
+
+# ------------------------------------------------------------- O(parts) scans ----
+
+
+def test_scan_reads_footers_not_rows(tmp_path):
+    """Resume's checks (frames per episode, seeds, resolution, rgb format) come
+    from footers: a part whose data pages are damaged but whose footer is whole
+    still scans. Reading rows (O(rows), 3.3 GB at full scale) would fail on it."""
+    storage = synthetic_root(str(tmp_path / "root"))
+    spec = make_plan(PLAN).episodes[0]
+    path = tmp_path / "root" / part_path(spec.scenario, spec.episode)
+    data = bytearray(path.read_bytes())
+    data[8:4008] = bytes(4000)  # the first data pages; the footer sits at the end
+    path.write_bytes(bytes(data))
+    assert episode_frames(storage) == expected_frames()
+    check_rows(storage, RunConfig(plan=PLAN, world="test"))  # reads no row: passes
+    summary = part_summaries(storage)[(spec.scenario, spec.episode)]
+    assert summary.rows == spec.frames and summary.seeds == (spec.seed,) and summary.resolutions == ((64, 36),)
+    assert summary.rgb == ("png",)
+
+
+def test_check_rows_from_summaries_still_refuses_other_seeds(tmp_path):
+    storage = synthetic_root(str(tmp_path / "root"))
+    other = replace(PLAN, seed=4)
+    with pytest.raises(Exception, match="another run seed"):
+        check_rows(storage, RunConfig(plan=other, world="test"))
+    with pytest.raises(Exception, match="holds frames at 64x36"):
+        check_rows(storage, RunConfig(plan=replace(PLAN, width=128, height=72), world="test"))
+    compact(storage)  # the same checks from the indexes' summaries
+    with pytest.raises(Exception, match="another run seed"):
+        check_rows(storage, RunConfig(plan=other, world="test"))
+
+
+def test_current_indexes_answer_without_reading_parts(tmp_path):
+    """Where a scenario's index is current, status and resume read it alone:
+    unreadable parts (same size, so the listing still matches) are never opened."""
+    storage = synthetic_root(str(tmp_path / "root"))
+    assert compact(storage) == sorted(PLAN_SCENARIOS())
+    for spec in make_plan(PLAN).episodes:
+        path = tmp_path / "root" / part_path(spec.scenario, spec.episode)
+        path.write_bytes(bytes(path.stat().st_size))  # zeros: any read of it would fail
+    assert set(scan(storage).current) == set(PLAN_SCENARIOS())
+    assert episode_frames(storage) == expected_frames()
+    status = root_status(storage)
+    assert status.frames_done == status.frames_total == sum(expected_frames().values())
+
+
+def PLAN_SCENARIOS() -> list[str]:
+    return sorted({e.scenario for e in make_plan(PLAN).episodes})
+
+
+# ------------------------------------------------------ incremental indexes ----
+
+
+def test_fold_reads_only_new_parts_and_equals_a_full_rebuild(tmp_path):
+    plan = make_plan(PLAN)
+    first, rest = plan.episodes[:6], plan.episodes[6:]
+    full = synthetic_root(str(tmp_path / "full"))
+    compact(full)
+    storage = Storage.from_uri(str(tmp_path / "inc"))
+    claim_root(storage)
+    prepare_root(storage, RunConfig(plan=PLAN, world="test"))
+    write_parts(storage, first)
+    compact(storage)
+    for spec in first:  # folded already: a second fold must not read them again
+        os.chmod(tmp_path / "inc" / part_path(spec.scenario, spec.episode), 0)
+    try:
+        write_parts(storage, rest)
+        assert compact(storage) == sorted({e.scenario for e in rest})
+    finally:
+        for spec in first:
+            os.chmod(tmp_path / "inc" / part_path(spec.scenario, spec.episode), 0o644)
+    for scenario in PLAN_SCENARIOS():
+        assert (tmp_path / "inc" / index_path(scenario)).read_bytes() == (tmp_path / "full" / index_path(scenario)).read_bytes()
+    assert compact(storage) == []  # all current
+    assert read_manifest(storage).equals(read_manifest(full))
+
+
+def test_produce_folds_indexes_while_it_runs(ray_local, tmp_path):
+    """A run keeps its indexes current as it goes (every index_every_s), not
+    only at the end: a killed run leaves them at most that stale."""
+    from pipeline.driver import ProduceConfig, produce
+
+    plan = PlanConfig(domains="towns=T01 weathers=CN viewpoints=A,M", frames_per_scenario=3, width=64, height=36, seed=5)
+    out = tmp_path / "root"
+    seen = []
+
+    def progress(p) -> None:  # called in the driver; the fold runs beside it
+        if p.episodes_done >= 1 and not seen:  # one episode in flight at a time: the other is not done
+            deadline = time.time() + 60
+            while time.time() < deadline and not list((out / "_index").glob("*.parquet")):
+                time.sleep(0.05)
+            seen.append(len(list((out / "_index").glob("*.parquet"))) == 1)
+
+    config = ProduceConfig(run=RunConfig(plan=plan, world="test"), out=str(out), workers=1, max_in_flight=1,
+                           index_every_s=0.1)
+    report = produce(config, progress=progress)
+    assert report.ok and report.rendered_episodes == len(make_plan(plan).episodes) > 1
+    assert seen == [True]  # the index existed mid-run, before the last episode was done
+    assert scan(Storage.from_uri(str(out))).current.keys() == {"T01_CN_A", "T01_CN_M"}
+
+
+# ------------------------------------- issue 21.5: an index never shrinks a root ----
+
+
+def test_index_built_before_an_extend_is_bypassed(tmp_path):
+    """A producer with --extend rewrites a part with more frames beside one
+    whose compaction had indexed the old part: the index records the parts it
+    was built from (their sizes), so it is bypassed, and the root reports the
+    new frames, never fewer."""
+    storage = synthetic_root(str(tmp_path / "root"))
+    compact(storage)
+    spec = make_plan(PLAN).episodes[0]
+    write_part(storage, spec.scenario, spec.episode, episode_table(longer(spec, spec.frames + 3)))
+    frames = episode_frames(storage)
+    assert frames[(spec.scenario, spec.episode)] == spec.frames + 3
+    assert spec.scenario not in scan(storage).current
+    assert len(read_manifest(storage)) == sum(expected_frames().values()) + 3
+    assert compact(storage) == [spec.scenario]  # the fold brings it back in
+    assert scan(storage).current.keys() == set(PLAN_SCENARIOS())
+    assert episode_frames(storage)[(spec.scenario, spec.episode)] == spec.frames + 3
+
+
+def test_index_written_late_by_a_slow_compaction_is_bypassed(tmp_path):
+    """The race itself: a compaction read the old parts, another producer then
+    extended one, and the compaction wrote its index last."""
+    from manifests.reader import _fold, part_listing
+
+    storage = synthetic_root(str(tmp_path / "root"))
+    spec = make_plan(PLAN).episodes[0]
+    stale = _fold(storage, spec.scenario, part_listing(storage)[spec.scenario], None)
+    write_part(storage, spec.scenario, spec.episode, episode_table(longer(spec, spec.frames + 2)))
+    storage.write_bytes(index_path(spec.scenario), stale)
+    assert episode_frames(storage)[(spec.scenario, spec.episode)] == spec.frames + 2
+    assert len(read_manifest(storage)) == sum(expected_frames().values()) + 2
+
+
+# --------------------------------------------- issue 21.3: lease fencing ----
+
+
+def test_part_commit_fails_after_the_lease_was_taken_over(tmp_path):
+    """A producer stopped past its lease's expiry; a repair took the lease over
+    and deleted the in-progress episode's frames; the producer wakes up and
+    tries to commit: the commit fails, no part is written, and the producer's
+    refresh does not bring its lease back."""
+    from pipeline.episode_job import run_episode
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    claim_root(storage)
+    spec = make_plan(PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36)).episodes[0]
+    producer = register_producer(storage, ttl_s=0.5)
+    producer._stop.set()  # "SIGSTOP": it refreshes no more
+    producer._thread.join()
+    took_over = []
+
+    def on_frame(n: int) -> None:
+        if n == 1:  # mid-episode, the producer is stopped; meanwhile:
+            time.sleep(0.6)  # its lease expires
+            with acquire_exclusive(storage, "repair"):
+                assert live_producers(storage) == []  # the dead lease is taken over
+                for path in (tmp_path / "root" / spec.scenario).rglob("*.png"):
+                    path.unlink()  # repair deletes the in-progress frames as strays
+            took_over.append(True)
+            producer.refresh()  # it wakes up: its refresh thread runs first
+
+    with pytest.raises(LeaseLost, match="lost the lease"):
+        run_episode(spec, storage, world="test", on_frame=on_frame, fence=producer.fence)
+    assert took_over == [True] and producer.lost
+    assert not storage.exists(producer.rel)  # not revived
+    assert done_episodes(storage) == set()
+    assert read_generation(storage) == 1
+
+
+def test_fence_holds_when_the_lease_is_revived_by_a_racing_refresh(tmp_path):
+    """A refresh that read its lease just before the takeover and wrote it
+    back just after: the generation was bumped, so the commit still fails."""
+    from pipeline.episode_job import commit_part
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    claim_root(storage)
+    spec = make_plan(PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36)).episodes[0]
+    producer = register_producer(storage, ttl_s=0.3)
+    producer._stop.set()
+    producer._thread.join()
+    body = storage.read_bytes(producer.rel)
+    time.sleep(0.4)
+    with acquire_exclusive(storage, "repair"):
+        live_producers(storage)
+    storage.write_bytes(producer.rel, body)  # the late write of the racing refresh
+    with pytest.raises(LeaseLost, match="generation 0 -> 1"):
+        commit_part(storage, spec, episode_table(spec).to_pylist(), producer.fence)
+    assert done_episodes(storage) == set()
+
+
+def test_produce_stops_and_says_so_when_its_lease_is_lost(ray_local, tmp_path):
+    from manifests.lease import bump_generation
+    from pipeline.driver import ProduceConfig, produce
+    from storage import StorageError
+
+    plan = PlanConfig(domains="T01_CN_A", frames_per_scenario=4, width=64, height=36, seed=5)
+    out = tmp_path / "root"
+    bumped = []
+
+    def progress(p) -> None:  # at the start of rendering: another operator takes the root over
+        if not bumped:
+            bump_generation(Storage.from_uri(str(out)))
+            bumped.append(True)
+
+    config = ProduceConfig(run=RunConfig(plan=plan, world="test"), out=str(out), workers=1)
+    with pytest.raises(StorageError, match="lost the lease"):
+        produce(config, progress=progress)
+    assert done_episodes(Storage.from_uri(str(out))) == set()
+
+
+# ------------------------------- issue 21.9b: a dead process's lease on this host ----
+
+
+def _dead_pid() -> int:
+    proc = subprocess.Popen([sys.executable, "-c", "pass"])
+    proc.wait()
+    return proc.pid
+
+
+def _lease_of(pid: int, purpose: str) -> bytes:
+    return json.dumps({"owner": f"gone-{pid}", "host": socket.gethostname(), "pid": pid,
+                       "pidns": os.readlink("/proc/self/ns/pid"), "purpose": purpose,
+                       "expires": time.time() + 3600, "generation": 0}).encode()
+
+
+def test_lease_of_a_process_gone_from_this_host_is_taken_over_at_once(tmp_path, caplog):
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    claim_root(storage)
+    pid = _dead_pid()
+    storage.write_bytes(EXCLUSIVE, _lease_of(pid, "compaction"))
+    storage.write_bytes(f"{PRODUCER_PREFIX}gone-{pid}.json", _lease_of(pid, "produce"))
+    caplog.set_level(logging.WARNING, logger="manifests.lease")
+    start = time.monotonic()
+    with acquire_exclusive(storage, "repair", wait_s=0):
+        assert live_producers(storage) == []
+    assert time.monotonic() - start < 60  # at once, not after the 120 s TTL (no wait_s anyway)
+    said = [r.getMessage() for r in caplog.records]
+    assert any(f"its process {pid} on this host is gone" in m and "compaction" in m for m in said)
+    assert any(f"its process {pid} on this host is gone" in m and "produce" in m for m in said)
+    assert storage.list_files(PRODUCER_PREFIX) == []
+
+
+def test_lease_of_a_live_process_is_not_taken_over(tmp_path):
+    from manifests.lease import LeaseError
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    claim_root(storage)
+    storage.write_bytes(EXCLUSIVE, _lease_of(os.getpid(), "compaction"))
+    with pytest.raises(LeaseError, match="locked"):
+        acquire_exclusive(storage, "repair", wait_s=0)
+
+
+# ---------------------------------------- issue 21.12: racing root creation ----
+
+
+def test_racing_drivers_create_one_root(tmp_path):
+    """Eight threads create the same fresh root at once, a hundred times over (main failed about once in fifty)."""
+    failures = []
+    for attempt in range(100):
+        uri = str(tmp_path / f"root{attempt}")
+        barrier = threading.Barrier(8)
+
+        def create() -> None:
+            storage = Storage.from_uri(uri)
+            barrier.wait()
+            try:
+                claim_root(storage)
+                prepare_root(storage, RunConfig(plan=PLAN, world="test"))
+            except Exception as exc:  # noqa: BLE001 - every failure is the finding
+                failures.append(repr(exc))
+
+        threads = [threading.Thread(target=create) for _ in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert (tmp_path / f"root{attempt}" / ROOT_MARKER).is_file()
+    assert failures == []
+
+
+# ------------------------------------------------------ S3 request counts ----
+
+
+def test_s3_status_and_resume_scan_cost_o_scenarios_requests():
+    """On S3 (a local server counting requests), a root whose indexes are
+    current scans in a few requests per scenario, whatever its part count,
+    with the right counts; without indexes, about one footer read per part."""
+    from tests.s3_counter import counting_s3_server
+
+    with counting_s3_server() as (server, counter):
+        storage = synthetic_root(server.uri("root"), MANY)
+        parts = len(make_plan(MANY).episodes)
+        counter.reset()
+        assert episode_frames(storage) == expected_frames(MANY)
+        unindexed = counter.total()
+        compact(storage)
+        counter.reset()
+        assert episode_frames(storage) == expected_frames(MANY)
+        indexed = counter.total()
+        counter.reset()
+        status = root_status(storage)
+        status_requests = counter.total()
+    assert status.frames_done == status.frames_total == sum(expected_frames(MANY).values())
+    # listing: manifest/ one LIST per folder (manifest, town, weather, 2 viewpoints) and _index/ one;
+    # footers: at most three requests per index
+    listing, scenarios = 1 + 1 + 1 + 2 + 1, 2
+    assert indexed <= listing + 3 * scenarios < parts
+    assert status_requests <= indexed + 6  # plus run.json and _stats/driver.json (a stat and a read each)
+    assert unindexed >= parts  # the footers themselves: this is what the indexes save
