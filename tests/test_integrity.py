@@ -104,9 +104,12 @@ def test_extend_with_more_frames_renders_the_short_episode(ray_local, reference,
     old = read_manifest(str(reference)).column("rgb_sha256").to_pylist()
     new = read_manifest(str(clean))
     assert set(old) <= set(new.column("rgb_sha256").to_pylist())
-    fewer = PlanConfig(domains=DOMAINS, frames_per_scenario=3, width=64, height=36, seed=7)
-    with pytest.raises(RunConfigError, match="never shrinks"):
-        produce(config(root, plan=fewer, extend=True))
+    before = tree_digest(root)
+    for frames in (5, 3):  # one frame fewer too (issue 21.13e: a guard off by one never tried 6 -> 5)
+        fewer = PlanConfig(domains=DOMAINS, frames_per_scenario=frames, width=64, height=36, seed=7)
+        with pytest.raises(RunConfigError, match="never shrinks"):
+            produce(config(root, plan=fewer, extend=True))
+    assert tree_digest(root) == before
 
 
 def test_status_counts_only_the_frames_a_part_holds(reference, tmp_path):

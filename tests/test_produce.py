@@ -446,3 +446,20 @@ def test_token_mode_only_when_attaching_with_a_token(tmp_path, monkeypatch):
     (tmp_path / ".ray").mkdir()
     (tmp_path / ".ray" / "auth_token").write_text("abc")
     assert prepare_cluster_auth("auto", env := {}) and env["RAY_AUTH_MODE"] == "token"
+
+
+@pytest.mark.parametrize("held, pending", [(6, None), (5, False), (4, True)])
+def test_shrink_guard_refuses_even_one_frame_fewer(held, pending):
+    """Issue 21.13e: a guard off by one never tried 6 -> 5 frames. A part holding
+    one frame more than the plan asks for is refused; as many is done; fewer is redone."""
+    from pipeline.driver import pending_episodes
+
+    plan = make_plan(PlanConfig(domains="T01_CN_A", frames_per_scenario=5, width=64, height=36, seed=7))
+    (spec,) = plan.episodes
+    assert spec.frames == 5
+    frames = {(spec.scenario, spec.episode): held}
+    if pending is None:
+        with pytest.raises(RunConfigError, match="holds 6 frames, the plan asks for 5; a root never shrinks"):
+            pending_episodes(plan, frames)
+    else:
+        assert pending_episodes(plan, frames) == ([spec] if pending else [])
