@@ -26,6 +26,7 @@ from pipeline.driver import ProduceConfig, produce
 from pipeline.planner import PlanConfig, make_plan
 from pipeline.runmeta import RunConfig, RunConfigError
 from storage import Storage, StorageError
+from tests.faultkit import descendants as _descendants  # every process below a pid (Ray starts its own sessions)
 
 pytestmark = pytest.mark.slow
 runner = CliRunner()
@@ -116,25 +117,6 @@ def test_cli_status_verify_query_stats(reference, tmp_path):
     result = runner.invoke(app, ["stats", str(reference), "--chart", str(chart)])
     assert result.exit_code == 0, result.output
     assert "sky" in result.output and chart.read_bytes()[:4] == b"\x89PNG"
-
-
-def _descendants(pid: int) -> list[int]:
-    """All processes below ``pid`` (Ray's GCS, raylet and workers run in their own
-    sessions, so killing the driver's process group does not reach them)."""
-    parents = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as f:
-                    parents[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-    found, frontier = [], [pid]
-    while frontier:
-        children = [c for c, parent in parents.items() if parent in frontier]
-        found += children
-        frontier = children
-    return found
 
 
 def test_killed_driver_resumes_to_identical_output(reference, tmp_path):
