@@ -28,8 +28,11 @@ from __future__ import annotations
 
 import importlib
 import json
+import logging
 import os
+import re
 import shutil
+import socket
 import time
 import uuid
 from dataclasses import asdict, dataclass, field, replace
@@ -38,9 +41,11 @@ import pyarrow as pa
 
 from manifests.query import SPLIT_SHARES, SPLITS, Query, run_query
 from manifests.reader import require_outputs
-from manifests.root import EXPORT_MARKER, check_export_target
+from manifests.root import EXPORT_MARKER, RootError, check_export_target, export_tree
 from exports.idda import SPLIT_FILES
 from exports.placing import FILE_MODES, Layout, frames_of, index_csv, write
+
+log = logging.getLogger(__name__)
 
 MARKER = EXPORT_MARKER  # written last: its presence means the export is complete
 INDEX = "frames.csv"
@@ -164,13 +169,83 @@ def _is_within(path: str, directory: str) -> bool:
     return os.path.commonpath([path, directory]) == directory
 
 
-def _commit(tmp: str, target: str) -> None:
-    """Move the finished temp directory to ``target``, replacing what is there."""
+# Our temp folders beside a target: ".<target name>.idda-export.<host>.<pid>.<uuid>.tmp" (the export being
+# built) and "....old" (the export it replaces, between the two renames). The owner in the name tells a
+# leftover of a killed export (same host, process gone) from the folder of an export still running.
+_TEMP_TAG = "idda-export"
+
+
+def _temp_dir(target: str, kind: str) -> str:
+    name = f".{os.path.basename(target)}.{_TEMP_TAG}.{socket.gethostname()}.{os.getpid()}.{uuid.uuid4().hex}.{kind}"
+    return os.path.join(os.path.dirname(target), name)
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process: alive
+        return True
+    return True
+
+
+def _leftovers(target: str) -> list[tuple[str, str]]:
+    """(path, "tmp" or "old") of our temp folders beside ``target`` whose export was killed:
+    made on this host by a process that no longer runs. Never a folder of a live export or another host's."""
+    parent, base = os.path.split(target)
+    pattern = re.compile(
+        rf"^\.{re.escape(base)}\.{_TEMP_TAG}\.(?P<host>.+)\.(?P<pid>\d+)\.[0-9a-f]{{32}}\.(?P<kind>tmp|old)$"
+    )
+    found = []
+    try:
+        names = sorted(os.listdir(parent))
+    except FileNotFoundError:
+        return []
+    for name in names:
+        match = pattern.match(name)
+        path = os.path.join(parent, name)
+        if (match is None or os.path.islink(path) or not os.path.isdir(path)
+                or match["host"] != socket.gethostname() or _pid_alive(int(match["pid"]))):
+            continue
+        found.append((path, match["kind"]))
+    return found
+
+
+def clean_leftovers(target: str) -> list[str]:
+    """Remove what killed exports to ``target`` left beside it; returns the paths handled.
+
+    A ``.tmp`` (an export never finished) is deleted. A ``.old`` is the
+    finished export an export was replacing when it was killed between its
+    two renames: put back as ``target`` when nothing is there (so it is not
+    lost), else deleted (the replacement is in place)."""
+    handled = []
+    for path, kind in _leftovers(target):
+        if kind == "old" and not os.path.lexists(target) and os.path.isfile(os.path.join(path, MARKER)):
+            os.rename(path, target)
+            log.warning("put back %s: an export killed while replacing it had moved it to %s", target, path)
+        else:
+            shutil.rmtree(path)
+            log.info("removed %s, left by a killed export", path)
+        handled.append(path)
+    return handled
+
+
+def _commit(tmp: str, target: str, tree: dict | None) -> None:
+    """Move the finished temp directory to ``target``, replacing what is there.
+
+    ``tree`` is what check_export_target found the replaced export to hold;
+    it is checked again once that export is moved aside (nothing can be added
+    to it after that), and it is moved back if anything changed meanwhile."""
     if os.path.isdir(target) and os.listdir(target):
-        old = os.path.join(os.path.dirname(target), f".{os.path.basename(target)}.{uuid.uuid4().hex}.old")
+        old = _temp_dir(target, "old")
         os.rename(target, old)
+        found = export_tree(old)
+        if tree is None or found["sha256"] != tree["sha256"]:
+            os.rename(old, target)
+            raise RootError(f"export target {target} changed while exporting; nothing was replaced")
         os.rename(tmp, target)
-        shutil.rmtree(old, ignore_errors=True)
+        shutil.rmtree(old)  # never follows symlinks: an export's links are removed, not their targets
     else:
         os.replace(tmp, target)  # an empty directory is replaced atomically
 
@@ -184,7 +259,9 @@ def export(config: ExportConfig) -> ExportReport:
     start = time.perf_counter()
     storage = Storage.from_uri(config.root)
     target = _target_dir(config.to)
-    check_export_target(target, config.force)  # never inside or over an output root
+    clean_leftovers(target)  # of exports killed before they finished
+    check_export_target(target, config.force)  # never inside or over an output root, never foreign files
+    replaced = export_tree(target) if os.path.isdir(target) and os.listdir(target) else None
     if storage.is_local and _is_within(storage.path(), target):
         raise ValueError(f"export target {target} must not be the source root {storage.uri} or contain it")
     manifest = read_manifest(storage)
@@ -200,7 +277,7 @@ def export(config: ExportConfig) -> ExportReport:
 
     parent = os.path.dirname(target)
     os.makedirs(parent, exist_ok=True)
-    tmp = os.path.join(parent, f".{os.path.basename(target)}.{uuid.uuid4().hex}.tmp")
+    tmp = _temp_dir(target, "tmp")
     os.makedirs(tmp)
     try:
         exported, extras = chosen.build(storage, frames, tmp, config)
@@ -221,9 +298,10 @@ def export(config: ExportConfig) -> ExportReport:
             "per_scenario": per_scenario,
             "block_split_scenarios": [] if config.as_split else sorted(set(few) & set(per_scenario)),
             "as_split": config.as_split,
+            "tree": export_tree(tmp),  # what --force may delete later, and nothing else
         }
         write(os.path.join(tmp, MARKER), (json.dumps(marker, indent=2, sort_keys=True) + "\n").encode())
-        _commit(tmp, target)
+        _commit(tmp, target, replaced)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

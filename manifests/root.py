@@ -7,13 +7,17 @@ written into, replaced in or deleted from it.
   directory (or S3 prefix) as ``--out``.
 * Inside a root, repair deletes only files whose names match our layout
   (``FRAME_FILE_RE``); anything else is left alone.
-* An export target may never be inside a root or hold one; a non-empty target
-  is replaced (``--force``) only when it is a finished export of ours, which
-  carries ``EXPORT.json``.
+* An export target may never be inside a root or hold one, at any depth; a
+  non-empty target is replaced (``--force``) only when it is a finished export
+  of ours that holds exactly what that export wrote: ``EXPORT.json`` lists the
+  tree it wrote (:func:`export_tree`), and one file or folder more or less
+  means the target is refused. Symlinks are never followed, when checking or
+  when deleting.
 """
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -91,13 +95,62 @@ def _is_root_dir(path: str) -> bool:
     )
 
 
+def export_tree(path: str) -> dict:
+    """What a local export directory holds, as ``EXPORT.json`` records it.
+
+    Every entry below ``path`` (files, folders with a trailing ``/``,
+    symlinks as entries: never followed), except the top-level
+    ``EXPORT.json`` itself: ``{"entries": count, "sha256": digest of the
+    sorted relative paths, "top": sorted top-level names}``.
+    """
+    paths = []
+    for folder, dirs, files in os.walk(path, followlinks=False):
+        rel = os.path.relpath(folder, path)
+        prefix = "" if rel == "." else rel.replace(os.sep, "/") + "/"
+        for name in dirs:  # symlinks to folders are listed here too, and not entered
+            link = os.path.islink(os.path.join(folder, name))
+            paths.append(prefix + name + ("" if link else "/"))
+        paths.extend(prefix + name for name in files)
+    paths = sorted(p for p in paths if p != EXPORT_MARKER)
+    digest = hashlib.sha256("\n".join(paths).encode()).hexdigest()
+    top = sorted({p.split("/", 1)[0] for p in paths})
+    return {"entries": len(paths), "sha256": digest, "top": top}
+
+
+def _held_root(real: str) -> str | None:
+    """The first output root at any depth below ``real`` (symlinks not followed), or None."""
+    for folder, dirs, _ in os.walk(real, followlinks=False):
+        dirs.sort()
+        for name in dirs:
+            path = os.path.join(folder, name)
+            if not os.path.islink(path) and _is_root_dir(path):
+                return path
+    return None
+
+
+def _export_mismatch(real: str, recorded) -> str | None:
+    """Why the export directory ``real`` is not exactly what its EXPORT.json says it wrote (None: it is)."""
+    if not isinstance(recorded, dict) or not {"entries", "sha256", "top"} <= set(recorded):
+        return f"its {EXPORT_MARKER} does not list what it wrote (an export by an older idda)"
+    found = export_tree(real)
+    if found["sha256"] == recorded["sha256"]:
+        return None
+    foreign = sorted(set(found["top"]) - set(recorded["top"]))
+    if foreign:
+        return f"it holds {foreign[0]!r}, which the export did not write"
+    return f"its content changed since the export ({found['entries']} entries, the export wrote {recorded['entries']})"
+
+
 def check_export_target(target: str, force: bool) -> None:
     """Refuse an export target that could destroy data.
 
-    A target inside an output root, or that is or holds one, is always refused.
-    A non-empty target is replaced only with ``force`` and only if it is a
-    finished export of ours (it carries EXPORT.json).
+    A target that is a symlink, is inside an output root, or is or holds one
+    at any depth is always refused. A non-empty target is replaced only with
+    ``force`` and only if it is a finished export of ours holding exactly the
+    tree its EXPORT.json records (:func:`export_tree`).
     """
+    if os.path.islink(target):
+        raise RootError(f"export target {target} is a symlink; give a real directory (symlinks are never followed)")
     real = os.path.realpath(target)
     if os.path.lexists(target) and not os.path.isdir(target):
         raise ValueError(f"export target {target} exists and is not a directory")
@@ -110,13 +163,28 @@ def check_export_target(target: str, force: bool) -> None:
             raise RootError(f"export target {target} is inside the output root {ancestor}; export outside any output root")
     if not os.path.isdir(real) or not os.listdir(real):
         return
-    held = [name for name in sorted(os.listdir(real)) if os.path.isdir(os.path.join(real, name)) and _is_root_dir(os.path.join(real, name))]
-    if held:
-        raise RootError(f"export target {target} holds the output root {os.path.join(target, held[0])}; export elsewhere")
+    held = _held_root(real)
+    if held is not None:
+        raise RootError(
+            f"export target {target} holds the output root {os.path.join(target, os.path.relpath(held, real))}; "
+            "export elsewhere"
+        )
     if not force:
         raise ValueError(f"export target {target} is not empty; pass --force to replace it")
-    if not os.path.isfile(os.path.join(real, EXPORT_MARKER)):
+    marker = os.path.join(real, EXPORT_MARKER)
+    if not os.path.isfile(marker) or os.path.islink(marker):
         raise RootError(
             f"export target {target} is not empty and is not an earlier export (no {EXPORT_MARKER}); "
             "--force replaces only an export; choose an empty or new directory"
+        )
+    try:
+        with open(marker, "rb") as f:
+            recorded = json.loads(f.read()).get("tree")
+    except (OSError, ValueError, AttributeError):
+        recorded = None
+    why = _export_mismatch(real, recorded)
+    if why is not None:
+        raise RootError(
+            f"export target {target} is not only what an earlier export wrote: {why}; "
+            "--force deletes only an export's own files; choose an empty or new directory"
         )

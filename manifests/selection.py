@@ -2,7 +2,9 @@
 
 A selection is a list of clauses separated by spaces or semicolons:
 
-* ``all`` selects all 105 scenarios (also the meaning of an empty selection).
+* ``all`` selects all 105 scenarios. An empty selection (``""``, or only
+  spaces, commas and semicolons) is an error, never "everything": a shell
+  variable that came out empty must not turn a run into all 105 scenarios.
 * Scenario codes, comma-separated, e.g. ``T01_CS_A,T01_CS_J``. Any part may be
   ``*``: ``T07_HRN_*`` is the five viewpoints of T07 in hard rain.
 * Axis filters ``towns=...``, ``weathers=...``, ``viewpoints=...`` (singular
@@ -108,6 +110,10 @@ def parse_selection(text: str) -> list[Scenario]:
             for pattern in clause.split(","):
                 if pattern:
                     from_codes = (from_codes or set()) | {s.code for s in _match_code(pattern)}
+    if from_codes is None and not filters:
+        raise ValueError(
+            f"empty selection {text!r}: name scenarios (e.g. T01_CS_A or towns=T01), or 'all' for every scenario"
+        )
     chosen = [s for s in ALL_SCENARIOS if from_codes is None or s.code in from_codes]
     axis_of = {"towns": "town", "weathers": "weather", "viewpoints": "viewpoint"}
     for axis, allowed in filters.items():

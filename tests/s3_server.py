@@ -18,7 +18,7 @@ import contextlib
 import logging
 import os
 import urllib.request
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Iterator
 
 import pytest
@@ -43,6 +43,7 @@ class S3Server:
 
     endpoint: str  # "http://127.0.0.1:<port>"
     bucket: str
+    moto: object = field(default=None, compare=False, repr=False)  # the server itself (tests/faultkit.s3_outage stops it)
 
     def uri(self, prefix: str = "") -> str:
         """``s3://<bucket>/<prefix>`` on this server."""
@@ -90,14 +91,14 @@ def local_s3_server(bucket: str = "idda-test", server_class=None) -> Iterator[S3
             aws_secret_access_key=SECRET_KEY,
         )
         client.create_bucket(Bucket=bucket)
-        yield S3Server(endpoint=endpoint, bucket=bucket)
+        yield S3Server(endpoint=endpoint, bucket=bucket, moto=server)
     finally:
         for name, value in saved.items():
             if value is None:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
-        with contextlib.suppress(OSError):  # moto keeps state per process; drop it
+        with contextlib.suppress(OSError):  # moto keeps state per process; drop it (fails fast if stopped)
             urllib.request.urlopen(
                 urllib.request.Request(f"{endpoint}/moto-api/reset", method="POST"), timeout=10
             ).close()

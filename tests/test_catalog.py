@@ -11,10 +11,31 @@ def test_class_ids_are_unique_and_dense():
     assert len({label.name for label in LABELS}) == 24
 
 
+# The paper's classes (Fig. "pixeldistr", shared/REFERENCE.md): id, name, RGB.
+# Written out here, not derived from the catalog, so a swapped colour or id fails.
+REFERENCE_CLASSES = [
+    (0, "unlabeled", (0, 0, 0)), (1, "building", (70, 70, 70)), (2, "fence", (190, 153, 153)),
+    (3, "other", (72, 0, 90)), (4, "pedestrian", (220, 20, 60)), (5, "pole", (153, 153, 153)),
+    (6, "road line", (157, 234, 50)), (7, "road", (128, 64, 128)), (8, "sidewalk", (244, 35, 232)),
+    (9, "vegetation", (107, 142, 35)), (10, "vehicle", (0, 0, 142)), (11, "wall", (102, 102, 156)),
+    (12, "traffic sign", (220, 220, 0)), (13, "traffic light", (250, 170, 30)), (14, "guard rail", (180, 165, 180)),
+    (15, "dynamic", (111, 74, 0)), (16, "bicycle", (119, 11, 32)), (17, "motorcycle", (0, 0, 230)),
+    (18, "rider", (255, 0, 0)), (19, "terrain", (152, 251, 152)), (20, "sky", (70, 130, 180)),
+    (21, "railway", (230, 150, 140)), (22, "ground", (81, 0, 81)), (23, "static", (0, 0, 0)),
+]
+
+
 def test_palette_equals_table():
     for label in LABELS:
         assert tuple(PALETTE[label.id]) == label.color
     assert PALETTE.dtype == np.uint8 and PALETTE.shape == (24, 3)
+
+
+def test_every_class_id_name_and_colour_is_the_papers():
+    """Issue 21.13a: road and sidewalk colours swapped passed a palette test that compared the table with itself."""
+    assert [(label.id, label.name, tuple(label.color)) for label in LABELS] == REFERENCE_CLASSES
+    assert [tuple(int(v) for v in PALETTE[i]) for i, _, _ in REFERENCE_CLASSES] == [c for _, _, c in REFERENCE_CLASSES]
+    assert [catalog.class_id(name) for _, name, _ in REFERENCE_CLASSES] == list(range(24))
 
 
 def test_sixteen_evaluated_classes():

@@ -346,3 +346,106 @@ def test_a_new_format_is_one_module_and_one_registry_line(root, tmp_path, monkey
     assert len(list((tmp_path / "toy").glob("T*/*.png"))) == report.frames
     with pytest.raises(ValueError, match="valid formats: .*toy"):
         ex.ExportConfig(root=str(root), to=str(tmp_path / "x"), format="nope").validate()
+
+
+def _listing(path: Path) -> dict[str, str]:
+    """Every entry under ``path`` (symlinks as their link text, never followed) with its bytes' sha256."""
+    import hashlib
+
+    out = {}
+    for p in sorted(path.rglob("*")):
+        rel = p.relative_to(path).as_posix()
+        if p.is_symlink():
+            out[rel] = "-> " + os.readlink(p)
+        elif p.is_file():
+            out[rel] = hashlib.sha256(p.read_bytes()).hexdigest()
+        else:
+            out[rel] = "dir"
+    return out
+
+
+def test_force_deletes_only_what_an_earlier_export_wrote(root, tmp_path):
+    """Issue 21.4: --force deleted an output root nested two levels below --to.
+    It may replace only an export holding exactly what it wrote; symlinks are never followed."""
+    from manifests.root import RootError
+
+    target = tmp_path / "exp"
+    config = ex.ExportConfig(root=str(root), to=str(target), format="idda", query=Query(domains="T07_*_*"))
+    ex.export(config)
+    force = ex.ExportConfig(**{**config.__dict__, "force": True})
+    nested = target / "T07_HRN_A" / "RGB" / "kept"  # an output root two levels below an export folder
+    shutil.copytree(root, nested)
+    before = _listing(target)
+    with pytest.raises(RootError, match="holds the output root .*kept"):
+        ex.export(force)
+    assert _listing(target) == before
+    shutil.rmtree(nested)
+    cases = {  # what a user may have put into an export, and how --force must answer
+        "a file beside it": (lambda: (target / "notes.txt").write_text("mine"), "holds 'notes.txt'"),
+        "a file inside it": (lambda: (target / "T07_HRN_A" / "notes.txt").write_text("mine"), "content changed"),
+        "an empty folder": (lambda: (target / "T07_HRN_A" / "mine").mkdir(), "content changed"),
+        "a link to a root": (lambda: (target / "data").symlink_to(root, target_is_directory=True), "holds 'data'"),
+    }
+    root_before = _listing(root)
+    for name, (make, match) in cases.items():
+        snapshot = _listing(target)
+        make()
+        changed = _listing(target)
+        with pytest.raises(RootError, match=match):
+            ex.export(force)
+        assert _listing(target) == changed, name
+        for extra in set(changed) - set(snapshot):  # undo it (a link is removed, not followed)
+            path = target / extra
+            path.unlink() if path.is_symlink() or path.is_file() else path.rmdir()
+    assert _listing(root) == root_before
+    link = tmp_path / "link"
+    link.symlink_to(target, target_is_directory=True)
+    with pytest.raises(RootError, match="is a symlink"):
+        ex.export(ex.ExportConfig(**{**force.__dict__, "to": str(link)}))
+    ex.export(force)  # untouched since: replaced
+    marker = json.loads((target / ex.MARKER).read_text())
+    assert marker["tree"]["top"] == sorted(set(os.listdir(target)) - {ex.MARKER})
+    assert "T07_HRN_A" in marker["tree"]["top"] and marker["tree"]["entries"] == len(_listing(target)) - 1
+    # an export made before EXPORT.json listed its tree is left to the user
+    del marker["tree"]
+    (target / ex.MARKER).write_text(json.dumps(marker))
+    with pytest.raises(RootError, match="older idda"):
+        ex.export(force)
+
+
+def test_leftovers_of_a_killed_export_are_cleaned(root, tmp_path):
+    """Issue 21.9a: a killed export left its .tmp / .old folders beside the target.
+    The next export removes ours (this host, process gone) and keeps the rest."""
+    import socket
+    import subprocess
+    import uuid
+
+    dead = subprocess.Popen(["true"])  # a process id that no longer runs
+    dead.wait()
+    host = socket.gethostname()
+
+    def temp(target: Path, pid: int, kind: str, host: str = host) -> Path:
+        path = target.parent / f".{target.name}.idda-export.{host}.{pid}.{uuid.uuid4().hex}.{kind}"
+        (path / "T07_CN_A" / "RGB").mkdir(parents=True)
+        (path / "T07_CN_A" / "RGB" / "half.jpg").write_bytes(b"half an export")
+        return path
+
+    target = tmp_path / "exp"
+    config = ex.ExportConfig(root=str(root), to=str(target), format="idda", query=Query(domains="T07_*_*"))
+    ex.export(config)
+    killed_tmp = temp(target, dead.pid, "tmp")
+    killed_old = temp(target, dead.pid, "old")
+    live = temp(target, os.getppid(), "tmp")  # an export still running
+    remote = temp(target, dead.pid, "tmp", host="elsewhere.example")  # another host's: cannot tell
+    foreign = tmp_path / f".{target.name}.0123456789abcdef0123456789abcdef.tmp"  # not marked as ours
+    foreign.mkdir()
+    ex.export(ex.ExportConfig(**{**config.__dict__, "force": True}))
+    assert not killed_tmp.exists() and not killed_old.exists()
+    assert live.exists() and remote.exists() and foreign.exists() and ex.is_complete(str(target))
+    # killed between its two renames: the finished export it was replacing is put back, not lost
+    moved = target.parent / f".{target.name}.idda-export.{host}.{dead.pid}.{uuid.uuid4().hex}.old"
+    os.rename(target, moved)
+    before = _listing(moved)
+    with pytest.raises(ValueError, match="not empty; pass --force"):
+        ex.export(config)
+    assert not moved.exists() and _listing(target) == before

@@ -3,6 +3,7 @@ does, nothing is lost and nothing false is reported. Real Ray, real files."""
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import shutil
@@ -104,9 +105,12 @@ def test_extend_with_more_frames_renders_the_short_episode(ray_local, reference,
     old = read_manifest(str(reference)).column("rgb_sha256").to_pylist()
     new = read_manifest(str(clean))
     assert set(old) <= set(new.column("rgb_sha256").to_pylist())
-    fewer = PlanConfig(domains=DOMAINS, frames_per_scenario=3, width=64, height=36, seed=7)
-    with pytest.raises(RunConfigError, match="never shrinks"):
-        produce(config(root, plan=fewer, extend=True))
+    before = tree_digest(root)
+    for frames in (5, 3):  # one frame fewer too (issue 21.13e: a guard off by one never tried 6 -> 5)
+        fewer = PlanConfig(domains=DOMAINS, frames_per_scenario=frames, width=64, height=36, seed=7)
+        with pytest.raises(RunConfigError, match="never shrinks"):
+            produce(config(root, plan=fewer, extend=True))
+    assert tree_digest(root) == before
 
 
 def test_status_counts_only_the_frames_a_part_holds(reference, tmp_path):
@@ -374,3 +378,55 @@ def test_ray_is_shut_down_after_a_failed_run(tmp_path, monkeypatch):
     with pytest.raises(StorageError, match="no space left"):
         produce(config(tmp_path / "failed"))
     assert not ray.is_initialized()
+
+
+# -- 21.13c/d: verify's own checks, each one alone --------------------------------------
+def _first_part(root: Path) -> Path:
+    return root / part_path("T01_CN_A", 0)
+
+
+def _only_that_part_is_bad(report) -> str:
+    """The one bad part's detail; its frames are then extra (no good part lists them), nothing else is wrong."""
+    bad = [p for p in report.problems if p.kind != "extra"]
+    assert [(p.kind, p.path) for p in bad] == [("bad-part", part_path("T01_CN_A", 0))], report.problems
+    assert all(p.path.startswith("T01_CN_A/") for p in report.problems if p.kind == "extra")
+    return bad[0].detail
+
+
+def test_verify_finds_a_rewritten_footer_statistic(copy):
+    """Issue 21.13c: with the re-encode comparison off, a part whose footer
+    statistic was rewritten (rows and page checksums intact) passed verify."""
+    import pyarrow.parquet as pq
+
+    part = _first_part(copy)
+    data = part.read_bytes()
+    seed = pq.read_table(part).column("seed")[0].as_py()
+    footer_len = int.from_bytes(data[-8:-4], "little")
+    start = len(data) - 8 - footer_len
+    old = seed.to_bytes(8, "little", signed=True)
+    at = data.index(old, start)  # the first of the seed column's min/max statistics
+    forged = data[:at] + (seed + 1).to_bytes(8, "little", signed=True) + data[at + 8:]
+    part.write_bytes(forged)
+    assert pq.read_table(part).equals(pq.read_table(io.BytesIO(data)))  # the rows read back the same
+    assert "re-encoded" in _only_that_part_is_bad(verify(str(copy)))
+    result = runner.invoke(app, ["verify", str(copy)])
+    assert result.exit_code == 1 and "bad-part" in result.output
+
+
+def test_verify_finds_a_part_from_a_run_with_another_seed(copy):
+    """Issue 21.13d: with the episode-seed check off, a part copied from a
+    --seed 8 run (well-formed, same files) passed verify."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from manifests.catalog import SCENARIO_BY_CODE
+    from manifests.spec import episode_seed
+    from manifests.writer import part_bytes
+
+    part = _first_part(copy)
+    table = pq.read_table(part)
+    other = episode_seed(8, SCENARIO_BY_CODE["T01_CN_A"], 0)
+    column = table.schema.get_field_index("seed")
+    table = table.set_column(column, table.field("seed"), pa.array([other] * len(table), type=table.field("seed").type))
+    part.write_bytes(part_bytes(table))  # as that run's writer would have written it
+    assert "episode seed" in _only_that_part_is_bad(verify(str(copy)))

@@ -219,3 +219,68 @@ def test_what_is_in_the_files_and_what_in_the_paths(root, tmp_path):
     assert index.schema.names == MANIFEST_SCHEMA.names
     for key, value in zip(PARTITION_KEYS, split_code(spec.scenario)):
         assert set(index.column(key).to_pylist()) == {value}
+
+
+def test_each_scenario_gets_its_own_sample_draw(root):
+    """Issue 21.13b: seeding the draw by the query seed alone gave every scenario the same frames."""
+    storage, _ = root
+    table = read_manifest(storage)
+    result = q.run_query(table, q.Query(per_scenario=5, seed=3)).table
+    picks: dict[str, set] = {}
+    for row in result.select(["scenario", "episode", "frame"]).to_pylist():
+        picks.setdefault(row["scenario"], set()).add((row["episode"], row["frame"]))
+    assert len(picks) == 12 and all(len(p) == 5 for p in picks.values())
+    assert len({frozenset(p) for p in picks.values()}) > 6  # 12 draws of 5 from 30: near-certainly all differ
+    # and a scenario's draw does not depend on which other scenarios are selected
+    alone = q.run_query(table, q.Query(domains="T07_HRN_B", per_scenario=5, seed=3)).table
+    assert {(r["episode"], r["frame"]) for r in alone.select(["episode", "frame"]).to_pylist()} == picks["T07_HRN_B"]
+
+
+EMPTY_SELECTIONS = ["", "   ", ",", " , ;", ";;"]
+
+
+@pytest.mark.parametrize("text", EMPTY_SELECTIONS)
+def test_an_empty_selection_is_an_error_not_everything(text):
+    """Issue 21.6: an empty --domains selected all 105 scenarios."""
+    from manifests.selection import parse_selection
+
+    with pytest.raises(ValueError, match="empty selection"):
+        parse_selection(text)
+    with pytest.raises(ValueError, match="empty selection"):
+        q.Query(domains=text).validate()
+    with pytest.raises(ValueError, match="empty selection"):
+        make_plan(PlanConfig(domains=text, frames_per_scenario=2))
+
+
+def test_every_command_refuses_an_empty_selection_in_one_line(root, tmp_path, monkeypatch):
+    """Issue 21.6 through the CLI: each command that takes --domains answers one
+    'error:' line and exit code 2, and produce writes nothing (not even the root)."""
+    from typer.testing import CliRunner
+
+    import pipeline.driver
+    from pipeline.cli import app
+
+    def render_everything(*args, **kwargs):
+        raise AssertionError("produce went on to render with an empty selection")
+
+    monkeypatch.setattr(pipeline.driver, "_render_on_ray", render_everything)
+    storage, _ = root
+    src = storage.path()
+    out = tmp_path / "new_root"
+    commands = {
+        "plan": ["plan", "--frames-per-scenario", "2"],
+        "produce": ["produce", "--out", str(out), "--frames-per-scenario", "2", "--world", "test"],
+        "query": ["query", src],
+        "stats": ["stats", src, "--chart", str(tmp_path / "c.png")],
+        "export": ["export", src, "--format", "idda", "--to", str(tmp_path / "export")],
+        "distances": ["distances", src],
+        "preview": ["preview", "--out", str(tmp_path / "preview"), "--world", "test"],
+    }
+    runner = CliRunner()
+    for name, args in commands.items():
+        for text in ("", " ,; "):
+            result = runner.invoke(app, [*args, "--domains", text])
+            lines = result.output.strip().splitlines()
+            assert result.exit_code == 2, (name, result.output)
+            assert len(lines) == 1 and lines[0].startswith("error: ") and "empty selection" in lines[0], (name, result.output)
+    assert not out.exists() and not (tmp_path / "export").exists() and not (tmp_path / "preview").exists()

@@ -26,6 +26,7 @@ from pipeline.driver import ProduceConfig, produce
 from pipeline.planner import PlanConfig, make_plan
 from pipeline.runmeta import RunConfig, RunConfigError
 from storage import Storage, StorageError
+from tests.faultkit import descendants as _descendants  # every process below a pid (Ray starts its own sessions)
 
 pytestmark = pytest.mark.slow
 runner = CliRunner()
@@ -116,25 +117,6 @@ def test_cli_status_verify_query_stats(reference, tmp_path):
     result = runner.invoke(app, ["stats", str(reference), "--chart", str(chart)])
     assert result.exit_code == 0, result.output
     assert "sky" in result.output and chart.read_bytes()[:4] == b"\x89PNG"
-
-
-def _descendants(pid: int) -> list[int]:
-    """All processes below ``pid`` (Ray's GCS, raylet and workers run in their own
-    sessions, so killing the driver's process group does not reach them)."""
-    parents = {}
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                with open(f"/proc/{entry}/stat") as f:
-                    parents[int(entry)] = int(f.read().rsplit(")", 1)[1].split()[1])
-            except (OSError, IndexError, ValueError):
-                continue
-    found, frontier = [], [pid]
-    while frontier:
-        children = [c for c, parent in parents.items() if parent in frontier]
-        found += children
-        frontier = children
-    return found
 
 
 def test_killed_driver_resumes_to_identical_output(reference, tmp_path):
@@ -446,3 +428,20 @@ def test_token_mode_only_when_attaching_with_a_token(tmp_path, monkeypatch):
     (tmp_path / ".ray").mkdir()
     (tmp_path / ".ray" / "auth_token").write_text("abc")
     assert prepare_cluster_auth("auto", env := {}) and env["RAY_AUTH_MODE"] == "token"
+
+
+@pytest.mark.parametrize("held, pending", [(6, None), (5, False), (4, True)])
+def test_shrink_guard_refuses_even_one_frame_fewer(held, pending):
+    """Issue 21.13e: a guard off by one never tried 6 -> 5 frames. A part holding
+    one frame more than the plan asks for is refused; as many is done; fewer is redone."""
+    from pipeline.driver import pending_episodes
+
+    plan = make_plan(PlanConfig(domains="T01_CN_A", frames_per_scenario=5, width=64, height=36, seed=7))
+    (spec,) = plan.episodes
+    assert spec.frames == 5
+    frames = {(spec.scenario, spec.episode): held}
+    if pending is None:
+        with pytest.raises(RunConfigError, match="holds 6 frames, the plan asks for 5; a root never shrinks"):
+            pending_episodes(plan, frames)
+    else:
+        assert pending_episodes(plan, frames) == ([spec] if pending else [])

@@ -9,7 +9,8 @@ def codes(text):
 
 def test_all_and_empty():
     assert len(codes("all")) == 105
-    assert len(codes("")) == 105
+    with pytest.raises(ValueError, match="empty selection"):  # never "everything" (issue 21.6)
+        codes("")
 
 
 def test_code_list_and_wildcards():

@@ -56,3 +56,43 @@ def test_off_builds_every_time_and_writes_nothing(tmp_path, monkeypatch):
     for _ in range(2):
         worldcache.load_or_build("test", "T01", 5, counting_build(calls))
     assert len(calls) == 2 and worldcache.cache_dir() is None
+
+
+def test_the_cache_keeps_to_its_size_bound_least_recently_used_first(cache, monkeypatch):
+    """Issue 21.9d: the cache had no bound. With IDDA_WORLD_CACHE_MAX it keeps the
+    entries used last, never the one just written, never a write in progress."""
+    import os
+    import time
+
+    def build(town_code: str, seed: int):
+        return bytes(4000)  # every entry pickles to a little over 4000 bytes
+
+    monkeypatch.setenv(worldcache.MAX_ENV, "10K")
+    assert worldcache.max_bytes() == 10 * 1024
+    paths, base = [], time.time_ns() - 10**9
+    for i, town in enumerate(("T01", "T02")):
+        worldcache.load_or_build("test", town, 1, build)
+        paths.append(worldcache.entry_path(cache, "test", town, 1))
+        os.utime(paths[-1], ns=(base + i, base + i))  # T01 used first, then T02
+    writing = cache / f"{worldcache.entry_path(cache, 'test', 'T04', 1).name}abc.tmp"
+    writing.write_bytes(bytes(20000))  # another process is writing an entry right now
+    assert worldcache.load_or_build("test", "T01", 1, build) == bytes(4000)  # a load: T01 is now the newest
+    worldcache.load_or_build("test", "T03", 1, build)  # a third entry: over 10K, T02 (least recent) goes
+    assert [p.exists() for p in paths] == [True, False]
+    assert worldcache.entry_path(cache, "test", "T03", 1).exists() and writing.exists()
+    assert sum(p.stat().st_size for p in cache.glob("*.pickle")) <= 10 * 1024
+    monkeypatch.setenv(worldcache.MAX_ENV, "1")  # smaller than one entry: only the new one stays
+    worldcache.load_or_build("test", "T05", 1, build)
+    assert [p.name for p in cache.glob("*.pickle")] == [worldcache.entry_path(cache, "test", "T05", 1).name]
+    assert writing.exists()
+    hour_ago = time.time() - 2 * worldcache.STALE_TEMP_S
+    os.utime(writing, (hour_ago, hour_ago))  # a writer killed long ago left its temp file
+    worldcache.load_or_build("test", "T06", 1, build)
+    assert not writing.exists()
+
+
+@pytest.mark.parametrize("text, expected", [("2G", 2 * 1024**3), ("512M", 512 * 1024**2), ("1.5k", 1536),
+                                            ("1000", 1000), ("3GiB", 3 * 1024**3), ("lots", 2 * 1024**3), ("", 2 * 1024**3)])
+def test_size_bound_parsing(monkeypatch, text, expected):
+    monkeypatch.setenv(worldcache.MAX_ENV, text)
+    assert worldcache.max_bytes() == expected

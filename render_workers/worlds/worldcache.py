@@ -12,6 +12,14 @@ never loaded. Entries unused for ``KEEP_DAYS`` days are deleted when a new one
 is written (not every other digest: two checkouts sharing the cache would
 keep deleting each other's worlds).
 
+Size bound: ``$IDDA_WORLD_CACHE_MAX`` (bytes, or with a K/M/G suffix, powers
+of 1024; default ``2G``). After writing an entry, the least recently used
+entries (loading one marks it used) are deleted until the cache fits, never
+the entry just written. Deleting is safe beside other processes: a reader
+that has an entry open keeps reading it (POSIX unlink), one that comes later
+rebuilds it; an entry being written is a temp file, which only the cleanup
+of writers killed long ago (``STALE_TEMP_S``) may delete.
+
 Where: ``$IDDA_WORLD_CACHE``, else ``$XDG_CACHE_HOME/idda/worlds``, else
 ``~/.cache/idda/worlds``; ``IDDA_WORLD_CACHE=off`` turns the cache off. Writes
 go to a temp file renamed into place, so concurrent workers never read half a
@@ -35,6 +43,10 @@ from typing import Callable, TypeVar
 log = logging.getLogger(__name__)
 
 CACHE_ENV = "IDDA_WORLD_CACHE"
+MAX_ENV = "IDDA_WORLD_CACHE_MAX"
+DEFAULT_MAX_BYTES = 2 * 1024**3
+STALE_TEMP_S = 3600  # a temp file this old is a killed writer's, not one still writing
+_UNITS = {"": 1, "B": 1, "K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}
 _PACKAGES = ("render_workers/worlds", "manifests")  # the code a world can depend on (worlds/ imports no GL)
 KEEP_DAYS = 14  # an entry not loaded for this long is dropped
 W = TypeVar("W")
@@ -47,6 +59,25 @@ def cache_dir() -> Path | None:
         return None if chosen.lower() in ("off", "0", "none") else Path(chosen)
     base = os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache"
     return Path(base) / "idda" / "worlds"
+
+
+def max_bytes() -> int:
+    """The cache's size bound, from ``$IDDA_WORLD_CACHE_MAX`` (a malformed value warns and means the default)."""
+    text = os.environ.get(MAX_ENV, "").strip()
+    if not text:
+        return DEFAULT_MAX_BYTES
+    number, unit = text.upper().rstrip("IB") or "0", ""
+    if number[-1:] in _UNITS:
+        number, unit = number[:-1], number[-1]
+    try:
+        value = float(number) * _UNITS[unit]
+    except ValueError:
+        value = -1.0
+    if value < 0:
+        log.warning("%s=%r is not a size (bytes, or a number with K, M or G, e.g. 2G); using %d bytes",
+                    MAX_ENV, text, DEFAULT_MAX_BYTES)
+        return DEFAULT_MAX_BYTES
+    return int(value)
 
 
 @cache
@@ -91,12 +122,48 @@ def _write(path: Path, value) -> None:
         finally:
             if os.path.exists(tmp):
                 os.unlink(tmp)
-        oldest = time.time() - KEEP_DAYS * 86400
-        for entry in path.parent.glob("*.pickle"):
-            if entry.stat().st_mtime < oldest:
-                entry.unlink(missing_ok=True)
+        prune(path.parent, keep=path)
     except OSError as exc:  # a cache that cannot be written costs a rebuild next time, nothing else
         log.warning("world cache entry %s not written (%s)", path, exc)
+
+
+def _stat(entry: Path):
+    try:
+        return entry.stat()
+    except FileNotFoundError:  # deleted by another process meanwhile
+        return None
+
+
+def prune(directory: Path, keep: Path | None = None, limit: int | None = None) -> list[Path]:
+    """Delete entries unused for KEEP_DAYS, then the least recently used ones
+    until the entries fit ``limit`` bytes (default :func:`max_bytes`), never
+    ``keep``; and temp files of writers killed more than STALE_TEMP_S ago.
+    Returns the deleted entries."""
+    limit = max_bytes() if limit is None else limit
+    now = time.time()
+    for temp in directory.glob("*.pickle*.tmp"):
+        st = _stat(temp)
+        if st is not None and st.st_mtime < now - STALE_TEMP_S:
+            temp.unlink(missing_ok=True)
+    entries = []
+    for entry in directory.glob("*.pickle"):
+        st = _stat(entry)
+        if st is not None:
+            entries.append((st.st_mtime_ns, entry.name, entry, st.st_size))
+    entries.sort()  # least recently used first
+    total = sum(size for *_, size in entries)
+    deleted = []
+    for mtime_ns, _, entry, size in entries:
+        if entry == keep:
+            continue
+        if mtime_ns / 1e9 < now - KEEP_DAYS * 86400 or total > limit:
+            entry.unlink(missing_ok=True)
+            total -= size
+            deleted.append(entry)
+    if deleted:
+        log.info("world cache %s: deleted %d least recently used entries (bound %d bytes, %s)",
+                 directory, len(deleted), limit, MAX_ENV)
+    return deleted
 
 
 def load_or_build(world: str, town_code: str, seed: int, build: Callable[[str, int], W]) -> W:

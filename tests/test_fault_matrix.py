@@ -1,0 +1,335 @@
+"""Destructive commands against faults (issue 21, "go further"): each cell runs a
+real ``idda`` command in a subprocess (tests/faultkit.py), hurts it at a fixed
+point or hurts the world around it, and expects either success with a clean
+root, or a refusal: one ``error:`` line, exit 2 (1 for damaged data), and the
+file listing (count and checksums) of the root and of a neighbour root unchanged.
+
+Roots are tiny (two scenarios, two frames, 64x36, the test world), rendered
+once per module without Ray and copied per cell. Compaction is ``produce`` on a
+finished root without indexes: nothing to render, so no Ray either.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+from pathlib import Path
+
+import pytest
+
+from manifests.schema import part_path
+from manifests.verify import verify
+from tests import faultkit
+
+pytestmark = pytest.mark.slow
+
+DOMAINS = "T01_CN_A,T07_HRN_A"
+PRODUCE = ["--domains", DOMAINS, "--frames-per-scenario", "2", "--width", "64", "--height", "36", "--seed", "7",
+           "--world", "test"]
+
+@pytest.fixture(scope="module")
+def tiny(tmp_path_factory) -> Path:
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
+
+    root = tmp_path_factory.mktemp("matrix") / "root"
+    plan = PlanConfig(domains=DOMAINS, frames_per_scenario=2, width=64, height=36, seed=7)
+    render_root(root, RunConfig(plan=plan, world="test"))
+    return root
+
+
+@pytest.fixture()
+def world(tiny, tmp_path) -> dict[str, Path]:
+    """A fresh copy of the root, a neighbour root beside it, and a folder for the pause handshake."""
+    root, neighbour = tmp_path / "root", tmp_path / "neighbour"
+    shutil.copytree(tiny, root, symlinks=True)
+    shutil.copytree(tiny, neighbour, symlinks=True)
+    return {"root": root, "neighbour": neighbour, "flags": tmp_path / "flags", "base": tmp_path}
+
+
+def _data(path: Path) -> dict[str, str]:
+    """A root's listing without its leases (a producer's lease comes and goes; it is not data)."""
+    return {rel: d for rel, d in faultkit.listing(path).items() if rel.split("/")[0] != "_lease"}
+
+
+def unchanged(*paths: Path):
+    """A context check: the listings of ``paths`` before equal those after."""
+    before = [_data(p) for p in paths]
+
+    def check():
+        assert [_data(p) for p in paths] == before
+
+    return check
+
+
+# -------------------------------------------------------------- export --force ----
+def _export(world, target: Path, *extra: str) -> list[str]:
+    return ["export", str(world["root"]), "--format", "idda", "--to", str(target), *extra]
+
+
+@pytest.fixture()
+def exported(world) -> Path:
+    """An earlier export (what --force replaces), made in a subprocess like the rest."""
+    target = world["base"] / "exports" / "exp"
+    target.parent.mkdir()
+    result = faultkit.run(_export(world, target), world["flags"] / "first")
+    assert result.returncode == 0, result.stderr
+    return target
+
+
+def _clean_export(target: Path) -> None:
+    """A finished export and nothing else of ours beside it (no .tmp / .old)."""
+    assert (target / "EXPORT.json").is_file()
+    assert sorted(os.listdir(target.parent)) == [target.name], os.listdir(target.parent)
+
+
+@pytest.mark.parametrize("point", ["exports.export:_commit:1", "exports.export:export_tree:3"])
+def test_export_force_killed_then_rerun(world, exported, point):
+    """SIGKILL before the commit, or between its two renames (the old export moved aside)."""
+    check_root = unchanged(world["root"], world["neighbour"])
+    before = faultkit.listing(exported)
+    child = faultkit.start(_export(world, exported, "--force"), world["flags"], pause_at=point)
+    child.wait_paused()
+    child.kill()
+    result = faultkit.run(_export(world, exported, "--force"), world["flags"] / "again")
+    assert result.returncode == 0, result.stderr
+    _clean_export(exported)
+    assert faultkit.listing(exported) == before  # same query, same export
+    check_root()
+
+
+@pytest.mark.parametrize("sig, codes", [(signal.SIGTERM, (-signal.SIGTERM, 143)), (signal.SIGINT, (130,))])
+def test_export_force_signalled_keeps_the_old_export(world, exported, sig, codes):
+    check = unchanged(world["root"], world["neighbour"], exported)
+    child = faultkit.start(_export(world, exported, "--force"), world["flags"], pause_at="exports.export:_commit:1")
+    child.wait_paused()
+    child.signal(sig)
+    result = child.finish()
+    assert result.returncode in codes, (result.returncode, result.stderr)
+    assert "Traceback" not in result.stderr
+    check()
+    result = faultkit.run(_export(world, exported, "--force"), world["flags"] / "again")
+    assert result.returncode == 0, result.stderr
+    _clean_export(exported)
+
+
+def test_export_force_stopped_beside_another_export(world, exported):
+    """One export stopped (SIGSTOP) before its commit while a second replaces the
+    target: the second must not take the stopped one's temp folder; both finish."""
+    check_root = unchanged(world["root"], world["neighbour"])
+    before = faultkit.listing(exported)
+    child = faultkit.start(_export(world, exported, "--force"), world["flags"], pause_at="exports.export:_commit:1")
+    child.wait_paused()
+    child.stop()
+    try:
+        other = faultkit.run(_export(world, exported, "--force"), world["flags"] / "other")
+        assert other.returncode == 0, other.stderr
+    finally:
+        child.cont()
+        child.release()
+    result = child.finish()
+    assert result.returncode == 0, result.stderr
+    _clean_export(exported)
+    assert faultkit.listing(exported) == before
+    check_root()
+
+
+def test_export_force_on_a_full_disk_is_one_line(world, tmp_path):
+    with faultkit.full_disk(tmp_path, size_kb=2048) as disk:
+        if disk is None:
+            pytest.skip("no tmpfs mount allowed here (needs root)")
+        target = disk / "exp"
+        assert faultkit.run(_export(world, target), world["flags"] / "first").returncode == 0
+        check = unchanged(world["root"], world["neighbour"], target)
+        filler_bytes = faultkit.fill(disk)
+        assert filler_bytes < 2048 * 1024
+        result = faultkit.run(_export(world, target, "--force", "--copy"), world["flags"])
+        assert result.returncode == 2 and "no space left" in result.error_line().lower()
+        check()
+        assert sorted(p for p in os.listdir(disk) if not p.startswith(".filler")) == ["exp"]  # no temp left
+
+
+def test_export_force_refuses_a_folder_swapped_for_a_symlink(world, exported):
+    """A folder of the earlier export replaced by a link into the neighbour root:
+    --force refuses, and nothing behind the link is touched."""
+    faultkit.symlink_swap(exported / "T01_CN_A", world["neighbour"] / "T01_CN_A")
+    check = unchanged(world["root"], world["neighbour"], exported)
+    result = faultkit.run(_export(world, exported, "--force"), world["flags"])
+    assert result.returncode == 2 and "not only what an earlier export wrote" in result.error_line()
+    check()
+
+
+def test_export_force_from_s3_when_the_network_goes(world, tmp_path):
+    from tests.s3_server import local_s3_server
+    from tests.test_export import upload_root
+
+    with local_s3_server() as server:
+        uri = server.uri("tiny")
+        upload_root(world["root"], uri)
+        target = tmp_path / "exports" / "exp"
+        target.parent.mkdir()
+        args = ["export", uri, "--format", "idda", "--to", str(target), "--copy"]
+        assert faultkit.run(args, world["flags"] / "first").returncode == 0
+        check = unchanged(world["neighbour"], target)
+        child = faultkit.start([*args, "--force"], world["flags"], pause_at="exports.export:_decode:1")
+        child.wait_paused()
+        faultkit.s3_outage(server)
+        child.release()
+        result = child.finish()
+    assert result.returncode in (1, 2), result.stderr
+    result.error_line()
+    check()
+    assert sorted(os.listdir(target.parent)) == ["exp"]
+
+
+# ------------------------------------------------------------------ compaction ----
+def _produce(world, *extra: str) -> list[str]:
+    return ["produce", *PRODUCE, "--out", str(world["root"]), *extra]
+
+
+def test_compaction_killed_then_rerun(world):
+    check_neighbour = unchanged(world["neighbour"])
+    parts = {rel: digest for rel, digest in faultkit.listing(world["root"]).items() if rel.startswith("manifest/")}
+    child = faultkit.start(_produce(world), world["flags"], pause_at="manifests.reader:index_bytes:1")
+    child.wait_paused()
+    child.kill()
+    after = faultkit.listing(world["root"])
+    assert all(after.get(rel) == digest for rel, digest in parts.items())  # no part lost or changed
+    result = faultkit.run(_produce(world), world["flags"] / "again")
+    assert result.returncode == 0, result.stderr
+    assert verify(str(world["root"])).ok
+    check_neighbour()
+
+
+def pending_compaction_with_two_parts_swapped_indexes_nothing(world):
+    """Two parts exchanged (each now holds the other's episode): compaction must
+    not index them as if fine, nor touch anything; verify names both. Today
+    produce writes _index/T01_CN_A.parquet from T07_HRN_A's rows, and says all done."""
+    root = world["root"]
+    faultkit.swap(root / part_path("T01_CN_A", 0), root / part_path("T07_HRN_A", 0))
+    check = unchanged(root, world["neighbour"])
+    result = faultkit.run(_produce(world), world["flags"])
+    if result.returncode != 0:
+        assert result.returncode in (1, 2) and "T01_CN_A" in result.error_line()
+    check()
+    report = verify(str(root))
+    assert sorted((p.kind, p.path) for p in report.problems if p.kind == "bad-part") == [
+        ("bad-part", part_path("T01_CN_A", 0)), ("bad-part", part_path("T07_HRN_A", 0))]
+
+
+def pending_produce_does_not_call_swapped_parts_done(world):
+    """Today produce answers "nothing to render; all 2 planned episodes are done"
+    (exit 0) for a root whose two parts are exchanged: it should refuse (exit 1) or re-render."""
+    root = world["root"]
+    faultkit.swap(root / part_path("T01_CN_A", 0), root / part_path("T07_HRN_A", 0))
+    result = faultkit.run(_produce(world), world["flags"])
+    assert result.returncode in (1, 2) and "T01_CN_A" in result.error_line()
+
+
+def test_compaction_on_a_full_disk_keeps_the_root(world, tmp_path):
+    with faultkit.full_disk(tmp_path, size_kb=4096) as disk:
+        if disk is None:
+            pytest.skip("no tmpfs mount allowed here (needs root)")
+        root = disk / "root"
+        shutil.copytree(world["root"], root)
+        check = unchanged(root, world["neighbour"])
+        faultkit.fill(disk)
+        result = faultkit.run(["produce", *PRODUCE, "--out", str(root)], world["flags"])
+        if result.returncode == 0:  # compaction put off (a warning), the root as it was
+            check()
+        else:
+            assert result.returncode == 2 and "no space left" in result.error_line().lower()
+            check()
+        assert verify(str(root)).ok
+
+
+# ---------------------------------------------------------------------- repair ----
+def pending_repair_never_follows_a_scenario_symlink_into_a_neighbour(world):
+    root = world["root"]
+    faultkit.symlink_swap(root / "T01_CN_A", world["neighbour"] / "T01_CN_A")
+    check = unchanged(world["neighbour"])
+    result = faultkit.run(_produce(world, "--repair"), world["flags"])
+    assert result.returncode in (1, 2) and "T01_CN_A" in result.error_line()
+    check()
+
+
+def pending_repair_refuses_a_run_json_of_another_run(world):
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig, prepare_root
+    from storage import Storage
+
+    other = RunConfig(plan=PlanConfig(domains=DOMAINS, frames_per_scenario=2, width=64, height=36, seed=8), world="test")
+    elsewhere = world["base"] / "seed8"
+    prepare_root(Storage.from_uri(str(elsewhere)), other)
+    shutil.copyfile(elsewhere / "run.json", world["root"] / "run.json")  # valid checksum, another seed
+    check = unchanged(world["root"], world["neighbour"])
+    result = faultkit.run(_produce(world, "--repair"), world["flags"])
+    assert result.returncode in (1, 2)
+    result.error_line()
+    check()
+
+
+def pending_repair_killed_before_rendering_then_rerun(world, tiny):
+    """Repair deleted a damaged episode's files and was killed before it rendered
+    them again: the next repair finishes the job, byte for byte as rendered first."""
+    root = world["root"]
+    reference = faultkit.listing(tiny)
+    victim = next(root.glob("T07_HRN_A/rgb/*.png"))
+    victim.write_bytes(victim.read_bytes()[:-8] + b"damaged!")
+    child = faultkit.start(_produce(world, "--repair", "--workers", "1"), world["flags"],
+                           pause_at="pipeline.driver:_render_on_ray:1")
+    child.wait_paused()
+    child.kill()
+    result = faultkit.run(_produce(world, "--repair", "--workers", "1"), world["flags"] / "again")
+    assert result.returncode == 0, result.stderr
+    assert verify(str(root)).ok
+    after = faultkit.listing(root)
+    data = {rel: d for rel, d in reference.items() if rel.startswith(("T01_", "T07_", "manifest/"))}
+    assert {rel: after.get(rel) for rel in data} == data
+
+
+# ---------------------------------------------------------------------- extend ----
+def pending_extend_sigterm_says_how_to_resume(world):
+    args = ["produce", "--domains", DOMAINS, "--frames-per-scenario", "3", "--width", "64", "--height", "36",
+            "--seed", "7", "--world", "test", "--out", str(world["root"]), "--extend", "--workers", "1"]
+    child = faultkit.start(args, world["flags"], pause_at="pipeline.driver:_render_on_ray:1")
+    child.wait_paused()
+    child.signal(signal.SIGTERM)
+    child.release()
+    result = child.finish()
+    assert result.returncode == 143 and "Traceback" not in result.stderr
+    assert "resume" in result.stderr.lower()
+
+
+def test_extend_killed_then_rerun_grows_the_root(world):
+    args = ["produce", "--domains", DOMAINS, "--frames-per-scenario", "3", "--width", "64", "--height", "36",
+            "--seed", "7", "--world", "test", "--out", str(world["root"]), "--extend", "--workers", "1"]
+    check_neighbour = unchanged(world["neighbour"])
+    child = faultkit.start(args, world["flags"], pause_at="pipeline.driver:_render_on_ray:1")
+    child.wait_paused()
+    child.kill()
+    assert verify(str(world["root"])).ok  # killed before rendering: still the 2-frame root, whole
+    result = faultkit.run(args, world["flags"] / "again")
+    assert result.returncode == 0, result.stderr
+    report = verify(str(world["root"]))
+    assert report.ok
+    from manifests.reader import read_manifest
+
+    assert len(read_manifest(str(world["root"]))) == 6
+    check_neighbour()
+
+
+# Cells whose fix belongs to another branch. They are not collected (their names
+# do not start with test_); after merging that branch, the lead renames each to
+# test_... (they use the fixtures above as they are).
+PENDING_OTHER_BRANCHES = [
+    pending_repair_never_follows_a_scenario_symlink_into_a_neighbour,  # issue 21.1: verify helper (repair and symlinks)
+    pending_repair_refuses_a_run_json_of_another_run,  # issue 21.2: verify helper (check config before deleting)
+    pending_extend_sigterm_says_how_to_resume,  # issue 21.7: ray helper (SIGTERM: one line, exit 143)
+    pending_repair_killed_before_rendering_then_rerun,  # issue 21.9: scale helper (take over a dead lease of this host)
+    # found here, owner to decide (done-episode listing and compaction in manifests/reader.py, scale helper?):
+    pending_produce_does_not_call_swapped_parts_done,  # produce says "all done" for a root with two parts swapped
+    pending_compaction_with_two_parts_swapped_indexes_nothing,  # and compaction indexes their misfiled rows
+]
