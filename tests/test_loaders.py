@@ -117,7 +117,7 @@ def test_frame_dataset_reads_s3_roots(root, rows, s3_server):  # noqa: F811
 def test_ray_dataset_gives_the_pixels_on_disk(root, rows):
     import ray
 
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False, configure_logging=False)
     try:
         ds = ray_dataset(root, QUERY, outputs=("rgb", "semantic_raw", "depth_raw"), rows_per_block=2, batch_size=2,
                          metadata=META_COLUMNS)
