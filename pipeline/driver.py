@@ -48,6 +48,7 @@ class ProduceConfig:
     gpus_per_task: float = 0.0  # e.g. 0.25 to pack four renderers on one GPU
     max_retries: int = 3  # per episode, for worker/node death and renderer errors
     max_in_flight: int | None = None  # default: twice the cluster's task slots
+    progress_interval_s: float = 1.0  # least time between two progress reports of one task
     extend: bool = False
     repair: bool = False
 
@@ -66,6 +67,8 @@ class ProduceConfig:
             raise ValueError(f"max retries must be >= 0, got {self.max_retries}")
         if self.max_in_flight is not None and self.max_in_flight < 1:
             raise ValueError(f"max in flight must be at least 1, got {self.max_in_flight}")
+        if self.progress_interval_s < 0:
+            raise ValueError(f"progress interval must be >= 0 s, got {self.progress_interval_s}")
 
 
 @dataclass(frozen=True)
@@ -269,8 +272,61 @@ def _stop_idle_daemons(ray) -> None:
             pass
 
 
+# The progress actor: no CPU (it only counts), restarted empty wherever Ray
+# can after its node dies (it holds nothing the run needs), and no retries of
+# its calls (the next report carries the latest count anyway).
+PROGRESS_ACTOR_OPTIONS = dict(num_cpus=0, max_restarts=-1, max_task_retries=0)
+PROGRESS_RETRY_S = 1.0  # after a failed call to the progress actor, ask again this much later
+
+
+class _LiveFrames:
+    """The driver's side of progress: frames of finished episodes (from their
+    results) plus the best-effort counts of running ones (from the progress
+    actor). Every actor call is guarded: if the actor dies, its node with it,
+    the counts stall until Ray restarted it, and the run goes on."""
+
+    def __init__(self, ray, counter) -> None:
+        self._ray, self.counter = ray, counter
+        self._version, self._counts, self._shown = 0, {}, 0
+        self.watch, self._retry_at = None, 0.0
+
+    def ask(self, keys: list[str]) -> None:
+        """Start a long poll of the counts of ``keys`` unless one runs or the actor just failed."""
+        if self.counter is None or self.watch is not None or time.monotonic() < self._retry_at:
+            return
+        try:
+            self.watch = self.counter.counts.remote(keys, self._version, PROGRESS_WAIT_S)
+        except Exception as exc:  # pragma: no cover - a handle whose actor is gone for good
+            self._failed(exc)
+
+    def wait_s(self) -> float | None:
+        """How long the driver may block before it should ask again (None: as long as it likes)."""
+        if self.counter is None or self.watch is not None:
+            return None
+        return max(0.0, self._retry_at - time.monotonic())
+
+    def take(self) -> None:
+        """Read the answer of the finished long poll."""
+        watch, self.watch = self.watch, None
+        try:
+            self._version, self._counts = self._ray.get(watch)
+        except Exception as exc:  # ActorDiedError, ActorUnavailableError, ...: best effort
+            self._failed(exc)
+
+    def _failed(self, exc: Exception) -> None:
+        log.debug("progress actor unavailable (%s); counting finished episodes only for now", exc)
+        self._version, self._counts = 0, {}
+        self._retry_at = time.monotonic() + PROGRESS_RETRY_S
+
+    def frames(self, finished: int, running) -> int:
+        """Frames done: ``finished`` plus the counts of the ``running`` specs; never goes back."""
+        live = sum(min(self._counts.get(spec.key, 0), spec.frames) for spec in running)
+        self._shown = max(self._shown, finished + live)
+        return self._shown
+
+
 def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
-                   progress: Callable[[Progress], None] | None, start: float) -> None:
+                   progress: Callable[[Progress], None] | None, start: float, episode_fn=None) -> None:
     """Run one task per pending episode, at most ``limit`` in flight; fills ``report``."""
     ray = _import_ray(_address(config))
     started = not ray.is_initialized()
@@ -302,16 +358,18 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
             options["runtime_env"] = {"env_vars": env}
         task = ray.remote(episode_task).options(**options)
         storage_ref = ray.put(storage)
-        counter = ray.remote(num_cpus=0)(FrameCounter).remote() if progress is not None else None
+        counter = None
+        if progress is not None:
+            counter = ray.remote(FrameCounter).options(**PROGRESS_ACTOR_OPTIONS).remote()
+        live = _LiveFrames(ray, counter)
         queue, in_flight = deque(todo), {}
         frames_total = sum(e.frames for e in todo)
-        frames_seen, watch = 0, None
 
         def report_progress() -> None:
             if progress is not None:
                 progress(
                     Progress(
-                        frames_done=max(frames_seen, report.rendered_frames),
+                        frames_done=live.frames(report.rendered_frames, in_flight.values()),
                         frames_total=frames_total,
                         episodes_done=report.rendered_episodes,
                         episodes_total=len(todo),
@@ -324,16 +382,18 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         while queue or in_flight:
             while queue and len(in_flight) < limit:
                 spec = queue.popleft()
-                in_flight[task.remote(spec, storage_ref, config.run.world, counter, lp_threads)] = spec
-            if counter is not None and watch is None:
-                watch = counter.wait_total.remote(frames_seen, PROGRESS_WAIT_S)
-            ready, _ = ray.wait(list(in_flight) + ([watch] if watch is not None else []), num_returns=1)
-            if watch is not None and watch in ready:
-                ready = [ref for ref in ready if ref != watch]
-                frames_seen, watch = ray.get(watch), None
-                if not ready:
-                    report_progress()
-                    continue
+                ref = task.remote(spec, storage_ref, config.run.world, counter, lp_threads,
+                                  config.progress_interval_s, episode_fn)
+                in_flight[ref] = spec
+            live.ask([spec.key for spec in in_flight.values()])
+            watched = [live.watch] if live.watch is not None else []
+            ready, _ = ray.wait(list(in_flight) + watched, num_returns=1, timeout=live.wait_s())
+            if live.watch is not None and live.watch in ready:
+                ready = [ref for ref in ready if ref != live.watch]
+                live.take()
+            if not ready:
+                report_progress()
+                continue
             for ref in ready:
                 spec = in_flight.pop(ref)
                 try:
@@ -342,8 +402,6 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                     message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
                     report.failed.append((spec.key, message))
                     log.error("episode %s failed after %d retries: %s", spec.key, config.max_retries, message)
-                    if counter is not None:  # its frames are not part of the run
-                        ray.get(counter.forget.remote(spec.key))
                     continue
                 if isinstance(result, Fatal):
                     from storage import StorageError
@@ -420,8 +478,13 @@ def _compact_when_free(storage, owner: str) -> None:
         log.warning("indexes not rebuilt this time (%s); readers use the parts meanwhile", exc)
 
 
-def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None) -> ProduceReport:
-    """Render every pending episode of the plan into ``config.out``."""
+def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None,
+            episode_fn: Callable | None = None) -> ProduceReport:
+    """Render every pending episode of the plan into ``config.out``.
+
+    ``episode_fn(spec, storage, world=..., on_frame=...)`` renders one episode
+    in a Ray task (default: ``pipeline.episode_job.run_episode``); the control
+    plane benchmark swaps in a stand-in that writes no images."""
     from manifests.lease import register_producer
     from manifests.root import claim_root
     from storage import Storage
@@ -452,7 +515,7 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
         start = time.perf_counter()
         try:
             if todo:
-                _render_on_ray(config, storage, todo, report, progress, start)
+                _render_on_ray(config, storage, todo, report, progress, start, episode_fn)
         except KeyboardInterrupt:
             raise ProduceInterrupted(report) from None
         _compact_when_free(storage, producer.owner)  # also scenarios an earlier (killed) run finished
