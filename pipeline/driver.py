@@ -124,9 +124,9 @@ class ProduceInterrupted(Exception):
 RAY_AUTH_MODE = "RAY_AUTH_MODE"
 _RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 _AUTH_HINT = (
-    "if the cluster uses token authentication (`ray start` turns it on where ~/.ray/auth_token exists), "
-    "put the head's token in ~/.ray/auth_token or RAY_AUTH_TOKEN on this machine, or set RAY_AUTH_MODE=token"
+    "put the head's token in ~/.ray/auth_token or RAY_AUTH_TOKEN on this machine (`ray get-auth-token` on the head prints it)"
 )
+ATTACH_TIMEOUT_S = 10.0  # to reach a cluster's address, and again for its GCS to answer
 
 
 def ray_token_available(environ=os.environ) -> bool:
@@ -140,29 +140,95 @@ def ray_token_available(environ=os.environ) -> bool:
         return False
 
 
-def prepare_cluster_auth(address: str | None, environ=os.environ) -> bool:
-    """Send this machine's token when attaching to a cluster; True if token mode was switched on.
-
-    Ray >= 2.59 starts a cluster with token authentication when a token
-    exists on the head (``ray start`` checks ~/.ray/auth_token), but a driver
-    attaching by address sends its token only with ``RAY_AUTH_MODE=token``,
-    which Ray reads once, at import. So, before Ray is imported: with an
-    address, a token at hand and no mode chosen by the user, choose token
-    mode (a cluster without authentication accepts such a driver too).
-    """
-    if not address or RAY_AUTH_MODE in environ or not ray_token_available(environ):
-        return False
-    environ[RAY_AUTH_MODE] = "token"
-    return True
-
-
-def _import_ray(address: str | None = None):
-    prepare_cluster_auth(address)
+def _import_ray():
     try:
         import ray
     except ImportError as exc:  # pragma: no cover - ray is a dependency
         raise ImportError("Ray is not installed: run `make venv` or `pip install 'ray[default]'`") from exc
     return ray
+
+
+def _host_port(address: str) -> tuple[str, int] | None:
+    """(host, port) of a plain ``host:port`` GCS address; None for "auto", ray:// and the like."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "/" in host or not host:
+        return None
+    return host.strip("[]"), int(port)
+
+
+# Asks a GCS, without a token, whether it is alive; prints "ok", "token" (it
+# wants one) or the error. A child process: Ray's client logs its retries to
+# stderr from C++ threads and keeps trying for 40 s or more.
+_PROBE = """
+import sys
+from ray._raylet import GcsClient
+from ray.exceptions import AuthenticationError
+try:
+    GcsClient(address=sys.argv[1]).check_alive([], timeout=float(sys.argv[2]))
+    print("ok")
+except AuthenticationError:
+    print("token")
+except Exception as exc:
+    print((str(exc).strip().splitlines() or [type(exc).__name__])[0])
+"""
+
+
+def _probe_gcs(address: str) -> str:
+    """"ok", "token" (the cluster uses token authentication) or why the GCS at ``address`` did not answer."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != RAY_AUTH_MODE}
+    try:
+        done = subprocess.run([sys.executable, "-c", _PROBE, address, str(ATTACH_TIMEOUT_S)], env=env,
+                              stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                              text=True, timeout=2 * ATTACH_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        return f"no answer in {2 * ATTACH_TIMEOUT_S:.0f} s"
+    lines = done.stdout.strip().splitlines()
+    return lines[-1] if lines else f"the probe exited with {done.returncode}"
+
+
+def _unreachable(address: str, why: str) -> ConnectionError:
+    return ConnectionError(f"no Ray cluster answers at {address} ({why}); "
+                           "check the address (RAY_ADDRESS or --address) and that the cluster's head is running")
+
+
+def check_cluster(address: str) -> bool:
+    """Fail fast on a cluster address nobody answers at, and choose Ray's auth mode
+    for it; True if token mode was switched on.
+
+    A plain ``host:port`` is first reached over TCP (ATTACH_TIMEOUT_S), so a
+    dead address is one line in seconds instead of Ray's minutes of retries.
+    Then the GCS is asked, without a token, whether it is alive: it refuses
+    only if the cluster uses token authentication, and only then does this
+    driver switch to token mode (with a token at hand); a cluster without
+    authentication is attached to as it is. A ``RAY_AUTH_MODE`` set by the
+    user stands. ConnectionError naming the address when it cannot work.
+    """
+    import socket
+
+    target = _host_port(address)
+    if target is None:
+        return False
+    try:
+        socket.create_connection(target, timeout=ATTACH_TIMEOUT_S).close()
+    except OSError as exc:
+        raise _unreachable(address, exc.strerror or str(exc) or "timed out") from None
+    if RAY_AUTH_MODE in os.environ:
+        return False
+    answer = _probe_gcs(address)
+    if answer == "ok":
+        return False
+    if answer != "token":
+        raise _unreachable(address, answer)
+    if not ray_token_available():
+        raise ConnectionError(f"the Ray cluster at {address} uses token authentication and this machine has no token; {_AUTH_HINT}")
+    from ray._raylet import Config
+
+    os.environ[RAY_AUTH_MODE] = "token"
+    Config.initialize("")  # Ray reads the mode into its config; read it again (as `ray start` does)
+    return True
 
 
 # Ray's own options that make a local cluster die with its driver: GCS and
@@ -186,17 +252,31 @@ def _address(config: ProduceConfig) -> str | None:
 
 
 def _connect(ray, config: ProduceConfig) -> None:
-    """Start or attach to Ray, unless this process already has it."""
+    """Start or attach to Ray, unless this process already has it.
+
+    ``ray.init`` replaces the process's SIGTERM handler with one that exits at
+    once; the caller's is put back (the CLI turns SIGTERM into an interrupt
+    that releases the leases and shuts Ray down)."""
+    import signal
+    import threading
+
     if ray.is_initialized():
         return
+    main = threading.current_thread() is threading.main_thread()
+    keep = signal.getsignal(signal.SIGTERM) if main else None
     address = _address(config)
-    if address:
-        try:
-            ray.init(address=address, **_RAY_INIT_COMMON)
-        except ConnectionError as exc:
-            raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc}); {_AUTH_HINT}") from exc
-    else:
-        start_local_cluster(ray, config.workers)
+    try:
+        if address:
+            check_cluster(address)
+            try:
+                ray.init(address=address, **_RAY_INIT_COMMON)
+            except ConnectionError as exc:
+                raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc})") from exc
+        else:
+            start_local_cluster(ray, config.workers)
+    finally:
+        if main and keep is not None:
+            signal.signal(signal.SIGTERM, keep)
 
 
 def start_local_cluster(ray, cpus: int | None = None) -> None:
@@ -328,7 +408,7 @@ class _LiveFrames:
 def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
                    progress: Callable[[Progress], None] | None, start: float, episode_fn=None) -> None:
     """Run one task per pending episode, at most ``limit`` in flight; fills ``report``."""
-    ray = _import_ray(_address(config))
+    ray = _import_ray()
     started = not ray.is_initialized()
     reaper = None
     try:
