@@ -145,7 +145,7 @@ def produce(
     Re-running the same command skips finished episodes: kill it at any time
     and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
     """
-    from pipeline.driver import ProduceConfig, ProduceInterrupted, produce as run_produce
+    from pipeline.driver import ProduceConfig, ProduceInterrupted, StorageOutage, produce as run_produce
     from pipeline.runmeta import RunConfig
 
     with user_errors():
@@ -171,6 +171,10 @@ def produce(
                 bar.close()
                 typer.echo(format_interrupted(stop.report, stopped.get("name", "interrupted")), err=True)
                 raise typer.Exit(code=stopped.get("code", 130)) from None
+            except StorageOutage as outage:
+                bar.close()
+                typer.echo(format_outage(outage, _storage(out).endpoint), err=True)
+                raise typer.Exit(code=1) from None
             except KeyboardInterrupt:  # before or after rendering: nothing half done to report
                 bar.close()
                 typer.echo(f"{stopped.get('name', 'interrupted')}: run the same command again to resume", err=True)
@@ -266,6 +270,17 @@ def format_interrupted(report, cause: str = "interrupted") -> str:
         f"{cause}: {report.out} gained {count(report.rendered_frames, 'frame')} in "
         f"{count(report.rendered_episodes, 'episode')} this run; run the same command again to resume "
         "(finished episodes are kept, the rest render again)"
+    )
+
+
+def format_outage(outage, endpoint: str) -> str:
+    """The one line of a run its storage stopped: the error, the endpoint, what is done, how to go on."""
+    report = outage.report
+    done = report.skipped_episodes + report.rendered_episodes
+    message = " ".join(str(outage.error).split())
+    return (
+        f"error: {message} (storage: {endpoint}); {done:,} of {report.planned_episodes:,} episodes are done "
+        f"({report.rendered_episodes:,} this run); run the same command again to resume once the storage answers"
     )
 
 

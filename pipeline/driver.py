@@ -121,6 +121,15 @@ class ProduceInterrupted(Exception):
         self.report = report
 
 
+class StorageOutage(Exception):
+    """The output root's storage failed an episode on every retry, so the run
+    stopped; ``error`` is the StorageError, ``report`` says what was done."""
+
+    def __init__(self, report: ProduceReport, error: Exception) -> None:
+        super().__init__(str(error))
+        self.report, self.error = report, error
+
+
 RAY_AUTH_MODE = "RAY_AUTH_MODE"
 _RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 _AUTH_HINT = (
@@ -479,6 +488,13 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                 try:
                     result = ray.get(ref)
                 except Exception as exc:  # RayTaskError, WorkerCrashedError, NodeDiedError...
+                    from storage import StorageError
+
+                    cause = getattr(exc, "cause", exc)
+                    if isinstance(cause, StorageError):  # every retry failed on storage: it is down, not the episode
+                        for other in in_flight:
+                            ray.cancel(other, force=True)
+                        raise StorageOutage(report, cause) from None
                     message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
                     report.failed.append((spec.key, message))
                     log.error("episode %s failed after %d retries: %s", spec.key, config.max_retries, message)
@@ -567,7 +583,7 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     plane benchmark swaps in a stand-in that writes no images."""
     from manifests.lease import register_producer
     from manifests.root import claim_root
-    from storage import Storage
+    from storage import Storage, StorageError
 
     config.validate()
     plan = make_plan(config.run.plan)
@@ -607,5 +623,8 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
             }
             storage.write_bytes(f"{STATS_DIR}/driver.json", json.dumps(driver_stats).encode())
     finally:
-        producer.release()
+        try:
+            producer.release()
+        except StorageError as exc:  # the storage is down: the lease expires by itself
+            log.info("lease %s not released (%s); it expires by itself", producer.rel, exc)
     return report

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_produce import ARGS, _descendants, reference, tree_digest  # noqa: F401 (fixture)
+from tests.test_produce import ARGS, _descendants, ray_local, reference, tree_digest  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.slow
 REPO = Path(__file__).resolve().parents[1]
