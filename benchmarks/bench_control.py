@@ -91,13 +91,19 @@ def flood_episode(spec, storage, world: str = "test", on_frame=None) -> EpisodeR
     return _result(spec, spec.frames, time.perf_counter() - start)
 
 
+def _rss_mb(pid: int) -> float:
+    with open(f"/proc/{pid}/status") as f:
+        for line in f:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024
+    return 0.0
+
+
 class MemorySampler:
-    """Samples the RSS of this process (the driver) and of the progress actor every SAMPLE_S."""
+    """Samples (/proc) the RSS of this process (the driver), of the progress actor and
+    of the largest other Ray worker, every SAMPLE_S."""
 
     def __init__(self) -> None:
-        import psutil
-
-        self._psutil = psutil
         self.samples: list[tuple[float, float, float, float]] = []  # (t, driver MB, actor MB, largest worker MB)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, daemon=True)
@@ -111,13 +117,16 @@ class MemorySampler:
         self._stop.set()
         self._thread.join()
 
-    def _ray_processes(self):
+    def _ray_processes(self) -> tuple[float, float]:
+        from pipeline.reaper import _proc_table, descendants
+
         actor, workers = 0.0, [0.0]
-        for proc in self._psutil.Process().children(recursive=True):
+        for pid in descendants(os.getpid(), _proc_table()):
             try:
-                title = " ".join(proc.cmdline())
-                rss = proc.memory_info().rss / 2**20
-            except (self._psutil.Error, OSError):
+                with open(f"/proc/{pid}/cmdline", "rb") as f:
+                    title = f.read().replace(b"\0", b" ").decode(errors="replace")
+                rss = _rss_mb(pid)
+            except OSError:
                 continue
             if "FrameCounter" in title:
                 actor = max(actor, rss)
@@ -126,10 +135,9 @@ class MemorySampler:
         return actor, max(workers)
 
     def _run(self) -> None:
-        me = self._psutil.Process()
         while not self._stop.wait(SAMPLE_S):
             actor, worker = self._ray_processes()
-            self.samples.append((time.perf_counter() - self._t0, me.memory_info().rss / 2**20, actor, worker))
+            self.samples.append((time.perf_counter() - self._t0, _rss_mb(os.getpid()), actor, worker))
 
 
 def _run(root: str, episode_fn, progress_interval_s: float = 1.0) -> dict:
