@@ -202,8 +202,8 @@ def format_progress(p) -> str:
 
 class ProgressDisplay:
     """Produce's progress on ``stream`` (stderr): on a terminal one line,
-    redrawn at every frame the workers report; otherwise (a log file, CI) one
-    line per finished episode."""
+    redrawn at every progress report (at most one per task a second);
+    otherwise (a log file, CI) one line per finished episode."""
 
     def __init__(self, stream=None) -> None:
         import sys

@@ -73,8 +73,9 @@ class ProduceConfig:
 
 @dataclass(frozen=True)
 class Progress:
-    """Sent to the progress callback when rendering starts, after every frame
-    the workers write and after each finished episode."""
+    """Sent to the progress callback when rendering starts, after each
+    progress report of the workers (at most one per task per
+    ``progress_interval_s``) and after each finished episode."""
 
     frames_done: int  # frames written so far (finished and running episodes)
     frames_total: int
