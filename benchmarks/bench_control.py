@@ -160,7 +160,8 @@ def _run(root: str, episode_fn, progress_interval_s: float = 1.0) -> dict:
 def _memory_figures(samples) -> dict:
     """Median and peak of each series, and the drift of the driver's (median of the last
     quarter minus median of the second quarter: warm-up excluded)."""
-    cols = list(zip(*samples)) if samples else [[0.0]] * 4
+    cols = [list(c) for c in zip(*samples)] if samples else [[0.0]] * 4
+    cols[2] = [mb for mb in cols[2] if mb > 0] or [0.0]  # the actor: samples where it was found
     quarter = max(1, len(samples) // 4)
     driver = [s[1] for s in samples]
     drift = statistics.median(driver[-quarter:]) - statistics.median(driver[quarter:2 * quarter] or driver) if driver else 0.0
