@@ -51,6 +51,7 @@ class ProduceConfig:
     gpus_per_task: float = 0.0  # e.g. 0.25 to pack four renderers on one GPU
     max_retries: int = 3  # per episode, for worker/node death and renderer errors
     max_in_flight: int | None = None  # default: twice the cluster's task slots
+    progress_interval_s: float = 1.0  # least time between two progress reports of one task
     extend: bool = False
     repair: bool = False
     lease_ttl_s: float = TTL_S  # the producer lease's time to live (the CLI reads IDDA_LEASE_TTL_S)
@@ -73,12 +74,15 @@ class ProduceConfig:
             raise ValueError(f"max in flight must be at least 1, got {self.max_in_flight}")
         if not self.lease_ttl_s > 0 or not self.index_every_s > 0:
             raise ValueError(f"lease ttl and index interval must be positive, got {self.lease_ttl_s}, {self.index_every_s}")
+        if self.progress_interval_s < 0:
+            raise ValueError(f"progress interval must be >= 0 s, got {self.progress_interval_s}")
 
 
 @dataclass(frozen=True)
 class Progress:
-    """Sent to the progress callback when rendering starts, after every frame
-    the workers write and after each finished episode."""
+    """Sent to the progress callback when rendering starts, after each
+    progress report of the workers (at most one per task per
+    ``progress_interval_s``) and after each finished episode."""
 
     frames_done: int  # frames written so far (finished and running episodes)
     frames_total: int
@@ -125,12 +129,21 @@ class ProduceInterrupted(Exception):
         self.report = report
 
 
+class StorageOutage(Exception):
+    """The output root's storage failed an episode on every retry, so the run
+    stopped; ``error`` is the StorageError, ``report`` says what was done."""
+
+    def __init__(self, report: ProduceReport, error: Exception) -> None:
+        super().__init__(str(error))
+        self.report, self.error = report, error
+
+
 RAY_AUTH_MODE = "RAY_AUTH_MODE"
 _RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
 _AUTH_HINT = (
-    "if the cluster uses token authentication (`ray start` turns it on where ~/.ray/auth_token exists), "
-    "put the head's token in ~/.ray/auth_token or RAY_AUTH_TOKEN on this machine, or set RAY_AUTH_MODE=token"
+    "put the head's token in ~/.ray/auth_token or RAY_AUTH_TOKEN on this machine (`ray get-auth-token` on the head prints it)"
 )
+ATTACH_TIMEOUT_S = 10.0  # to reach a cluster's address, and again for its GCS to answer
 
 
 def ray_token_available(environ=os.environ) -> bool:
@@ -144,29 +157,95 @@ def ray_token_available(environ=os.environ) -> bool:
         return False
 
 
-def prepare_cluster_auth(address: str | None, environ=os.environ) -> bool:
-    """Send this machine's token when attaching to a cluster; True if token mode was switched on.
-
-    Ray >= 2.59 starts a cluster with token authentication when a token
-    exists on the head (``ray start`` checks ~/.ray/auth_token), but a driver
-    attaching by address sends its token only with ``RAY_AUTH_MODE=token``,
-    which Ray reads once, at import. So, before Ray is imported: with an
-    address, a token at hand and no mode chosen by the user, choose token
-    mode (a cluster without authentication accepts such a driver too).
-    """
-    if not address or RAY_AUTH_MODE in environ or not ray_token_available(environ):
-        return False
-    environ[RAY_AUTH_MODE] = "token"
-    return True
-
-
-def _import_ray(address: str | None = None):
-    prepare_cluster_auth(address)
+def _import_ray():
     try:
         import ray
     except ImportError as exc:  # pragma: no cover - ray is a dependency
         raise ImportError("Ray is not installed: run `make venv` or `pip install 'ray[default]'`") from exc
     return ray
+
+
+def _host_port(address: str) -> tuple[str, int] | None:
+    """(host, port) of a plain ``host:port`` GCS address; None for "auto", ray:// and the like."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "/" in host or not host:
+        return None
+    return host.strip("[]"), int(port)
+
+
+# Asks a GCS, without a token, whether it is alive; prints "ok", "token" (it
+# wants one) or the error. A child process: Ray's client logs its retries to
+# stderr from C++ threads and keeps trying for 40 s or more.
+_PROBE = """
+import sys
+from ray._raylet import GcsClient
+from ray.exceptions import AuthenticationError
+try:
+    GcsClient(address=sys.argv[1]).check_alive([], timeout=float(sys.argv[2]))
+    print("ok")
+except AuthenticationError:
+    print("token")
+except Exception as exc:
+    print((str(exc).strip().splitlines() or [type(exc).__name__])[0])
+"""
+
+
+def _probe_gcs(address: str) -> str:
+    """"ok", "token" (the cluster uses token authentication) or why the GCS at ``address`` did not answer."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != RAY_AUTH_MODE}
+    try:
+        done = subprocess.run([sys.executable, "-c", _PROBE, address, str(ATTACH_TIMEOUT_S)], env=env,
+                              stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                              text=True, timeout=2 * ATTACH_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        return f"no answer in {2 * ATTACH_TIMEOUT_S:.0f} s"
+    lines = done.stdout.strip().splitlines()
+    return lines[-1] if lines else f"the probe exited with {done.returncode}"
+
+
+def _unreachable(address: str, why: str) -> ConnectionError:
+    return ConnectionError(f"no Ray cluster answers at {address} ({why}); "
+                           "check the address (RAY_ADDRESS or --address) and that the cluster's head is running")
+
+
+def check_cluster(address: str) -> bool:
+    """Fail fast on a cluster address nobody answers at, and choose Ray's auth mode
+    for it; True if token mode was switched on.
+
+    A plain ``host:port`` is first reached over TCP (ATTACH_TIMEOUT_S), so a
+    dead address is one line in seconds instead of Ray's minutes of retries.
+    Then the GCS is asked, without a token, whether it is alive: it refuses
+    only if the cluster uses token authentication, and only then does this
+    driver switch to token mode (with a token at hand); a cluster without
+    authentication is attached to as it is. A ``RAY_AUTH_MODE`` set by the
+    user stands. ConnectionError naming the address when it cannot work.
+    """
+    import socket
+
+    target = _host_port(address)
+    if target is None:
+        return False
+    try:
+        socket.create_connection(target, timeout=ATTACH_TIMEOUT_S).close()
+    except OSError as exc:
+        raise _unreachable(address, exc.strerror or str(exc) or "timed out") from None
+    if RAY_AUTH_MODE in os.environ:
+        return False
+    answer = _probe_gcs(address)
+    if answer == "ok":
+        return False
+    if answer != "token":
+        raise _unreachable(address, answer)
+    if not ray_token_available():
+        raise ConnectionError(f"the Ray cluster at {address} uses token authentication and this machine has no token; {_AUTH_HINT}")
+    from ray._raylet import Config
+
+    os.environ[RAY_AUTH_MODE] = "token"
+    Config.initialize("")  # Ray reads the mode into its config; read it again (as `ray start` does)
+    return True
 
 
 # Ray's own options that make a local cluster die with its driver: GCS and
@@ -190,17 +269,31 @@ def _address(config: ProduceConfig) -> str | None:
 
 
 def _connect(ray, config: ProduceConfig) -> None:
-    """Start or attach to Ray, unless this process already has it."""
+    """Start or attach to Ray, unless this process already has it.
+
+    ``ray.init`` replaces the process's SIGTERM handler with one that exits at
+    once; the caller's is put back (the CLI turns SIGTERM into an interrupt
+    that releases the leases and shuts Ray down)."""
+    import signal
+    import threading
+
     if ray.is_initialized():
         return
+    main = threading.current_thread() is threading.main_thread()
+    keep = signal.getsignal(signal.SIGTERM) if main else None
     address = _address(config)
-    if address:
-        try:
-            ray.init(address=address, **_RAY_INIT_COMMON)
-        except ConnectionError as exc:
-            raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc}); {_AUTH_HINT}") from exc
-    else:
-        start_local_cluster(ray, config.workers)
+    try:
+        if address:
+            check_cluster(address)
+            try:
+                ray.init(address=address, **_RAY_INIT_COMMON)
+            except ConnectionError as exc:
+                raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc})") from exc
+        else:
+            start_local_cluster(ray, config.workers)
+    finally:
+        if main and keep is not None:
+            signal.signal(signal.SIGTERM, keep)
 
 
 def start_local_cluster(ray, cpus: int | None = None) -> None:
@@ -276,10 +369,64 @@ def _stop_idle_daemons(ray) -> None:
             pass
 
 
+# The progress actor: no CPU (it only counts), restarted empty wherever Ray
+# can after its node dies (it holds nothing the run needs), and no retries of
+# its calls (the next report carries the latest count anyway).
+PROGRESS_ACTOR_OPTIONS = dict(num_cpus=0, max_restarts=-1, max_task_retries=0)
+PROGRESS_RETRY_S = 1.0  # after a failed call to the progress actor, ask again this much later
+
+
+class _LiveFrames:
+    """The driver's side of progress: frames of finished episodes (from their
+    results) plus the best-effort counts of running ones (from the progress
+    actor). Every actor call is guarded: if the actor dies, its node with it,
+    the counts stall until Ray restarted it, and the run goes on."""
+
+    def __init__(self, ray, counter) -> None:
+        self._ray, self.counter = ray, counter
+        self._version, self._counts, self._shown = 0, {}, 0
+        self.watch, self._retry_at = None, 0.0
+
+    def ask(self, keys: list[str]) -> None:
+        """Start a long poll of the counts of ``keys`` unless one runs or the actor just failed."""
+        if self.counter is None or self.watch is not None or time.monotonic() < self._retry_at:
+            return
+        try:
+            self.watch = self.counter.counts.remote(keys, self._version, PROGRESS_WAIT_S)
+        except Exception as exc:  # pragma: no cover - a handle whose actor is gone for good
+            self._failed(exc)
+
+    def wait_s(self) -> float | None:
+        """How long the driver may block before it should ask again (None: as long as it likes)."""
+        if self.counter is None or self.watch is not None:
+            return None
+        return max(0.0, self._retry_at - time.monotonic())
+
+    def take(self) -> None:
+        """Read the answer of the finished long poll."""
+        watch, self.watch = self.watch, None
+        try:
+            self._version, self._counts = self._ray.get(watch)
+        except Exception as exc:  # ActorDiedError, ActorUnavailableError, ...: best effort
+            self._failed(exc)
+
+    def _failed(self, exc: Exception) -> None:
+        log.debug("progress actor unavailable (%s); counting finished episodes only for now", exc)
+        self._version, self._counts = 0, {}
+        self._retry_at = time.monotonic() + PROGRESS_RETRY_S
+
+    def frames(self, finished: int, running) -> int:
+        """Frames done: ``finished`` plus the counts of the ``running`` specs; never goes back."""
+        live = sum(min(self._counts.get(spec.key, 0), spec.frames) for spec in running)
+        self._shown = max(self._shown, finished + live)
+        return self._shown
+
+
 def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
-                   progress: Callable[[Progress], None] | None, start: float, fence=None) -> None:
+                   progress: Callable[[Progress], None] | None, start: float, episode_fn=None,
+                   fence=None) -> None:
     """Run one task per pending episode, at most ``limit`` in flight; fills ``report``."""
-    ray = _import_ray(_address(config))
+    ray = _import_ray()
     started = not ray.is_initialized()
     reaper = None
     try:
@@ -309,16 +456,18 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
             options["runtime_env"] = {"env_vars": env}
         task = ray.remote(episode_task).options(**options)
         storage_ref = ray.put(storage)
-        counter = ray.remote(num_cpus=0)(FrameCounter).remote() if progress is not None else None
+        counter = None
+        if progress is not None:
+            counter = ray.remote(FrameCounter).options(**PROGRESS_ACTOR_OPTIONS).remote()
+        live = _LiveFrames(ray, counter)
         queue, in_flight = deque(todo), {}
         frames_total = sum(e.frames for e in todo)
-        frames_seen, watch = 0, None
 
         def report_progress() -> None:
             if progress is not None:
                 progress(
                     Progress(
-                        frames_done=max(frames_seen, report.rendered_frames),
+                        frames_done=live.frames(report.rendered_frames, in_flight.values()),
                         frames_total=frames_total,
                         episodes_done=report.rendered_episodes,
                         episodes_total=len(todo),
@@ -331,26 +480,33 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         while queue or in_flight:
             while queue and len(in_flight) < limit:
                 spec = queue.popleft()
-                in_flight[task.remote(spec, storage_ref, config.run.world, counter, lp_threads, fence)] = spec
-            if counter is not None and watch is None:
-                watch = counter.wait_total.remote(frames_seen, PROGRESS_WAIT_S)
-            ready, _ = ray.wait(list(in_flight) + ([watch] if watch is not None else []), num_returns=1)
-            if watch is not None and watch in ready:
-                ready = [ref for ref in ready if ref != watch]
-                frames_seen, watch = ray.get(watch), None
-                if not ready:
-                    report_progress()
-                    continue
+                ref = task.remote(spec, storage_ref, config.run.world, counter, lp_threads,
+                                  config.progress_interval_s, episode_fn, fence)
+                in_flight[ref] = spec
+            live.ask([spec.key for spec in in_flight.values()])
+            watched = [live.watch] if live.watch is not None else []
+            ready, _ = ray.wait(list(in_flight) + watched, num_returns=1, timeout=live.wait_s())
+            if live.watch is not None and live.watch in ready:
+                ready = [ref for ref in ready if ref != live.watch]
+                live.take()
+            if not ready:
+                report_progress()
+                continue
             for ref in ready:
                 spec = in_flight.pop(ref)
                 try:
                     result = ray.get(ref)
                 except Exception as exc:  # RayTaskError, WorkerCrashedError, NodeDiedError...
+                    from storage import StorageError
+
+                    cause = getattr(exc, "cause", exc)
+                    if isinstance(cause, StorageError):  # every retry failed on storage: it is down, not the episode
+                        for other in in_flight:
+                            ray.cancel(other, force=True)
+                        raise StorageOutage(report, cause) from None
                     message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
                     report.failed.append((spec.key, message))
                     log.error("episode %s failed after %d retries: %s", spec.key, config.max_retries, message)
-                    if counter is not None:  # its frames are not part of the run
-                        ray.get(counter.forget.remote(spec.key))
                     continue
                 if isinstance(result, Fatal):
                     from storage import StorageError
@@ -444,11 +600,16 @@ def _folding(storage, producer, every_s: float):
         thread.join()
 
 
-def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None) -> ProduceReport:
-    """Render every pending episode of the plan into ``config.out``."""
+def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None,
+            episode_fn: Callable | None = None) -> ProduceReport:
+    """Render every pending episode of the plan into ``config.out``.
+
+    ``episode_fn(spec, storage, world=..., on_frame=...)`` renders one episode
+    in a Ray task (default: ``pipeline.episode_job.run_episode``); the control
+    plane benchmark swaps in a stand-in that writes no images."""
     from manifests.lease import new_owner, register_producer
     from manifests.root import claim_root
-    from storage import Storage
+    from storage import Storage, StorageError
 
     config.validate()
     plan = make_plan(config.run.plan)
@@ -478,7 +639,7 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
         try:
             if todo:
                 with _folding(storage, producer, config.index_every_s):
-                    _render_on_ray(config, storage, todo, report, progress, start, fence=producer.fence)
+                    _render_on_ray(config, storage, todo, report, progress, start, episode_fn, fence=producer.fence)
         except KeyboardInterrupt:
             raise ProduceInterrupted(report) from None
         _fold_indexes(storage, producer)  # also scenarios an earlier (killed) run finished
@@ -490,5 +651,8 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
             }
             storage.write_bytes(f"{STATS_DIR}/driver.json", json.dumps(driver_stats).encode())
     finally:
-        producer.release()
+        try:
+            producer.release()
+        except StorageError as exc:  # the storage is down: the lease expires by itself
+            log.info("lease %s not released (%s); it expires by itself", producer.rel, exc)
     return report

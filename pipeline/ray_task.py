@@ -4,13 +4,18 @@ Kept apart from ``pipeline.driver`` because Ray ships a remote function or
 actor class by reference, so a worker imports the module that defines it. The
 driver imports the manifest reader and the planner, the progress actor none of
 that: defined in the driver, the actor was ready 0.9 s later, on cores the
-first frames need (defined here, 0.1 s). Nothing here imports Ray.
+first frames need (defined here, 0.1 s). Ray is imported only inside a task,
+where it is already loaded.
 """
 
 from __future__ import annotations
 
+import logging
 import os
+import time
 from dataclasses import dataclass
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -20,20 +25,61 @@ class Fatal:
     message: str
 
 
-def episode_task(spec, storage, world, counter=None, lp_threads=None, fence=None):
-    """Render one episode in a Ray worker; a ``Fatal`` in place of errors retrying cannot
-    help (a full disk, or the producer's lease lost: ``fence``)."""
+class FrameReporter:
+    """An episode's ``on_frame``: sends its frame count to the progress actor,
+    batched and back-pressured.
+
+    At most one call is in flight (a new count waits until the actor acked
+    the last one; counts are cumulative, so a skipped one is carried by the
+    next) and at most one call per ``interval_s``. So a task never queues
+    more than one message, however fast it writes frames, and the actor gets
+    at most one call per second per task. Progress is best effort: a dead or
+    restarting actor costs the display some updates, never the episode."""
+
+    def __init__(self, counter, key: str, interval_s: float) -> None:
+        self._counter, self._key, self._interval = counter, key, interval_s
+        self._pending = None
+        self._last = float("-inf")
+
+    def __call__(self, n: int) -> None:
+        now = time.monotonic()
+        if now - self._last < self._interval:
+            return
+        if self._pending is not None and not self._acked():
+            return
+        try:
+            self._pending = self._counter.frame.remote(self._key, n)
+        except Exception as exc:  # the actor is gone for good: no more progress from this task
+            log.debug("progress report of %s dropped: %s", self._key, exc)
+            return
+        self._last = now
+
+    def _acked(self) -> bool:
+        import ray
+
+        ready, _ = ray.wait([self._pending], timeout=0)
+        if not ready:
+            return False
+        try:
+            ray.get(ready[0])  # consumed, so Ray does not log an unhandled error of a dead actor
+        except Exception as exc:
+            log.debug("progress report of %s lost: %s", self._key, exc)
+        self._pending = None
+        return True
+
+
+def episode_task(spec, storage, world, counter=None, lp_threads=None, progress_interval_s=1.0, episode_fn=None,
+                 fence=None):
+    """Render one episode in a Ray worker (with ``episode_fn``, default ``run_episode``); a ``Fatal`` in
+    place of errors retrying cannot help (a full disk, or the producer's lease lost: ``fence``)."""
     from pipeline.episode_job import run_episode
     from storage import StorageError
 
     if lp_threads is not None:  # read when this worker's GL context is made (its first episode)
         os.environ.setdefault("LP_NUM_THREADS", lp_threads)
-    on_frame = None
-    if counter is not None:
-        def on_frame(n: int) -> None:  # fire and forget: progress never slows rendering
-            counter.frame.remote(spec.key, n)
+    on_frame = FrameReporter(counter, spec.key, progress_interval_s) if counter is not None else None
     try:
-        return run_episode(spec, storage, world=world, on_frame=on_frame, fence=fence)
+        return (episode_fn or run_episode)(spec, storage, world=world, on_frame=on_frame, fence=fence)
     except StorageError as exc:
         if exc.fatal:  # returned, not raised: Ray would retry it
             return Fatal(str(exc))
@@ -41,36 +87,37 @@ def episode_task(spec, storage, world, counter=None, lp_threads=None, fence=None
 
 
 class FrameCounter:
-    """Ray actor the render tasks report each written frame to.
+    """Ray actor the render tasks report their frame counts to.
 
-    Keeps the highest count per episode, so a retried episode is not counted
-    twice; ``wait_total`` returns as soon as the total moves (or after
-    ``timeout``), which lets the driver wake once per frame."""
+    Keeps the highest count per running episode (a retried episode is not
+    counted twice). ``counts`` answers as soon as a count moves (or after
+    ``timeout``) with the counts of the episodes the driver still waits for,
+    and forgets the others, so its memory is bounded by the tasks in flight,
+    not by the plan. Holds nothing the run needs: if it dies, Ray restarts it
+    empty and the running tasks fill it again with their next report."""
 
     def __init__(self) -> None:
         import asyncio
 
         self._done: dict[str, int] = {}
-        self._total = 0
+        self._version = 0
         self._moved = asyncio.Event()
 
     async def frame(self, key: str, n: int) -> None:
         if n > self._done.get(key, 0):
-            self._total += n - self._done.get(key, 0)
             self._done[key] = n
+            self._version += 1
             self._moved.set()
 
-    async def forget(self, key: str) -> None:
-        self._total -= self._done.pop(key, 0)
-        self._moved.set()
-
-    async def wait_total(self, seen: int, timeout: float) -> int:
+    async def counts(self, keys: list[str], seen: int, timeout: float) -> tuple[int, dict[str, int]]:
         import asyncio
 
-        if self._total == seen:
+        wanted = set(keys)
+        self._done = {k: n for k, n in self._done.items() if k in wanted}
+        if self._version == seen:
             self._moved.clear()
             try:
                 await asyncio.wait_for(self._moved.wait(), timeout)
             except asyncio.TimeoutError:
                 pass
-        return self._total
+        return self._version, {k: n for k, n in self._done.items() if k in wanted}

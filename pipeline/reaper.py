@@ -8,8 +8,12 @@ GCS, and a worker may keep writing for a moment. SIGKILL cannot be caught,
 so this small watcher runs beside the driver in its own session: it records
 the driver's Ray descendants while the cluster runs and, if the driver's pipe
 closes without a "stop" line (the driver died), kills those still alive.
-Every write is atomic, so what a killed worker leaves behind is a temp file
-that the next run removes. Linux only (/proc); elsewhere nothing is started.
+After a clean ``ray.shutdown`` ("stop"), the same agents would still linger
+for up to that minute, so it gives them ``GRACE_S`` to go and then kills
+what is left, and returns once they are gone: nothing of the run outlives
+the command. Every write is atomic, so what a killed worker leaves behind is
+a temp file that the next run removes. Linux only (/proc); elsewhere nothing
+is started.
 """
 
 from __future__ import annotations
@@ -19,9 +23,12 @@ import select
 import signal
 import subprocess
 import sys
+import time
 
 POLL_S = 0.5
 STOP = b"stop\n"
+GRACE_S = 1.0  # after a clean shutdown, how long Ray's processes get to exit by themselves
+GONE_S = 5.0  # how long to wait for killed processes to disappear
 
 
 def _proc_table() -> dict[int, tuple[int, str]]:
@@ -56,8 +63,43 @@ def descendants(pid: int, table: dict[int, tuple[int, str]]) -> dict[int, str]:
     return found
 
 
+def _alive(seen: dict[int, str]) -> dict[int, str]:
+    """The processes of ``seen`` still running (same pid and start time, not a zombie)."""
+    table = _proc_table()
+    alive = {}
+    for pid, start in seen.items():
+        if pid in table and table[pid][1] == start:
+            try:
+                with open(f"/proc/{pid}/stat") as f:
+                    state = f.read().rsplit(")", 1)[1].split()[0]
+            except (OSError, IndexError):
+                continue
+            if state != "Z":
+                alive[pid] = start
+    return alive
+
+
+def _wait_gone(seen: dict[int, str], seconds: float) -> dict[int, str]:
+    """Wait up to ``seconds`` for ``seen`` to exit; returns those still alive."""
+    deadline = time.monotonic() + seconds
+    alive = _alive(seen)
+    while alive and time.monotonic() < deadline:
+        time.sleep(0.05)
+        alive = _alive(alive)
+    return alive
+
+
+def _kill(seen: dict[int, str]) -> None:
+    for pid in _alive(seen):  # the same processes, not reused pids
+        try:
+            os.kill(pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+
+
 def watch(driver: int) -> None:
-    """Record ``driver``'s Ray descendants until stdin says stop or closes; on close, kill them."""
+    """Record ``driver``'s Ray descendants until stdin says stop or closes; on close, kill
+    them; on stop, kill those that do not exit within GRACE_S."""
     seen: dict[int, str] = {}
     stdin = sys.stdin.buffer
     while True:
@@ -67,17 +109,13 @@ def watch(driver: int) -> None:
         if ready:
             line = stdin.readline()
             if line == STOP:
-                return
+                _kill(_wait_gone(seen, GRACE_S))
+                break
             if line:
                 continue
-            break  # EOF without "stop": the driver is gone
-    table = _proc_table()
-    for pid, start in seen.items():
-        if pid in table and table[pid][1] == start:  # the same process, not a reused pid
-            try:
-                os.kill(pid, signal.SIGKILL)
-            except ProcessLookupError:
-                pass
+            _kill(seen)  # EOF without "stop": the driver is gone
+            break
+    _wait_gone(seen, GONE_S)
 
 
 class Reaper:

@@ -83,6 +83,15 @@ class Storage:
     def is_local(self) -> bool:
         return self._loc.kind == "local"
 
+    @property
+    def endpoint(self) -> str:
+        """Where the root's storage is reached, for messages: the S3 endpoint URL
+        (or "AWS S3" when the SDK's default is used); "local disk" for a local root."""
+        if self.is_local:
+            return "local disk"
+        s3 = self._s3 or S3Config()
+        return f"{s3.scheme}://{s3.endpoint}" if s3.endpoint else "AWS S3"
+
     def __repr__(self) -> str:
         return f"Storage({self.uri!r})"
 

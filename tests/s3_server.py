@@ -19,7 +19,7 @@ import logging
 import os
 import urllib.request
 from dataclasses import dataclass, field
-from typing import Iterator
+from typing import Callable, Iterator
 
 import pytest
 
@@ -44,6 +44,7 @@ class S3Server:
     endpoint: str  # "http://127.0.0.1:<port>"
     bucket: str
     moto: object = field(default=None, compare=False, repr=False)  # the server itself (tests/faultkit.s3_outage stops it)
+    stop: Callable[[], None] = field(default=lambda: None, compare=False, repr=False)  # the endpoint goes away now (an outage)
 
     def uri(self, prefix: str = "") -> str:
         """``s3://<bucket>/<prefix>`` on this server."""
@@ -68,6 +69,13 @@ def local_s3_server(bucket: str = "idda-test", server_class=None) -> Iterator[S3
     werkzeug_log.setLevel(logging.WARNING)  # no line per request
     server = (server_class or ThreadedMotoServer)(ip_address="127.0.0.1", port=0, verbose=False)
     server.start()
+    stopped: list[bool] = []
+
+    def stop() -> None:
+        if not stopped:
+            stopped.append(True)
+            server.stop()
+
     host, port = server.get_host_and_port()
     endpoint = f"http://{host}:{port}"
     env = {
@@ -91,18 +99,19 @@ def local_s3_server(bucket: str = "idda-test", server_class=None) -> Iterator[S3
             aws_secret_access_key=SECRET_KEY,
         )
         client.create_bucket(Bucket=bucket)
-        yield S3Server(endpoint=endpoint, bucket=bucket, moto=server)
+        yield S3Server(endpoint=endpoint, bucket=bucket, moto=server, stop=stop)
     finally:
         for name, value in saved.items():
             if value is None:
                 os.environ.pop(name, None)
             else:
                 os.environ[name] = value
-        with contextlib.suppress(OSError):  # moto keeps state per process; drop it (fails fast if stopped)
-            urllib.request.urlopen(
-                urllib.request.Request(f"{endpoint}/moto-api/reset", method="POST"), timeout=10
-            ).close()
-        server.stop()
+        if not stopped:
+            with contextlib.suppress(OSError):  # moto keeps state per process; drop it (fails fast if stopped)
+                urllib.request.urlopen(
+                    urllib.request.Request(f"{endpoint}/moto-api/reset", method="POST"), timeout=10
+                ).close()
+        stop()
         werkzeug_log.setLevel(old_level)
 
 

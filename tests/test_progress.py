@@ -1,7 +1,8 @@
-"""produce's progress: reported per frame by the workers (through a Ray
-actor), from the start of the work, with the run's true rate; one line per
-finished episode when stderr is not a terminal. No timing thresholds: the
-displayed rate is compared with frames over the wall time measured here."""
+"""produce's progress: reported by the workers (through a Ray actor, batched
+and with at most one report in flight per task), from the start of the work,
+with the run's true rate; one line per finished episode when stderr is not a
+terminal. No timing thresholds: the displayed rate is compared with frames
+over the wall time measured here."""
 
 from __future__ import annotations
 
@@ -13,6 +14,7 @@ import pytest
 
 from pipeline.cli.app import ProgressDisplay, format_progress
 from pipeline.driver import ProduceConfig, Progress, produce
+from pipeline.ray_task import FrameCounter, FrameReporter
 from pipeline.planner import PlanConfig
 from pipeline.runmeta import RunConfig
 
@@ -38,7 +40,8 @@ def test_progress_per_frame_with_the_true_rate(tmp_path):
         logged.update(p)
         drawn.update(p)
 
-    report = produce(ProduceConfig(run=RunConfig(plan, world="test"), out=str(tmp_path / "out"), workers=1), on_progress)
+    config = ProduceConfig(run=RunConfig(plan, world="test"), out=str(tmp_path / "out"), workers=1, progress_interval_s=0.0)
+    report = produce(config, on_progress)
     logged.close()
     drawn.close()
     total = 2 * FRAMES
@@ -64,3 +67,128 @@ def test_progress_per_frame_with_the_true_rate(tmp_path):
     assert "episodes 1/2" in lines[0] and f"rendering {total}/{total} frames (100%)" in lines[1]
     redraws = terminal.getvalue().split("\r")[1:]  # a terminal: the line redrawn at every update
     assert len(redraws) == len(seen) and terminal.getvalue().endswith("\n")
+
+
+class _GatedCounter(FrameCounter):
+    """The progress actor, holding every report until ``release``."""
+
+    def __init__(self) -> None:
+        import asyncio
+
+        super().__init__()
+        self.gate = asyncio.Event()
+
+    async def frame(self, key: str, n: int) -> None:
+        await self.gate.wait()
+        await super().frame(key, n)
+
+    async def release(self) -> None:
+        self.gate.set()
+
+
+class _Sent:
+    """An actor handle that counts the reports sent through it (``handle.frame.remote``)."""
+
+    def __init__(self, actor) -> None:
+        self.actor, self.sent, self.last = actor, 0, None
+
+    @property
+    def frame(self):
+        return self
+
+    def remote(self, key: str, n: int):
+        self.sent += 1
+        self.last = n
+        return self.actor.frame.remote(key, n)
+
+
+@pytest.fixture(scope="module")
+def ray_one_cpu():
+    import ray
+
+    if ray.is_initialized():
+        ray.shutdown()
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def _until(condition, action=lambda: None, limit_s: float = 60.0) -> None:
+    deadline = time.monotonic() + limit_s
+    while not condition():
+        assert time.monotonic() < deadline, "condition never held"
+        action()
+        time.sleep(0.01)
+
+
+def test_a_task_never_has_more_than_one_report_in_flight(ray_one_cpu):
+    ray = ray_one_cpu
+    actor = ray.remote(_GatedCounter).remote()
+    handle = _Sent(actor)
+    report = FrameReporter(handle, "T01_CN_A_e0000", interval_s=0.0)
+    for n in range(1, 10_001):  # the actor acks nothing: every report after the first is coalesced
+        report(n)
+    assert handle.sent == 1 and handle.last == 1
+    ray.get(actor.release.remote())
+    frames = iter(range(10_001, 10**9))
+    _until(lambda: handle.sent == 2, lambda: report(next(frames)))  # acked: the next count goes out
+    assert handle.last > 10_000  # the latest count, not a queued old one
+    _until(lambda: ray.get(actor.counts.remote(["T01_CN_A_e0000"], -1, 0.0))[1] == {"T01_CN_A_e0000": handle.last})
+
+
+def test_reports_are_batched_per_interval_and_survive_a_dead_actor(ray_one_cpu):
+    ray = ray_one_cpu
+    actor = ray.remote(_GatedCounter).remote()
+    ray.get(actor.release.remote())
+    handle = _Sent(actor)
+    report = FrameReporter(handle, "e", interval_s=3600.0)
+    for n in range(1, 1001):
+        report(n)
+    assert handle.sent == 1  # one report within the interval
+    ray.kill(actor, no_restart=True)
+    dead = FrameReporter(actor, "e", interval_s=0.0)
+    for n in range(1, 101):  # progress is best effort: a dead actor never fails the episode
+        dead(n)
+
+
+def test_counter_forgets_finished_episodes():
+    import asyncio
+
+    async def scenario():
+        counter = FrameCounter()
+        await counter.frame("a", 3)
+        await counter.frame("b", 2)
+        await counter.frame("a", 1)  # a retried attempt starting over does not lower the count
+        version, counts = await counter.counts(["a", "b"], -1, 0.0)
+        assert counts == {"a": 3, "b": 2}
+        version, counts = await counter.counts(["b"], version, 0.0)  # "a" finished: dropped
+        assert counts == {"b": 2} and counter._done == {"b": 2}
+
+    asyncio.run(scenario())
+
+
+def test_stand_in_episodes_through_the_driver(tmp_path):
+    """The control-plane benchmark's path, small: the real driver, a stand-in episode function."""
+    import ray
+
+    from benchmarks.bench_control import standin_episode
+    from manifests.reader import done_episodes, read_manifest
+    from pipeline.planner import make_plan
+    from storage import Storage
+
+    if ray.is_initialized():
+        ray.shutdown()
+    plan = PlanConfig(domains="towns=T01,T02 weathers=CN viewpoints=A,B", frames_per_scenario=150, seed=2)
+    seen: list[Progress] = []
+    config = ProduceConfig(run=RunConfig(plan, world="test"), out=str(tmp_path / "out"), workers=2, progress_interval_s=0.0)
+    report = produce(config, seen.append, episode_fn=standin_episode)
+    planned = make_plan(plan)
+    assert report.ok and report.rendered_episodes == len(planned.episodes) and report.rendered_frames == planned.total_frames
+    storage = Storage.from_uri(str(tmp_path / "out"))
+    assert done_episodes(storage) == {(e.scenario, e.episode) for e in planned.episodes}
+    table = read_manifest(storage)
+    assert len(table) == planned.total_frames and table.column("rgb_path").null_count == len(table)
+    frames = [p.frames_done for p in seen]
+    assert frames == sorted(frames) and frames[0] == 0 and frames[-1] == planned.total_frames
+    assert seen[-1].episodes_done == len(planned.episodes)
+    assert sum(row["frames"] for row in report.per_scenario.values()) == planned.total_frames

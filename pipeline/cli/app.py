@@ -3,6 +3,7 @@ call one function. Errors reach the user as one line and exit code 2."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 from pathlib import Path
 from typing import Optional
@@ -24,7 +25,8 @@ app = typer.Typer(
     "Domains are selected with one grammar everywhere: 'all'; scenario codes such as "
     "T01_CS_A,T07_HRN_* ; or axis filters such as 'towns=T01-T06 weathers=CN viewpoints=A,M'.\n\n"
     "Exit codes: 0 done; 1 the data has a problem (verify found damage, episodes failed); "
-    "2 a usage error, including a selection that matches no frames; 130 interrupted.",
+    "2 a usage error, including a selection that matches no frames; 130 interrupted (Ctrl-C); "
+    "143 and 129 stopped by SIGTERM and SIGHUP (resume by running the same command again).",
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
     pretty_exceptions_enable=False,
@@ -144,7 +146,7 @@ def produce(
     and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
     """
     from manifests.lease import ttl_from_env as lease_ttl_from_env
-    from pipeline.driver import ProduceConfig, ProduceInterrupted, produce as run_produce
+    from pipeline.driver import ProduceConfig, ProduceInterrupted, StorageOutage, produce as run_produce
     from pipeline.runmeta import RunConfig
 
     with user_errors():
@@ -164,14 +166,23 @@ def produce(
             lease_ttl_s=lease_ttl_from_env(),
         )
         bar = ProgressDisplay()
-        try:
-            report = run_produce(config, progress=bar.update)
-        except ProduceInterrupted as stop:
-            bar.close()
-            typer.echo(format_interrupted(stop.report), err=True)
-            raise typer.Exit(code=130) from None
-        finally:
-            bar.close()
+        with stop_signals() as stopped:
+            try:
+                report = run_produce(config, progress=bar.update)
+            except ProduceInterrupted as stop:
+                bar.close()
+                typer.echo(format_interrupted(stop.report, stopped.get("name", "interrupted")), err=True)
+                raise typer.Exit(code=stopped.get("code", 130)) from None
+            except StorageOutage as outage:
+                bar.close()
+                typer.echo(format_outage(outage, _storage(out).endpoint), err=True)
+                raise typer.Exit(code=1) from None
+            except KeyboardInterrupt:  # before or after rendering: nothing half done to report
+                bar.close()
+                typer.echo(f"{stopped.get('name', 'interrupted')}: run the same command again to resume", err=True)
+                raise typer.Exit(code=stopped.get("code", 130)) from None
+            finally:
+                bar.close()
         typer.echo(format_produce_report(report))
         if not report.ok:
             raise typer.Exit(code=1)
@@ -193,8 +204,8 @@ def format_progress(p) -> str:
 
 class ProgressDisplay:
     """Produce's progress on ``stream`` (stderr): on a terminal one line,
-    redrawn at every frame the workers report; otherwise (a log file, CI) one
-    line per finished episode."""
+    redrawn at every progress report (at most one per task a second);
+    otherwise (a log file, CI) one line per finished episode."""
 
     def __init__(self, stream=None) -> None:
         import sys
@@ -223,12 +234,55 @@ class ProgressDisplay:
             self._width = 0
 
 
-def format_interrupted(report) -> str:
+# Signals that stop a run as Ctrl-C does: a batch scheduler's SIGTERM, a closed terminal's SIGHUP.
+STOP_SIGNALS = ("SIGTERM", "SIGHUP")
+
+
+@contextlib.contextmanager
+def stop_signals():
+    """Turn STOP_SIGNALS into KeyboardInterrupt while the block runs, so a run stops
+    as it does on Ctrl-C (leases released, Ray shut down). Yields a dict that
+    receives the first signal's ``name`` (e.g. "stopped by SIGTERM") and exit ``code`` (128 + its number)."""
+    import signal
+    import threading
+
+    stopped: dict = {}
+    if threading.current_thread() is not threading.main_thread():
+        yield stopped
+        return
+
+    def handler(signum, frame) -> None:
+        if stopped:  # a second signal while stopping: the first one is being handled
+            return
+        stopped.update(name=f"stopped by {signal.Signals(signum).name}", code=128 + signum)
+        raise KeyboardInterrupt
+
+    chosen = [getattr(signal, name) for name in STOP_SIGNALS if hasattr(signal, name)]
+    previous = {sig: signal.signal(sig, handler) for sig in chosen}
+    try:
+        yield stopped
+    finally:
+        for sig, old in previous.items():
+            signal.signal(sig, old)
+
+
+def format_interrupted(report, cause: str = "interrupted") -> str:
     """What an interrupted run did, and how to go on."""
     return (
-        f"interrupted: {report.out} gained {count(report.rendered_frames, 'frame')} in "
+        f"{cause}: {report.out} gained {count(report.rendered_frames, 'frame')} in "
         f"{count(report.rendered_episodes, 'episode')} this run; run the same command again to resume "
         "(finished episodes are kept, the rest render again)"
+    )
+
+
+def format_outage(outage, endpoint: str) -> str:
+    """The one line of a run its storage stopped: the error, the endpoint, what is done, how to go on."""
+    report = outage.report
+    done = report.skipped_episodes + report.rendered_episodes
+    message = " ".join(str(outage.error).split())
+    return (
+        f"error: {message} (storage: {endpoint}); {done:,} of {report.planned_episodes:,} episodes are done "
+        f"({report.rendered_episodes:,} this run); run the same command again to resume once the storage answers"
     )
 
 

@@ -1,0 +1,137 @@
+"""Attaching `idda produce` to a Ray cluster: a head started by `ray start`
+(with and without token authentication) while this machine holds a token, and
+an address nobody answers at. Real `ray start --head` subprocesses, each on
+free ports with its own temp dir and HOME, stopped by their own pids."""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+import uuid
+from pathlib import Path
+
+import pytest
+
+from tests.test_produce import ARGS, _descendants, ray_local, reference, tree_digest  # noqa: F401 (fixtures)
+
+pytestmark = pytest.mark.slow
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _home_with_token(tmp_path: Path) -> Path:
+    home = tmp_path / "home"
+    (home / ".ray").mkdir(parents=True)
+    (home / ".ray" / "auth_token").write_text(uuid.uuid4().hex)
+    return home
+
+
+def _clean_env(home: Path) -> dict:
+    env = {k: v for k, v in os.environ.items() if not k.startswith("RAY_")}
+    env.update(HOME=str(home), PYTHONPATH=str(REPO))
+    return env
+
+
+@contextlib.contextmanager
+def ray_head(env: dict, auth_mode: str):
+    """`ray start --head --block` as a subprocess with RAY_AUTH_MODE=auth_mode; yields its address."""
+    port = _free_port()
+    # Its own temp dir: ray_current_cluster there, so a later local ray.init()
+    # in this test session does not try to attach to this (stopped) head.
+    temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Unix socket paths live under it
+    cmd = [str(Path(sys.executable).with_name("ray")), "start", "--head", f"--port={port}", "--num-cpus=2",
+           "--disable-usage-stats", f"--ray-client-server-port={_free_port()}", f"--dashboard-port={_free_port()}",
+           f"--temp-dir={temp_dir}", "--block"]
+    head = subprocess.Popen(cmd, env={**env, "RAY_AUTH_MODE": auth_mode}, start_new_session=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    try:
+        deadline = time.time() + 120
+        while time.time() < deadline and head.poll() is None:
+            with socket.socket() as s:
+                if s.connect_ex(("127.0.0.1", port)) == 0:
+                    break
+            time.sleep(0.3)
+        yield f"127.0.0.1:{port}", head
+    finally:
+        head.send_signal(signal.SIGTERM)  # --block: the head stops what it started
+        try:
+            head.communicate(timeout=90)
+        except subprocess.TimeoutExpired:
+            for pid in [head.pid, *_descendants(head.pid)]:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            head.communicate()
+        shutil.rmtree(temp_dir, ignore_errors=True)
+
+
+def _produce(env: dict, address: str, out: Path, timeout: float = 300) -> subprocess.CompletedProcess:
+    cmd = [sys.executable, "-m", "pipeline.cli", "produce", *ARGS, "--out", str(out)]
+    return subprocess.run(cmd, env={**env, "RAY_ADDRESS": address}, capture_output=True, text=True, timeout=timeout)
+
+
+@pytest.mark.parametrize("auth_mode", ["token", "disabled"])
+def test_cli_attaches_whatever_the_clusters_auth(reference, tmp_path, auth_mode):
+    """A head with token authentication (`ray start --head` turns it on where a
+    token exists) and one without; this machine has a token file and no
+    RAY_AUTH_MODE: `idda produce` attaches to both (token mode only for the first)."""
+    import ray
+
+    if ray.is_initialized():
+        ray.shutdown()
+    env = _clean_env(_home_with_token(tmp_path))
+    with ray_head(env, auth_mode) as (address, head):
+        result = _produce(env, address, tmp_path / "attached")
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert "rendered 16 frames in 4 episodes" in result.stdout
+    assert tree_digest(tmp_path / "attached") == tree_digest(reference)
+
+
+def test_token_cluster_without_a_token_here_is_one_line(tmp_path):
+    import ray
+
+    if ray.is_initialized():
+        ray.shutdown()
+    env = _clean_env(_home_with_token(tmp_path))
+    with ray_head(env, "token") as (address, head):
+        result = _produce(_clean_env(tmp_path / "empty-home"), address, tmp_path / "refused", timeout=120)
+    assert result.returncode == 2, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert lines[-1].startswith("error: ") and "uses token authentication" in lines[-1] and address in lines[-1]
+    assert "Traceback" not in result.stderr
+
+
+@contextlib.contextmanager
+def _silent_listener():
+    """A port that accepts TCP connections (the kernel's backlog) but never answers."""
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        s.listen(8)
+        yield f"127.0.0.1:{s.getsockname()[1]}"
+
+
+@contextlib.contextmanager
+def _closed_port():
+    yield f"127.0.0.1:{_free_port()}"
+
+
+@pytest.mark.parametrize("dead", [_closed_port, _silent_listener], ids=["nothing-listening", "never-answers"])
+def test_dead_ray_address_is_one_line_and_exit_2(tmp_path, dead):
+    env = _clean_env(tmp_path)
+    with dead() as address:
+        # Ray alone retries for minutes; the bound here is generous, the driver's own is 10-20 s.
+        result = _produce(env, address, tmp_path / "out", timeout=60)
+    assert result.returncode == 2, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: no Ray cluster answers at " + address), result.stderr
