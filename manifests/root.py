@@ -69,6 +69,20 @@ def is_our_root(storage) -> bool:
     return storage.exists(RUN_FILE) and bool(storage.list_files(MANIFEST_DIR + "/", suffix=".parquet"))
 
 
+def require_root(storage) -> None:
+    """RootError, in the one sentence every command gives, unless ``storage``
+    looks like an output root: our marker, a ``run.json`` or a manifest part
+    (a root a crash left before its first part still has the first two)."""
+    if storage.exists(ROOT_MARKER) or storage.exists(RUN_FILE):
+        return
+    if storage.list_files(MANIFEST_DIR + "/", suffix=".parquet"):
+        return
+    raise RootError(
+        f"{storage.uri} is not an output root (no {ROOT_MARKER}, {RUN_FILE} or {MANIFEST_DIR}/ there); "
+        f"`idda produce --out {storage.uri}` makes one"
+    )
+
+
 def claim_root(storage) -> None:
     """Mark ``storage`` as ours before anything is written into it (creating it).
 
