@@ -24,7 +24,7 @@ from manifests.outputs import FORMATS, OUTPUT_TABLE, OUTPUTS
 from manifests.schema import MANIFEST_DIR, RUN_FILE
 
 ROOT_MARKER = "idda-root.json"  # <root>/idda-root.json: "this directory is an idda output root"
-ROOT_MARKER_BODY = (json.dumps({"idda_output_root": 1, "contract": "see README.md, 'The output root'"}) + "\n").encode()
+ROOT_MARKER_BODY = (json.dumps({"idda_output_root": 1, "contract": "see docs/contract.md of idda-pipeline"}) + "\n").encode()
 EXPORT_MARKER = "EXPORT.json"  # written last into an export: a finished export of ours
 
 # <scenario>/<output>/<episode:04d>_<frame:03d>_<scenario>.<its extension>, the

@@ -44,8 +44,8 @@ def export(
     cityscapes: leftImg8bit/ and gtFine/ (labelIds, labelTrainIds, RGBA color,
     instanceIds) that cityscapesScripts and torchvision read. idda:
     <scenario>/RGB/*.jpg, <scenario>/Semantic/*.png (class ids) and split
-    files. hf: Parquet shards with embedded images and a card. Scenarios with
-    no val or test episode (fewer than 6 episodes) are split by frame blocks (80/10/10 in frame order).
+    files. hf: Parquet shards with embedded images and a card. Splits are the
+    manifest's, by episode (--as-split puts every frame in one split).
     """
     from training.export import ExportConfig, export as run_export
 
