@@ -1,8 +1,12 @@
 # Every target sets itself up: a .venv with the project installed editable.
+# Two stamps: `make produce` installs what producing (and exporting,
+# evaluating) needs; `make test` adds the test extras (torch, polars, duckdb,
+# moto, datasets, ...) on top of the same .venv.
 PYTHON ?= python3.11
 VENV   := .venv
 BIN    := $(VENV)/bin
-STAMP  := $(VENV)/.installed
+STAMP  := $(VENV)/.installed-produce
+STAMP_TEST := $(VENV)/.installed-test
 
 # make produce: the main job (see README). Override any of these.
 DOMAINS ?= all
@@ -13,10 +17,10 @@ HEIGHT  ?= 270
 SEED    ?= 0
 PRODUCE_ARGS ?=
 
-.PHONY: help venv produce test bench report clean
+.PHONY: help venv venv-test produce test bench report clean
 
 help: ## list the targets
-	@grep -E '^[a-z]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  make %-9s %s\n", $$1, $$2}'
+	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  make %-9s %s\n", $$1, $$2}'
 
 $(STAMP): pyproject.toml
 	@command -v $(PYTHON) >/dev/null 2>&1 || { echo "error: $(PYTHON) not found; install Python 3.11 or pass PYTHON=..."; exit 2; }
@@ -25,23 +29,29 @@ $(STAMP): pyproject.toml
 	# pyrender 0.1.45 pins PyOpenGL==3.1.0, which breaks EGL; install it without
 	# its pins (its real dependencies are listed in pyproject.toml).
 	$(BIN)/pip install --quiet --no-deps pyrender==0.1.45
-	$(BIN)/pip install --quiet -e '.[test]'
+	$(BIN)/pip install --quiet -e .
 	@echo "note: pip's warning that pyrender wants PyOpenGL==3.1.0 is expected; newer PyOpenGL is what makes EGL work"
 	@touch $(STAMP)
 
-venv: $(STAMP) ## create .venv with the project and its dependencies
+$(STAMP_TEST): $(STAMP) pyproject.toml
+	$(BIN)/pip install --quiet -e '.[test]'
+	@touch $(STAMP_TEST)
+
+venv: $(STAMP) ## create .venv with the project and what producing needs
+
+venv-test: $(STAMP_TEST) ## add the test extras (torch, polars, duckdb, moto, datasets...) to .venv
 
 produce: $(STAMP) ## render DOMAINS (default all) into OUT; FRAMES/WIDTH/HEIGHT size the run
 	$(BIN)/idda produce --domains '$(DOMAINS)' --out '$(OUT)' \
 		--frames-per-scenario $(FRAMES) --width $(WIDTH) --height $(HEIGHT) --seed $(SEED) $(PRODUCE_ARGS)
 
-test: $(STAMP) ## run the test suite
+test: $(STAMP_TEST) ## add the test extras to .venv, then run the test suite
 	$(BIN)/python -m pytest -q
 
-bench: $(STAMP) ## run the benchmarks; figures go to docs/
+bench: $(STAMP_TEST) ## run the benchmarks; figures go to docs/
 	$(BIN)/python -m benchmarks.run
 
-report: $(STAMP) ## render a 105-scenario sample and write docs/worlds.md (class shares, distances, contact sheets)
+report: $(STAMP_TEST) ## render a 105-scenario sample and write docs/worlds.md (class shares, distances, contact sheets)
 	$(BIN)/python -m reports.worlds
 
 clean: ## remove the .venv and caches (never your output)

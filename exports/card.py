@@ -15,13 +15,13 @@ import tempfile
 from dataclasses import dataclass
 
 import pyarrow as pa
+import pyarrow.compute as pc
 
 from manifests.catalog import LABELS, SCENARIO_BY_CODE
 from manifests.outputs import OUTPUTS, file_of_path, markdown_table
-from manifests.schema import output_columns
-from exports.export import few_episode_scenarios
-from exports.hf import card_header, citation_section
-from manifests.query import SPLIT_SHARES, SPLITS
+from manifests.schema import PART_SCHEMA, output_columns, part_path
+from exports.hf import HF_SPLITS, card_header, citation_section
+from manifests.query import SPLITS
 
 CARD_FILE = "README.md"
 CHART_FILE = "class_shares.png"
@@ -60,6 +60,23 @@ def split_counts(table: pa.Table) -> dict[str, dict[str, int]]:
     return dict(sorted(counts.items()))
 
 
+def manifest_splits(table: pa.Table) -> tuple[dict[str, tuple[int, int]], dict[str, list[str]]]:
+    """The card's ``manifest`` config: per HF split name its (frames, Arrow
+    bytes of the part columns) and its manifest parts. A part holds one episode,
+    so each part belongs to one split; parts hold no town/weather/viewpoint
+    (those are hive path keys, which ``datasets`` does not read)."""
+    parts = table.select(PART_SCHEMA.names)
+    sizes: dict[str, tuple[int, int]] = {}
+    files: dict[str, list[str]] = {}
+    for split in SPLITS:
+        rows = parts.filter(pc.equal(parts.column("split"), split))
+        if len(rows):
+            sizes[HF_SPLITS[split]] = (len(rows), rows.nbytes)
+            episodes = set(zip(rows.column("scenario").to_pylist(), rows.column("episode").to_pylist()))
+            files[HF_SPLITS[split]] = sorted(part_path(code, episode) for code, episode in episodes)
+    return sizes, files
+
+
 def _domain_section(table: pa.Table) -> list[str]:
     counts = split_counts(table)
     lines = [
@@ -78,15 +95,10 @@ def _domain_section(table: pa.Table) -> list[str]:
     totals = {split: sum(row[split] for row in counts.values()) for split in SPLITS}
     cells = " | ".join(f"**{totals[split]:,}**" for split in SPLITS)
     lines.append(f"| **total** ({len(counts)} scenarios) | | | | {cells} | **{sum(totals.values()):,}** |")
-    lines += ["", "Splits are by episode: all frames of an episode share its split (above)."]
-    few = few_episode_scenarios(table)
-    if few:
-        shares = "/".join(f"{round(100 * x)}" for x in SPLIT_SHARES)
-        lines.append(
-            f"{len(few)} scenario(s) have fewer than 3 episodes or none in val or test ({', '.join(few)}): "
-            f"`idda export` splits their frames by frame blocks instead, {shares} % train/val/test in frame "
-            "order, so that every split has frames (`--as-split` puts an export in one split)."
-        )
+    lines += ["", "Splits are by episode: all frames of an episode share its split (above). Any run of three "
+              "or more episodes has all three splits, and each scenario tends to 80/10/10 % train/val/test; "
+              "extending a run never moves an episode to another split (the rule: idda-pipeline's "
+              "docs/layout.md, \"Splits\")."]
     return lines
 
 
@@ -129,8 +141,13 @@ def _preview_section(previews: list[str]) -> list[str]:
     return lines[:-1]
 
 
+def held_outputs(table: pa.Table) -> tuple[str, ...]:
+    """The outputs the frames of ``table`` hold, in table order."""
+    return tuple(o for o in OUTPUTS if table.column(output_columns(o)[0]).null_count < len(table))
+
+
 def _encoding_section(table: pa.Table) -> list[str]:
-    held = tuple(o for o in OUTPUTS if table.column(output_columns(o)[0]).null_count < len(table))
+    held = held_outputs(table)
     example = table.column("depth_raw_path")[0].as_py() if "depth_raw" in held else "<depth_raw path>"
     rgb_format = file_of_path("rgb", table.column("rgb_path")[0].as_py()) if "rgb" in held else "png"
     return [
@@ -217,16 +234,18 @@ def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list
     resolution = ", ".join(f"{w}x{h}" for w, h in sizes)
     episodes = len(set(zip(table.column("scenario").to_pylist(), table.column("episode").to_pylist())))
     scenarios = len(set(table.column("scenario").to_pylist()))
+    held = held_outputs(table)
     intro = [
         "# IDDA-style synthetic driving dataset",
         "",
         f"{len(table):,} frames in {episodes:,} episodes over {scenarios} scenarios (town x weather x viewpoint), "
-        f"at {resolution}, each with six images: RGB, depth (raw, grayscale, log-grayscale) and semantic "
-        f"segmentation (raw, coloured) with {len(LABELS)} classes. Made in the manner of IDDA "
+        f"at {resolution}, each with {len(held)} output file(s): {', '.join(held)} "
+        f"(\"Files and encodings\" below says what each holds; {len(LABELS)} semantic classes). Made in the manner of IDDA "
         "(Alberti et al., 2020) by idda-pipeline; every frame is listed with checksums and per-class "
         "pixel counts in the Parquet manifest under `manifest/`.",
     ]
-    header = card_header({"frames": len(table)}, {"frames": "manifest/**/*.parquet"}, config="manifest")
+    sizes, files = manifest_splits(table)
+    header = card_header(sizes, files, config="manifest")
     sections = [
         intro,
         _domain_section(table),

@@ -37,9 +37,8 @@ import time
 import uuid
 from dataclasses import asdict, dataclass, field, replace
 
-import pyarrow as pa
 
-from manifests.query import SPLIT_SHARES, SPLITS, Query, run_query
+from manifests.query import SPLITS, Query, run_query
 from manifests.reader import require_outputs
 from manifests.root import EXPORT_MARKER, RootError, check_export_target, export_tree
 from exports.idda import SPLIT_FILES
@@ -65,47 +64,6 @@ def layout(name: str) -> Layout:
     if name not in FORMATS:
         raise ValueError(f"unknown export format {name!r}; valid formats: {', '.join(FORMATS)}")
     return importlib.import_module(FORMATS[name]).LAYOUT
-
-
-# Scenarios whose episodes leave a split empty (the planner gives val and test
-# episodes only from 6 episodes on) get their splits by frame blocks inside the
-# episodes (exports only; the manifest keeps per-episode splits).
-
-
-def block_splits(n: int) -> list[str]:
-    """Splits of ``n`` consecutive frames: a train block, then val, then test
-    (at least one frame each from 3 frames on)."""
-    if n < len(SPLITS):
-        return ["train"] * n
-    n_val = max(1, round(SPLIT_SHARES[1] * n))
-    n_test = max(1, round(SPLIT_SHARES[2] * n))
-    return ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
-
-
-def few_episode_scenarios(table: pa.Table) -> list[str]:
-    """Scenarios with too few episodes for every split: some split has none of their frames in ``table``."""
-    splits: dict[str, set] = {}
-    for code, split in zip(table.column("scenario").to_pylist(), table.column("split").to_pylist()):
-        splits.setdefault(code, set()).add(split)
-    return sorted(code for code, present in splits.items() if set(SPLITS) - present)
-
-
-def export_splits(table: pa.Table, few: list[str] | None = None) -> pa.Table:
-    """The manifest with the splits exports use: unchanged for scenarios whose
-    episodes fill every split; by frame blocks in (episode, frame) order for the
-    others, so small runs have frames in every split."""
-    few = set(few_episode_scenarios(table) if few is None else few)
-    if not few:
-        return table
-    scenarios = table.column("scenario").to_pylist()
-    keys = list(zip(table.column("episode").to_pylist(), table.column("frame").to_pylist()))
-    splits = table.column("split").to_pylist()
-    for code in few:
-        rows = sorted((i for i, s in enumerate(scenarios) if s == code), key=lambda i: keys[i])
-        for i, split in zip(rows, block_splits(len(rows))):
-            splits[i] = split
-    index = table.column_names.index("split")
-    return table.set_column(index, table.field("split"), pa.array(splits, type=table.field("split").type))
 
 
 # ---------------------------------------------------------------- export ----
@@ -265,8 +223,7 @@ def export(config: ExportConfig) -> ExportReport:
     if storage.is_local and _is_within(storage.path(), target):
         raise ValueError(f"export target {target} must not be the source root {storage.uri} or contain it")
     manifest = read_manifest(storage)
-    few = few_episode_scenarios(manifest)
-    result = run_query(export_splits(manifest, few), config.query)
+    result = run_query(manifest, config.query)
     if len(result.table) == 0:
         raise ValueError(f"no frames in {storage.uri} match the query; nothing to export")
     chosen = layout(config.format)
@@ -296,7 +253,6 @@ def export(config: ExportConfig) -> ExportReport:
             "file_mode": config.files if storage.is_local else "copy",
             "per_split": per_split,
             "per_scenario": per_scenario,
-            "block_split_scenarios": [] if config.as_split else sorted(set(few) & set(per_scenario)),
             "as_split": config.as_split,
             "tree": export_tree(tmp),  # what --force may delete later, and nothing else
         }

@@ -63,6 +63,9 @@ SCHEMA = pa.schema(
     ]
 )
 IMAGE_COLUMNS = ("rgb", "semantic", "depth")
+# HuggingFace's split names for the manifest's splits: its loaders and the Hub
+# know train, validation and test (a split named "val" is just another name).
+HF_SPLITS = {"train": "train", "val": "validation", "test": "test"}
 _VALUE_DTYPES = {pa.string(): "string", pa.int32(): "int32"}
 
 
@@ -87,11 +90,12 @@ def _row(storage, frame) -> dict:
         **code_axes(scenario),
         "episode": frame.episode,
         "frame": frame.frame,
-        "split": frame.split,
+        "split": HF_SPLITS[frame.split],
     }
 
 
 def shard_names(split: str, n_frames: int) -> list[str]:
+    """The shards of ``split`` (an HF split name) holding ``n_frames`` frames."""
     n = max(1, -(-n_frames // SHARD_FRAMES))
     return [f"data/{split}-{i:05d}-of-{n:05d}.parquet" for i in range(n)]
 
@@ -102,19 +106,22 @@ def write_hf(storage, frames: list, tmp: str, threads: int = 8) -> tuple[list[di
     schema = SCHEMA.with_metadata(metadata)
     os.makedirs(os.path.join(tmp, "data"), exist_ok=True)
     where: dict[int, dict] = {}
-    counts: dict[str, int] = {}
+    sizes: dict[str, tuple[int, int]] = {}  # HF split: (frames, Arrow bytes)
     with ThreadPoolExecutor(max_workers=threads) as pool:
         for split in SPLITS:
             index = [i for i, f in enumerate(frames) if f.split == split]
             if not index:
                 continue
-            counts[split] = len(index)
-            for k, name in enumerate(shard_names(split, len(index))):
+            name_of_split = HF_SPLITS[split]
+            n_bytes = 0
+            for k, name in enumerate(shard_names(name_of_split, len(index))):
                 chunk = index[k * SHARD_FRAMES : (k + 1) * SHARD_FRAMES]
-                rows = list(pool.map(lambda i: _row(storage, frames[i]), chunk))
-                pq.write_table(pa.Table.from_pylist(rows, schema=schema), os.path.join(tmp, name), compression="zstd")
+                shard = pa.Table.from_pylist(list(pool.map(lambda i: _row(storage, frames[i]), chunk)), schema=schema)
+                pq.write_table(shard, os.path.join(tmp, name), compression="zstd")
+                n_bytes += shard.nbytes
                 where.update({i: {"shard": name} for i in chunk})
-    card = card_header(counts, {split: f"data/{split}-*.parquet" for split in counts}, with_features=True)
+            sizes[name_of_split] = (len(index), n_bytes)
+    card = card_header(sizes, {split: f"data/{split}-*.parquet" for split in sizes}, with_features=True)
     card += "\n# IDDA-style synthetic frames\n\nLoad with `datasets.load_dataset(\"parquet\", data_dir=...)` " \
             "or `datasets.load_dataset(PATH)`. `semantic` holds the 24 IDDA class ids; `depth` the CARLA 24-bit " \
             "depth: `depth_m = 1000 * (R + G*256 + B*65536) / (256**3 - 1)`.\n\n" + citation_section()
@@ -130,23 +137,25 @@ def size_category(n: int) -> str:
     return "1M<n<10M"
 
 
-def card_header(split_counts: dict[str, int], data_files: dict[str, str], config: str = "default",
-                with_features: bool = False) -> str:
+def card_header(split_sizes: dict[str, tuple[int, int]], data_files: dict[str, str | list[str]],
+                config: str = "default", with_features: bool = False) -> str:
     """The YAML block HF's ``DatasetCard`` parses: licence, tasks, one config
-    with a data-file glob per split, and the splits' sizes."""
+    with its data files (a glob or a list) per split, and each split's frames
+    and bytes (``split_sizes``: HF split name -> (num_examples, num_bytes), the
+    bytes as Arrow counts them, which is what ``datasets`` records)."""
     info: dict = {"config_name": config}
     if with_features:
         info["features"] = [
             {"name": name, "dtype": "image"} if spec["_type"] == "Image" else {"name": name, "dtype": spec["dtype"]}
             for name, spec in features().items()
         ]
-    info["splits"] = [{"name": s, "num_examples": n} for s, n in split_counts.items()]
+    info["splits"] = [{"name": s, "num_bytes": b, "num_examples": n} for s, (n, b) in split_sizes.items()]
     header = {
         "license": LICENSE,
         "task_categories": list(TASK_CATEGORIES),
         "tags": list(TAGS),
         "pretty_name": "IDDA-style synthetic driving dataset",
-        "size_categories": [size_category(sum(split_counts.values()))],
+        "size_categories": [size_category(sum(n for n, _ in split_sizes.values()))],
         "configs": [{"config_name": config, "data_files": [{"split": s, "path": p} for s, p in data_files.items()]}],
         "dataset_info": info,
     }

@@ -2,7 +2,7 @@
 
 Each :class:`Output` row names the renderer buffer it reads, the encoder that
 turns that buffer into what its file holds, the file format, the decoder the
-loaders apply, and a one-line description that the dataset card, the README
+loaders apply, and a one-line description that the dataset card, docs/layout.md
 and the loaders' docs show. The manifest's columns (``<output>_path / _bytes /
 _sha256``), file paths, verification, queries and exports all iterate this
 table.
@@ -89,7 +89,7 @@ class Output:
     key: str  # the loaders' sample key
     dtype: str  # dtype of the loaders' array ("table" for a sidecar)
     channels: int  # channels of the loaders' array (0 for a sidecar)
-    description: str  # one line for the card, the README and the loaders' docs
+    description: str  # one line for the card, docs/layout.md and the loaders' docs
     other_files: tuple[str, ...] = ()  # FORMATS keys a root may choose instead of ``file`` (rgb: --rgb-format)
 
     @property
@@ -205,7 +205,7 @@ def read_output(name: str, data: bytes, where: str = "") -> Any:
 
 
 def markdown_table(names: tuple[str, ...] = OUTPUTS, rgb_format: str | None = None) -> list[str]:
-    """The outputs as a Markdown table (the card and the README show it). With ``rgb_format``
+    """The outputs as a Markdown table (the card and docs/layout.md show it). With ``rgb_format``
     None the file column lists every choice; with one, the root's."""
     def files(o: Output) -> str:
         if rgb_format is not None:

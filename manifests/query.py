@@ -23,7 +23,7 @@ from manifests.schema import output_columns
 from manifests.selection import parse_selection
 
 SPLITS = ("train", "val", "test")
-SPLIT_SHARES = (0.8, 0.1, 0.1)  # the planner gives episodes to the splits in these shares; exports split frame blocks so too
+SPLIT_SHARES = (0.8, 0.1, 0.1)  # each scenario tends to these shares of episodes (pipeline.planner.SPLIT_PATTERN)
 
 
 @dataclass(frozen=True)

@@ -26,7 +26,7 @@ from manifests.outputs import FORMATS, OUTPUT_TABLE, OUTPUTS
 from manifests.schema import MANIFEST_DIR, RUN_FILE
 
 ROOT_MARKER = "idda-root.json"  # <root>/idda-root.json: "this directory is an idda output root"
-ROOT_MARKER_BODY = (json.dumps({"idda_output_root": 1, "contract": "see README.md, 'The output root'"}) + "\n").encode()
+ROOT_MARKER_BODY = (json.dumps({"idda_output_root": 1, "contract": "see docs/contract.md of idda-pipeline"}) + "\n").encode()
 EXPORT_MARKER = "EXPORT.json"  # written last into an export: a finished export of ours
 
 # <scenario>/<output>/<episode:04d>_<frame:03d>_<scenario>.<its extension>, the
@@ -66,6 +66,20 @@ def is_our_root(storage) -> bool:
     if storage.exists(ROOT_MARKER):
         return True
     return storage.exists(RUN_FILE) and bool(storage.list_files(MANIFEST_DIR + "/", suffix=".parquet"))
+
+
+def require_root(storage) -> None:
+    """RootError, in the one sentence every command gives, unless ``storage``
+    looks like an output root: our marker, a ``run.json`` or a manifest part
+    (a root a crash left before its first part still has the first two)."""
+    if storage.exists(ROOT_MARKER) or storage.exists(RUN_FILE):
+        return
+    if storage.list_files(MANIFEST_DIR + "/", suffix=".parquet"):
+        return
+    raise RootError(
+        f"{storage.uri} is not an output root (no {ROOT_MARKER}, {RUN_FILE} or {MANIFEST_DIR}/ there); "
+        f"`idda produce --out {storage.uri}` makes one"
+    )
 
 
 def claim_root(storage) -> None:

@@ -14,12 +14,10 @@ from __future__ import annotations
 import math
 from dataclasses import asdict, dataclass, field
 
-import numpy as np
 
 from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Scenario, Town
 from manifests.encoding import check_rgb_format
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
-from manifests.query import SPLIT_SHARES
 from manifests.selection import parse_selection
 from manifests.spec import EpisodeSpec, episode_seed
 
@@ -31,9 +29,6 @@ MIN_SIZE, MAX_SIZE = 32, 8192  # accepted image width / height in pixels
 # (T01 at full scale). A plan holds one small record per episode, so this
 # keeps a typo such as 10**10 from exhausting memory; real runs are far below.
 MAX_SCALE_FACTOR = 100
-
-_SPLIT_STREAM = 1  # rng stream ids keep seeds of different uses apart (2, 3: manifests.spec)
-
 
 def _largest_remainder(total: int, weights: list[float]) -> list[int]:
     exact = [total * w / sum(weights) for w in weights]
@@ -145,22 +140,31 @@ def scenario_frames(config: PlanConfig, town: Town) -> int:
     return max(1, round(config.scale * full))
 
 
-def _splits(config: PlanConfig, scenario: Scenario, n: int) -> list[str]:
-    n_val = round(SPLIT_SHARES[1] * n)
-    n_test = round(SPLIT_SHARES[2] * n)
-    labels = ["train"] * (n - n_val - n_test) + ["val"] * n_val + ["test"] * n_test
-    rng = np.random.default_rng([config.seed, _SPLIT_STREAM, *scenario.key])
-    return [labels[i] for i in rng.permutation(n)]
+# The split rule (docs/layout.md, "Splits"). Episode ``e`` of the scenario at
+# place ``r`` (0-based, table order) in the run's selection takes
+# SPLIT_PATTERN[(2 * e + r) % 20]. Places 0-2 are train, val, test, so any run
+# of three or more episodes has all three splits: three scenarios fill them
+# with their first episodes, one scenario with its first three (places 0, 2, 4)
+# and two scenarios with any third episode (places 2 and 3 are both test). Each
+# scenario steps through every other place, and each half of the pattern holds
+# 8 train, 1 val and 1 test, so every scenario tends to 80/10/10 % (the shares
+# of SPLIT_SHARES). An episode's split depends only on (e, r): adding frames or
+# episodes to a run never changes the split of an episode it had.
+SPLIT_PATTERN = ("train", "val", "test", "test", "val") + ("train",) * 15
+
+
+def episode_split(place: int, episode: int) -> str:
+    """The split of episode ``episode`` of the scenario at ``place`` in the selection."""
+    return SPLIT_PATTERN[(2 * episode + place) % len(SPLIT_PATTERN)]
 
 
 def make_plan(config: PlanConfig) -> Plan:
     """Build the plan; raises ValueError for any invalid config."""
     config.validate()
     episodes: list[EpisodeSpec] = []
-    for scenario in parse_selection(config.domains):
+    for place, scenario in enumerate(parse_selection(config.domains)):
         lengths = split_episodes(scenario_frames(config, scenario.town), episode_target(scenario.town))
-        splits = _splits(config, scenario, len(lengths))
-        for index, (frames, split) in enumerate(zip(lengths, splits)):
+        for index, frames in enumerate(lengths):
             episodes.append(
                 EpisodeSpec(
                     scenario=scenario.code,
@@ -169,7 +173,7 @@ def make_plan(config: PlanConfig) -> Plan:
                     frames=frames,
                     width=config.width,
                     height=config.height,
-                    split=split,
+                    split=episode_split(place, index),
                     run_seed=config.seed,
                     outputs=config.outputs,
                     rgb_format=config.rgb_format,

@@ -6,6 +6,8 @@ import json
 from dataclasses import dataclass, field
 
 from manifests.reader import episode_frames
+from manifests.root import require_root
+from manifests.runrecord import REPAIR_HINT
 from manifests.schema import STATS_DIR
 from pipeline.planner import make_plan
 from pipeline.runmeta import read_run, recorded_config
@@ -45,9 +47,10 @@ class RootStatus:
 
 
 def root_status(storage) -> RootStatus:
+    require_root(storage)
     record = read_run(storage)
     if record is None:
-        raise ValueError(f"{storage.uri} is not an output root (no run.json); run `idda produce` first")
+        raise ValueError(f"{storage.uri} has no run.json, so its plan is unknown; {REPAIR_HINT}")
     config = recorded_config(record)
     plan = make_plan(config.plan)
     held = episode_frames(storage)  # frames each part holds: done only if all the plan asks

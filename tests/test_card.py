@@ -16,6 +16,7 @@ from typer.testing import CliRunner
 
 from manifests.catalog import LABELS
 from manifests.reader import read_manifest
+from manifests.schema import part_path
 from manifests.stats import share_table
 from exports import card as card_mod
 from manifests.encoding import decode_depth_raw
@@ -72,8 +73,12 @@ def test_card_numbers_match_the_manifest(root):
     run = json.loads((root / "run.json").read_text())
     assert run["git_revision"] in text and json.dumps(run["config"], indent=2, sort_keys=True) in text
     assert "No preview in this root yet" in text
-    # One episode per scenario here: the card says exports split those by frame blocks.
-    assert "5 scenario(s) have fewer than 3 episodes" in text and "80/10/10 % train/val/test" in text
+    # Five one-episode scenarios: the planner's rule gives every split (docs/layout.md, "Splits").
+    assert [int(c.replace(",", "")) for c in rows[-1][4:7]] == [2, 4, 4]  # train/val/test frames (2 per episode)
+    assert "Any run of three or more episodes has all three splits" in text
+    # What the root holds, by name: this root has all eight outputs, not "six images".
+    assert "each with 8 output file(s): rgb, depth_raw, depth_gray, depth_log, semantic_raw, " \
+           "semantic_color, instance, objects" in text and "six images" not in text
 
 
 def test_card_header_parses_with_huggingface_hub(root):
@@ -83,8 +88,19 @@ def test_card_header_parses_with_huggingface_hub(root):
     card = DatasetCard.load(root / "README.md")
     data = card.data.to_dict()
     assert data["license"] == "cc-by-4.0" and "image-segmentation" in data["task_categories"]
-    assert data["configs"] == [{"config_name": "manifest", "data_files": [{"split": "frames", "path": "manifest/**/*.parquet"}]}]
-    assert data["dataset_info"]["splits"] == [{"name": "frames", "num_examples": len(read_manifest(str(root)))}]
+    table = read_manifest(str(root))
+    (config,) = data["configs"]
+    assert config["config_name"] == "manifest"
+    files = {f["split"]: f["path"] for f in config["data_files"]}
+    assert list(files) == ["train", "validation", "test"]  # HF's split names
+    want = {"train": "train", "validation": "val", "test": "test"}
+    for split, paths in files.items():  # each split lists exactly its episodes' parts
+        rows = [r for r in table.to_pylist() if r["split"] == want[split]]
+        assert paths == sorted(part_path(r["scenario"], r["episode"]) for r in rows if r["frame"] == 0)
+    sizes = {s["name"]: s for s in data["dataset_info"]["splits"]}
+    assert list(sizes) == list(files)
+    assert sum(s["num_examples"] for s in sizes.values()) == len(table)
+    assert all(s["num_bytes"] > 0 for s in sizes.values())
     assert card.text.lstrip().startswith("# IDDA-style synthetic driving dataset")
     bibtex = re.search(r"```bibtex\n(.*?)```", card.text, re.S).group(1)
     assert bibtex.startswith("@article{alberti2020idda,") and "Robotics and Automation Letters" in bibtex
@@ -132,13 +148,14 @@ def test_card_links_and_renders_previews(root, monkeypatch):
 def test_card_command_errors(tmp_path):
     result = CliRunner().invoke(cli_app(), ["card", str(tmp_path)])
     assert result.exit_code == 2
-    assert result.output.strip() == f"error: {tmp_path} has no frames yet; produce some before writing its card"
+    assert result.output.strip() == (f"error: {tmp_path} is not an output root (no idda-root.json, run.json or "
+                                     f"manifest/ there); `idda produce --out {tmp_path}` makes one")
 
 
-def test_readme_output_table_is_the_output_table():
+def test_documented_output_table_is_the_output_table():
     from pathlib import Path
 
     from manifests.outputs import markdown_table
 
-    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
-    assert "\n".join(markdown_table()) in readme
+    layout = (Path(__file__).resolve().parents[1] / "docs" / "layout.md").read_text()
+    assert "\n".join(markdown_table()) in layout

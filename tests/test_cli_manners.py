@@ -80,3 +80,65 @@ def test_stats_and_distances_share_the_chart_option(root, tmp_path):
     assert w1 == w3 and h3 == 3 * h1
     assert "--chart" in runner.invoke(app, ["distances", "-h"]).output
     assert "--plot" not in runner.invoke(app, ["distances", "-h"]).output
+
+
+def test_stats_writes_its_chart_beside_the_command_never_into_the_root(root, tmp_path, monkeypatch):
+    here = tmp_path / "here"
+    here.mkdir()
+    monkeypatch.chdir(here)
+    before = sorted(p.relative_to(root) for p in root.rglob("*"))
+    result = runner.invoke(app, ["stats", str(root)])
+    assert result.exit_code == 0, result.output
+    assert result.output.splitlines()[-1] == "chart: class_shares.png"
+    assert Image.open(here / "class_shares.png").format == "PNG"
+    assert sorted(p.relative_to(root) for p in root.rglob("*")) == before  # nothing written into the data
+    inside = runner.invoke(app, ["stats", str(root), "--chart", str(root / "shares.png")])
+    assert inside.exit_code == 2 and inside.output.count("\n") == 1 and "inside the output root" in inside.output
+    monkeypatch.chdir(root)  # the default, from inside the root: refused too
+    assert runner.invoke(app, ["stats", "."]).exit_code == 2
+    assert sorted(p.relative_to(root) for p in root.rglob("*")) == before
+
+
+ROOT_COMMANDS = (
+    ["status"], ["verify"], ["query"], ["stats"], ["export", "--format", "idda", "--to", "EXPORT"],
+    ["distances"], ["card"], ["shifts"],
+)
+
+
+def test_a_missing_root_gets_one_sentence_from_every_command(tmp_path):
+    from pipeline.cli.data import register
+
+    register(app)
+    (tmp_path / "notes").mkdir()
+    (tmp_path / "notes" / "a.txt").write_text("not a dataset")
+    for where in (tmp_path / "missing", tmp_path / "notes"):
+        want = (f"error: {where} is not an output root (no idda-root.json, run.json or manifest/ there); "
+                f"`idda produce --out {where}` makes one")
+        for command in ROOT_COMMANDS:
+            args = [a.replace("EXPORT", str(tmp_path / "export")) for a in command[1:]]
+            result = runner.invoke(app, [command[0], str(where), *args])
+            if command[0] == "shifts" and "PyTorch" in result.output:  # without torch it says that first
+                continue
+            assert result.exit_code == 2, (command, result.output)
+            assert result.output.splitlines() == [want], (command, result.output)
+    assert not (tmp_path / "export").exists()
+
+
+def test_a_bad_option_value_is_one_error_line_not_a_usage_box(tmp_path):
+    for args, needle in (
+        (["plan", "--frames-per-scenario", "x"], "Invalid value for '--frames-per-scenario'"),
+        (["produce", "--out", str(tmp_path / "o"), "--width", "wide"], "Invalid value for '--width'"),
+        (["query", str(tmp_path), "--total", "1.5"], "Invalid value for '--total'"),
+        (["plan", "--scale", "half"], "Invalid value for '--scale'"),
+        (["plan", "--no-such-option"], "No such option: --no-such-option"),
+        (["query"], "Missing argument"),
+    ):
+        result = runner.invoke(app, args, prog_name="idda")
+        assert result.exit_code == 2, (args, result.output)
+        lines = result.output.splitlines()
+        assert len(lines) == 1 and lines[0].startswith("error: ") and needle in lines[0], (args, result.output)
+        assert lines[0].endswith(f"; `idda {args[0]} -h` lists the options"), lines
+        assert "Usage:" not in result.output and "Try " not in result.output
+    assert not (tmp_path / "o").exists()
+    help_text = runner.invoke(app, [])  # `idda` alone still prints the help
+    assert "Commands" in help_text.output and "error:" not in help_text.output

@@ -15,6 +15,7 @@ from __future__ import annotations
 import glob
 import json
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -128,9 +129,11 @@ def test_feddrive_reads_the_idda_export(root, manifest, tmp_path):
     assert result.exit_code == 0, result.output
     train = feddrive_read_dir(target / "feddrive" / "train")
     test = feddrive_read_dir(target / "feddrive" / "test")
-    # One client per training scenario; T07 is the unseen domain.
-    assert sorted(train) == ["T01_CN_A", "T01_HRN_J"]
-    assert sorted(test) == ["test_user_diff_domain", "test_user_same_domain"]
+    # One client per scenario with train frames; T07 is the unseen domain. The three one-episode
+    # scenarios take train, val and test in table order (docs/layout.md, "Splits"): T01_CN_A
+    # trains, T01_HRN_J is val, and T07_CS_B (test) is held out, so no same-domain test frames.
+    assert sorted(train) == ["T01_CN_A"]
+    assert sorted(test) == ["test_user_diff_domain"]  # LEAF lists no user without frames
     assert len(test["test_user_diff_domain"]["x"]) == FRAMES
     assert all(x.startswith("T07_CS_B/RGB/") for x in test["test_user_diff_domain"]["x"])
     leaf = json.loads((target / "feddrive" / "train" / "idda_train_clients.json").read_text())
@@ -150,7 +153,8 @@ def test_feddrive_reads_the_idda_export(root, manifest, tmp_path):
             seen.add(Path(y).stem)
     val = feddrive_read_dir(target / "feddrive" / "val")
     val_stems = {Path(y).stem for y in val["test_user_same_domain"]["y"]}
-    assert len(val_stems) == 2 and not val_stems & seen and seen | val_stems == set(semantic)
+    assert len(val_stems) == FRAMES and all(stem.endswith("T01_HRN_J") for stem in val_stems)
+    assert not val_stems & seen and seen | val_stems == set(semantic)
     assert len(EVALUATED_IDS) == 16 == len(set(FEDDRIVE_CLASS_EVAL) - {255})
 
 
@@ -176,23 +180,23 @@ def test_cityscapes_export_has_every_split_and_reads_like_cityscapes(root, manif
     target = tmp_path / "cs"
     result = CliRunner().invoke(app(), ["export", str(root), "--format", "cityscapes", "--to", str(target)])
     assert result.exit_code == 0, result.output
-    assert f"{len(manifest)} frames (6 train, 3 val, 3 test)" in result.output  # 2/1/1 per one-episode scenario
-    marker = json.loads((target / ex.MARKER).read_text())
-    assert marker["block_split_scenarios"] == sorted(DOMAINS.split(","))
+    # Three one-episode scenarios: one episode in each split (docs/layout.md, "Splits").
+    assert f"{len(manifest)} frames (4 train, 4 val, 4 test)" in result.output
     for split in ("train", "val", "test"):
         for kind in ("semantic", "color", "instance"):
             pairs = torchvision_cityscapes(target, split, kind)
-            assert len(pairs) == {"train": 6, "val": 3, "test": 3}[split]
+            assert len(pairs) == 4
             for image, label in pairs:
                 city = os.path.basename(os.path.dirname(image))
                 assert getCsFileInfo(image).city == city == os.path.basename(os.path.dirname(label))
                 assert Image.open(image).convert("RGB").size == (WIDTH, HEIGHT)
                 mode = Image.open(label).mode
                 assert mode == {"semantic": "L", "color": "RGBA", "instance": "I;16"}[kind], (kind, mode)
-    # Frame blocks: in each scenario the train frames come first, then val, then test.
-    rows = sorted(ex.export_splits(manifest).to_pylist(), key=lambda r: (r["scenario"], r["frame"]))
-    for code in DOMAINS.split(","):
-        assert [r["split"] for r in rows if r["scenario"] == code] == ["train", "train", "val", "test"]
+    # The export's splits are the manifest's, frame by frame.
+    for row in manifest.to_pylist():
+        name = ex.cityscapes_name(row["scenario"], row["episode"], row["frame"])
+        city = row["scenario"].replace("_", "-")
+        assert (target / "leftImg8bit" / row["split"] / city / f"{name}_leftImg8bit.png").is_file()
 
 
 def test_idda_evaluate_scores_ground_truth_as_prediction_1(root, tmp_path):
@@ -220,15 +224,17 @@ def test_hf_export_loads_with_image_features(root, manifest, tmp_path):
     target = tmp_path / "hf"
     result = CliRunner().invoke(app(), ["export", str(root), "--format", "hf", "--to", str(target)])
     assert result.exit_code == 0, result.output
-    files = {split: sorted(str(p) for p in (target / "data").glob(f"{split}-*.parquet")) for split in ("train", "val", "test")}
+    splits = ("train", "validation", "test")  # HF's names; the manifest's val is validation
+    files = {split: sorted(str(p) for p in (target / "data").glob(f"{split}-*.parquet")) for split in splits}
     data = load_dataset("parquet", data_files=files, cache_dir=str(tmp_path / "cache"))
-    assert {s: data[s].num_rows for s in data} == {"train": 6, "val": 3, "test": 3}
+    assert {s: data[s].num_rows for s in data} == {"train": 4, "validation": 4, "test": 4}
     for name in ("rgb", "semantic", "depth"):
         assert isinstance(data["train"].features[name], HFImage), name
     by_name = {r["frame_id"] + r["scenario"]: r for r in manifest.to_pylist()}
     for split in data:
         for sample in data[split]:
             row = by_name[sample["frame_id"] + sample["scenario"]]
+            assert sample["split"] == split and {"train": "train", "validation": "val", "test": "test"}[split] == row["split"]
             semantic = np.array(sample["semantic"])
             assert sample["semantic"].mode == "L" and semantic.shape == (HEIGHT, WIDTH)
             assert np.array_equal(semantic, np.array(Image.open(root / row["semantic_raw_path"]))[..., 0])
@@ -237,9 +243,35 @@ def test_hf_export_loads_with_image_features(root, manifest, tmp_path):
     # The export's own card: the hub's parser reads it, and load_dataset(dir) follows its configs.
     card = DatasetCard.load(target / "README.md").data.to_dict()
     assert card["license"] and card["task_categories"] and card["configs"][0]["config_name"] == "default"
-    assert [s["name"] for s in card["dataset_info"]["splits"]] == ["train", "val", "test"]
+    assert [f["split"] for f in card["configs"][0]["data_files"]] == list(splits)
+    info = card["dataset_info"]["splits"]
+    assert [s["name"] for s in info] == list(splits) and [s["num_examples"] for s in info] == [4, 4, 4]
     again = load_dataset(str(target), cache_dir=str(tmp_path / "cache2"))
-    assert sorted(again) == ["test", "train", "val"] and isinstance(again["val"].features["rgb"], HFImage)
+    assert sorted(again) == sorted(splits) and isinstance(again["validation"].features["rgb"], HFImage)
+    for s in info:  # num_bytes as datasets itself counts them (Arrow bytes of the split)
+        assert s["num_bytes"] == again[s["name"]].data.nbytes, s
+
+
+def test_hf_reads_the_manifest_as_the_docs_say(root, manifest, tmp_path):
+    """docs/querying.md: datasets gives the parts' columns (no hive columns), and
+    the card's manifest config splits them into train / validation / test."""
+    from datasets import load_dataset
+
+    from manifests.schema import PART_SCHEMA
+    from exports.card import CardConfig, write_card
+
+    every = load_dataset("parquet", data_files=f"{root}/manifest/**/*.parquet", split="train",
+                         cache_dir=str(tmp_path / "hf"))
+    assert every.column_names == PART_SCHEMA.names and "town" not in every.column_names
+    copy = tmp_path / "root"
+    shutil.copytree(root, copy)
+    write_card(CardConfig(root=str(copy)))
+    by_split = load_dataset(str(copy), "manifest", cache_dir=str(tmp_path / "hf2"))
+    assert sorted(by_split) == ["test", "train", "validation"]
+    want = {"train": "train", "validation": "val", "test": "test"}
+    for split, rows in by_split.items():
+        assert sorted(rows["frame_id"]) == sorted(r["frame_id"] for r in manifest.to_pylist() if r["split"] == want[split])
+        assert set(rows["split"]) == {want[split]}
 
 
 # --------------------------------------------------------------- Ray Data ----

@@ -94,7 +94,7 @@ def test_cityscapes_layout_and_label_images(root, manifest, cityscapes):
     assert ex.is_complete(str(cityscapes))
     marker = json.loads((cityscapes / ex.MARKER).read_text())
     assert marker["frames"] == len(manifest) and marker["format"] == "cityscapes"
-    split_of = {(r["frame_id"], r["scenario"]): r["split"] for r in ex.export_splits(manifest).to_pylist()}
+    split_of = {(r["frame_id"], r["scenario"]): r["split"] for r in manifest.to_pylist()}
     for row in manifest.to_pylist():
         name = cs_layout.cityscapes_name(row["scenario"], row["episode"], row["frame"])
         info = getCsFileInfo(f"{name}_gtFine_labelIds.png")
@@ -179,7 +179,7 @@ def test_idda_layout_and_split_files(root, manifest, tmp_path):
     target = tmp_path / "idda"
     report = ex.export(ex.ExportConfig(root=str(root), to=str(target), format="idda", files="copy"))
     assert report.frames == len(manifest) and ex.is_complete(str(target))
-    rows = ex.export_splits(manifest).to_pylist()
+    rows = manifest.to_pylist()
     for row in rows:
         stem = f"{row['frame_id']}_{row['scenario']}"
         jpeg = target / row["scenario"] / "RGB" / f"{stem}.jpg"
@@ -300,32 +300,11 @@ def test_export_from_s3_root_downloads(root, manifest, tmp_path, s3_server):  # 
     assert report.frames == TINY_FRAMES
     marker = json.loads((target / ex.MARKER).read_text())
     assert marker["source"] == uri and marker["file_mode"] == "copy"
-    for row in ex.export_splits(manifest).to_pylist():
+    for row in manifest.to_pylist():
         if row["scenario"] == "T07_HRN_A":
             name = cs_layout.cityscapes_name(row["scenario"], row["episode"], row["frame"])
             image = target / "leftImg8bit" / row["split"] / "T07-HRN-A" / f"{name}_leftImg8bit.png"
             assert image.read_bytes() == (root / row["rgb_path"]).read_bytes()
-
-
-def test_scenarios_with_an_empty_split_are_split_by_frame_blocks():
-    """Not only scenarios with fewer than 3 episodes: 4 all-train episodes (the
-    planner's val/test start at 6 episodes) must get val and test frames too."""
-    import pyarrow as pa
-
-    from exports.export import export_splits, few_episode_scenarios
-
-    rows = [("T01_CN_A", e, f, "train") for e in range(4) for f in range(10)]  # 4 episodes, all train
-    rows += [("T02_CN_A", e, f, ("train", "val", "test")[e % 3] if e < 6 else "train")
-             for e in range(6) for f in range(10)]  # every split present: kept as planned
-    scenario, episode, frame, split = (list(c) for c in zip(*rows))
-    table = pa.table({"scenario": scenario, "episode": episode, "frame": frame, "split": split})
-    assert few_episode_scenarios(table) == ["T01_CN_A"]
-    out = export_splits(table)
-    got = {}
-    for code, s in zip(out.column("scenario").to_pylist(), out.column("split").to_pylist()):
-        got.setdefault(code, []).append(s)
-    assert got["T01_CN_A"] == ["train"] * 32 + ["val"] * 4 + ["test"] * 4
-    assert got["T02_CN_A"] == split[40:]
 
 
 def test_a_new_format_is_one_module_and_one_registry_line(root, tmp_path, monkeypatch):

@@ -1,6 +1,10 @@
-import pytest
+from collections import Counter
 
-from manifests.catalog import TOWNS
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from manifests.catalog import ALL_SCENARIOS, TOWNS
 from manifests.selection import parse_selection
 from pipeline.planner import (
     PAPER_TOTAL_FRAMES,
@@ -65,6 +69,52 @@ def test_splits_cover_train_val_test(full_plan):
         splits = [e.split for e in eps]
         assert set(splits) == {"train", "val", "test"}
         assert splits.count("train") > splits.count("val")
+
+
+def _splits(plan) -> dict[tuple[str, int], str]:
+    return {(e.scenario, e.episode): e.split for e in plan.episodes}
+
+
+def test_make_produce_default_has_every_split():
+    """make produce: 2 frames of each of the 105 scenarios, one episode each."""
+    plan = make_plan(PlanConfig(domains="all", frames_per_scenario=2, width=480, height=270))
+    counts = Counter(e.split for e in plan.episodes)
+    assert len(plan.episodes) == 105 and counts == {"train": 81, "val": 12, "test": 12}
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    codes=st.lists(st.sampled_from([s.code for s in ALL_SCENARIOS]), min_size=1, max_size=6, unique=True),
+    frames=st.integers(1, 700),
+    scaled=st.booleans(),
+)
+def test_every_run_of_three_or_more_episodes_has_every_split(codes, frames, scaled):
+    size = {"scale": frames / 20_000} if scaled else {"frames_per_scenario": frames}  # scale: towns differ
+    plan = make_plan(PlanConfig(domains=",".join(codes), **size))
+    if len(plan.episodes) >= 3:
+        assert {e.split for e in plan.episodes} == {"train", "val", "test"}, _splits(plan)
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    codes=st.lists(st.sampled_from([s.code for s in ALL_SCENARIOS]), min_size=1, max_size=4, unique=True),
+    small=st.integers(1, 400),
+    more=st.integers(0, 2000),
+)
+def test_extending_a_run_never_changes_an_episode_split(codes, small, more):
+    domains = ",".join(codes)
+    before = _splits(make_plan(PlanConfig(domains=domains, frames_per_scenario=small)))
+    after = _splits(make_plan(PlanConfig(domains=domains, frames_per_scenario=small + more)))
+    assert before.items() <= after.items()
+
+
+def test_scenarios_tend_to_80_10_10():
+    plan = make_plan(PlanConfig(domains="T01_CN_A,T01_CN_M", frames_per_scenario=16_000))
+    for eps in plan.by_scenario().values():
+        tens = len(eps) // 10 * 10  # every 10 episodes of a scenario: 8 train, 1 val, 1 test
+        assert tens >= 200
+        counts = Counter(e.split for e in eps[:tens])
+        assert counts == {"train": tens * 8 // 10, "val": tens // 10, "test": tens // 10}
 
 
 def test_scaled_and_fixed_size_plans():

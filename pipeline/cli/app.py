@@ -12,8 +12,8 @@ import typer
 
 from pipeline.cli import data as cli_data
 from pipeline.cli.common import (
-    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
-    build_query, count, user_errors, write_local,
+    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, OneLineUsageErrors, PerScenario, Preset, SampleSeed,
+    Splits, Total, build_query, count, output_root, user_errors, write_local,
 )
 from manifests.outputs import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import require_outputs
@@ -21,6 +21,7 @@ from pipeline.planner import PlanConfig, make_plan
 from storage import StorageError
 
 app = typer.Typer(
+    cls=OneLineUsageErrors,
     help="Produce large multi-domain synthetic driving datasets (IDDA-style).\n\n"
     "Domains are selected with one grammar everywhere: 'all'; scenario codes such as "
     "T01_CS_A,T07_HRN_* ; or axis filters such as 'towns=T01-T06 weathers=CN viewpoints=A,M'.\n\n"
@@ -104,23 +105,6 @@ def plan(
             typer.echo(f"wrote {len(the_plan.episodes):,} episodes to {out}")
 
 
-def _storage(root: str):
-    from storage import Storage
-
-    return Storage.from_uri(root)
-
-
-def _output_root(root: str):
-    """The storage of a root that ``idda produce`` wrote to; ValueError for any other path."""
-    from manifests.reader import manifest_files
-    from manifests.schema import RUN_FILE
-
-    storage = _storage(root)
-    if not storage.exists(RUN_FILE) and not manifest_files(storage):
-        raise ValueError(f"{storage.uri} is not an output root (no run.json, no manifest); run `idda produce` first")
-    return storage
-
-
 @app.command()
 def produce(
     domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
@@ -174,8 +158,10 @@ def produce(
                 typer.echo(format_interrupted(stop.report, stopped.get("name", "interrupted")), err=True)
                 raise typer.Exit(code=stopped.get("code", 130)) from None
             except StorageOutage as outage:
+                from storage import Storage
+
                 bar.close()
-                typer.echo(format_outage(outage, _storage(out).endpoint), err=True)
+                typer.echo(format_outage(outage, Storage.from_uri(out).endpoint), err=True)
                 raise typer.Exit(code=1) from None
             except KeyboardInterrupt:  # before or after rendering: nothing half done to report
                 bar.close()
@@ -188,15 +174,53 @@ def produce(
             raise typer.Exit(code=1)
 
 
-def format_progress(p) -> str:
-    """One progress line: frames, the run's true average rate, ETA, episodes."""
+RATE_WINDOW = 20  # frames: the rate shown is over the last this many frames, "estimating" until there are that many
+
+
+class RateWindow:
+    """A moving-window rendering rate from successive progress counts.
+
+    The run's average from the command's start mixes in Ray's start-up and the
+    world builds, so early ETAs were far off. This rate counts from the first
+    frame on, over the last ``size`` frames: ``rate`` is None ("estimating")
+    until ``size`` frames have finished after the first one seen."""
+
+    def __init__(self, size: int = RATE_WINDOW) -> None:
+        from collections import deque
+
+        self.size = size
+        self._samples: deque[tuple[int, float]] = deque()  # (frames done, elapsed s) at each new count
+
+    def add(self, frames_done: int, elapsed_s: float) -> None:
+        if frames_done <= 0 or (self._samples and frames_done <= self._samples[-1][0]):
+            return
+        self._samples.append((frames_done, elapsed_s))
+        while len(self._samples) > 2 and frames_done - self._samples[1][0] >= self.size:
+            self._samples.popleft()
+
+    @property
+    def rate(self) -> float | None:
+        """Frames per second over the window; None while estimating."""
+        if len(self._samples) < 2:
+            return None
+        (f0, t0), (f1, t1) = self._samples[0], self._samples[-1]
+        if f1 - f0 < self.size or t1 <= t0:
+            return None
+        return (f1 - f0) / (t1 - t0)
+
+
+def format_progress(p, rate: float | None) -> str:
+    """One progress line: frames, the window's rate and ETA ("estimating" without a rate), episodes."""
     from pipeline.status import format_duration
 
     share = 100 * p.frames_done / p.frames_total if p.frames_total else 100.0
-    rate = f"{p.rate:,.2f}" if p.rate < 100 else f"{p.rate:,.0f}"
-    eta = format_duration(p.eta_s) if p.eta_s is not None else "?"
+    if rate is None:
+        speed = "estimating rate and ETA"
+    else:
+        shown = f"{rate:,.2f}" if rate < 100 else f"{rate:,.0f}"
+        speed = f"{shown} frame/s, ETA {format_duration((p.frames_total - p.frames_done) / rate)}"
     line = (
-        f"rendering {p.frames_done:,}/{p.frames_total:,} frames ({share:.0f}%), {rate} frame/s, ETA {eta}, "
+        f"rendering {p.frames_done:,}/{p.frames_total:,} frames ({share:.0f}%), {speed}, "
         f"episodes {p.episodes_done:,}/{p.episodes_total:,}, {format_duration(p.elapsed_s)} elapsed"
     )
     return line + (f", {p.failed} failed" if p.failed else "")
@@ -204,19 +228,21 @@ def format_progress(p) -> str:
 
 class ProgressDisplay:
     """Produce's progress on ``stream`` (stderr): on a terminal one line,
-    redrawn at every progress report (at most one per task a second);
-    otherwise (a log file, CI) one line per finished episode."""
+    redrawn at every progress report (at most one per task a second); otherwise
+    (a log file, CI) one line per finished episode. The rate is a moving window (``RateWindow``)."""
 
-    def __init__(self, stream=None) -> None:
+    def __init__(self, stream=None, window: int = RATE_WINDOW) -> None:
         import sys
 
         self.stream = stream if stream is not None else sys.stderr
         self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.window = RateWindow(window)
         self._finished = 0
         self._width = 0
 
     def update(self, p) -> None:
-        text = format_progress(p)
+        self.window.add(p.frames_done, p.elapsed_s)
+        text = format_progress(p, self.window.rate)
         if self.tty:
             self.stream.write("\r" + text.ljust(self._width))
             self._width = len(text)
@@ -320,7 +346,7 @@ def status(root: str = typer.Argument(..., help=ROOT_HELP)) -> None:
     from pipeline.status import format_duration, root_status
 
     with user_errors():
-        st = root_status(_storage(root))
+        st = root_status(output_root(root))
         typer.echo(f"{'scenario':<10} {'episodes':>13} {'frames':>17}")
         for s in st.scenarios:
             mark = "done" if s.frames_done == s.frames_total else ""
@@ -347,7 +373,7 @@ def verify(
     from manifests.verify import verify as run_verify
 
     with user_errors():
-        report = run_verify(_output_root(root), threads=threads)
+        report = run_verify(output_root(root), threads=threads)
         for p in report.problems[:50]:
             typer.echo(f"{p.kind:<8} {p.path}" + (f"  ({p.detail})" if p.detail else ""))
         if len(report.problems) > 50:
@@ -385,7 +411,7 @@ def query(
 
     with user_errors():
         the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
-        storage = _output_root(root)
+        storage = output_root(root)
         result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
         for code, missing in sorted(result.shortfall.items()):
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
@@ -409,21 +435,12 @@ def query(
         typer.echo(f"{len(result.table):,} frames selected of {result.matched:,} matching the filters{where}")
 
 
-def _writable(storage) -> bool:
-    """Whether files can be written into a root (checked before any output)."""
-    try:
-        storage.ensure_writable()
-        return True
-    except StorageError:
-        return False
-
-
 @app.command()
 def stats(
     root: str = typer.Argument(..., help=ROOT_HELP),
     domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
     per_scenario: bool = typer.Option(False, "--per-scenario", help="One table and one chart panel per scenario instead of overall."),
-    chart: Optional[Path] = typer.Option(None, help="Write a log-scale bar chart PNG (default: <root>/class_shares.png for local roots)."),
+    chart: Path = typer.Option(Path("class_shares.png"), help="Write the log-scale bar chart PNG here (default: class_shares.png in the current directory; never into the root)."),
 ) -> None:
     """Class pixel shares as a table and a log-scale bar chart (paper's Fig. pixeldistr)."""
     from manifests import query as q
@@ -431,24 +448,17 @@ def stats(
     from manifests.stats import bar_chart_png, format_share_table, share_table
 
     with user_errors():
-        storage = _storage(root)
-        chart_in_root = chart is None and storage.is_local and _writable(storage)
+        storage = output_root(root)
+        if storage.is_local and chart.resolve().is_relative_to(Path(storage.path()).resolve()):
+            raise ValueError(f"the chart {chart} would land inside the output root {storage.uri}; "
+                             "pass --chart with a path outside it")
         table = q.filter_frames(read_manifest(storage), q.Query(domains=domains))
         if len(table) == 0:
             raise ValueError(f"{storage.uri} has no frames for {domains!r} yet")
         shares = share_table(table, by_scenario=per_scenario)
         typer.echo(format_share_table(shares))
-        png = bar_chart_png(shares, title=f"Class pixel shares, {len(table):,} frames")
-        if chart is None:
-            if not chart_in_root:
-                typer.echo("(pass --chart FILE.png to save the chart: the root is read-only or on s3://)")
-                return
-            storage.write_bytes("class_shares.png", png)
-            chart_where = storage.join("class_shares.png")
-        else:
-            write_local(chart, png)
-            chart_where = str(chart)
-        typer.echo(f"chart: {chart_where}")
+        write_local(chart, bar_chart_png(shares, title=f"Class pixel shares, {len(table):,} frames"))
+        typer.echo(f"chart: {chart}")
 
 
 @app.command()

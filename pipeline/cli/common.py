@@ -6,10 +6,17 @@ from __future__ import annotations
 
 import contextlib
 import os
+import sys
 from pathlib import Path
 from typing import Annotated, Iterator, Optional
 
 import typer
+from typer.core import TyperGroup
+
+try:  # typer 0.2x vendors click; its exceptions are that copy's
+    from typer._click import exceptions as click_errors
+except ImportError:  # older typer: click itself
+    from click import exceptions as click_errors
 
 from manifests.lease import LeaseError
 from manifests.selection import SELECTION_HELP
@@ -40,12 +47,53 @@ def user_errors() -> Iterator[None]:
     except typer.Exit:
         raise
     except (ValueError, OSError, ImportError, StorageError, ManifestError, RunConfigError, LeaseError) as exc:
-        message = " ".join(line.strip() for line in str(exc).splitlines() if line.strip())  # one line, always
-        typer.echo(f"error: {message}", err=True)
+        typer.echo(f"error: {one_line(str(exc))}", err=True)  # one line, always
         raise typer.Exit(code=2) from None
     except KeyboardInterrupt:
         typer.echo("interrupted", err=True)
         raise typer.Exit(code=130) from None
+
+
+def one_line(text: str) -> str:
+    return " ".join(line.strip() for line in text.splitlines() if line.strip())
+
+
+class OneLineUsageErrors(TyperGroup):
+    """The ``idda`` group: a usage error that click finds (an option value of
+    the wrong type, an unknown option, a missing argument) is one ``error:``
+    line and exit code 2, like every error the commands find themselves,
+    instead of click's usage box."""
+
+    def main(self, args=None, prog_name=None, complete_var=None, standalone_mode=True, **extra):
+        if not standalone_mode:
+            return super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        try:
+            code = super().main(args, prog_name, complete_var, standalone_mode=False, **extra)
+        except click_errors.NoArgsIsHelpError as exc:  # `idda` alone: the help, as before
+            exc.show()
+            sys.exit(exc.exit_code)
+        except click_errors.UsageError as exc:
+            where = f"; `{exc.ctx.command_path} -h` lists the options" if exc.ctx is not None else ""
+            typer.echo(f"error: {one_line(exc.format_message()).rstrip('.')}{where}", err=True)
+            sys.exit(2)
+        except click_errors.ClickException as exc:
+            typer.echo(f"error: {one_line(exc.format_message())}", err=True)
+            sys.exit(exc.exit_code)
+        except typer.Abort:
+            typer.echo("interrupted", err=True)
+            sys.exit(130)
+        sys.exit(code if isinstance(code, int) else 0)
+
+
+def output_root(root: str):
+    """The storage of an output root; for any other path the one sentence every
+    command gives (``manifests.root.require_root``)."""
+    from manifests.root import require_root
+    from storage import Storage
+
+    storage = Storage.from_uri(root)
+    require_root(storage)
+    return storage
 
 
 def count(n: int, noun: str) -> str:

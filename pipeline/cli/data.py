@@ -15,7 +15,7 @@ import typer
 
 from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
-    build_query, user_errors, write_local,
+    build_query, output_root, user_errors, write_local,
 )
 
 
@@ -44,14 +44,15 @@ def export(
     cityscapes: leftImg8bit/ and gtFine/ (labelIds, labelTrainIds, RGBA color,
     instanceIds) that cityscapesScripts and torchvision read. idda:
     <scenario>/RGB/*.jpg, <scenario>/Semantic/*.png (class ids) and split
-    files. hf: Parquet shards with embedded images and a card. Scenarios with
-    no val or test episode (fewer than 6 episodes) are split by frame blocks (80/10/10 in frame order).
+    files. hf: Parquet shards with embedded images and a card. Splits are the
+    manifest's, by episode (--as-split puts every frame in one split).
     """
     from exports.export import ExportConfig, export as run_export
 
     with user_errors():
         if copy and symlink:
             raise ValueError("give at most one of --copy and --symlink")
+        output_root(root)
         query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed)
         config = ExportConfig(
             root=root, to=str(to), format=fmt, query=query,
@@ -101,6 +102,7 @@ def distances(
     from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
 
     with user_errors():
+        output_root(root)
         config = DistanceConfig(
             root=root, pairs=parse_pairs(pairs), samples=samples, components=components,
             domains=domains, splits=tuple(split), seed=seed, threads=threads,
@@ -120,6 +122,7 @@ def card(
     from exports.card import CardConfig, write_card
 
     with user_errors():
+        output_root(root)
         result = write_card(CardConfig(root=root, contact_sheet=contact_sheet))
         typer.echo(f"wrote {result.card} ({result.frames:,} frames) and {result.chart}")
         for rel in result.previews:
@@ -146,7 +149,10 @@ def shifts(
     import json
 
     with user_errors():
-        from analysis.shifts import ShiftConfig, format_shift_table, run_shifts
+        from analysis.shifts import ShiftConfig, format_shift_table, require_torch, run_shifts
+
+        require_torch()  # the analysis extra: say so before reading any data
+        output_root(root)
 
         config = ShiftConfig(
             root=root, cases=tuple(c.strip() for c in cases.split(",") if c.strip()), steps=steps,

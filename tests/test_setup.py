@@ -1,0 +1,107 @@
+"""A new user's first hour: the lean set-up and the documentation's links.
+(The install line `idda shifts` gives without torch: tests/test_shifts.py.)"""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+import tomllib
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[1]
+
+# What producing never needs: the test extra's heavy or test-only packages.
+NOT_FOR_PRODUCING = ("torch", "polars", "duckdb", "moto", "boto3", "pytest", "hypothesis", "datasets",
+                     "huggingface_hub", "pycocotools", "pandas")
+
+
+def _name(requirement: str) -> str:
+    return re.split(r"[\s\[<>=!~;]", requirement, maxsplit=1)[0].lower().replace("-", "_")
+
+
+def _project() -> dict:
+    return tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+
+
+def test_base_dependencies_are_what_producing_and_evaluating_need():
+    base = {_name(r) for r in _project()["dependencies"]}
+    assert not base & set(NOT_FOR_PRODUCING), base & set(NOT_FOR_PRODUCING)
+    assert "cityscapesscripts" in base  # idda evaluate right after make produce
+    test = {_name(r) for r in _project()["optional-dependencies"]["test"]}
+    assert {"torch", "polars", "duckdb", "moto", "datasets"} <= test
+    assert _project()["optional-dependencies"]["analysis"] == ["torch==2.13.0"]
+
+
+def _make_dry_run(target: str, venv: Path) -> str:
+    done = subprocess.run(["make", "-n", f"VENV={venv}", target], cwd=REPO, capture_output=True, text=True,
+                          timeout=60)
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
+def test_make_produce_installs_the_base_and_make_test_adds_the_extras(tmp_path):
+    venv = tmp_path / "venv"
+    fresh = _make_dry_run("produce", venv)
+    assert "pip install --quiet -e ." in fresh and "[test]" not in fresh and "idda produce" in fresh
+    # After make produce (its stamp newer than pyproject.toml), make test adds only the extras.
+    venv.mkdir()
+    (venv / ".installed-produce").touch()
+    after_produce = _make_dry_run("test", venv)
+    assert "pip install --quiet -e '.[test]'" in after_produce and "-m venv" not in after_produce
+    assert "pytest" in after_produce
+    (venv / ".installed-test").touch()
+    assert "pip install" not in _make_dry_run("test", venv)  # both stamps: nothing to install
+    assert "pip install" not in _make_dry_run("produce", venv)
+
+
+# ------------------------------------------------------------------ docs ----
+_LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
+
+
+def _slug(heading: str) -> str:
+    """GitHub's anchor for a markdown heading."""
+    text = re.sub(r"[^\w\- ]", "", heading.strip().lower())
+    return text.replace(" ", "-")
+
+
+def _anchors(path: Path) -> set[str]:
+    return {_slug(line.lstrip("#")) for line in path.read_text().splitlines() if line.startswith("#")}
+
+
+def _documents() -> list[Path]:
+    return [REPO / "README.md", *sorted((REPO / "docs").glob("*.md"))]
+
+
+def test_every_relative_link_in_the_docs_points_to_a_file_and_heading():
+    checked = 0
+    for doc in _documents():
+        in_code = False
+        for line in doc.read_text().splitlines():
+            if line.startswith("```"):
+                in_code = not in_code
+            if in_code:
+                continue
+            for target in _LINK.findall(line):
+                if re.match(r"[a-z]+:", target):  # http:, https:, mailto:
+                    continue
+                rel, _, anchor = target.partition("#")
+                path = (doc.parent / rel).resolve() if rel else doc
+                assert path.exists(), f"{doc.relative_to(REPO)} links to missing {target}"
+                if anchor:
+                    assert anchor in _anchors(path), f"{doc.relative_to(REPO)} links to missing heading {target}"
+                checked += 1
+    assert checked >= 10  # the README's table of pages alone has ten
+
+
+def test_readme_is_one_screen_and_links_every_docs_page():
+    readme = (REPO / "README.md").read_text()
+    assert len(readme.splitlines()) <= 100
+    for page in sorted((REPO / "docs").glob("*.md")):
+        if not page.name.startswith("bench_") and not page.name.startswith("notes-"):
+            assert f"(docs/{page.name})" in readme, page.name
+    for needed in ("make produce", "make test", "output/", "idda evaluate", "docs/images/contact_sheet_CN.png"):
+        assert needed in readme, needed
