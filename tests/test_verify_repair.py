@@ -233,7 +233,7 @@ def test_verify_beside_a_live_producer_reports_in_progress(copy):
 def _make_produce(*assignments: str) -> list[str]:
     out = subprocess.run(["make", "-n", "-C", str(REPO), "produce", *assignments], capture_output=True, text=True,
                          check=True).stdout
-    line = next(line for line in out.splitlines() if "idda produce" in line)
+    line = next(line for line in out.replace("\\\n", " ").splitlines() if "idda produce" in line)
     import shlex
 
     return shlex.split(line)[2:]  # after ".venv/bin/idda produce"
