@@ -9,13 +9,22 @@ STAMP  := $(VENV)/.installed-produce
 STAMP_TEST := $(VENV)/.installed-test
 
 # make produce: the main job (see README). Override any of these.
+# The default is a small run (FRAMES per scenario at 480x270). SCALE=1, or
+# --scale in PRODUCE_ARGS, sizes the run by the paper's frame counts instead,
+# at full HD unless WIDTH/HEIGHT are given; an option given in PRODUCE_ARGS
+# (--frames-per-scenario, --width, --height) replaces the one made here.
 DOMAINS ?= all
 OUT     ?= output
 FRAMES  ?= 2
-WIDTH   ?= 480
-HEIGHT  ?= 270
+SCALE   ?=
 SEED    ?= 0
 PRODUCE_ARGS ?=
+_FULL   := $(if $(SCALE)$(findstring --scale,$(PRODUCE_ARGS)),1)
+WIDTH   ?= $(if $(_FULL),1920,480)
+HEIGHT  ?= $(if $(_FULL),1080,270)
+_given   = $(findstring $(1),$(PRODUCE_ARGS))
+_SIZE    = $(if $(SCALE),--scale $(SCALE),$(if $(_FULL)$(call _given,--frames-per-scenario),,--frames-per-scenario $(FRAMES))) \
+	$(if $(call _given,--width),,--width $(WIDTH)) $(if $(call _given,--height),,--height $(HEIGHT))
 
 .PHONY: help venv venv-test produce test bench report clean
 
@@ -41,9 +50,8 @@ venv: $(STAMP) ## create .venv with the project and what producing needs
 
 venv-test: $(STAMP_TEST) ## add the test extras (torch, polars, duckdb, moto, datasets...) to .venv
 
-produce: $(STAMP) ## render DOMAINS (default all) into OUT; FRAMES/WIDTH/HEIGHT size the run
-	$(BIN)/idda produce --domains '$(DOMAINS)' --out '$(OUT)' \
-		--frames-per-scenario $(FRAMES) --width $(WIDTH) --height $(HEIGHT) --seed $(SEED) $(PRODUCE_ARGS)
+produce: $(STAMP) ## render DOMAINS (default all) into OUT; FRAMES/WIDTH/HEIGHT size the run, SCALE=1 is the full dataset
+	$(BIN)/idda produce --domains '$(DOMAINS)' --out '$(OUT)' $(_SIZE) --seed $(SEED) $(PRODUCE_ARGS)
 
 test: $(STAMP_TEST) ## add the test extras to .venv, then run the test suite
 	$(BIN)/python -m pytest -q

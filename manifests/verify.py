@@ -1,6 +1,18 @@
 """Check an output root: its manifest (parts, indexes, run.json) and every
 file the manifest lists: missing, corrupt and extra files.
 
+The work is cut into units, one per scenario (``VerifyUnit``: a small frozen
+description, never data). ``check_unit`` checks one: it lists the scenario's
+folder once (never following a symbolic link), reads the scenario's parts in
+scope, hashes the files they list, and looks for strays. ``verify`` runs the
+units in this process by default; ``pipeline.verify_ray`` runs the same
+function as Ray tasks across a cluster, so both give the same verdicts. The
+driver holds the part listing and the problems, never the manifest's rows.
+
+A file missing from the listing is missing without a request, and one whose
+listed size is wrong is corrupt without a read: only files that may be
+intact are read, once each.
+
 The parts are the source of truth. Each one is read whole with its page
 checksums verified, re-encoded and compared byte for byte (when this pyarrow
 wrote it), and its rows are checked against its name and against run.json
@@ -10,12 +22,15 @@ for byte. run.json carries a checksum of itself.
 
 from __future__ import annotations
 
+import datetime as dt
 import functools
 import io
+import logging
+import re
 import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
-from typing import Callable
+from typing import Callable, Iterable, Iterator
 
 import pyarrow as pa
 import pyarrow.parquet as pq
@@ -23,16 +38,21 @@ import pyarrow.parquet as pq
 from manifests.catalog import SCENARIO_BY_CODE
 from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
-from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table, part_files
-from manifests.root import FRAME_FILE_RE
+from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table
+from manifests.root import FRAME_FILE_RE, root_entries
 from manifests.runrecord import RunRecordError, read_record
-from manifests.schema import PART_SCHEMA, RUN_FILE, frame_id, frame_path, output_columns
+from manifests.schema import MANIFEST_DIR, PART_SCHEMA, RUN_FILE, frame_id, frame_path, output_columns
 from manifests.spec import episode_seed
 from manifests.writer import ManifestError, part_bytes, read_part_file
 from storage import StorageError, sha256_bytes
 
-# Problem kinds: missing | corrupt | extra (frame files), bad-part | bad-index | bad-run (the manifest)
+# Problem kinds: missing | corrupt | extra (frame files), bad-part | bad-index | bad-run (the manifest),
+# link (a symbolic link inside the root: never followed, never repaired through)
 EPISODE_KINDS = ("missing", "corrupt", "bad-part")  # the episode must be rendered again
+LINK_DETAIL = "a symbolic link; verify and repair never follow links"
+
+log = logging.getLogger(__name__)
+_PART_NAME_RE = re.compile(r"^manifest/town=T\d\d/weather=\w+/viewpoint=\w/((T\d\d_\w+_\w))_e(\d{4})\.parquet$")
 
 
 @dataclass(frozen=True)
@@ -42,6 +62,7 @@ class Problem:
     scenario: str | None
     episode: int | None
     detail: str = ""
+    conflict: bool = False  # a part whose rows disagree with the run's config (seed, resolution)
 
 
 @dataclass
@@ -50,6 +71,9 @@ class VerifyReport:
     bytes_checked: int = 0
     seconds: float = 0.0
     problems: list[Problem] = field(default_factory=list)
+    episodes_checked: int = 0
+    first_hash_s: float | None = None  # seconds from the start to the first file hashed
+    in_progress: set[tuple[str, int]] = field(default_factory=set)  # frames of a live producer, no part yet
 
     @property
     def ok(self) -> bool:
@@ -99,11 +123,17 @@ def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | No
             return f"{output} paths do not follow the layout"
     if len(set(col["seed"])) != 1 or len(set(zip(col["width"], col["height"]))) != 1:
         return "mixed seeds or resolutions"
-    if config is not None:
-        if (col["width"][0], col["height"][0]) != (config["width"], config["height"]):
-            return f"frames are {col['width'][0]}x{col['height'][0]}, run.json says {config['width']}x{config['height']}"
-        if col["seed"][0] != episode_seed(config["seed"], SCENARIO_BY_CODE[scenario], episode):
-            return f"episode seed does not derive from run.json's seed {config['seed']}"
+    return config_conflict(col["width"][0], col["height"][0], col["seed"][0], scenario, episode, config)
+
+
+def config_conflict(width: int, height: int, seed: int, scenario: str, episode: int, config: dict | None) -> str | None:
+    """Why an episode's frames cannot belong to the run ``config`` describes, or None."""
+    if config is None:
+        return None
+    if (width, height) != (config["width"], config["height"]):
+        return f"frames are {width}x{height}, run.json says {config['width']}x{config['height']}"
+    if seed != episode_seed(config["seed"], SCENARIO_BY_CODE[scenario], episode):
+        return f"episode seed does not derive from run.json's seed {config['seed']}"
     return None
 
 
@@ -113,11 +143,15 @@ def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | N
         table = read_part_file(storage, rel, PART_SCHEMA, data=data)
     except (ManifestError, StorageError, OSError) as exc:
         return None, Problem("bad-part", rel, scenario, episode, str(exc))
-    detail = part_problem(table, scenario, episode, config)
+    detail, conflict = part_problem(table, scenario, episode, None), False  # the part's own shape first
+    if detail is None:
+        first = {name: table.column(name)[0].as_py() for name in ("width", "height", "seed")}
+        detail = config_conflict(first["width"], first["height"], first["seed"], scenario, episode, config)
+        conflict = detail is not None
     if detail is None and pq.read_metadata(io.BytesIO(data)).created_by == _this_writer() and part_bytes(table) != data:
         detail = "its bytes differ from its own rows re-encoded (damaged metadata)"
     if detail is not None:
-        return None, Problem("bad-part", rel, scenario, episode, detail)
+        return None, Problem("bad-part", rel, scenario, episode, detail, conflict)
     return table, None
 
 
@@ -144,73 +178,260 @@ def _check_index(storage, rel: str, scenario: str, episodes: dict[int, str] | No
     return None if same else Problem("bad-index", rel, scenario, None, "differs from the index rebuilt from its parts")
 
 
-def verify(root, threads: int = 8, progress: Callable[[int, int], None] | None = None) -> VerifyReport:
-    """Check the manifest itself, recompute every checksum it lists, look for strays.
 
-    ``progress(files_done, files_total)`` is called as files are checked.
-    """
-    storage = as_storage(root)
-    start = time.perf_counter()
-    report = VerifyReport()
-    parts = part_files(storage)
 
-    config = None
+# ------------------------------------------------------------ units ----
+@dataclass(frozen=True)
+class Scope:
+    """What to verify: some scenarios (None: all), and of them the episodes
+    whose part was written at or after ``since`` (seconds since the epoch; None: all)."""
+
+    scenarios: frozenset[str] | None = None
+    since: float | None = None
+
+
+@dataclass(frozen=True)
+class VerifyUnit:
+    """One task: a scenario's episodes in scope. Small and serialisable."""
+
+    scenario: str
+    parts: tuple[tuple[int, str], ...]  # (episode, part path) to check
+    with_part: frozenset[int]  # every episode of the scenario that has a part
+    index: str | None  # the scenario's index, checked when every part is in scope
+    since: float | None  # stray files older than this are out of scope
+    producer_live: bool  # frames without a part belong to a running producer
+
+
+@dataclass
+class UnitResult:
+    scenario: str
+    problems: list[Problem] = field(default_factory=list)
+    files_checked: int = 0
+    bytes_checked: int = 0
+    episodes_checked: int = 0
+    in_progress: set[int] = field(default_factory=set)
+    first_hash_at: float | None = None  # wall-clock time of the unit's first hash
+
+
+def parse_since(text: str, now: float | None = None) -> float:
+    """``--since``: an age (``90s``, ``30m``, ``2h``, ``3d``) or an ISO time
+    (``2026-11-25T13:00``, UTC unless it names a zone); seconds since the epoch."""
+    now = time.time() if now is None else now
+    match = re.fullmatch(r"\s*(\d+(?:\.\d+)?)\s*([smhd])\s*", text)
+    if match:
+        return now - float(match.group(1)) * {"s": 1, "m": 60, "h": 3600, "d": 86400}[match.group(2)]
     try:
-        record = read_record(storage)
-        if record is None and parts:
-            report.problems.append(Problem("bad-run", RUN_FILE, None, None, "missing"))
-        config = record["config"] if record else None
-    except RunRecordError as exc:
-        report.problems.append(Problem("bad-run", RUN_FILE, None, None, str(exc)))
+        when = dt.datetime.fromisoformat(text.strip())
+    except ValueError:
+        raise ValueError(f"--since {text!r} is neither an age (90s, 30m, 2h, 3d) nor an ISO time (2026-11-25T13:00)") from None
+    if when.tzinfo is None:
+        when = when.replace(tzinfo=dt.timezone.utc)
+    return when.timestamp()
 
-    good: dict[tuple[str, int], pa.Table] = {}  # parts that passed, by (scenario, episode)
-    for scenario in sorted(parts):
-        for episode, rel in sorted(parts[scenario].items()):
-            table, problem = _check_part(storage, rel, scenario, episode, config)
-            if problem is not None:
-                report.problems.append(problem)
-            else:
-                good[(scenario, episode)] = table
-    for scenario, rel in sorted(index_files(storage).items()):
-        problem = _check_index(storage, rel, scenario, parts.get(scenario), good)
+
+def _under_link(rel: str, links: list[str]) -> bool:
+    return any(rel == link or rel.startswith(link + "/") for link in links)
+
+
+def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
+               on_files: Callable[[int], None] | None = None) -> UnitResult:
+    """Check one scenario's parts in scope, hash the files they list, find strays.
+
+    The scenario's folder is listed once (links listed, never followed); files
+    behind a link are the link's problem, never read. ``on_files(n)`` is called
+    as files are hashed (n since the last call)."""
+    result = UnitResult(unit.scenario)
+    listing = {entry.rel: entry for entry in storage.walk(unit.scenario)}
+    links = sorted(rel for rel, entry in listing.items() if entry.link)
+    result.problems.extend(Problem("link", rel, unit.scenario, None, LINK_DETAIL) for rel in links)
+
+    good: dict[tuple[str, int], pa.Table] = {}
+    for episode, rel in unit.parts:
+        table, problem = _check_part(storage, rel, unit.scenario, episode, config)
+        result.episodes_checked += 1
         if problem is not None:
-            report.problems.append(problem)
+            result.problems.append(problem)
+        else:
+            good[(unit.scenario, episode)] = table
+    if unit.index is not None:
+        problem = _check_index(storage, unit.index, unit.scenario, {e: "" for e in unit.with_part}, good)
+        if problem is not None:
+            result.problems.append(problem)
 
-    expected: list[tuple[str, int, str, str, int]] = []
-    for table in good.values():
-        scenarios, episodes = table.column("scenario").to_pylist(), table.column("episode").to_pylist()
+    expected: list[tuple[str, int, str, int]] = []
+    for (_, episode), table in good.items():
         for output in OUTPUTS:
             path_col, bytes_col, sha_col = output_columns(output)
-            rows = zip(*(table.column(c).to_pylist() for c in (path_col, bytes_col, sha_col)), scenarios, episodes)
-            expected.extend(row for row in rows if row[0] is not None)
+            rows = zip(*(table.column(c).to_pylist() for c in (path_col, bytes_col, sha_col)))
+            expected.extend((rel, size, sha, episode) for rel, size, sha in rows if rel is not None)
+    del good
 
     def check(item) -> Problem | int:
-        rel, size, sha, scenario, episode = item
-        try:
+        rel, size, sha, episode = item
+        entry = listing.get(rel)
+        if entry is None and not storage.is_local:  # not listed: missing, no request needed
+            return Problem("missing", rel, unit.scenario, episode)
+        if entry is not None and entry.size != size:  # the listing's size: no read needed
+            return Problem("corrupt", rel, unit.scenario, episode, f"{entry.size} bytes, expected {size}")
+        if result.first_hash_at is None:
+            result.first_hash_at = time.time()
+        try:  # (locally, what the listing left out is read too: a folder or a FIFO in a file's place)
             data = storage.read_bytes(rel)
         except FileNotFoundError:
-            return Problem("missing", rel, scenario, episode)
+            return Problem("missing", rel, unit.scenario, episode)
         except (StorageError, OSError) as exc:  # a directory or a FIFO in its place, an I/O error
-            return Problem("corrupt", rel, scenario, episode, str(exc))
+            return Problem("corrupt", rel, unit.scenario, episode, str(exc))
         if len(data) != size or sha256_bytes(data) != sha:
-            return Problem("corrupt", rel, scenario, episode, f"{len(data)} bytes, expected {size}")
+            return Problem("corrupt", rel, unit.scenario, episode, f"{len(data)} bytes, expected {size}")
         return len(data)
 
-    total = len(expected)
+    expected = [item for item in expected if not _under_link(item[0], links)]
+    pending = 0
     with ThreadPoolExecutor(max_workers=threads) as pool:
         for i, outcome in enumerate(pool.map(check, expected), 1):
-            report.files_checked += 1
+            result.files_checked += 1
             if isinstance(outcome, Problem):
-                report.problems.append(outcome)
+                result.problems.append(outcome)
             else:
-                report.bytes_checked += outcome
-            if progress is not None and (i % 256 == 0 or i == total):
-                progress(i, total)
+                result.bytes_checked += outcome
+            pending += 1
+            if on_files is not None and (pending == 256 or i == len(expected)):
+                on_files(pending)
+                pending = 0
 
     listed = {item[0] for item in expected}
-    for rel in storage.list_files():
-        if rel.split("/", 1)[0] in SCENARIO_BY_CODE and rel not in listed and FRAME_FILE_RE.match(rel):
-            s, e = _episode_of(rel)
-            report.problems.append(Problem("extra", rel, s, e, "not in the manifest"))
+    in_scope = {episode for episode, _ in unit.parts}
+    for rel, entry in listing.items():
+        if entry.link or rel in listed or not FRAME_FILE_RE.match(rel):
+            continue
+        scenario, episode = _episode_of(rel)
+        if episode not in in_scope:
+            if episode in unit.with_part or (unit.since is not None and entry.mtime < unit.since):
+                continue  # out of scope
+            if unit.producer_live:  # frames of an episode a live producer is writing
+                result.in_progress.add(episode)
+                continue
+        result.problems.append(Problem("extra", rel, scenario, episode, "not in the manifest"))
+    return result
+
+
+def plain_runner(storage, units: list[VerifyUnit], config: dict | None, threads: int,
+                 on_files: Callable[[int], None] | None) -> Iterator[UnitResult]:
+    """Run the units one after another in this process (the default: small roots, tests)."""
+    for unit in units:
+        yield check_unit(storage, unit, config, threads, on_files)
+
+
+Runner = Callable[..., Iterable[UnitResult]]
+
+
+@dataclass(frozen=True)
+class VerifyProgress:
+    episodes_done: int
+    episodes_total: int
+    files_done: int
+    elapsed_s: float
+
+
+def _part_listing(storage, report: VerifyReport) -> dict[str, dict[int, tuple[str, float]]]:
+    """Parts per scenario with their modification time; links under manifest/ become problems."""
+    parts: dict[str, dict[int, tuple[str, float]]] = {}
+    for entry in storage.walk(MANIFEST_DIR):
+        if entry.link:
+            report.problems.append(Problem("link", entry.rel, None, None, LINK_DETAIL))
+            continue
+        match = _PART_NAME_RE.match(entry.rel)
+        if match:
+            parts.setdefault(match.group(1), {})[int(match.group(3))] = (entry.rel, entry.mtime)
+    return parts
+
+
+def _producer_live(storage, except_owner: str | None) -> bool:
+    from manifests.lease import live_producers
+
+    try:
+        return bool(live_producers(storage, except_owner=except_owner))
+    except (StorageError, OSError):  # a read-only root: its dead leases cannot be removed
+        return False
+
+
+def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool) -> list[VerifyUnit]:
+    """The units of ``scope``: one per scenario that has parts or a folder."""
+    parts = _part_listing(storage, report)
+    indexes = index_files(storage)
+    folders = {name for name in root_entries(storage) if name in SCENARIO_BY_CODE}
+    units = []
+    for scenario in sorted(set(parts) | folders | set(indexes)):
+        if scope.scenarios is not None and scenario not in scope.scenarios:
+            continue
+        have = parts.get(scenario, {})
+        chosen = tuple((e, rel) for e, (rel, mtime) in sorted(have.items()) if scope.since is None or mtime >= scope.since)
+        index = indexes.get(scenario) if len(chosen) == len(have) else None
+        units.append(VerifyUnit(scenario, chosen, frozenset(have), index, scope.since, producer_live))
+    return units
+
+
+def verify(root, threads: int = 8, progress: Callable[[VerifyProgress], None] | None = None,
+           scope: Scope | None = None, config: dict | None = None, runner: Runner | None = None,
+           except_owner: str | None = None) -> VerifyReport:
+    """Check the manifest itself, recompute every checksum it lists, look for strays.
+
+    ``scope`` limits the check to some scenarios and recent episodes;
+    ``config`` (a run config as run.json records it) replaces run.json's as
+    what the rows must agree with; ``runner`` runs the units (default: in this
+    process; ``pipeline.verify_ray.choose_runner`` gives one for Ray).
+    Frames without a part while a producer's lease (other than
+    ``except_owner``'s) is live are in progress, not strays.
+    ``progress(VerifyProgress)`` is called as files are checked.
+    """
+    storage = as_storage(root)
+    start, wall_start = time.perf_counter(), time.time()
+    report = VerifyReport()
+    scope = scope or Scope()
+
+    recorded, damaged = None, False
+    try:
+        record = read_record(storage)
+        recorded = record["config"] if record else None
+    except RunRecordError as exc:
+        report.problems.append(Problem("bad-run", RUN_FILE, None, None, str(exc)))
+        damaged = True
+    units = plan_units(storage, scope, report, _producer_live(storage, except_owner))
+    if recorded is None and not damaged and any(u.with_part for u in units):
+        report.problems.append(Problem("bad-run", RUN_FILE, None, None, "missing"))
+    episodes_total = sum(len(u.parts) for u in units)
+    files_done = 0
+
+    def tell() -> None:
+        if progress is not None:
+            progress(VerifyProgress(report.episodes_checked, episodes_total, files_done, time.perf_counter() - start))
+
+    def on_files(n: int) -> None:
+        nonlocal files_done
+        files_done += n
+        tell()
+
+    tell()
+    first_hash = None
+    for result in (runner or plain_runner)(storage, units, config if config is not None else recorded, threads, on_files):
+        report.problems.extend(result.problems)
+        report.files_checked += result.files_checked
+        report.bytes_checked += result.bytes_checked
+        report.episodes_checked += result.episodes_checked
+        report.in_progress.update((result.scenario, e) for e in result.in_progress)
+        if result.first_hash_at is not None:
+            first_hash = min(first_hash or result.first_hash_at, result.first_hash_at)
+        files_done = report.files_checked
+        tell()
+    report.problems.sort(key=_problem_order)
+    report.first_hash_s = None if first_hash is None else max(0.0, first_hash - wall_start)
     report.seconds = time.perf_counter() - start
     return report
+
+
+_KIND_ORDER = {kind: i for i, kind in enumerate(("bad-run", "link", "bad-part", "bad-index", "missing", "corrupt", "extra"))}
+
+
+def _problem_order(p: Problem) -> tuple:
+    """Same order whatever order the units finished in."""
+    return (_KIND_ORDER.get(p.kind, len(_KIND_ORDER)), p.scenario or "", p.episode if p.episode is not None else -1, p.path)

@@ -281,19 +281,26 @@ def _connect(ray, config: ProduceConfig) -> None:
         return
     main = threading.current_thread() is threading.main_thread()
     keep = signal.getsignal(signal.SIGTERM) if main else None
-    address = _address(config)
     try:
-        if address:
-            check_cluster(address)
-            try:
-                ray.init(address=address, **_RAY_INIT_COMMON)
-            except ConnectionError as exc:
-                raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc})") from exc
-        else:
-            start_local_cluster(ray, config.workers)
+        attach(ray, _address(config), config.workers)
     finally:
         if main and keep is not None:
             signal.signal(signal.SIGTERM, keep)
+
+
+def attach(ray, address: str | None, workers: int | None = None) -> None:
+    """Attach to the cluster at ``address`` (one line if nothing answers there), or start a
+    local one of ``workers`` CPUs (default all cores), unless this process already has Ray."""
+    if ray.is_initialized():
+        return
+    if address:
+        check_cluster(address)
+        try:
+            ray.init(address=address, **_RAY_INIT_COMMON)
+        except ConnectionError as exc:
+            raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc})") from exc
+    else:
+        start_local_cluster(ray, workers)
 
 
 def start_local_cluster(ray, cpus: int | None = None) -> None:
@@ -312,14 +319,37 @@ def start_local_cluster(ray, cpus: int | None = None) -> None:
 PROGRESS_WAIT_S = 5.0  # longest the driver waits for a frame before it looks again
 
 
-def _repair(storage, plan) -> list[str]:
+def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
     """Drop what verify finds broken so the run rebuilds it: the parts of
     episodes with bad files or a bad part (they re-render), stray frame files
     (our naming only) and damaged indexes (compaction rewrites them). A damaged
-    run.json is rewritten by ``prepare_root``."""
-    from manifests.verify import verify
+    run.json is rewritten by ``prepare_root``.
 
-    report = verify(storage)
+    Everything is checked before anything is deleted, and only the plan's
+    scenarios are verified. A symbolic link anywhere in them, or a part whose
+    rows belong to another run (seed, resolution), refuses the whole repair:
+    RootError or RunConfigError, and nothing deleted."""
+    from manifests.root import RootError
+    from manifests.verify import Scope, verify
+    from pipeline.runmeta import check_before_repair
+
+    check_before_repair(storage, config.run, extend=config.extend)
+    scope = Scope(scenarios=frozenset(plan.scenarios()))
+    report = verify(storage, scope=scope, config=config.run.to_dict(), runner=verify_runner(config),
+                    except_owner=owner)  # our own lease: no other producer is live (checked)
+    links = [p for p in report.problems if p.kind == "link"]
+    if links:
+        raise RootError(
+            f"{storage.join(links[0].path)} is a symbolic link; repair never follows a link out of the root "
+            "and deletes nothing: replace the link with the files it points to, or remove it, and run again"
+        )
+    conflicts = [p for p in report.problems if p.conflict]
+    if conflicts:
+        raise RunConfigError(
+            f"{storage.join(conflicts[0].path)} holds frames of another run ({conflicts[0].detail}; "
+            f"{len(conflicts)} part(s) in all); repair deleted nothing: check --seed/--width/--height, "
+            "or move such parts out of the root"
+        )
     planned = {(e.scenario, e.episode) for e in plan.episodes}
     touched = []
     for scenario, episode in sorted(report.affected_episodes()):
@@ -336,6 +366,14 @@ def _repair(storage, plan) -> list[str]:
         elif problem.kind == "bad-run":
             touched.append(problem.path)
     return touched
+
+
+def verify_runner(config: ProduceConfig):
+    """Repair's verify: on Ray when produce would attach to a cluster or the
+    scope is large, else in this process."""
+    from pipeline.verify_ray import choose_runner
+
+    return choose_runner(address=_address(config), workers=config.workers)
 
 
 def _stop_idle_daemons(ray) -> None:
@@ -564,7 +602,7 @@ def _repair_alone(storage, config: ProduceConfig, plan, owner: str) -> list[str]
             raise LeaseError(
                 f"{storage.uri} is being written by another producer ({describe(others[0])}); repair when it has finished"
             )
-        repaired = _repair(storage, plan)
+        repaired = _repair(storage, config, plan, owner)
         prepare_root(storage, config.run, extend=config.extend, repair=True)
     return repaired
 
@@ -625,6 +663,7 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     owner = new_owner()
     if config.repair:  # before this run registers: the repair bumps the lease generation it then reads
         _check_no_repair_running(storage)
+        pending_episodes(plan, episode_frames(storage))  # refuses a shrink before repair deletes anything
         report.repaired = _repair_alone(storage, config, plan, owner)
     producer = register_producer(storage, owner=owner, ttl_s=config.lease_ttl_s)
     try:

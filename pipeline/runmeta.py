@@ -160,6 +160,53 @@ def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
     return read_record(storage)
 
 
+def _refuse_differences(storage, old: dict, new: dict, extend: bool) -> None:
+    """RunConfigError unless a run of ``new`` may add to a root made with ``old``."""
+    if old == new:
+        return
+    diffs = _differences(old, new)
+    fixed = [k for k in FRAME_DEFINING if old.get(k) != new.get(k)]
+    if fixed == ["outputs"]:
+        raise RunConfigError(
+            f"{storage.uri} holds the outputs {','.join(old['outputs'])}; this run asks for "
+            f"{','.join(new['outputs'])}: pass --outputs {','.join(old['outputs'])} to resume it, or use a new --out"
+        )
+    if fixed:
+        raise RunConfigError(
+            f"{storage.uri} holds frames made with a different {', '.join(fixed)} ({'; '.join(diffs)}); "
+            "frames would not match: use a new --out"
+        )
+    if not extend:
+        raise RunConfigError(
+            f"{storage.uri} was produced with another config ({'; '.join(diffs)}); "
+            "pass --extend to add to it, or use a new --out"
+        )
+
+
+def check_before_repair(storage, config: RunConfig, extend: bool = False) -> None:
+    """Repair's first step, before anything is deleted: a readable run.json
+    must describe a run this command may repair (same frame-defining settings,
+    and the same config unless ``extend``), and the encoder must be the
+    root's. Reads only. A damaged or missing run.json passes: the manifest
+    rows are then checked against this command's options instead."""
+    from manifests.encoding import encoder_identity
+    from manifests.reader import done_episodes
+
+    try:
+        record = read_record(storage)
+    except RunRecordError:
+        return
+    if record is None:
+        return
+    _refuse_differences(storage, _with_outputs(record["config"]), config.to_dict(), extend)
+    theirs = record.get("encoder", UNRECORDED_ENCODER)
+    if theirs != encoder_identity(config.plan.rgb_format) and done_episodes(storage):
+        raise RunConfigError(
+            f"{storage.uri} holds frames written by another encoder ({theirs}); repair would re-render them "
+            "with this one: repair with the encoder that made the root"
+        )
+
+
 def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool = False,
                  summaries: dict | None = None) -> dict:
     """Record the run in ``run.json``, or check it matches the recorded one.
@@ -193,23 +240,7 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
     if old == new:
         check_rows(storage, config, summaries)
         return record
-    diffs = _differences(old, new)
-    fixed = [k for k in FRAME_DEFINING if old.get(k) != new.get(k)]
-    if fixed == ["outputs"]:
-        raise RunConfigError(
-            f"{storage.uri} holds the outputs {','.join(old['outputs'])}; this run asks for "
-            f"{','.join(new['outputs'])}: pass --outputs {','.join(old['outputs'])} to resume it, or use a new --out"
-        )
-    if fixed:
-        raise RunConfigError(
-            f"{storage.uri} holds frames made with a different {', '.join(fixed)} ({'; '.join(diffs)}); "
-            "frames would not match: use a new --out"
-        )
-    if not extend:
-        raise RunConfigError(
-            f"{storage.uri} was produced with another config ({'; '.join(diffs)}); "
-            "pass --extend to add to it, or use a new --out"
-        )
+    _refuse_differences(storage, old, new, extend)
     check_rows(storage, config, summaries)
     record = _fresh_record(new, record.get("history", [old]))
     storage.write_bytes(RUN_FILE, record_bytes(record))

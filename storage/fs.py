@@ -8,7 +8,7 @@ import os
 import stat
 import uuid
 from concurrent.futures import ThreadPoolExecutor
-from typing import Callable
+from typing import Callable, NamedTuple
 
 import pyarrow.fs as pafs
 
@@ -44,6 +44,15 @@ _FILESYSTEMS: dict[str, Callable[[S3Config | None], pafs.FileSystem]] = {
     "local": _local_filesystem,
     "s3": _s3_filesystem,
 }
+
+
+class Listed(NamedTuple):
+    """One entry of :meth:`Storage.walk`."""
+
+    rel: str  # relative to the root
+    size: int  # bytes (0 for a link)
+    mtime: float  # seconds since the epoch (0 for a link)
+    link: bool  # a symbolic link (local roots only): never followed
 
 
 class Storage:
@@ -243,6 +252,46 @@ class Storage:
             for rel, size in found.items()
             if rel.startswith(clean) and (suffix is None or rel.endswith(suffix))
         }
+
+    def walk(self, directory: str = "") -> list[Listed]:
+        """Every file and symbolic link below ``directory`` (sorted by path),
+        with size and modification time, in one listing (S3: its LIST pages).
+
+        Symbolic links are listed as links and never followed, whether they
+        point at a file or at a folder, so nothing outside the root is ever
+        listed as the root's. In-flight temp files are left out.
+        """
+        top = clean_rel(directory, allow_empty=True)
+        if not self.is_local:
+            base = self._loc.fs_path("")
+            selector = pafs.FileSelector(self.path(top), recursive=True, allow_not_found=True)
+            infos = self._guard("list", top, lambda: self.filesystem.get_file_info(selector))
+            return sorted(
+                Listed(i.path[len(base):].lstrip("/"), int(i.size), i.mtime_ns / 1e9 if i.mtime_ns else 0.0, False)
+                for i in infos if i.type == pafs.FileType.File and not atomic.is_temp_name(i.base_name)
+            )
+        if top and os.path.islink(self.path(top)):  # the folder itself
+            return [Listed(top, 0, 0.0, True)]
+        found: list[Listed] = []
+        stack = [top]
+        while stack:
+            rel_dir = stack.pop()
+            try:
+                entries = list(os.scandir(self.path(rel_dir)))
+            except (FileNotFoundError, NotADirectoryError):
+                continue
+            except OSError as exc:
+                raise storage_error("list", self.join(rel_dir), exc) from exc
+            for entry in entries:
+                rel = f"{rel_dir}/{entry.name}" if rel_dir else entry.name
+                if entry.is_symlink():
+                    found.append(Listed(rel, 0, 0.0, True))
+                elif entry.is_dir(follow_symlinks=False):
+                    stack.append(rel)
+                elif entry.is_file(follow_symlinks=False) and not atomic.is_temp_name(entry.name):
+                    st = entry.stat(follow_symlinks=False)
+                    found.append(Listed(rel, st.st_size, st.st_mtime, False))
+        return sorted(found)
 
     def entries(self, rel: str = "") -> list[str]:
         """Names (files and folders) directly inside the folder ``rel``; [] if it does not exist."""

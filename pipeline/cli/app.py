@@ -364,16 +364,35 @@ def status(root: str = typer.Argument(..., help=ROOT_HELP)) -> None:
 @app.command()
 def verify(
     root: str = typer.Argument(..., help=ROOT_HELP),
-    threads: int = typer.Option(8, help="Files checked in parallel."),
+    domains: Optional[str] = typer.Option(None, "--domains", "-d", help="Verify only these scenarios. " + DOMAINS_HELP),
+    since: Optional[str] = typer.Option(None, help="Verify only episodes written since then: an age (30m, 2h, 3d) or an ISO time (UTC unless it says)."),
+    address: Optional[str] = typer.Option(None, help="Ray cluster address (default: $RAY_ADDRESS, else a local cluster)."),
+    workers: Optional[int] = typer.Option(None, help="CPUs for a local Ray cluster (default: all cores)."),
+    use_ray: Optional[bool] = typer.Option(None, "--ray/--no-ray", help="Check on Ray, or in this process (default: Ray for large roots or with an address)."),
+    threads: int = typer.Option(8, help="Files checked in parallel per task."),
 ) -> None:
     """Recompute every checksum; report missing, corrupt and extra files.
 
-    Exits 1 when anything is wrong; `idda produce --repair` fixes it.
+    Runs as Ray tasks, one per scenario. Exits 1 when anything is wrong;
+    `idda produce --repair` fixes it. Frames a running producer is writing
+    are reported as in progress, not as damage.
     """
-    from manifests.verify import verify as run_verify
+    from manifests.selection import parse_selection
+    from manifests.verify import Scope, parse_since, verify as run_verify
+    from pipeline.verify_ray import choose_runner
 
     with user_errors():
-        report = run_verify(output_root(root), threads=threads)
+        scope = Scope(
+            scenarios=None if domains is None else frozenset(s.code for s in parse_selection(_non_empty(domains))),
+            since=None if since is None else parse_since(since),
+        )
+        storage = output_root(root)
+        runner = choose_runner(address=address, workers=workers, use_ray=use_ray)
+        display = VerifyDisplay()
+        try:
+            report = run_verify(storage, threads=threads, progress=display.update, scope=scope, runner=runner)
+        finally:
+            display.close()
         for p in report.problems[:50]:
             typer.echo(f"{p.kind:<8} {p.path}" + (f"  ({p.detail})" if p.detail else ""))
         if len(report.problems) > 50:
@@ -381,12 +400,72 @@ def verify(
         mb = report.bytes_checked / 1e6
         rate = mb / report.seconds if report.seconds else 0.0
         summary = f"checked {report.files_checked:,} files, {mb:,.1f} MB in {report.seconds:.1f} s ({rate:.0f} MB/s)"
+        if report.in_progress:
+            summary += (f"; {count(len(report.in_progress), 'episode')} in progress (a producer is writing them; "
+                        "verify again when it has finished)")
         if report.ok:
             typer.echo(f"OK: {summary}")
             return
         counts = ", ".join(f"{n} {kind}" for kind, n in sorted(report.counts().items()))
-        typer.echo(f"FAILED: {counts}; {summary}. Fix with: idda produce --repair (same options as the run)")
+        typer.echo(f"FAILED: {counts}; {summary}. {_verify_advice(report)}")
         raise typer.Exit(code=1)
+
+
+def _non_empty(domains: str) -> str:
+    if not domains.strip():
+        raise ValueError("--domains is empty; give scenarios, or leave the option out to verify all of them")
+    return domains
+
+
+def _verify_advice(report) -> str:
+    """What to do about verify's findings: never a repair that would race a producer or follow a link."""
+    links = [p.path for p in report.problems if p.kind == "link"]
+    if links:
+        return (f"{links[0]} is a symbolic link, which verify and repair never follow: replace it with the files "
+                "it points to (or remove it), then run idda produce --repair (same options as the run)")
+    if report.in_progress:
+        return "A producer is writing into this root: when it has finished, run idda produce --repair (same options as the run)"
+    return "Fix with: idda produce --repair (same options as the run)"
+
+
+class VerifyDisplay:
+    """Verify's progress on ``stream`` (stderr): a tqdm bar on a terminal,
+    otherwise one line every ``every_s`` seconds (a log file, CI)."""
+
+    def __init__(self, stream=None, every_s: float = 30.0) -> None:
+        import sys
+
+        self.stream = stream if stream is not None else sys.stderr
+        self.tty = bool(getattr(self.stream, "isatty", lambda: False)())
+        self.every_s = every_s
+        self._bar = None
+        self._last_line, self._lines, self._final_written = 0.0, 0, False
+
+    def update(self, p) -> None:
+        if self.tty:
+            if self._bar is None:
+                from tqdm import tqdm
+
+                self._bar = tqdm(total=p.episodes_total, unit="episode", desc="verify", file=self.stream, leave=False)
+            self._bar.n = p.episodes_done
+            self._bar.set_postfix_str(f"{p.files_done:,} files", refresh=False)
+            self._bar.refresh()
+        else:
+            final = bool(p.episodes_total) and p.episodes_done == p.episodes_total
+            due = p.elapsed_s - self._last_line >= self.every_s
+            if not due and not (final and self._lines):  # a short run prints no progress at all
+                return
+            if final and self._final_written:
+                return
+            self._last_line, self._lines, self._final_written = p.elapsed_s, self._lines + 1, final
+            self.stream.write(f"verify: {p.episodes_done:,}/{p.episodes_total:,} episodes, "
+                              f"{p.files_done:,} files, {p.elapsed_s:.0f} s\n")
+            self.stream.flush()
+
+    def close(self) -> None:
+        if self._bar is not None:
+            self._bar.close()
+            self._bar = None
 
 
 @app.command()
