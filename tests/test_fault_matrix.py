@@ -246,7 +246,7 @@ def test_compaction_on_a_full_disk_keeps_the_root(world, tmp_path):
 
 
 # ---------------------------------------------------------------------- repair ----
-def pending_repair_never_follows_a_scenario_symlink_into_a_neighbour(world):
+def test_repair_never_follows_a_scenario_symlink_into_a_neighbour(world):
     root = world["root"]
     faultkit.symlink_swap(root / "T01_CN_A", world["neighbour"] / "T01_CN_A")
     check = unchanged(world["neighbour"])
@@ -255,7 +255,7 @@ def pending_repair_never_follows_a_scenario_symlink_into_a_neighbour(world):
     check()
 
 
-def pending_repair_refuses_a_run_json_of_another_run(world):
+def test_repair_refuses_a_run_json_of_another_run(world):
     from pipeline.planner import PlanConfig
     from pipeline.runmeta import RunConfig, prepare_root
     from storage import Storage
@@ -271,7 +271,7 @@ def pending_repair_refuses_a_run_json_of_another_run(world):
     check()
 
 
-def pending_repair_killed_before_rendering_then_rerun(world, tiny):
+def test_repair_killed_before_rendering_then_rerun(world, tiny):
     """Repair deleted a damaged episode's files and was killed before it rendered
     them again: the next repair finishes the job, byte for byte as rendered first."""
     root = world["root"]
@@ -291,7 +291,7 @@ def pending_repair_killed_before_rendering_then_rerun(world, tiny):
 
 
 # ---------------------------------------------------------------------- extend ----
-def pending_extend_sigterm_says_how_to_resume(world):
+def test_extend_sigterm_says_how_to_resume(world):
     args = ["produce", "--domains", DOMAINS, "--frames-per-scenario", "3", "--width", "64", "--height", "36",
             "--seed", "7", "--world", "test", "--out", str(world["root"]), "--extend", "--workers", "1"]
     child = faultkit.start(args, world["flags"], pause_at="pipeline.driver:_render_on_ray:1")
@@ -325,10 +325,10 @@ def test_extend_killed_then_rerun_grows_the_root(world):
 # do not start with test_); after merging that branch, the lead renames each to
 # test_... (they use the fixtures above as they are).
 PENDING_OTHER_BRANCHES = [
-    pending_repair_never_follows_a_scenario_symlink_into_a_neighbour,  # issue 21.1: verify helper (repair and symlinks)
-    pending_repair_refuses_a_run_json_of_another_run,  # issue 21.2: verify helper (check config before deleting)
-    pending_extend_sigterm_says_how_to_resume,  # issue 21.7: ray helper (SIGTERM: one line, exit 143)
-    pending_repair_killed_before_rendering_then_rerun,  # issue 21.9: scale helper (take over a dead lease of this host)
+    # enabled: test_repair_never_follows_a_scenario_symlink_into_a_neighbour,  # issue 21.1: verify helper (repair and symlinks)
+    # enabled: test_repair_refuses_a_run_json_of_another_run,  # issue 21.2: verify helper (check config before deleting)
+    # enabled: test_extend_sigterm_says_how_to_resume,  # issue 21.7: ray helper (SIGTERM: one line, exit 143)
+    # enabled: test_repair_killed_before_rendering_then_rerun,  # issue 21.9: scale helper (take over a dead lease of this host)
     # found here, owner to decide (done-episode listing and compaction in manifests/reader.py, scale helper?):
     pending_produce_does_not_call_swapped_parts_done,  # produce says "all done" for a root with two parts swapped
     pending_compaction_with_two_parts_swapped_indexes_nothing,  # and compaction indexes their misfiled rows
