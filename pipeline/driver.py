@@ -17,14 +17,15 @@ import time
 from collections import deque
 from contextlib import contextmanager
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Callable
 
 from manifests.lease import TTL_S
 from manifests.reader import compact, episode_frames, part_summaries
-from manifests.schema import STATS_DIR, index_path, part_path
+from manifests.schema import STATS_DIR
 from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
+from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
+from pipeline.repair import check_no_repair_running, repair_alone
 from pipeline.runmeta import RunConfig, RunConfigError, prepare_root
 
 log = logging.getLogger(__name__)
@@ -138,134 +139,8 @@ class StorageOutage(Exception):
         self.report, self.error = report, error
 
 
-RAY_AUTH_MODE = "RAY_AUTH_MODE"
-_RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
-_AUTH_HINT = (
-    "put the head's token in ~/.ray/auth_token or RAY_AUTH_TOKEN on this machine (`ray get-auth-token` on the head prints it)"
-)
-ATTACH_TIMEOUT_S = 10.0  # to reach a cluster's address, and again for its GCS to answer
-
-
-def ray_token_available(environ=os.environ) -> bool:
-    """Whether this machine has a Ray auth token where Ray looks for one."""
-    if environ.get("RAY_AUTH_TOKEN"):
-        return True
-    path = environ.get("RAY_AUTH_TOKEN_PATH") or Path.home() / ".ray" / "auth_token"
-    try:
-        return Path(path).is_file() and Path(path).stat().st_size > 0
-    except OSError:
-        return False
-
-
-def _import_ray():
-    try:
-        import ray
-    except ImportError as exc:  # pragma: no cover - ray is a dependency
-        raise ImportError("Ray is not installed: run `make venv` or `pip install 'ray[default]'`") from exc
-    return ray
-
-
-def _host_port(address: str) -> tuple[str, int] | None:
-    """(host, port) of a plain ``host:port`` GCS address; None for "auto", ray:// and the like."""
-    host, sep, port = address.rpartition(":")
-    if not sep or not port.isdigit() or "/" in host or not host:
-        return None
-    return host.strip("[]"), int(port)
-
-
-# Asks a GCS, without a token, whether it is alive; prints "ok", "token" (it
-# wants one) or the error. A child process: Ray's client logs its retries to
-# stderr from C++ threads and keeps trying for 40 s or more.
-_PROBE = """
-import sys
-from ray._raylet import GcsClient
-from ray.exceptions import AuthenticationError
-try:
-    GcsClient(address=sys.argv[1]).check_alive([], timeout=float(sys.argv[2]))
-    print("ok")
-except AuthenticationError:
-    print("token")
-except Exception as exc:
-    print((str(exc).strip().splitlines() or [type(exc).__name__])[0])
-"""
-
-
-def _probe_gcs(address: str) -> str:
-    """"ok", "token" (the cluster uses token authentication) or why the GCS at ``address`` did not answer."""
-    import subprocess
-    import sys
-
-    env = {k: v for k, v in os.environ.items() if k != RAY_AUTH_MODE}
-    try:
-        done = subprocess.run([sys.executable, "-c", _PROBE, address, str(ATTACH_TIMEOUT_S)], env=env,
-                              stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
-                              text=True, timeout=2 * ATTACH_TIMEOUT_S)
-    except subprocess.TimeoutExpired:
-        return f"no answer in {2 * ATTACH_TIMEOUT_S:.0f} s"
-    lines = done.stdout.strip().splitlines()
-    return lines[-1] if lines else f"the probe exited with {done.returncode}"
-
-
-def _unreachable(address: str, why: str) -> ConnectionError:
-    return ConnectionError(f"no Ray cluster answers at {address} ({why}); "
-                           "check the address (RAY_ADDRESS or --address) and that the cluster's head is running")
-
-
-def check_cluster(address: str) -> bool:
-    """Fail fast on a cluster address nobody answers at, and choose Ray's auth mode
-    for it; True if token mode was switched on.
-
-    A plain ``host:port`` is first reached over TCP (ATTACH_TIMEOUT_S), so a
-    dead address is one line in seconds instead of Ray's minutes of retries.
-    Then the GCS is asked, without a token, whether it is alive: it refuses
-    only if the cluster uses token authentication, and only then does this
-    driver switch to token mode (with a token at hand); a cluster without
-    authentication is attached to as it is. A ``RAY_AUTH_MODE`` set by the
-    user stands. ConnectionError naming the address when it cannot work.
-    """
-    import socket
-
-    target = _host_port(address)
-    if target is None:
-        return False
-    try:
-        socket.create_connection(target, timeout=ATTACH_TIMEOUT_S).close()
-    except OSError as exc:
-        raise _unreachable(address, exc.strerror or str(exc) or "timed out") from None
-    if RAY_AUTH_MODE in os.environ:
-        return False
-    answer = _probe_gcs(address)
-    if answer == "ok":
-        return False
-    if answer != "token":
-        raise _unreachable(address, answer)
-    if not ray_token_available():
-        raise ConnectionError(f"the Ray cluster at {address} uses token authentication and this machine has no token; {_AUTH_HINT}")
-    from ray._raylet import Config
-
-    os.environ[RAY_AUTH_MODE] = "token"
-    Config.initialize("")  # Ray reads the mode into its config; read it again (as `ray start` does)
-    return True
-
-
-# Ray's own options that make a local cluster die with its driver: GCS and
-# raylet already share the driver's fate (PR_SET_PDEATHSIG); with these the
-# agents notice the raylet's death at once through a pipe (instead of after
-# polling for up to a minute or two), and each worker runs in its own process
-# group that the raylet kills with it. Workers run at the driver's priority:
-# Ray's default (nice 15) is for shared machines, where its daemons must stay
-# responsive; on a cluster that exists for this run, it only lets every daemon
-# wake-up preempt rendering (the Ray overhead in docs/bench_produce.md).
-_LOCAL_CLUSTER_ENV = {
-    "RAY_enable_pipe_based_agent_to_parent_health_check": "true",
-    "RAY_process_group_cleanup_enabled": "true",
-    "RAY_worker_niceness": "0",
-}
-_RAY_INIT_COMMON = dict(log_to_driver=False, logging_level=logging.WARNING)
-
-
 def _address(config: ProduceConfig) -> str | None:
-    return config.address or os.environ.get("RAY_ADDRESS")
+    return cluster_address(config.address)
 
 
 def _connect(ray, config: ProduceConfig) -> None:
@@ -288,128 +163,9 @@ def _connect(ray, config: ProduceConfig) -> None:
             signal.signal(signal.SIGTERM, keep)
 
 
-def attach(ray, address: str | None, workers: int | None = None) -> None:
-    """Attach to the cluster at ``address`` (one line if nothing answers there), or start a
-    local one of ``workers`` CPUs (default all cores), unless this process already has Ray."""
-    if ray.is_initialized():
-        return
-    if address:
-        check_cluster(address)
-        try:
-            ray.init(address=address, **_RAY_INIT_COMMON)
-        except ConnectionError as exc:
-            raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc})") from exc
-    else:
-        start_local_cluster(ray, workers)
-
-
-def start_local_cluster(ray, cpus: int | None = None) -> None:
-    """Start the private one-machine Ray cluster ``produce`` runs on when given no address
-    (``cpus``: its CPU count, default all cores). Public so benchmarks start the same one."""
-    # Ray's notice that it turned token authentication on is not something the user has to act on.
-    logging.getLogger(_RAY_TOKEN_LOGGER).setLevel(logging.ERROR)
-    for name, value in _LOCAL_CLUSTER_ENV.items():  # read by the raylet and agents it starts
-        os.environ.setdefault(name, value)
-    # address="local": a new instance even where `ray start` left a cluster
-    # on this machine (ray.init() with no address would attach to it).
-    ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, **_RAY_INIT_COMMON)
-    _stop_idle_daemons(ray)
-
-
 PROGRESS_WAIT_S = 5.0  # longest the driver waits for a frame before it looks again
 
 
-def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
-    """Drop what verify finds broken so the run rebuilds it: the parts of
-    episodes with bad files or a bad part (they re-render), stray frame files
-    (our naming only) and damaged indexes (compaction rewrites them). A damaged
-    run.json is rewritten by ``prepare_root``.
-
-    Everything is checked before anything is deleted, and only the plan's
-    scenarios are verified. A symbolic link anywhere in them, or a part whose
-    rows belong to another run (seed, resolution), refuses the whole repair:
-    RootError or RunConfigError, and nothing deleted."""
-    from manifests.root import RootError
-    from manifests.verify import Scope, verify
-    from pipeline.runmeta import check_before_repair
-
-    check_before_repair(storage, config.run, extend=config.extend)
-    scope = Scope(scenarios=frozenset(plan.scenarios()))
-    report = verify(storage, scope=scope, config=config.run.to_dict(), runner=verify_runner(config),
-                    except_owner=owner)  # our own lease: no other producer is live (checked)
-    links = [p for p in report.problems if p.kind == "link"]
-    if links:
-        raise RootError(
-            f"{storage.join(links[0].path)} is a symbolic link; repair never follows a link out of the root "
-            "and deletes nothing: replace the link with the files it points to, or remove it, and run again"
-        )
-    conflicts = [p for p in report.problems if p.conflict]
-    if conflicts:
-        raise RunConfigError(
-            f"{storage.join(conflicts[0].path)} holds frames of another run ({conflicts[0].detail}; "
-            f"{len(conflicts)} part(s) in all); repair deleted nothing: check --seed/--width/--height, "
-            "or move such parts out of the root"
-        )
-    planned = {(e.scenario, e.episode) for e in plan.episodes}
-    touched = []
-    for scenario, episode in sorted(report.affected_episodes()):
-        storage.delete(part_path(scenario, episode))
-        storage.delete(index_path(scenario))
-        if (scenario, episode) not in planned:
-            log.warning("%s_e%04d is damaged but not in the current plan; it stays pending", scenario, episode)
-        touched.append(f"{scenario}/e{episode:04d}")
-    for problem in report.problems:
-        if problem.kind in ("extra", "bad-index"):
-            storage.delete(problem.path)
-            if problem.kind == "bad-index":
-                touched.append(problem.path)
-        elif problem.kind == "bad-run":
-            touched.append(problem.path)
-    return touched
-
-
-def verify_runner(config: ProduceConfig):
-    """Repair's verify: on Ray when produce would attach to a cluster or the
-    scope is large, else in this process."""
-    from pipeline.verify_ray import choose_runner
-
-    return choose_runner(address=_address(config), workers=config.workers)
-
-
-def _stop_idle_daemons(ray) -> None:
-    """Kill the autoscaler and log monitors of the local cluster this process started.
-
-    Neither does anything for a private one-node run with log_to_driver=False:
-    one node has nothing to scale, and the log monitor publishes worker logs
-    for drivers that print them.
-
-    Both poll for as long as the cluster lives (about 0.01 CPU-s per second
-    together, taken from render workers that fill the machine), and
-    ``ray.shutdown`` stops the GCS first and then sends the monitor SIGTERM,
-    which it answers by trying to report to that GCS, so shutdown waited its
-    full second for it (1.0 of ~1.4 s). Reaches into Ray's node record; where that is missing (another
-    Ray version), the daemons are left as they are.
-    """
-    import subprocess
-
-    try:
-        constants, node = ray._private.ray_constants, ray._private.worker._global_node
-        kinds = (constants.PROCESS_TYPE_MONITOR, constants.PROCESS_TYPE_LOG_MONITOR)
-        processes = [info for kind in kinds for info in node.all_processes.get(kind, ())]
-    except AttributeError:
-        return
-    for info in processes:
-        info.process.kill()
-    for info in processes:
-        try:
-            info.process.wait(timeout=1.0)
-        except subprocess.TimeoutExpired:  # Ray's shutdown deals with it as before
-            pass
-
-
-# The progress actor: no CPU (it only counts), restarted empty wherever Ray
-# can after its node dies (it holds nothing the run needs), and no retries of
-# its calls (the next report carries the latest count anyway).
 PROGRESS_ACTOR_OPTIONS = dict(num_cpus=0, max_restarts=-1, max_task_retries=0)
 PROGRESS_RETRY_S = 1.0  # after a failed call to the progress actor, ask again this much later
 
@@ -460,6 +216,55 @@ class _LiveFrames:
         return self._shown
 
 
+def _task_options(config: ProduceConfig, slots: int, local: bool, own_cluster: bool) -> tuple[dict, str | None]:
+    """Ray options of the episode task, and the llvmpipe threads each worker's GL context gets
+    (``local``: no cluster address; ``own_cluster``: a local cluster this run started)."""
+    full = local and not config.gpus_per_task and slots * config.cpus_per_task >= (os.cpu_count() or 1)
+    lp_threads = LP_THREADS_WHEN_FULL if full and "LP_NUM_THREADS" not in os.environ else None
+    options = dict(num_cpus=config.cpus_per_task, max_retries=config.max_retries, retry_exceptions=True)
+    if config.gpus_per_task:
+        options["num_gpus"] = config.gpus_per_task
+    env = {k: os.environ[k] for k in _FORWARDED_ENV if k in os.environ}
+    if env and not own_cluster:
+        # Per task, so it also reaches workers of an existing cluster. A local
+        # cluster this call started inherited our environment already, and a
+        # runtime_env would make Ray start fresh workers instead of its
+        # prestarted ones (a second or more of imports on each).
+        options["runtime_env"] = {"env_vars": env}
+    return options, lp_threads
+
+
+def _collect(ray, ref, in_flight: dict, report: ProduceReport, max_retries: int) -> None:
+    """One finished task into ``report``: its frames, or its failure. A storage
+    error every retry hit means the storage is down (StorageOutage); a Fatal
+    one (full disk, lease lost) stops the run; either cancels the rest."""
+    from storage import StorageError
+
+    spec = in_flight.pop(ref)
+    try:
+        result = ray.get(ref)
+    except Exception as exc:  # RayTaskError, WorkerCrashedError, NodeDiedError...
+        cause = getattr(exc, "cause", exc)
+        if isinstance(cause, StorageError):  # every retry failed on storage: it is down, not the episode
+            for other in in_flight:
+                ray.cancel(other, force=True)
+            raise StorageOutage(report, cause) from None
+        message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
+        report.failed.append((spec.key, message))
+        log.error("episode %s failed after %d retries: %s", spec.key, max_retries, message)
+        return
+    if isinstance(result, Fatal):
+        for other in in_flight:
+            ray.cancel(other, force=True)
+        raise StorageError(f"{result.message}; stopped the run (retrying cannot help)", fatal=True)
+    report.rendered_frames += result.frames
+    report.rendered_episodes += 1
+    row = report.per_scenario.setdefault(spec.scenario, {"frames": 0, "episodes": 0, "seconds": 0.0})
+    row["frames"] += result.frames
+    row["episodes"] += 1
+    row["seconds"] += result.seconds
+
+
 def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
                    progress: Callable[[Progress], None] | None, start: float, episode_fn=None,
                    fence=None) -> None:
@@ -475,23 +280,9 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
             reaper = Reaper()
         slots = max(1, int(ray.cluster_resources().get("CPU", 1) // config.cpus_per_task))
         report.workers = slots
-        full = not _address(config) and not config.gpus_per_task and slots * config.cpus_per_task >= (os.cpu_count() or 1)
-        lp_threads = LP_THREADS_WHEN_FULL if full and "LP_NUM_THREADS" not in os.environ else None
         limit = config.max_in_flight or 2 * slots
-        options = dict(
-            num_cpus=config.cpus_per_task,
-            max_retries=config.max_retries,
-            retry_exceptions=True,
-        )
-        if config.gpus_per_task:
-            options["num_gpus"] = config.gpus_per_task
-        env = {k: os.environ[k] for k in _FORWARDED_ENV if k in os.environ}
-        if env and not (started and not _address(config)):
-            # Per task, so it also reaches workers of an existing cluster. A local
-            # cluster this call started inherited our environment already, and a
-            # runtime_env would make Ray start fresh workers instead of its
-            # prestarted ones (a second or more of imports on each).
-            options["runtime_env"] = {"env_vars": env}
+        local = not _address(config)
+        options, lp_threads = _task_options(config, slots, local, own_cluster=started and local)
         task = ray.remote(episode_task).options(**options)
         storage_ref = ray.put(storage)
         counter = None
@@ -531,33 +322,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                 report_progress()
                 continue
             for ref in ready:
-                spec = in_flight.pop(ref)
-                try:
-                    result = ray.get(ref)
-                except Exception as exc:  # RayTaskError, WorkerCrashedError, NodeDiedError...
-                    from storage import StorageError
-
-                    cause = getattr(exc, "cause", exc)
-                    if isinstance(cause, StorageError):  # every retry failed on storage: it is down, not the episode
-                        for other in in_flight:
-                            ray.cancel(other, force=True)
-                        raise StorageOutage(report, cause) from None
-                    message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
-                    report.failed.append((spec.key, message))
-                    log.error("episode %s failed after %d retries: %s", spec.key, config.max_retries, message)
-                    continue
-                if isinstance(result, Fatal):
-                    from storage import StorageError
-
-                    for other in in_flight:
-                        ray.cancel(other, force=True)
-                    raise StorageError(f"{result.message}; stopped the run (retrying cannot help)", fatal=True)
-                report.rendered_frames += result.frames
-                report.rendered_episodes += 1
-                row = report.per_scenario.setdefault(spec.scenario, {"frames": 0, "episodes": 0, "seconds": 0.0})
-                row["frames"] += result.frames
-                row["episodes"] += 1
-                row["seconds"] += result.seconds
+                _collect(ray, ref, in_flight, report, config.max_retries)
             report_progress()
     finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
         if started and ray.is_initialized():
@@ -582,29 +347,6 @@ def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
         if have != spec.frames:
             todo.append(spec)
     return todo
-
-
-def _check_no_repair_running(storage) -> None:
-    from manifests.lease import LeaseError, describe, exclusive_holder
-
-    holder = exclusive_holder(storage)
-    if holder is not None and holder.get("purpose") == "repair":
-        raise LeaseError(f"{storage.uri} is being repaired ({describe(holder)}); run again when it is done")
-
-
-def _repair_alone(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
-    """Repair under the root's exclusive lease, refusing beside another live producer."""
-    from manifests.lease import LeaseError, acquire_exclusive, describe, live_producers
-
-    with acquire_exclusive(storage, "repair", owner=owner):
-        others = live_producers(storage, except_owner=owner)
-        if others:
-            raise LeaseError(
-                f"{storage.uri} is being written by another producer ({describe(others[0])}); repair when it has finished"
-            )
-        repaired = _repair(storage, config, plan, owner)
-        prepare_root(storage, config.run, extend=config.extend, repair=True)
-    return repaired
 
 
 def _fold_indexes(storage, producer) -> None:
@@ -662,12 +404,12 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     )
     owner = new_owner()
     if config.repair:  # before this run registers: the repair bumps the lease generation it then reads
-        _check_no_repair_running(storage)
+        check_no_repair_running(storage)
         pending_episodes(plan, episode_frames(storage))  # refuses a shrink before repair deletes anything
-        report.repaired = _repair_alone(storage, config, plan, owner)
+        report.repaired = repair_alone(storage, config, plan, owner)
     producer = register_producer(storage, owner=owner, ttl_s=config.lease_ttl_s)
     try:
-        _check_no_repair_running(storage)
+        check_no_repair_running(storage)
         summaries = part_summaries(storage)  # O(parts): footers, or the indexes where current
         todo = pending_episodes(plan, episode_frames(storage, summaries))
         if not config.repair:

@@ -54,7 +54,7 @@ def ray_units(storage, units: list, config: dict | None, threads: int, address: 
               workers: int | None) -> Iterator:
     """Run ``check_unit`` for each unit as a Ray task; yields results as they finish."""
     from manifests.verify import check_unit
-    from pipeline.driver import _import_ray, attach
+    from pipeline.cluster import _import_ray, attach
 
     ray = _import_ray(address)
     started = not ray.is_initialized()

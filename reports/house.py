@@ -26,7 +26,7 @@ STAGES: tuple[tuple[str, str], ...] = (
                               "instances; an episode gives named buffers"),
     ("exports", "one module per output format over shared frame placing; the dataset card"),
     ("analysis", "loaders, metrics, the small segmentation net, distances, shifts, evaluate (torch extra)"),
-    ("pipeline", "planner, run metadata, the Ray distributor, the episode job (buffers -> files -> manifest part)"),
+    ("pipeline", "planner, run metadata, the Ray distributor and cluster attach, the episode job (buffers -> files -> manifest part), repair, verify on Ray"),
     ("pipeline.cli", "the Typer app and its shared options"),
     ("reports", "make report's generators (docs/worlds.md, this page)"),
 )

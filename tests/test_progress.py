@@ -13,7 +13,7 @@ import time
 
 import pytest
 
-from pipeline.cli.app import RATE_WINDOW, ProgressDisplay, RateWindow, format_progress
+from pipeline.cli.progress import RATE_WINDOW, ProgressDisplay, RateWindow, format_progress
 from pipeline.driver import ProduceConfig, Progress, produce
 from pipeline.ray_task import FrameCounter, FrameReporter
 from pipeline.planner import PlanConfig

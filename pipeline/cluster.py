@@ -1,0 +1,209 @@
+"""Reaching Ray: attach to a cluster (checked first, with token authentication
+only where the cluster uses it) or start this run's private local cluster.
+
+Only ``pipeline`` imports Ray; this module does the attaching for ``produce``
+and ``verify`` alike.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+from pathlib import Path
+
+log = logging.getLogger(__name__)
+
+
+def cluster_address(address: str | None) -> str | None:
+    """The cluster to attach to: ``address``, else RAY_ADDRESS; None means a private local cluster."""
+    return address or os.environ.get("RAY_ADDRESS")
+
+
+RAY_AUTH_MODE = "RAY_AUTH_MODE"
+_RAY_TOKEN_LOGGER = "ray._private.authentication.authentication_token_setup"
+_AUTH_HINT = (
+    "put the head's token in ~/.ray/auth_token or RAY_AUTH_TOKEN on this machine (`ray get-auth-token` on the head prints it)"
+)
+ATTACH_TIMEOUT_S = 10.0  # to reach a cluster's address, and again for its GCS to answer
+
+
+def ray_token_available(environ=os.environ) -> bool:
+    """Whether this machine has a Ray auth token where Ray looks for one."""
+    if environ.get("RAY_AUTH_TOKEN"):
+        return True
+    path = environ.get("RAY_AUTH_TOKEN_PATH") or Path.home() / ".ray" / "auth_token"
+    try:
+        return Path(path).is_file() and Path(path).stat().st_size > 0
+    except OSError:
+        return False
+
+
+def _import_ray():
+    try:
+        import ray
+    except ImportError as exc:  # pragma: no cover - ray is a dependency
+        raise ImportError("Ray is not installed: run `make venv` or `pip install 'ray[default]'`") from exc
+    return ray
+
+
+def _host_port(address: str) -> tuple[str, int] | None:
+    """(host, port) of a plain ``host:port`` GCS address; None for "auto", ray:// and the like."""
+    host, sep, port = address.rpartition(":")
+    if not sep or not port.isdigit() or "/" in host or not host:
+        return None
+    return host.strip("[]"), int(port)
+
+
+# Asks a GCS, without a token, whether it is alive; prints "ok", "token" (it
+# wants one) or the error. A child process: Ray's client logs its retries to
+# stderr from C++ threads and keeps trying for 40 s or more.
+_PROBE = """
+import sys
+from ray._raylet import GcsClient
+from ray.exceptions import AuthenticationError
+try:
+    GcsClient(address=sys.argv[1]).check_alive([], timeout=float(sys.argv[2]))
+    print("ok")
+except AuthenticationError:
+    print("token")
+except Exception as exc:
+    print((str(exc).strip().splitlines() or [type(exc).__name__])[0])
+"""
+
+
+def _probe_gcs(address: str) -> str:
+    """"ok", "token" (the cluster uses token authentication) or why the GCS at ``address`` did not answer."""
+    import subprocess
+    import sys
+
+    env = {k: v for k, v in os.environ.items() if k != RAY_AUTH_MODE}
+    try:
+        done = subprocess.run([sys.executable, "-c", _PROBE, address, str(ATTACH_TIMEOUT_S)], env=env,
+                              stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+                              text=True, timeout=2 * ATTACH_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        return f"no answer in {2 * ATTACH_TIMEOUT_S:.0f} s"
+    lines = done.stdout.strip().splitlines()
+    return lines[-1] if lines else f"the probe exited with {done.returncode}"
+
+
+def _unreachable(address: str, why: str) -> ConnectionError:
+    return ConnectionError(f"no Ray cluster answers at {address} ({why}); "
+                           "check the address (RAY_ADDRESS or --address) and that the cluster's head is running")
+
+
+def check_cluster(address: str) -> bool:
+    """Fail fast on a cluster address nobody answers at, and choose Ray's auth mode
+    for it; True if token mode was switched on.
+
+    A plain ``host:port`` is first reached over TCP (ATTACH_TIMEOUT_S), so a
+    dead address is one line in seconds instead of Ray's minutes of retries.
+    Then the GCS is asked, without a token, whether it is alive: it refuses
+    only if the cluster uses token authentication, and only then does this
+    driver switch to token mode (with a token at hand); a cluster without
+    authentication is attached to as it is. A ``RAY_AUTH_MODE`` set by the
+    user stands. ConnectionError naming the address when it cannot work.
+    """
+    import socket
+
+    target = _host_port(address)
+    if target is None:
+        return False
+    try:
+        socket.create_connection(target, timeout=ATTACH_TIMEOUT_S).close()
+    except OSError as exc:
+        raise _unreachable(address, exc.strerror or str(exc) or "timed out") from None
+    if RAY_AUTH_MODE in os.environ:
+        return False
+    answer = _probe_gcs(address)
+    if answer == "ok":
+        return False
+    if answer != "token":
+        raise _unreachable(address, answer)
+    if not ray_token_available():
+        raise ConnectionError(f"the Ray cluster at {address} uses token authentication and this machine has no token; {_AUTH_HINT}")
+    from ray._raylet import Config
+
+    os.environ[RAY_AUTH_MODE] = "token"
+    Config.initialize("")  # Ray reads the mode into its config; read it again (as `ray start` does)
+    return True
+
+
+# Ray's own options that make a local cluster die with its driver: GCS and
+# raylet already share the driver's fate (PR_SET_PDEATHSIG); with these the
+# agents notice the raylet's death at once through a pipe (instead of after
+# polling for up to a minute or two), and each worker runs in its own process
+# group that the raylet kills with it. Workers run at the driver's priority:
+# Ray's default (nice 15) is for shared machines, where its daemons must stay
+# responsive; on a cluster that exists for this run, it only lets every daemon
+# wake-up preempt rendering (the Ray overhead in docs/bench_produce.md).
+_LOCAL_CLUSTER_ENV = {
+    "RAY_enable_pipe_based_agent_to_parent_health_check": "true",
+    "RAY_process_group_cleanup_enabled": "true",
+    "RAY_worker_niceness": "0",
+}
+_RAY_INIT_COMMON = dict(log_to_driver=False, logging_level=logging.WARNING)
+
+
+def attach(ray, address: str | None, workers: int | None = None) -> None:
+    """Attach to the cluster at ``address`` (one line if nothing answers there), or start a
+    local one of ``workers`` CPUs (default all cores), unless this process already has Ray."""
+    if ray.is_initialized():
+        return
+    if address:
+        check_cluster(address)
+        try:
+            ray.init(address=address, **_RAY_INIT_COMMON)
+        except ConnectionError as exc:
+            raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc})") from exc
+    else:
+        start_local_cluster(ray, workers)
+
+
+def start_local_cluster(ray, cpus: int | None = None) -> None:
+    """Start the private one-machine Ray cluster ``produce`` runs on when given no address
+    (``cpus``: its CPU count, default all cores). Public so benchmarks start the same one."""
+    # Ray's notice that it turned token authentication on is not something the user has to act on.
+    logging.getLogger(_RAY_TOKEN_LOGGER).setLevel(logging.ERROR)
+    for name, value in _LOCAL_CLUSTER_ENV.items():  # read by the raylet and agents it starts
+        os.environ.setdefault(name, value)
+    # address="local": a new instance even where `ray start` left a cluster
+    # on this machine (ray.init() with no address would attach to it).
+    ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, **_RAY_INIT_COMMON)
+    _stop_idle_daemons(ray)
+
+
+def _stop_idle_daemons(ray) -> None:
+    """Kill the autoscaler and log monitors of the local cluster this process started.
+
+    Neither does anything for a private one-node run with log_to_driver=False:
+    one node has nothing to scale, and the log monitor publishes worker logs
+    for drivers that print them.
+
+    Both poll for as long as the cluster lives (about 0.01 CPU-s per second
+    together, taken from render workers that fill the machine), and
+    ``ray.shutdown`` stops the GCS first and then sends the monitor SIGTERM,
+    which it answers by trying to report to that GCS, so shutdown waited its
+    full second for it (1.0 of ~1.4 s). Reaches into Ray's node record; where that is missing (another
+    Ray version), the daemons are left as they are.
+    """
+    import subprocess
+
+    try:
+        constants, node = ray._private.ray_constants, ray._private.worker._global_node
+        kinds = (constants.PROCESS_TYPE_MONITOR, constants.PROCESS_TYPE_LOG_MONITOR)
+        processes = [info for kind in kinds for info in node.all_processes.get(kind, ())]
+    except AttributeError:
+        return
+    for info in processes:
+        info.process.kill()
+    for info in processes:
+        try:
+            info.process.wait(timeout=1.0)
+        except subprocess.TimeoutExpired:  # Ray's shutdown deals with it as before
+            pass
+
+
+# The progress actor: no CPU (it only counts), restarted empty wherever Ray
+# can after its node dies (it holds nothing the run needs), and no retries of
+# its calls (the next report carries the latest count anyway).
