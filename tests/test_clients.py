@@ -24,6 +24,7 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
+from exports import cityscapes as cs_layout
 from exports import export as ex
 from manifests.catalog import EVALUATED_IDS
 from manifests.reader import read_manifest
@@ -194,7 +195,7 @@ def test_cityscapes_export_has_every_split_and_reads_like_cityscapes(root, manif
                 assert mode == {"semantic": "L", "color": "RGBA", "instance": "I;16"}[kind], (kind, mode)
     # The export's splits are the manifest's, frame by frame.
     for row in manifest.to_pylist():
-        name = ex.cityscapes_name(row["scenario"], row["episode"], row["frame"])
+        name = cs_layout.cityscapes_name(row["scenario"], row["episode"], row["frame"])
         city = row["scenario"].replace("_", "-")
         assert (target / "leftImg8bit" / row["split"] / city / f"{name}_leftImg8bit.png").is_file()
 
