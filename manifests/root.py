@@ -99,7 +99,10 @@ def claim_root(storage) -> None:
             "use a new or empty directory as --out"
         )
     storage.ensure_writable()
-    storage.create_exclusive(ROOT_MARKER, ROOT_MARKER_BODY)
+    # A new root is marked; one made before the marker existed stays as it is,
+    # so a command that then refuses (a repair) leaves it byte for byte.
+    if not entries:
+        storage.create_exclusive(ROOT_MARKER, ROOT_MARKER_BODY)
 
 
 def _is_root_dir(path: str) -> bool:

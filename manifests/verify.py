@@ -41,7 +41,7 @@ from manifests.outputs import OUTPUTS
 from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table
 from manifests.root import FRAME_FILE_RE, root_entries
 from manifests.runrecord import RunRecordError, read_record
-from manifests.schema import MANIFEST_DIR, PART_SCHEMA, RUN_FILE, frame_id, frame_path, output_columns
+from manifests.schema import MANIFEST_DIR, PART_SCHEMA, RUN_FILE, frame_id, frame_path, output_columns, part_path
 from manifests.spec import episode_seed
 from manifests.writer import ManifestError, part_bytes, read_part_file
 from storage import StorageError, sha256_bytes
@@ -254,7 +254,9 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
         else:
             good[(unit.scenario, episode)] = table
     if unit.index is not None:
-        problem = _check_index(storage, unit.index, unit.scenario, {e: "" for e in unit.with_part}, good)
+        paths = dict(unit.parts)
+        problem = _check_index(storage, unit.index, unit.scenario,
+                               {e: paths.get(e, part_path(unit.scenario, e)) for e in unit.with_part}, good)
         if problem is not None:
             result.problems.append(problem)
 

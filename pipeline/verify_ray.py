@@ -56,7 +56,7 @@ def ray_units(storage, units: list, config: dict | None, threads: int, address: 
     from manifests.verify import check_unit
     from pipeline.cluster import _import_ray, attach
 
-    ray = _import_ray(address)
+    ray = _import_ray()
     started = not ray.is_initialized()
     reaper = None
     try:

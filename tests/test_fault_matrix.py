@@ -173,7 +173,7 @@ def test_export_force_from_s3_when_the_network_goes(world, tmp_path):
         args = ["export", uri, "--format", "idda", "--to", str(target), "--copy"]
         assert faultkit.run(args, world["flags"] / "first").returncode == 0
         check = unchanged(world["neighbour"], target)
-        child = faultkit.start([*args, "--force"], world["flags"], pause_at="exports.export:_decode:1")
+        child = faultkit.start([*args, "--force"], world["flags"], pause_at="exports.idda:decode:1")
         child.wait_paused()
         faultkit.s3_outage(server)
         child.release()

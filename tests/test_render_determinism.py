@@ -22,7 +22,8 @@ REPO = Path(__file__).resolve().parents[1]
 CHILD = r"""
 import hashlib, json, os, sys, time
 from pipeline.planner import PlanConfig, make_plan
-from render_workers.render.episode import encode_frame, render_episode
+from pipeline.episode_job import frame_files
+from render_workers.render.episode import render_episode
 
 plan = make_plan(PlanConfig(domains="T01_CN_A,T01_HRN_A", frames_per_scenario=3, width=64, height=36, seed=7))
 delay = float(os.environ["SINK_DELAY_S"])
@@ -31,9 +32,9 @@ for spec in plan.episodes:
     if spec.scenario not in sys.argv[1:]:
         continue
 
-    def sink(frame, scenario=spec.scenario):
+    def sink(frame, scenario=spec.scenario, spec=spec):
         time.sleep(delay)
-        for name, data in encode_frame(frame).items():
+        for name, data in frame_files(spec, frame).items():
             digests[f"{scenario}/{frame.index}/{name}"] = hashlib.sha256(data).hexdigest()
 
     render_episode(spec, sink, world="test")
