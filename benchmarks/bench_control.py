@@ -200,7 +200,6 @@ def _plot(runs: dict, path: Path) -> None:
 
 
 def main(out_dir: str = "docs") -> dict:
-    import functools
 
     from storage import Storage
 

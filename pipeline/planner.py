@@ -15,7 +15,7 @@ import math
 from dataclasses import asdict, dataclass, field
 
 
-from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Scenario, Town
+from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Town
 from manifests.encoding import check_rgb_format
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
 from manifests.selection import parse_selection

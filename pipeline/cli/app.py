@@ -21,7 +21,6 @@ from pipeline.cli.common import (
 from manifests.outputs import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import require_outputs
 from pipeline.planner import PlanConfig, make_plan
-from storage import StorageError
 
 app = typer.Typer(
     cls=OneLineUsageErrors,
