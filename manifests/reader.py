@@ -107,17 +107,29 @@ class PartSummary:
     seeds: tuple[int, ...]
     resolutions: tuple[tuple[int, int], ...]
     rgb: tuple[str, ...]  # FORMATS keys of its rgb files; () without the rgb output
+    # the distinct scenarios and episodes its rows name (None: recorded by an older index, unknown)
+    scenarios: tuple[str, ...] | None = None
+    episodes: tuple[int, ...] | None = None
 
     def to_json(self, episode: int) -> list:
-        return [episode, self.size, self.rows, list(self.seeds), [list(r) for r in self.resolutions], list(self.rgb)]
+        return [episode, self.size, self.rows, list(self.seeds), [list(r) for r in self.resolutions], list(self.rgb),
+                list(self.scenarios or ()), list(self.episodes or ())]
 
     @classmethod
     def from_json(cls, item: list) -> tuple[int, PartSummary]:
-        episode, size, rows, seeds, resolutions, rgb = item
-        return int(episode), cls(int(size), int(rows), tuple(seeds), tuple(tuple(r) for r in resolutions), tuple(rgb))
+        episode, size, rows, seeds, resolutions, rgb, *names = item  # indexes before 2026-11 lack the names
+        scenarios, episodes = (tuple(names[0]), tuple(names[1])) if len(names) == 2 else (None, None)
+        return int(episode), cls(int(size), int(rows), tuple(seeds), tuple(tuple(r) for r in resolutions), tuple(rgb),
+                                 scenarios, episodes)
+
+    def misfiled(self, scenario: str, episode: int) -> bool:
+        """Whether its rows name another scenario or episode than the part's path
+        (a part copied or swapped into the wrong place)."""
+        return (self.scenarios is not None and self.scenarios not in ((), (scenario,))) or (
+            self.episodes is not None and self.episodes not in ((), (episode,)))
 
 
-_SUMMARY_COLUMNS = ("seed", "width", "height", "rgb_path")
+_SUMMARY_COLUMNS = ("seed", "width", "height", "rgb_path", "scenario", "episode")
 
 
 def _summary(size: int, rows: int, bounds: dict[str, tuple]) -> PartSummary:
@@ -134,6 +146,8 @@ def _summary(size: int, rows: int, bounds: dict[str, tuple]) -> PartSummary:
         seeds=distinct(bounds["seed"]),
         resolutions=distinct([(w0, h0), (w1, h1)] if rows else []),
         rgb=distinct(file_of_path("rgb", p) if p is not None else None for p in bounds["rgb_path"]),
+        scenarios=distinct(bounds["scenario"]),
+        episodes=distinct(bounds["episode"]),
     )
 
 
@@ -270,7 +284,21 @@ def episode_frames(root, summaries: dict | None = None) -> dict[tuple[str, int],
     (0 for an unreadable part). Read from a scenario's index where it is
     current, else from each part's footer; ``summaries`` if already scanned."""
     summaries = part_summaries(root) if summaries is None else summaries
-    return {key: (s.rows if s is not None else 0) for key, s in summaries.items()}
+    return {key: (s.rows if s is not None and not s.misfiled(*key) else 0) for key, s in summaries.items()}
+
+
+def refuse_misfiled(storage, summaries: dict[tuple[str, int], PartSummary | None]) -> None:
+    """MisfiledParts naming the parts whose rows belong to another scenario or
+    episode (swapped or copied parts): such a root is damaged, not done."""
+    from manifests.writer import MisfiledParts
+
+    wrong = sorted(key for key, s in summaries.items() if s is not None and s.misfiled(*key))
+    if wrong:
+        names = ", ".join(part_path(*key) for key in wrong[:3]) + (f" and {len(wrong) - 3} more" if len(wrong) > 3 else "")
+        raise MisfiledParts(
+            f"{storage.uri}: {len(wrong)} manifest part(s) hold the rows of another scenario or episode ({names}); "
+            f"`idda verify {storage.uri}` lists them, `idda produce ... --repair` renders those episodes again"
+        )
 
 
 def manifest_files(root) -> list[str]:
@@ -350,11 +378,12 @@ def build_index(storage, scenario: str, episodes: list[int]) -> bytes:
     return index_bytes(index_table(tables, scenario, episodes, sizes))
 
 
-def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str | None) -> bytes:
+def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str | None) -> bytes | None:
     """``scenario``'s index over the parts ``listed``: the rows of its current
     index for every part it was built from that is unchanged, and the rows of
     the other parts, read now. The sizes recorded are those of the bytes read,
-    so a part rewritten meanwhile leaves the new index stale, never wrong."""
+    so a part rewritten meanwhile leaves the new index stale, never wrong.
+    None where a part holds another scenario's or episode's rows (never indexed)."""
     from manifests.writer import ManifestError, read_part_file
 
     kept: dict[int, tuple[pa.Table, int]] = {}
@@ -380,6 +409,9 @@ def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str
             rel = listed[e][0]
             data = storage.read_bytes(rel)
             table, size = read_part_file(storage, rel, PART_SCHEMA, data=data), len(data)
+            if summary_of_table(table, size).misfiled(scenario, e):
+                log.warning("%s holds the rows of another scenario or episode: %s not indexed", rel, scenario)
+                return None
         tables.append(table)
         sizes[e] = size
     return index_bytes(index_table(tables, scenario, sorted(listed), sizes))
@@ -413,8 +445,10 @@ def compact(root, scenarios: list[str] | None = None) -> list[str]:
             continue
         index_dir, _, index_name = index_path(scenario).rpartition("/")
         storage.remove_stale_temp(index_dir, index_name)  # from a compaction that was killed
-        storage.write_bytes(index_path(scenario), _fold(storage, scenario, state.parts[scenario], state.indexes.get(scenario)))
-        written.append(scenario)
+        folded = _fold(storage, scenario, state.parts[scenario], state.indexes.get(scenario))
+        if folded is not None:
+            storage.write_bytes(index_path(scenario), folded)
+            written.append(scenario)
     return written
 
 

@@ -22,6 +22,14 @@ from storage import sha256_bytes
 class ManifestError(Exception):
     """A manifest part is missing, unreadable or inconsistent."""
 
+    exit_code = 2  # what the CLI exits with
+
+
+class MisfiledParts(ManifestError):
+    """Parts whose rows belong to another scenario or episode: damaged data."""
+
+    exit_code = 1
+
 
 def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
     """The manifest row of one rendered frame, column by column from PART_SCHEMA.

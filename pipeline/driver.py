@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from manifests.lease import TTL_S
-from manifests.reader import compact, episode_frames, part_summaries
+from manifests.reader import compact, episode_frames, part_summaries, refuse_misfiled
 from manifests.schema import STATS_DIR
 from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
@@ -411,6 +411,7 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     try:
         check_no_repair_running(storage)
         summaries = part_summaries(storage)  # O(parts): footers, or the indexes where current
+        refuse_misfiled(storage, summaries)  # a swapped part is damage, never "done"
         todo = pending_episodes(plan, episode_frames(storage, summaries))
         if not config.repair:
             prepare_root(storage, config.run, extend=config.extend, summaries=summaries)

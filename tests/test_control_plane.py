@@ -105,6 +105,32 @@ def test_check_rows_from_summaries_still_refuses_other_seeds(tmp_path):
         check_rows(storage, RunConfig(plan=other, world="test"))
 
 
+def test_a_swapped_part_is_misfiled_not_done_from_its_footer_or_its_index(tmp_path):
+    """A part's summary names the scenarios and episodes of its rows: two parts
+    exchanged are not done (status), refused by produce, and never folded into an index."""
+    import shutil
+
+    from manifests.reader import PartSummary, refuse_misfiled
+    from manifests.writer import MisfiledParts
+
+    storage = synthetic_root(str(tmp_path / "root"))
+    a, b = make_plan(PLAN).episodes[0], make_plan(PLAN).episodes[-1]
+    assert a.scenario != b.scenario
+    pa_, pb = (tmp_path / "root" / part_path(s.scenario, s.episode) for s in (a, b))
+    shutil.move(pa_, tmp_path / "x")
+    shutil.move(pb, pa_)
+    shutil.move(tmp_path / "x", pb)
+    frames = episode_frames(storage)
+    assert frames[(a.scenario, a.episode)] == frames[(b.scenario, b.episode)] == 0
+    with pytest.raises(MisfiledParts, match=a.scenario):
+        refuse_misfiled(storage, part_summaries(storage))
+    assert a.scenario not in compact(storage) and b.scenario not in compact(storage)
+    assert not (tmp_path / "root" / index_path(a.scenario)).exists()
+    # an index written before summaries named their rows still reads (unknown, so trusted)
+    episode, old = PartSummary.from_json([3, 100, 7, [1], [[64, 36]], ["png"]])
+    assert episode == 3 and old.scenarios is None and not old.misfiled("T01_CN_A", 4)
+
+
 def test_current_indexes_answer_without_reading_parts(tmp_path):
     """Where a scenario's index is current, status and resume read it alone:
     unreadable parts (same size, so the listing still matches) are never opened."""

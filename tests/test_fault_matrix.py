@@ -203,10 +203,10 @@ def test_compaction_killed_then_rerun(world):
     check_neighbour()
 
 
-def pending_compaction_with_two_parts_swapped_indexes_nothing(world):
+def test_compaction_with_two_parts_swapped_indexes_nothing(world):
     """Two parts exchanged (each now holds the other's episode): compaction must
-    not index them as if fine, nor touch anything; verify names both. Today
-    produce writes _index/T01_CN_A.parquet from T07_HRN_A's rows, and says all done."""
+    not index them as if fine, nor touch anything; verify names both. Before the
+    fix produce wrote _index/T01_CN_A.parquet from T07_HRN_A's rows, and said all done."""
     root = world["root"]
     faultkit.swap(root / part_path("T01_CN_A", 0), root / part_path("T07_HRN_A", 0))
     check = unchanged(root, world["neighbour"])
@@ -219,13 +219,20 @@ def pending_compaction_with_two_parts_swapped_indexes_nothing(world):
         ("bad-part", part_path("T01_CN_A", 0)), ("bad-part", part_path("T07_HRN_A", 0))]
 
 
-def pending_produce_does_not_call_swapped_parts_done(world):
-    """Today produce answers "nothing to render; all 2 planned episodes are done"
-    (exit 0) for a root whose two parts are exchanged: it should refuse (exit 1) or re-render."""
+def test_produce_does_not_call_swapped_parts_done(world):
+    """Before the fix produce answered "nothing to render; all 2 planned episodes are done"
+    (exit 0) for a root whose two parts are exchanged: it refuses (exit 1, damaged data),
+    and a repair then renders both episodes again, byte for byte."""
     root = world["root"]
+    reference = faultkit.listing(root)
     faultkit.swap(root / part_path("T01_CN_A", 0), root / part_path("T07_HRN_A", 0))
     result = faultkit.run(_produce(world), world["flags"])
-    assert result.returncode in (1, 2) and "T01_CN_A" in result.error_line()
+    assert result.returncode == 1 and "T01_CN_A" in result.error_line() and "--repair" in result.error_line()
+    result = faultkit.run(_produce(world, "--repair", "--workers", "1"), world["flags"] / "repair")
+    assert result.returncode == 0, result.stderr
+    after = faultkit.listing(root)
+    assert {rel: after.get(rel) for rel in reference if not rel.startswith("_")} == {
+        rel: d for rel, d in reference.items() if not rel.startswith("_")}
 
 
 def test_compaction_on_a_full_disk_keeps_the_root(world, tmp_path):
@@ -319,17 +326,3 @@ def test_extend_killed_then_rerun_grows_the_root(world):
 
     assert len(read_manifest(str(world["root"]))) == 6
     check_neighbour()
-
-
-# Cells whose fix belongs to another branch. They are not collected (their names
-# do not start with test_); after merging that branch, the lead renames each to
-# test_... (they use the fixtures above as they are).
-PENDING_OTHER_BRANCHES = [
-    # enabled: test_repair_never_follows_a_scenario_symlink_into_a_neighbour,  # issue 21.1: verify helper (repair and symlinks)
-    # enabled: test_repair_refuses_a_run_json_of_another_run,  # issue 21.2: verify helper (check config before deleting)
-    # enabled: test_extend_sigterm_says_how_to_resume,  # issue 21.7: ray helper (SIGTERM: one line, exit 143)
-    # enabled: test_repair_killed_before_rendering_then_rerun,  # issue 21.9: scale helper (take over a dead lease of this host)
-    # found here, owner to decide (done-episode listing and compaction in manifests/reader.py, scale helper?):
-    pending_produce_does_not_call_swapped_parts_done,  # produce says "all done" for a root with two parts swapped
-    pending_compaction_with_two_parts_swapped_indexes_nothing,  # and compaction indexes their misfiled rows
-]

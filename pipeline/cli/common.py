@@ -48,7 +48,7 @@ def user_errors() -> Iterator[None]:
         raise
     except (ValueError, OSError, ImportError, StorageError, ManifestError, RunConfigError, LeaseError) as exc:
         typer.echo(f"error: {one_line(str(exc))}", err=True)  # one line, always
-        raise typer.Exit(code=2) from None
+        raise typer.Exit(code=getattr(exc, "exit_code", 2)) from None  # 1: damaged data
     except KeyboardInterrupt:
         typer.echo("interrupted", err=True)
         raise typer.Exit(code=130) from None
