@@ -12,6 +12,7 @@ import errno
 import json
 import logging
 import os
+import signal
 import socket
 import time
 from dataclasses import dataclass
@@ -29,8 +30,27 @@ log = logging.getLogger(__name__)
 # "kill-after:<frames>:<marker path>" makes the worker process die abruptly
 # (os._exit) after writing that many frames, once per marker file, so the test
 # suite can kill a real worker mid-episode; "enospc-after:<frames>" makes the
-# next write fail as a full disk does (the StorageError storage raises for ENOSPC).
+# next write fail as a full disk does (the StorageError storage raises for ENOSPC);
+# "stop-before-commit:<marker path>" makes the worker stop itself (SIGSTOP) just
+# before it commits its part, once per marker (which it writes its pid into), so
+# a test can stop a real worker past its lease's expiry and wake it up later.
 FAULT_ENV = "IDDA_FAULT_INJECT"
+
+
+def _once(marker: str) -> int | None:
+    """A file descriptor for a new ``marker``, or None where it exists (the hook fired already)."""
+    try:
+        return os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        return None
+
+
+def _stop_before_commit() -> None:
+    spec = os.environ.get(FAULT_ENV, "")
+    if spec.startswith("stop-before-commit:") and (fd := _once(spec.split(":", 1)[1])) is not None:
+        os.write(fd, f"{os.getpid()}\n".encode())
+        os.close(fd)
+        os.kill(os.getpid(), signal.SIGSTOP)
 
 
 def _enospc_after() -> int | None:
@@ -55,9 +75,8 @@ def _fault_after() -> int | None:
     if not spec.startswith("kill-after:"):
         return None
     _, count, marker = spec.split(":", 2)
-    try:
-        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
-    except FileExistsError:
+    fd = _once(marker)
+    if fd is None:
         return None
     os.close(fd)
     return int(count)
@@ -118,6 +137,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     result = EpisodeResult(spec.scenario, spec.episode, len(rows), seconds, socket.gethostname(), os.getpid())
     stats = {"frames": len(rows), "seconds": round(seconds, 3), "node": result.node, "stages": info.timings}
     storage.write_bytes(f"{STATS_DIR}/{spec.scenario}_e{spec.episode:04d}.json", json.dumps(stats).encode())
+    _stop_before_commit()
     commit_part(storage, spec, rows, fence)
     log.debug("%s done: %d frames in %.1f s", spec.key, len(rows), seconds)
     return result

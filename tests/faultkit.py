@@ -10,6 +10,9 @@ hurt it at a chosen point, or hurt the world around it.
   it started, e.g. its local Ray cluster), :meth:`Child.signal` (SIGTERM,
   SIGINT, SIGHUP: to the command alone, as a terminal or scheduler does),
   :meth:`Child.stop` / :meth:`Child.cont` (SIGSTOP / SIGCONT).
+* In the render workers: ``IDDA_FAULT_INJECT=stop-before-commit:<marker>``
+  stops a worker (SIGSTOP) just before it commits its part; :func:`stopped_worker`
+  waits for it and gives its pid.
 * :func:`full_disk`: a small tmpfs mounted for the test (root only); None
   where mounting is not allowed, and :data:`ENOSPC_ENV` is the fallback
   (``IDDA_FAULT_INJECT=enospc-after:N``, the workers' own fault hook).
@@ -159,6 +162,24 @@ def start(args: list[str], flags: Path, pause_at: str | None = None, env: dict[s
     if pause_at is not None:
         environ[PAUSE_ENV] = pause_at
     return Child(args, environ, pause_at)
+
+
+def stopped_worker(marker: Path, child: Child, timeout: float = WAIT_S) -> int:
+    """The pid of the worker that the ``stop-before-commit:<marker>`` hook
+    stopped, once it is stopped (AssertionError if the command ended first)."""
+    deadline = time.time() + timeout
+    while time.time() < deadline:
+        if child.proc.poll() is not None:
+            raise AssertionError(f"the command ended before a worker stopped: rc {child.proc.returncode}")
+        text = marker.read_text() if marker.exists() else ""
+        if text.endswith("\n"):
+            pid = int(text)
+            with open(f"/proc/{pid}/stat") as f:
+                if f.read().rsplit(")", 1)[1].split()[0] == "T":
+                    return pid
+        time.sleep(0.05)
+    child.kill()
+    raise AssertionError("no worker stopped before its commit")
 
 
 def run(args: list[str], flags: Path, env: dict[str, str] | None = None) -> Result:

@@ -14,6 +14,7 @@ from __future__ import annotations
 import os
 import shutil
 import signal
+import time
 from pathlib import Path
 
 import pytest
@@ -295,6 +296,38 @@ def test_repair_killed_before_rendering_then_rerun(world, tiny):
     after = faultkit.listing(root)
     data = {rel: d for rel, d in reference.items() if rel.startswith(("T01_", "T07_", "manifest/"))}
     assert {rel: after.get(rel) for rel in data} == data
+
+
+def test_worker_stopped_past_its_lease_never_commits_after_a_repair(world, tiny, tmp_path):
+    """Issue 21.3 with real signals: a producer's worker is stopped (SIGSTOP) just
+    before it commits, and the producer with it, past the lease's expiry; a repair
+    takes the root over and renders it whole; then both wake up (SIGCONT). The
+    worker's commit fails on the lease generation: no part is written over the
+    repair's, no file changes, and the producer says it lost its lease."""
+    out = tmp_path / "fresh"
+    args = ["produce", *PRODUCE, "--out", str(out), "--workers", "1"]
+    ttl = {"IDDA_LEASE_TTL_S": "2"}
+    marker = tmp_path / "stopped-worker"
+    child = faultkit.start(args, world["flags"], env={**ttl, "IDDA_FAULT_INJECT": f"stop-before-commit:{marker}"})
+    worker = faultkit.stopped_worker(marker, child)
+    try:
+        child.stop()  # the driver too: nobody refreshes its lease
+        time.sleep(3)  # past the lease's expiry
+        repair = faultkit.run([*args, "--repair"], world["flags"] / "repair", env=ttl)
+        assert repair.returncode == 0, repair.stderr
+        repaired = _data(out)
+        written = {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.rglob("*") if p.is_file()}
+    finally:
+        child.cont()
+        os.kill(worker, signal.SIGCONT)
+    result = child.finish()
+    assert result.returncode != 0 and "lease" in result.stderr.lower(), result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    assert _data(out) == repaired
+    assert {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in written} == written  # not even the same bytes again
+    assert verify(str(out)).ok
+    reference = {rel: d for rel, d in _data(tiny).items() if rel.startswith(("T01_", "T07_", "manifest/"))}
+    assert {rel: repaired.get(rel) for rel in reference} == reference  # the repair's bytes: a plain render's
 
 
 # ---------------------------------------------------------------------- extend ----
