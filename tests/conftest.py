@@ -6,6 +6,8 @@ import os
 import shutil
 import tempfile
 
+import pytest
+
 _CACHE: str | None = None
 
 
@@ -19,3 +21,17 @@ def pytest_configure(config):
 def pytest_unconfigure(config):
     if _CACHE is not None:
         shutil.rmtree(_CACHE, ignore_errors=True)
+
+
+@pytest.fixture(scope="session")
+def reference(tmp_path_factory):
+    """The plan of ``tests.test_produce`` (PLAN) rendered once per session, without
+    Ray, indexes included: what every produce, resume and repair of it must equal,
+    byte for byte. Read-only: tests copy it before they change anything."""
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
+    from tests.test_produce import PLAN
+
+    root = tmp_path_factory.mktemp("reference") / "root"
+    render_root(root, RunConfig(plan=PLAN, world="test"), compact=True)
+    return root

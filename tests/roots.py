@@ -9,6 +9,7 @@ def render_root(root: Path, config, compact: bool = False):
     """Prepare ``root`` for ``config`` (a RunConfig) and render every planned episode
     into it; ``compact`` also writes the indexes, as produce does at the end. Returns the Storage."""
     from manifests.reader import compact as write_indexes
+    from manifests.root import claim_root
     from pipeline.episode_job import run_episode
     from pipeline.planner import make_plan
     from pipeline.runmeta import prepare_root
@@ -16,6 +17,7 @@ def render_root(root: Path, config, compact: bool = False):
 
     storage = Storage.from_uri(str(root))
     storage.ensure_writable()
+    claim_root(storage)  # as produce does: the root marker first
     prepare_root(storage, config)
     for spec in make_plan(config.plan).episodes:
         run_episode(spec, storage, world=config.world)

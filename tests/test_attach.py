@@ -19,10 +19,27 @@ from pathlib import Path
 
 import pytest
 
-from tests.test_produce import ARGS, _descendants, ray_local, reference, tree_digest  # noqa: F401 (fixtures)
+from tests.test_produce import _descendants, tree_digest
+
+# One episode of two frames: what is tested is the attaching, not the rendering.
+ARGS = ["--domains", "T01_CN_A", "--frames-per-scenario", "2", "--width", "64", "--height", "36", "--seed", "7",
+        "--world", "test"]
 
 pytestmark = pytest.mark.slow
 REPO = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module")
+def reference(tmp_path_factory) -> Path:
+    """ARGS's plan rendered without Ray: what an attached run must equal, byte for byte."""
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
+
+    root = tmp_path_factory.mktemp("attach-reference") / "root"
+    plan = PlanConfig(domains="T01_CN_A", frames_per_scenario=2, width=64, height=36, seed=7)
+    render_root(root, RunConfig(plan=plan, world="test"), compact=True)
+    return root
 
 
 def _free_port() -> int:
@@ -94,7 +111,7 @@ def test_cli_attaches_whatever_the_clusters_auth(reference, tmp_path, auth_mode)
     with ray_head(env, auth_mode) as (address, head):
         result = _produce(env, address, tmp_path / "attached")
     assert result.returncode == 0, result.stderr[-3000:]
-    assert "rendered 16 frames in 4 episodes" in result.stdout
+    assert "rendered 2 frames in 1 episode " in result.stdout
     assert tree_digest(tmp_path / "attached") == tree_digest(reference)
 
 

@@ -6,7 +6,6 @@ its report is ok, and the root is byte-identical to a local run's."""
 from __future__ import annotations
 
 import threading
-import time
 
 import pytest
 
@@ -28,13 +27,12 @@ def _config(out, **kw) -> ProduceConfig:
 
 @pytest.fixture(scope="module")
 def local_reference(tmp_path_factory):
-    import ray
+    """The plan rendered on this machine, without Ray (the same bytes as a local
+    produce: tests/test_produce.py's reference checks that)."""
+    from tests.roots import render_root
 
-    if ray.is_initialized():
-        ray.shutdown()
-    out = tmp_path_factory.mktemp("chaos-reference")
-    report = produce(_config(out, workers=2))
-    assert report.ok and report.rendered_episodes == 8
+    out = tmp_path_factory.mktemp("chaos-reference") / "root"
+    render_root(out, RunConfig(plan=PLAN, world="test"), compact=True)
     return tree_digest(out)
 
 

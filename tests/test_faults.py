@@ -15,7 +15,7 @@ from manifests.reader import read_manifest
 from manifests.schema import index_path, part_path
 from manifests.verify import verify
 from pipeline.driver import produce
-from tests.test_produce import config, ray_local, reference as clean  # noqa: F401 (fixtures)
+from tests.test_produce import config, ray_local  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.slow
 
@@ -52,6 +52,12 @@ EXPECTED = {
     ("index", "truncate"): "bad-index", ("index", "flip"): "bad-index", ("index", "delete"): None,
     ("run.json", "truncate"): "bad-run", ("run.json", "flip"): "bad-run", ("run.json", "delete"): "bad-run",
 }
+
+
+@pytest.fixture
+def clean(reference) -> Path:
+    """The session's clean render of the plan (conftest's ``reference``)."""
+    return reference
 
 
 def whole_tree(root: Path) -> dict[str, str]:

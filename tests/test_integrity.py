@@ -22,10 +22,10 @@ from manifests.schema import index_path, part_path
 from manifests.verify import verify
 from pipeline.cli import app
 from pipeline.driver import produce
-from pipeline.planner import PlanConfig, make_plan
+from pipeline.planner import PlanConfig
 from pipeline.runmeta import RunConfigError
 from storage import Storage, StorageError
-from tests.test_produce import ARGS, DOMAINS, _descendants, config, ray_local, reference, tree_digest  # noqa: F401 (fixtures)
+from tests.test_produce import ARGS, DOMAINS, _descendants, config, ray_local, tree_digest  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.slow
 runner = CliRunner()

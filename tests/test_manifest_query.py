@@ -1,7 +1,6 @@
 """Manifest parts written through the writer, read back through the public
 reader, then queried and summarised."""
 
-import numpy as np
 import pyarrow.csv as pv
 import pyarrow.parquet as pq
 import pytest

@@ -20,7 +20,7 @@ import pytest
 from manifests.reader import done_episodes
 from pipeline.planner import make_plan
 from storage import Storage
-from tests.test_produce import ARGS, PLAN, ray_local, reference, tree_digest  # noqa: F401 (fixtures)
+from tests.test_produce import ARGS, PLAN, ray_local, tree_digest  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.slow
 REPO = Path(__file__).resolve().parents[1]

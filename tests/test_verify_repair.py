@@ -6,7 +6,6 @@ producer's frames in progress, the Makefile's full-scale command."""
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import shutil
 import subprocess
@@ -21,10 +20,9 @@ from manifests.runrecord import read_record, record_bytes
 from manifests.schema import RUN_FILE, index_path, part_path
 from manifests.verify import Scope, verify
 from pipeline.cli import app
-from pipeline.driver import produce
 from storage import Storage
 from tests.test_integrity import one_line_error
-from tests.test_produce import ARGS, config, ray_local, reference, tree_digest  # noqa: F401 (fixtures)
+from tests.test_produce import ARGS, ray_local, tree_digest  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.slow
 runner = CliRunner()
