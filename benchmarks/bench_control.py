@@ -157,13 +157,15 @@ def _run(root: str, episode_fn, scale: float, progress_interval_s: float = 1.0) 
     plan = PlanConfig(domains=DOMAINS, scale=scale)
     config = ProduceConfig(run=RunConfig(plan=plan, world="test"), out=root, progress_interval_s=progress_interval_s)
     updates = []
+    load = [os.getloadavg()[0]]
     with MemorySampler() as sampler:
         start = time.perf_counter()
         report = produce(config, progress=lambda p: updates.append(p.frames_done), episode_fn=episode_fn)
         seconds = time.perf_counter() - start
+    load.append(os.getloadavg()[0])
     if not report.ok:
         raise RuntimeError(f"control run failed: {report.failed[:3]}")
-    return {"report": report, "seconds": seconds, "samples": sampler.samples, "updates": updates}
+    return {"report": report, "seconds": seconds, "samples": sampler.samples, "updates": updates, "load": load}
 
 
 def _memory_figures(samples) -> dict:
@@ -224,7 +226,8 @@ def main(out_dir: str = "docs") -> dict:
             "frames_per_s": round(report.rendered_frames / run["seconds"], 0),
             "progress_us_per_frame_median": round(statistics.median(per_frame_us), 2),
             "progress_us_per_frame_p99": round(float(np.percentile(per_frame_us, 99)), 2),
-            "progress_updates": len(run["updates"]), "cpus": slots, **_memory_figures(run["samples"]),
+            "progress_updates": len(run["updates"]), "cpus": slots, "load_average": run["load"],
+            **_memory_figures(run["samples"]),
         }
         log.info("   %s", figures["full"])
         task_fps = STRESS_FPS / slots
@@ -263,7 +266,9 @@ Progress path CPU per frame, timed inside the tasks around `on_frame`: median {f
 (p99 {full['progress_us_per_frame_p99']} us) per episode. Each task sends at most one report per second and never has
 more than one un-acknowledged; the driver redrew progress {full['progress_updates']:,} times.
 
-Drift: median of the last quarter of the samples minus that of the second quarter.
+Drift: median of the last quarter of the samples minus that of the second quarter. The machine's 1-minute load
+average at the start and the end of the full-plan run: {full.get('load_average', ['?', '?'])[0]} and
+{full.get('load_average', ['?', '?'])[-1]} on {full['cpus']} CPUs (other jobs shared it where these exceed the CPUs).
 
 ![driver and progress actor memory](bench_control.png)
 """
