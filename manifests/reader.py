@@ -400,17 +400,17 @@ def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str
                 rows = old.filter(episode == e)
                 if len(rows) == summary.rows:
                     kept[e] = (rows, summary.size)
-    tables, sizes = [], {}
-    for e in sorted(listed):
+    def read(e: int) -> tuple[pa.Table, int]:
         if e in kept:
-            table, size = kept[e]
-        else:
-            rel = listed[e][0]
-            data = storage.read_bytes(rel)
-            table, size = read_part_file(storage, rel, PART_SCHEMA, data=data), len(data)
-        tables.append(table)
-        sizes[e] = size
-    return index_bytes(index_table(tables, scenario, sorted(listed), sizes))
+            return kept[e]
+        data = storage.read_bytes(listed[e][0])
+        return read_part_file(storage, listed[e][0], PART_SCHEMA, data=data), len(data)
+
+    episodes = sorted(listed)
+    with ThreadPoolExecutor(max_workers=FOOTER_THREADS) as pool:  # on S3 many reads at once, not one round trip after another
+        read_in = list(pool.map(read, episodes))
+    sizes = {e: size for e, (_, size) in zip(episodes, read_in)}
+    return index_bytes(index_table([table for table, _ in read_in], scenario, episodes, sizes))
 
 
 def compact(root, scenarios: list[str] | None = None, state: ManifestScan | None = None) -> list[str]:
