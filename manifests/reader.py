@@ -12,7 +12,7 @@ import logging
 import re
 from collections import defaultdict
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import pyarrow as pa
 import pyarrow.dataset as ds
@@ -41,6 +41,7 @@ _PART_RE = re.compile(
 _INDEX_RE = re.compile(r"^" + INDEX_DIR + r"/((T\d\d)_(\w+)_(\w))\.parquet$")
 
 log = logging.getLogger(__name__)
+_PARQUET = ds.ParquetFileFormat()
 
 
 def as_storage(root):
@@ -52,12 +53,20 @@ def as_storage(root):
 
 def part_listing(storage) -> dict[str, dict[int, tuple[str, int]]]:
     """Parts per scenario with their sizes: {scenario: {episode: (relative path, bytes)}}."""
+    return _manifest_listing(storage)[0]
+
+
+def _manifest_listing(storage) -> tuple[dict[str, dict[int, tuple[str, int]]], list[str]]:
+    """One listing of manifest/: its parts (as :func:`part_listing`) and the indexes older versions wrote there."""
     parts: dict[str, dict[int, tuple[str, int]]] = defaultdict(dict)
+    legacy = []
     for rel, size in storage.list_sizes(MANIFEST_DIR + "/", suffix=".parquet").items():
         match = _PART_RE.match(rel)
         if match:
             parts[match.group(4)][int(match.group(8))] = (rel, size)
-    return parts
+        elif rel.endswith("/" + LEGACY_INDEX_NAME):
+            legacy.append(rel)
+    return parts, sorted(legacy)
 
 
 def part_files(storage) -> dict[str, dict[int, str]]:
@@ -67,11 +76,16 @@ def part_files(storage) -> dict[str, dict[int, str]]:
 
 def index_files(storage) -> dict[str, str]:
     """Index files per scenario: {scenario: relative path}."""
+    return {scenario: rel for scenario, (rel, _) in index_listing(storage).items()}
+
+
+def index_listing(storage) -> dict[str, tuple[str, int]]:
+    """Index files per scenario with their sizes: {scenario: (relative path, bytes)}."""
     indexes = {}
-    for rel in storage.list_files(INDEX_DIR + "/", suffix=".parquet"):
+    for rel, size in storage.list_sizes(INDEX_DIR + "/", suffix=".parquet").items():
         match = _INDEX_RE.match(rel)
         if match:
-            indexes[match.group(1)] = rel
+            indexes[match.group(1)] = (rel, size)
     return indexes
 
 
@@ -81,11 +95,11 @@ def done_episodes(root) -> set[tuple[str, int]]:
     return {(scenario, episode) for scenario, eps in parts.items() for episode in eps}
 
 
-def index_episodes(storage, rel: str) -> set[int] | None:
+def index_episodes(storage, rel: str, size: int | None = None) -> set[int] | None:
     """Episodes a scenario index covers (from its footer), or None if unreadable."""
-    meta = _footer_metadata(storage, rel)
+    meta = _footer(storage, rel, size)
     try:
-        return None if meta is None else set(json.loads(meta[INDEX_EPISODES_KEY]))
+        return None if meta is None else set(json.loads((meta.metadata or {})[INDEX_EPISODES_KEY]))
     except (KeyError, ValueError, TypeError):
         return None
 
@@ -130,6 +144,7 @@ class PartSummary:
 
 
 _SUMMARY_COLUMNS = ("seed", "width", "height", "rgb_path", "scenario", "episode")
+_SUMMARY_AT = {name: PART_SCHEMA.get_field_index(name) for name in _SUMMARY_COLUMNS}  # where a part has them
 
 
 def _summary(size: int, rows: int, bounds: dict[str, tuple]) -> PartSummary:
@@ -168,12 +183,14 @@ def summary_of_table(table: pa.Table, size: int) -> PartSummary:
 
 def summary_of_footer(meta: pq.FileMetaData, size: int) -> PartSummary | None:
     """A part's summary from its footer's statistics; None where they are missing."""
-    names = meta.schema.names
+    schema = meta.schema
+    at = {name: i if i < len(schema) and schema.column(i).name == name else schema.names.index(name)
+          for name, i in _SUMMARY_AT.items()}
     bounds: dict[str, tuple] = {name: (None, None) for name in _SUMMARY_COLUMNS}
     for g in range(meta.num_row_groups):
         group = meta.row_group(g)
         for name in _SUMMARY_COLUMNS:
-            stats = group.column(names.index(name)).statistics
+            stats = group.column(at[name]).statistics
             if stats is None:
                 return None
             if not stats.has_min_max:
@@ -185,7 +202,15 @@ def summary_of_footer(meta: pq.FileMetaData, size: int) -> PartSummary | None:
     return _summary(size, meta.num_rows, bounds)
 
 
-def _footer(storage, rel: str) -> pq.FileMetaData | None:
+def _footer(storage, rel: str, size: int | None = None) -> pq.FileMetaData | None:
+    """The footer of the Parquet file at ``rel``; None if gone, torn or not Parquet. ``size``: its
+    bytes as listed, which spares the HEAD request S3 needs to learn them (one GET of the tail,
+    not two requests); a file changed since it was listed is read again the usual way."""
+    if size is not None and not storage.is_local:
+        try:
+            return _PARQUET.make_fragment(storage.path(rel), storage.filesystem, file_size=size).metadata
+        except Exception:  # rewritten since the listing, or damaged: as below
+            pass
     try:
         with storage.filesystem.open_input_file(storage.path(rel)) as f:
             return pq.read_metadata(f)
@@ -193,14 +218,9 @@ def _footer(storage, rel: str) -> pq.FileMetaData | None:
         return None
 
 
-def _footer_metadata(storage, rel: str) -> dict | None:
-    meta = _footer(storage, rel)
-    return None if meta is None else (meta.metadata or {})
-
-
 def part_summary(storage, rel: str, size: int) -> PartSummary | None:
     """The summary of the part at ``rel`` (listed with ``size`` bytes); None if unreadable."""
-    meta = _footer(storage, rel)
+    meta = _footer(storage, rel, size)
     if meta is None:
         return None
     summary = summary_of_footer(meta, size)
@@ -220,11 +240,11 @@ def _recorded(meta: dict) -> dict[int, PartSummary] | None:
         return None
 
 
-def index_summaries(storage, rel: str) -> dict[int, PartSummary] | None:
+def index_summaries(storage, rel: str, size: int | None = None) -> dict[int, PartSummary] | None:
     """The parts an index was built from, per episode; None if unreadable or
     written before indexes recorded them (such an index is never used)."""
-    meta = _footer_metadata(storage, rel)
-    return None if meta is None else _recorded(meta)
+    meta = _footer(storage, rel, size)
+    return None if meta is None else _recorded(meta.metadata or {})
 
 
 def _is_current(summaries: dict[int, PartSummary] | None, listed: dict[int, tuple[str, int]]) -> bool:
@@ -242,10 +262,11 @@ class ManifestScan:
     parts: dict[str, dict[int, tuple[str, int]]]  # {scenario: {episode: (path, bytes)}}
     indexes: dict[str, str]  # every index file present
     current: dict[str, dict[int, PartSummary]]  # scenarios whose index is current: its summaries
+    legacy: list[str] = field(default_factory=list)  # indexes older versions left inside manifest/
 
-    def summaries(self, storage, threads: int = FOOTER_THREADS) -> dict[tuple[str, int], PartSummary | None]:
-        """Every part's summary: from its scenario's index where that is current,
-        else from the part's own footer (None: unreadable, so not done)."""
+    def summaries(self, storage, threads: int = FOOTER_THREADS, read=part_summary) -> dict[tuple[str, int], PartSummary | None]:
+        """Every part's summary: from its scenario's index where that is current, else
+        ``read(storage, rel, size)`` from the part's own footer (None: unreadable, so not done)."""
         found: dict[tuple[str, int], PartSummary | None] = {}
         unindexed = []
         for scenario, episodes in self.parts.items():
@@ -254,23 +275,23 @@ class ManifestScan:
             else:
                 unindexed.extend(((scenario, e), item) for e, item in episodes.items())
         with ThreadPoolExecutor(max_workers=threads) as pool:  # one small read per part: many at once on S3
-            found.update(zip((k for k, _ in unindexed), pool.map(lambda i: part_summary(storage, *i[1]), unindexed)))
+            found.update(zip((k for k, _ in unindexed), pool.map(lambda i: read(storage, *i[1]), unindexed)))
         return found
-
 
 
 def scan(root) -> ManifestScan:
     """List the manifest and read each index's footer (in parallel): which indexes are current."""
     storage = as_storage(root)
     with ThreadPoolExecutor(max_workers=2) as pool:
-        listing = pool.submit(part_listing, storage)
-        indexes = index_files(storage)
-        parts = listing.result()
+        listing = pool.submit(_manifest_listing, storage)
+        indexes = index_listing(storage)
+        parts, legacy = listing.result()
     candidates = sorted(s for s in indexes if s in parts)
     with ThreadPoolExecutor(max_workers=FOOTER_THREADS) as pool:
-        recorded = dict(zip(candidates, pool.map(lambda s: index_summaries(storage, indexes[s]), candidates)))
+        recorded = dict(zip(candidates, pool.map(lambda s: index_summaries(storage, *indexes[s]), candidates)))
     current = {s: recorded[s] for s in candidates if _is_current(recorded[s], parts[s])}
-    return ManifestScan(parts=dict(parts), indexes=indexes, current=current)
+    return ManifestScan(parts=dict(parts), indexes={s: rel for s, (rel, _) in indexes.items()}, current=current,
+                        legacy=legacy)
 
 
 def part_summaries(root) -> dict[tuple[str, int], PartSummary | None]:
@@ -283,8 +304,16 @@ def episode_frames(root, summaries: dict | None = None) -> dict[tuple[str, int],
     """Frames held by each done episode's part: {(scenario, episode): rows}
     (0 for an unreadable part). Read from a scenario's index where it is
     current, else from each part's footer; ``summaries`` if already scanned."""
-    summaries = part_summaries(root) if summaries is None else summaries
-    return {key: (s.rows if s is not None and not s.misfiled(*key) else 0) for key, s in summaries.items()}
+    if summaries is None:  # the row counts alone: no footer is searched for statistics
+        storage = as_storage(root)
+        summaries = scan(storage).summaries(storage, read=_part_rows)
+    return {key: 0 if s is None else s if isinstance(s, int) else 0 if s.misfiled(*key) else s.rows
+            for key, s in summaries.items()}
+
+
+def _part_rows(storage, rel: str, size: int) -> int | None:
+    meta = _footer(storage, rel, size)
+    return None if meta is None else meta.num_rows
 
 
 def refuse_misfiled(storage, summaries: dict[tuple[str, int], PartSummary | None]) -> None:
@@ -292,7 +321,7 @@ def refuse_misfiled(storage, summaries: dict[tuple[str, int], PartSummary | None
     episode (swapped or copied parts): such a root is damaged, not done."""
     from manifests.writer import MisfiledParts
 
-    wrong = sorted(key for key, s in summaries.items() if s is not None and s.misfiled(*key))
+    wrong = sorted(key for key, s in summaries.items() if isinstance(s, PartSummary) and s.misfiled(*key))
     if wrong:
         names = ", ".join(part_path(*key) for key in wrong[:3]) + (f" and {len(wrong) - 3} more" if len(wrong) > 3 else "")
         raise MisfiledParts(
@@ -401,29 +430,25 @@ def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str
                 rows = old.filter(episode == e)
                 if len(rows) == summary.rows:
                     kept[e] = (rows, summary.size)
-    tables, sizes = [], {}
-    for e in sorted(listed):
+
+    def read(e: int) -> tuple[pa.Table, int]:
         if e in kept:
-            table, size = kept[e]
-        else:
-            rel = listed[e][0]
-            data = storage.read_bytes(rel)
-            table, size = read_part_file(storage, rel, PART_SCHEMA, data=data), len(data)
-            if summary_of_table(table, size).misfiled(scenario, e):
-                log.warning("%s holds the rows of another scenario or episode: %s not indexed", rel, scenario)
-                return None
-        tables.append(table)
-        sizes[e] = size
-    return index_bytes(index_table(tables, scenario, sorted(listed), sizes))
+            return kept[e]
+        data = storage.read_bytes(listed[e][0])
+        return read_part_file(storage, listed[e][0], PART_SCHEMA, data=data), len(data)
+
+    episodes = sorted(listed)
+    with ThreadPoolExecutor(max_workers=FOOTER_THREADS) as pool:  # on S3 many reads at once, not one round trip after another
+        read_in = list(pool.map(read, episodes))
+    for e, (table, size) in zip(episodes, read_in):
+        if e not in kept and summary_of_table(table, size).misfiled(scenario, e):
+            log.warning("%s holds the rows of another scenario or episode: %s not indexed", listed[e][0], scenario)
+            return None
+    sizes = {e: size for e, (_, size) in zip(episodes, read_in)}
+    return index_bytes(index_table([table for table, _ in read_in], scenario, episodes, sizes))
 
 
-def _remove_legacyindex_files(storage) -> None:
-    """Indexes that older versions wrote inside manifest/ (they doubled rows for glob readers)."""
-    for rel in storage.list_files(MANIFEST_DIR + "/", suffix="/" + LEGACY_INDEX_NAME):
-        storage.delete(rel)
-
-
-def compact(root, scenarios: list[str] | None = None) -> list[str]:
+def compact(root, scenarios: list[str] | None = None, state: ManifestScan | None = None) -> list[str]:
     """Fold each scenario's new or changed parts into its index, where the index is not current.
 
     Incremental: the rows of parts an index already holds are taken from it,
@@ -432,11 +457,14 @@ def compact(root, scenarios: list[str] | None = None) -> list[str]:
     built from and is used only while those are exactly the parts listed, so
     compaction needs no lock: one racing a writer of parts, or another
     compaction, leaves an index that is current or one that readers bypass.
-    Returns the scenarios whose index was (re)written.
+    ``state``: a scan of the root just made (default: one now); indexes
+    older versions wrote inside manifest/ (they doubled rows for glob readers)
+    are removed. Returns the scenarios whose index was (re)written.
     """
     storage = as_storage(root)
-    _remove_legacyindex_files(storage)
-    state = scan(storage)
+    state = scan(storage) if state is None else state
+    for rel in state.legacy:
+        storage.delete(rel)
     for scenario in set(state.indexes) - set(state.parts):  # every part of it was removed
         storage.delete(state.indexes[scenario])
     written = []

@@ -148,7 +148,8 @@ def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | N
         first = {name: table.column(name)[0].as_py() for name in ("width", "height", "seed")}
         detail = config_conflict(first["width"], first["height"], first["seed"], scenario, episode, config)
         conflict = detail is not None
-    if detail is None and pq.read_metadata(io.BytesIO(data)).created_by == _this_writer() and part_bytes(table) != data:
+    if detail is None and pq.read_metadata(io.BytesIO(data)).created_by == _this_writer() \
+            and part_bytes(table) != data and part_bytes(table, store_schema=True) != data:  # now, or as before
         detail = "its bytes differ from its own rows re-encoded (damaged metadata)"
     if detail is not None:
         return None, Problem("bad-part", rel, scenario, episode, detail, conflict)

@@ -77,11 +77,17 @@ def part_table(rows: list[dict]) -> pa.Table:
     return pa.table(columns, schema=PART_SCHEMA)
 
 
-def part_bytes(table: pa.Table) -> bytes:
-    """Serialise deterministically: the same rows give the same bytes."""
+def part_bytes(table: pa.Table, store_schema: bool = False) -> bytes:
+    """Serialise deterministically: the same rows give the same bytes.
+
+    Page checksums let readers (and verify) detect flipped bytes in the data.
+    The Arrow schema is not stored (``store_schema``: as parts were written
+    before): Parquet's own types read back as PART_SCHEMA, and decoding the
+    stored one took half the time of reading a footer, which status and
+    resume do for every part of a root without current indexes."""
     sink = io.BytesIO()
-    # Page checksums let readers (and verify) detect flipped bytes in the data.
-    pq.write_table(table, sink, compression="zstd", write_statistics=True, store_schema=True, write_page_checksum=True)
+    pq.write_table(table, sink, compression="zstd", write_statistics=True, store_schema=store_schema,
+                   write_page_checksum=True)
     return sink.getvalue()
 
 

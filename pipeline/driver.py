@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from manifests.lease import TTL_S
-from manifests.reader import compact, episode_frames, part_summaries, refuse_misfiled
+from manifests.reader import compact, episode_frames, refuse_misfiled, scan
 from manifests.schema import STATS_DIR
 from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
@@ -349,14 +349,15 @@ def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
     return todo
 
 
-def _fold_indexes(storage, producer) -> None:
+def _fold_indexes(storage, producer, state=None) -> None:
     """Fold finished parts into their scenarios' indexes (no lock needed: an
     index records the parts it was built from, see ``manifests.reader.compact``);
-    left to the next fold or run if storage fails, or if this producer lost its lease."""
+    left to the next fold or run if storage fails, or if this producer lost its lease.
+    ``state``: the root's scan if nothing was written since (else one is made)."""
     if producer.lost:
         return
     try:
-        compact(storage)
+        compact(storage, state=state)
     except Exception as exc:  # the parts are the truth; an index is only a cache of them
         log.warning("indexes not updated this time (%s); readers use the parts meanwhile", exc)
 
@@ -410,12 +411,14 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     producer = register_producer(storage, owner=owner, ttl_s=config.lease_ttl_s)
     try:
         check_no_repair_running(storage)
-        summaries = part_summaries(storage)  # O(parts): footers, or the indexes where current
+        state = scan(storage)
+        summaries = state.summaries(storage)  # O(parts): footers, or the indexes where current
         refuse_misfiled(storage, summaries)  # a swapped part is damage, never "done"
         todo = pending_episodes(plan, episode_frames(storage, summaries))
         if not config.repair:
             prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
         del summaries
+        state = None if todo else state  # nothing to render: the final fold needs no second scan
         report.skipped_episodes = len(plan.episodes) - len(todo)
         start = time.perf_counter()
         try:
@@ -424,7 +427,7 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
                     _render_on_ray(config, storage, todo, report, progress, start, episode_fn, fence=producer.fence)
         except KeyboardInterrupt:
             raise ProduceInterrupted(report) from None
-        _fold_indexes(storage, producer)  # also scenarios an earlier (killed) run finished
+        _fold_indexes(storage, producer, state)  # also scenarios an earlier (killed) run finished
         report.seconds = time.perf_counter() - start
         if report.rendered_frames and report.seconds > 0:
             driver_stats = {

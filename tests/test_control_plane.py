@@ -107,7 +107,7 @@ def test_check_rows_from_summaries_still_refuses_other_seeds(tmp_path):
 
 def test_a_swapped_part_is_misfiled_not_done_from_its_footer_or_its_index(tmp_path):
     """A part's summary names the scenarios and episodes of its rows: two parts
-    exchanged are not done (status), refused by produce, and never folded into an index."""
+    exchanged are not done, refused by produce, and never folded into an index."""
     import shutil
 
     from manifests.reader import PartSummary, refuse_misfiled
@@ -120,7 +120,7 @@ def test_a_swapped_part_is_misfiled_not_done_from_its_footer_or_its_index(tmp_pa
     shutil.move(pa_, tmp_path / "x")
     shutil.move(pb, pa_)
     shutil.move(tmp_path / "x", pb)
-    frames = episode_frames(storage)
+    frames = episode_frames(storage, part_summaries(storage))  # what produce counts as done
     assert frames[(a.scenario, a.episode)] == frames[(b.scenario, b.episode)] == 0
     with pytest.raises(MisfiledParts, match=a.scenario):
         refuse_misfiled(storage, part_summaries(storage))
@@ -411,3 +411,36 @@ def test_s3_status_and_resume_scan_cost_o_scenarios_requests():
     assert indexed <= listing + 3 * scenarios < parts
     assert status_requests <= indexed + 6  # plus run.json and _stats/driver.json (a stat and a read each)
     assert unindexed >= parts  # the footers themselves: this is what the indexes save
+
+
+def test_s3_footers_cost_one_get_each_and_no_head():
+    """Issue 22: a part's or an index's footer is read at the size its listing
+    showed, so S3 sees one ranged GET per footer and no HEAD request (before:
+    a HEAD and a GET each); a resume with nothing to render lists and reads
+    the indexes once, not again for its fold."""
+    import pipeline.driver as driver
+    from tests.s3_counter import counting_s3_server
+
+    with counting_s3_server() as (server, counter):
+        storage = synthetic_root(server.uri("root"), MANY)
+        parts = len(make_plan(MANY).episodes)
+        listing = 1 + 1 + 1 + 2 + 1  # manifest/, town, weather, two viewpoints; _index/
+        counter.reset()
+        assert episode_frames(storage) == expected_frames(MANY)
+        scanned = counter.counts()
+        counter.reset()
+        status = root_status(storage)
+        status_requests = counter.total()
+        compact(storage)
+        counter.reset()
+        assert part_summaries(storage)
+        indexed = counter.counts()
+        counter.reset()
+        report = driver.produce(driver.ProduceConfig(run=RunConfig(plan=MANY, world="test"), out=storage.uri))
+        resumed = counter.counts()
+    assert status.frames_done == status.frames_total and report.skipped_episodes == parts
+    assert scanned == {"GET": parts + listing}  # one GET per footer, every LIST page, no HEAD
+    assert status_requests <= parts + listing + 6  # plus the root marker, run.json and _stats/driver.json
+    assert indexed == {"GET": 2 + listing}  # the two indexes' footers
+    # one scan (listing and index footers) for the check and the fold; the lease, run.json and the write probe
+    assert resumed.get("GET", 0) <= 2 + listing + 4 and sum(resumed.values()) <= 2 + listing + 20, resumed

@@ -431,3 +431,24 @@ def test_verify_finds_a_part_from_a_run_with_another_seed(copy):
     table = table.set_column(column, table.field("seed"), pa.array([other] * len(table), type=table.field("seed").type))
     part.write_bytes(part_bytes(table))  # as that run's writer would have written it
     assert "episode seed" in _only_that_part_is_bad(verify(str(copy)))
+
+
+def test_verify_accepts_a_part_written_as_before_and_still_finds_a_forged_one(copy):
+    """Parts are now written without the stored Arrow schema; a part written
+    before (with it, by this same pyarrow) is intact, and one forged in that
+    encoding is still found by the re-encode comparison."""
+    import pyarrow.parquet as pq
+
+    from manifests.writer import part_bytes
+
+    part = _first_part(copy)
+    table = pq.read_table(part)
+    assert part.read_bytes() == part_bytes(table)  # as this writer writes now
+    legacy = part_bytes(table, store_schema=True)
+    assert legacy != part.read_bytes() and b"ARROW:schema" in legacy
+    part.write_bytes(legacy)
+    assert verify(str(copy)).ok
+    seed = table.column("seed")[0].as_py()
+    at = legacy.index(seed.to_bytes(8, "little", signed=True), len(legacy) - 8 - int.from_bytes(legacy[-8:-4], "little"))
+    part.write_bytes(legacy[:at] + (seed + 1).to_bytes(8, "little", signed=True) + legacy[at + 8:])
+    assert "re-encoded" in _only_that_part_is_bad(verify(str(copy)))
