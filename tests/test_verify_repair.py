@@ -51,6 +51,13 @@ def copy(reference, tmp_path) -> Path:
     return root
 
 
+def stray(root: Path, scenario: str, episode: int, frame: int = 0, output: str = "rgb") -> Path:
+    """Where a frame file of ours by name, that no part lists, goes in a new root (its episode's folder)."""
+    folder = root / scenario / f"e{episode:04d}" / output
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / f"{episode:04d}_{frame:03d}_{scenario}.png"
+
+
 def damage(root: Path) -> None:
     """One corrupt file, one missing file, one stray (ours by name), one truncated part
     (whose 32 files are then strays too: its episode renders again)."""
@@ -58,7 +65,7 @@ def damage(root: Path) -> None:
     corrupt = root / table.column("rgb_path")[0].as_py()
     corrupt.write_bytes(corrupt.read_bytes()[:-4] + b"XXXX")
     (root / table.column("depth_raw_path")[len(table) - 1].as_py()).unlink()
-    (root / "T07_HRN_A" / "rgb" / "0007_000_T07_HRN_A.png").write_bytes(b"stray")
+    stray(root, "T07_HRN_A", 7).write_bytes(b"stray")
     with open(root / part_path("T07_CN_A", 0), "r+b") as f:
         f.truncate(100)
 
@@ -130,7 +137,7 @@ def test_repair_of_a_scope_verifies_and_touches_only_that_scope(ray_local, refer
     assert verify(str(copy), scope=Scope(scenarios=frozenset({"T01_CN_A", "T01_HRN_A"}))).ok
     # T07's damage is out of scope: its truncated part and stray are still there, untouched
     assert (copy / part_path("T07_CN_A", 0)).stat().st_size == 100
-    assert (copy / "T07_HRN_A" / "rgb" / "0007_000_T07_HRN_A.png").read_bytes() == b"stray"
+    assert stray(copy, "T07_HRN_A", 7).read_bytes() == b"stray"
 
 
 # -- 21.1: never through a symbolic link -----------------------------------------------
@@ -141,8 +148,8 @@ def _linked_roots(reference, tmp_path) -> tuple[Path, Path]:
     shutil.copytree(reference, neighbour)
     shutil.rmtree(root / "T01_CN_A")
     (root / "T01_CN_A").symlink_to(neighbour / "T01_CN_A", target_is_directory=True)
-    (neighbour / "T01_CN_A" / "rgb" / "0005_000_T01_CN_A.png").write_bytes(b"neighbour's own")
-    frame = next((neighbour / "T01_CN_A" / "depth_raw").iterdir())
+    stray(neighbour, "T01_CN_A", 5).write_bytes(b"neighbour's own")
+    frame = next((neighbour / "T01_CN_A" / "e0000" / "depth_raw").iterdir())
     frame.write_bytes(frame.read_bytes()[:-3] + b"abc")
     return root, neighbour
 
@@ -188,7 +195,7 @@ def _foreign_run_json(root: Path, **changes) -> None:
 ])
 def test_repair_with_another_runs_config_deletes_nothing(ray_local, copy, changes, options):
     _foreign_run_json(copy, **changes)
-    (copy / "T01_CN_A" / "rgb" / "0009_000_T01_CN_A.png").write_bytes(b"stray")  # something repair would delete
+    stray(copy, "T01_CN_A", 9).write_bytes(b"stray")  # something repair would delete
     before = full_listing(copy)
     args = list(ARGS)
     for i in range(0, len(options), 2):
