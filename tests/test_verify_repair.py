@@ -268,3 +268,53 @@ def test_make_produce_builds_a_command_the_cli_accepts(monkeypatch, assignments,
     assert result.exit_code == 0 and seen, result.output
     plan = seen[0].run.plan
     assert (plan.width, plan.height) == size and make_plan(plan).total_frames == frames
+
+
+# -- issue 22: a root made before episode folders stays flat ---------------------------
+def test_an_old_flat_root_resumes_extends_verifies_and_repairs(ray_local, reference, tmp_path):
+    from dataclasses import replace
+
+    from manifests.layout import FLAT, LAYOUT_KEY, layout_of_path
+    from manifests.outputs import OUTPUTS
+    from manifests.root import claim_root
+    from manifests.schema import output_columns
+    from pipeline.runmeta import _fresh_record
+    from tests.test_produce import PLAN, config
+
+    root = tmp_path / "old"
+    storage = Storage.from_uri(str(root))
+    claim_root(storage)
+    t01 = config(root, plan=replace(PLAN, domains="towns=T01 weathers=CN,HRN viewpoints=A"))
+    record = _fresh_record(t01.run.to_dict())
+    del record[LAYOUT_KEY]  # run.json as roots made before layouts were recorded
+    storage.write_bytes(RUN_FILE, record_bytes(record))
+    assert produce(t01).rendered_episodes == 2
+    (root / part_path("T01_HRN_A", 0)).unlink()  # killed before its part: resumed
+    assert produce(t01).rendered_episodes == 1
+    assert produce(config(root, extend=True)).rendered_episodes == 2  # T07 added, flat too
+    assert read_record(storage)[LAYOUT_KEY] == FLAT
+
+    def frames(where: Path) -> dict:
+        table = read_manifest(str(where))
+        rows = table.select(["scenario", "frame_id", *(c for o in OUTPUTS for c in output_columns(o))]).to_pylist()
+        return {(r["scenario"], r["frame_id"], o): (r[f"{o}_path"], r[f"{o}_sha256"]) for r in rows for o in OUTPUTS}
+
+    old, new = frames(root), frames(reference)
+    assert {layout_of_path(path) for path, _ in old.values()} == {FLAT}
+    assert {k: sha for k, (_, sha) in old.items()} == {k: sha for k, (_, sha) in new.items()}  # same bytes
+    assert verify(str(root)).ok
+    before = tree_digest(root)
+
+    victim = root / old[("T07_CN_A", "0000_001", "depth_raw")][0]
+    victim.write_bytes(victim.read_bytes()[:-4] + b"XXXX")
+    flat_stray = root / "T01_CN_A" / "rgb" / "0000_009_T01_CN_A.png"
+    flat_stray.write_bytes(b"stray")
+    not_ours = stray(root, "T01_CN_A", 0, 9)  # the episode-folder layout's name: not this root's
+    not_ours.write_bytes(b"user data")
+    report = verify(str(root))
+    assert sorted((p.kind, p.path) for p in report.problems) == [
+        ("corrupt", victim.relative_to(root).as_posix()), ("extra", "T01_CN_A/rgb/0000_009_T01_CN_A.png")]
+    assert produce(config(root, repair=True)).rendered_episodes == 1
+    assert not flat_stray.exists() and not_ours.read_bytes() == b"user data"
+    not_ours.unlink()
+    assert verify(str(root)).ok and tree_digest(root) == before
