@@ -158,3 +158,25 @@ def test_a_lost_run_json_is_rewritten_in_the_layout_of_the_frames(old_root, new_
         assert verify(str(root)).ok
     specs = make_plan(RUN.plan).episodes
     assert [s.layout for s in specs] == [EPISODE_DIRS, EPISODE_DIRS]  # a plan's default: a new root's
+
+
+def test_an_old_root_reads_and_exports_as_a_new_one(old_root, new_root, tmp_path):
+    """Loaders and exports go through the manifest's paths: an old root gives the same samples and files."""
+    import numpy as np
+
+    from analysis.loaders import FrameDataset
+    from exports import export as ex
+    from manifests.query import Query
+
+    old, new = (FrameDataset(str(r), Query(), outputs=("rgb", "semantic_raw")) for r in (old_root, new_root))
+    assert len(old) == len(new) == 81
+    for i in (0, 41, 80):
+        a, b = old[i], new[i]
+        assert a.keys() == b.keys() and all(np.array_equal(np.asarray(a[k]), np.asarray(b[k])) for k in a)
+    trees = []
+    for name, root in (("old", old_root), ("new", new_root)):
+        target = tmp_path / name
+        assert ex.export(ex.ExportConfig(root=str(root), to=str(target), format="cityscapes")).frames == 81
+        trees.append({p.relative_to(target).as_posix(): p.read_bytes()
+                      for p in target.rglob("*") if p.is_file() and p.name != "EXPORT.json"})
+    assert trees[0] == trees[1] and len(trees[0]) > 81
