@@ -27,6 +27,11 @@ LAYOUTS = (FLAT, EPISODE_DIRS)
 NEW_ROOT_LAYOUT = EPISODE_DIRS
 LAYOUT_KEY = "layout"  # run.json's top-level key; absent: FLAT
 
+PATTERNS = {  # a frame file's path in each layout, as the docs and the dataset card write it
+    FLAT: "<scenario>/<output>/<episode>_<frame>_<scenario>",
+    EPISODE_DIRS: "<scenario>/e<episode>/<output>/<episode>_<frame>_<scenario>",
+}
+
 
 def check_layout(layout) -> int:
     """``layout`` if it is a known layout; ValueError otherwise."""

@@ -14,6 +14,7 @@ from manifests.layout import (
     EPISODE_DIRS,
     FLAT,
     LAYOUT_KEY,
+    PATTERNS,
     frame_path,
     held_layout,
     layout_of_path,
@@ -180,3 +181,23 @@ def test_an_old_root_reads_and_exports_as_a_new_one(old_root, new_root, tmp_path
         trees.append({p.relative_to(target).as_posix(): p.read_bytes()
                       for p in target.rglob("*") if p.is_file() and p.name != "EXPORT.json"})
     assert trees[0] == trees[1] and len(trees[0]) > 81
+
+
+def test_the_dataset_card_names_the_roots_own_layout(old_root, new_root):
+    from exports.card import card_markdown
+
+    for root, layout in ((old_root, FLAT), (new_root, EPISODE_DIRS)):
+        text = card_markdown(read_manifest(str(root)), read_record(Storage.from_uri(str(root))), ".", [])
+        assert f"`{PATTERNS[layout]}.<png|jpg|parquet>`" in text
+
+
+def test_an_episode_folder_that_is_a_link_is_never_followed(new_root, tmp_path):
+    import shutil
+
+    root, outside = tmp_path / "root", tmp_path / "outside"
+    shutil.copytree(new_root, root)
+    shutil.move(root / SCENARIO / "e0001", outside)
+    (root / SCENARIO / "e0001").symlink_to(outside, target_is_directory=True)
+    (outside / "rgb" / "0001_050_T01_CN_A.png").write_bytes(b"behind the link")  # would be a stray
+    problems = verify(str(root)).problems
+    assert [(p.kind, p.path) for p in problems] == [("link", f"{SCENARIO}/e0001")]
