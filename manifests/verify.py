@@ -307,12 +307,18 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
                 on_files(pending)
                 pending = 0
 
-    listed = {item[0] for item in expected}
+    _find_strays(unit, listing, {item[0] for item in expected}, result)
+    return result
+
+
+def _find_strays(unit: VerifyUnit, listing: dict, listed: set[str], result: UnitResult) -> None:
+    """Frame files of the root's own layout that no part in scope lists: extra, or
+    in progress beside a live producer; other names are never ours to report."""
     in_scope = {episode for episode, _ in unit.parts}
     for rel, entry in listing.items():
         if entry.link or rel in listed:
             continue
-        scenario, episode = _episode_of(rel, unit.layouts)  # only the root's own layout's names
+        scenario, episode = _episode_of(rel, unit.layouts)
         if episode is None:
             continue
         if episode not in in_scope:
@@ -322,7 +328,6 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
                 result.in_progress.add(episode)
                 continue
         result.problems.append(Problem("extra", rel, scenario, episode, "not in the manifest"))
-    return result
 
 
 def plain_runner(storage, units: list[VerifyUnit], config: dict | None, threads: int,
