@@ -18,6 +18,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from manifests.catalog import LABELS, SCENARIO_BY_CODE
+from manifests.layout import NEW_ROOT_LAYOUT, PATTERNS, layout_of_path
 from manifests.outputs import OUTPUTS, file_of_path, markdown_table
 from manifests.schema import PART_SCHEMA, output_columns, part_path
 from exports.hf import HF_SPLITS, card_header, citation_section
@@ -150,10 +151,12 @@ def _encoding_section(table: pa.Table) -> list[str]:
     held = held_outputs(table)
     example = table.column("depth_raw_path")[0].as_py() if "depth_raw" in held else "<depth_raw path>"
     rgb_format = file_of_path("rgb", table.column("rgb_path")[0].as_py()) if "rgb" in held else "png"
+    first = table.column(output_columns(held[0])[0])[0].as_py() if held else ""
+    pattern = PATTERNS.get(layout_of_path(first), PATTERNS[NEW_ROOT_LAYOUT])  # an old root's is flat
     return [
         "## Files and encodings",
         "",
-        "`<scenario>/<output>/<episode>_<frame>_<scenario>.<png|jpg|parquet>`, per frame one file per output "
+        f"`{pattern}.<png|jpg|parquet>`, per frame one file per output "
         f"this root holds ({', '.join(held)}; image encodings follow CARLA's conventions):",
         "",
         *markdown_table(held, rgb_format),

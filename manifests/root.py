@@ -5,8 +5,9 @@ written into, replaced in or deleted from it.
   or, for roots made before the marker existed, both ``run.json`` and a
   ``manifest/`` folder. ``idda produce`` refuses any other non-empty
   directory (or S3 prefix) as ``--out``.
-* Inside a root, repair deletes only files whose names match our layout
-  (``FRAME_FILE_RE``); anything else is left alone.
+* Inside a root, repair deletes only files whose paths follow the root's own
+  file layout (``manifests.layout.match_frame_file``: the flat layout of an
+  old root, or a new root's episode folders); anything else is left alone.
 * An export target may never be inside a root or hold one, at any depth; a
   non-empty target is replaced (``--force``) only when it is a finished export
   of ours that holds exactly what that export wrote: ``EXPORT.json`` lists the
@@ -20,28 +21,12 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-import re
 
-from manifests.outputs import FORMATS, OUTPUT_TABLE, OUTPUTS
 from manifests.schema import MANIFEST_DIR, RUN_FILE
 
 ROOT_MARKER = "idda-root.json"  # <root>/idda-root.json: "this directory is an idda output root"
 ROOT_MARKER_BODY = (json.dumps({"idda_output_root": 1, "contract": "see docs/contract.md of idda-pipeline"}) + "\n").encode()
 EXPORT_MARKER = "EXPORT.json"  # written last into an export: a finished export of ours
-
-# <scenario>/<output>/<episode:04d>_<frame:03d>_<scenario>.<its extension>, the
-# only files repair may delete from a scenario folder.
-_BY_EXTENSION: dict[str, list[str]] = {}
-for _o in OUTPUT_TABLE:
-    for _file in _o.files:  # the rgb output's PNG or JPEG
-        _BY_EXTENSION.setdefault(FORMATS[_file].extension, []).append(_o.name)
-FRAME_FILE_RE = re.compile(
-    r"^(?P<scenario>T\d\d_[A-Z]+_[A-Z])/"
-    + "(?=" + "|".join(f"(?:{'|'.join(names)})/[^/]*\\.{ext}$" for ext, names in _BY_EXTENSION.items()) + ")"
-    + r"(?P<output>" + "|".join(OUTPUTS) + r")/"
-    r"(?P<episode>\d{4})_(?P<frame>\d{3})_(?P=scenario)\.[a-z0-9]+$"
-)
-del _o, _file
 
 
 class RootError(ValueError):

@@ -12,6 +12,7 @@ import hashlib
 import json
 import os
 
+from manifests.layout import LAYOUT_KEY, LAYOUTS
 from manifests.schema import RUN_FILE
 
 CHECKSUM_KEY = "checksum"
@@ -65,6 +66,9 @@ def check_record(record, where: str) -> dict:
     history = record.get("history", [])
     if not isinstance(history, list) or not all(isinstance(h, dict) for h in history):
         raise RunRecordError(f"{where} is damaged: 'history' must be a list of configs")
+    layout = record.get(LAYOUT_KEY, LAYOUTS[0])  # absent in roots from before layouts: flat
+    if isinstance(layout, bool) or layout not in LAYOUTS:
+        raise RunRecordError(f"{where} is damaged: unknown file layout {layout!r}")
     if CHECKSUM_KEY in record and record[CHECKSUM_KEY] != _digest(record):
         raise RunRecordError(f"{where} is damaged: its checksum does not match its content")
     return record

@@ -6,7 +6,7 @@ from __future__ import annotations
 import pyarrow as pa
 
 from manifests.catalog import AXES, INSTANCE_LABELS, LABELS, code_axes
-from manifests.outputs import OUTPUTS, extension
+from manifests.outputs import OUTPUTS
 
 # ---------------------------------------------------------------- plan ----
 PLAN_SCHEMA = pa.schema(
@@ -76,12 +76,6 @@ STATS_DIR = "_stats"  # <root>/_stats/<scenario>_eNNNN.json: worker timings (not
 
 def frame_id(episode: int, frame: int) -> str:
     return f"{episode:04d}_{frame:03d}"
-
-
-def frame_path(scenario: str, name: str, fid: str, rgb_format: str = "png") -> str:
-    """Relative path of one output file: <scenario>/<output>/<frameid>_<scenario>.<ext>
-    (the rgb output's extension is the root's rgb format)."""
-    return f"{scenario}/{name}/{fid}_{scenario}.{extension(name, rgb_format)}"
 
 
 # Per-scenario compaction of its parts (see manifests.reader.compact). Indexes

@@ -11,6 +11,7 @@ import numpy as np
 
 from manifests.catalog import TOWNS, Scenario, Town, code_axes
 from manifests.encoding import check_rgb_format
+from manifests.layout import NEW_ROOT_LAYOUT, check_layout
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs, output
 
 FRAME_PERIOD_S = 3.0  # one frame every 3 s of simulated time
@@ -44,6 +45,7 @@ class EpisodeSpec:
     run_seed: int  # the run's seed; the town's world derives from it
     outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # which outputs to write (manifests.outputs)
     rgb_format: str = "png"  # the rgb output's file format (manifests.encoding.RGB_FORMATS)
+    layout: int = NEW_ROOT_LAYOUT  # where the frame files go: the root's layout (manifests.layout)
 
     @property
     def town(self) -> str:
@@ -63,9 +65,10 @@ class EpisodeSpec:
         return frozenset(output(name).source for name in self.outputs)
 
     def check_outputs(self) -> None:
-        """ValueError for an unknown output or rgb format."""
+        """ValueError for an unknown output, rgb format or layout."""
         check_outputs(self.outputs)
         check_rgb_format(self.rgb_format)
+        check_layout(self.layout)
 
     @property
     def key(self) -> str:

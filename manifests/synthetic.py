@@ -13,7 +13,8 @@ import pyarrow as pa
 
 from manifests.catalog import INSTANCE_LABELS, LABELS, VIEWPOINT_BY_CODE
 from manifests.outputs import OUTPUTS
-from manifests.schema import PART_SCHEMA, frame_id, frame_path, output_columns
+from manifests.layout import frame_path
+from manifests.schema import PART_SCHEMA, frame_id, output_columns
 from manifests.stats import PAPER_SHARES
 
 _SHARES = np.array([PAPER_SHARES[label.name] for label in LABELS])
@@ -46,7 +47,7 @@ def episode_table(spec) -> pa.Table:
     }
     for output in OUTPUTS:
         path_col, bytes_col, sha_col = output_columns(output)
-        columns[path_col] = [frame_path(spec.scenario, output, f) for f in fids]
+        columns[path_col] = [frame_path(spec.scenario, output, f, spec.rgb_format, spec.layout) for f in fids]
         columns[bytes_col] = rng.integers(100_000, 3_000_000, n)
         columns[sha_col] = [bytes(row).hex() for row in rng.integers(0, 256, (n, 32), dtype=np.uint8)]
     for label in LABELS:

@@ -39,9 +39,10 @@ from manifests.catalog import SCENARIO_BY_CODE
 from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
 from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table
-from manifests.root import FRAME_FILE_RE, root_entries
+from manifests.layout import LAYOUTS, frame_path, held_layout, match_frame_file, record_layout
+from manifests.root import root_entries
 from manifests.runrecord import RunRecordError, read_record
-from manifests.schema import MANIFEST_DIR, PART_SCHEMA, RUN_FILE, frame_id, frame_path, output_columns, part_path
+from manifests.schema import MANIFEST_DIR, PART_SCHEMA, RUN_FILE, frame_id, output_columns, part_path
 from manifests.spec import episode_seed
 from manifests.writer import ManifestError, part_bytes, read_part_file
 from storage import StorageError, sha256_bytes
@@ -90,8 +91,8 @@ class VerifyReport:
         return out
 
 
-def _episode_of(path: str) -> tuple[str | None, int | None]:
-    match = FRAME_FILE_RE.match(path)
+def _episode_of(path: str, layouts: tuple[int, ...]) -> tuple[str | None, int | None]:
+    match = match_frame_file(path, layouts)
     if not match:
         return None, None
     return match.group("scenario"), int(match.group("episode"))
@@ -103,8 +104,10 @@ def _this_writer() -> str:
     return pq.read_metadata(io.BytesIO(part_bytes(PART_SCHEMA.empty_table()))).created_by
 
 
-def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | None) -> str | None:
-    """Why a part's rows do not belong to its name (or to run.json's config), or None."""
+def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | None,
+                 layouts: tuple[int, ...] = LAYOUTS) -> str | None:
+    """Why a part's rows do not belong to its name (or to run.json's config), or None.
+    Its paths must follow one of ``layouts`` (the root's: ``manifests.layout``)."""
     n = len(table)
     if n == 0:
         return "no rows"
@@ -119,7 +122,8 @@ def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | No
         paths = table.column(output_columns(output)[0]).to_pylist()
         if paths == [None] * n:  # an output the run did not ask for
             continue
-        if all(paths != [frame_path(scenario, output, f, fmt) for f in col["frame_id"]] for fmt in formats):
+        if all(paths != [frame_path(scenario, output, f, fmt, layout) for f in col["frame_id"]]
+               for fmt in formats for layout in layouts):
             return f"{output} paths do not follow the layout"
     if len(set(col["seed"])) != 1 or len(set(zip(col["width"], col["height"]))) != 1:
         return "mixed seeds or resolutions"
@@ -137,13 +141,14 @@ def config_conflict(width: int, height: int, seed: int, scenario: str, episode: 
     return None
 
 
-def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | None) -> tuple[pa.Table | None, Problem | None]:
+def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | None,
+                layouts: tuple[int, ...]) -> tuple[pa.Table | None, Problem | None]:
     try:
         data = storage.read_bytes(rel)
         table = read_part_file(storage, rel, PART_SCHEMA, data=data)
     except (ManifestError, StorageError, OSError) as exc:
         return None, Problem("bad-part", rel, scenario, episode, str(exc))
-    detail, conflict = part_problem(table, scenario, episode, None), False  # the part's own shape first
+    detail, conflict = part_problem(table, scenario, episode, None, layouts), False  # the part's own shape first
     if detail is None:
         first = {name: table.column(name)[0].as_py() for name in ("width", "height", "seed")}
         detail = config_conflict(first["width"], first["height"], first["seed"], scenario, episode, config)
@@ -201,6 +206,7 @@ class VerifyUnit:
     index: str | None  # the scenario's index, checked when every part is in scope
     since: float | None  # stray files older than this are out of scope
     producer_live: bool  # frames without a part belong to a running producer
+    layouts: tuple[int, ...] = LAYOUTS  # the root's file layout (both when run.json cannot tell)
 
 
 @dataclass
@@ -248,7 +254,7 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
 
     good: dict[tuple[str, int], pa.Table] = {}
     for episode, rel in unit.parts:
-        table, problem = _check_part(storage, rel, unit.scenario, episode, config)
+        table, problem = _check_part(storage, rel, unit.scenario, episode, config, unit.layouts)
         result.episodes_checked += 1
         if problem is not None:
             result.problems.append(problem)
@@ -302,12 +308,20 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
                 on_files(pending)
                 pending = 0
 
-    listed = {item[0] for item in expected}
+    _find_strays(unit, listing, {item[0] for item in expected}, result)
+    return result
+
+
+def _find_strays(unit: VerifyUnit, listing: dict, listed: set[str], result: UnitResult) -> None:
+    """Frame files of the root's own layout that no part in scope lists: extra, or
+    in progress beside a live producer; other names are never ours to report."""
     in_scope = {episode for episode, _ in unit.parts}
     for rel, entry in listing.items():
-        if entry.link or rel in listed or not FRAME_FILE_RE.match(rel):
+        if entry.link or rel in listed:
             continue
-        scenario, episode = _episode_of(rel)
+        scenario, episode = _episode_of(rel, unit.layouts)
+        if episode is None:
+            continue
         if episode not in in_scope:
             if episode in unit.with_part or (unit.since is not None and entry.mtime < unit.since):
                 continue  # out of scope
@@ -315,7 +329,6 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
                 result.in_progress.add(episode)
                 continue
         result.problems.append(Problem("extra", rel, scenario, episode, "not in the manifest"))
-    return result
 
 
 def plain_runner(storage, units: list[VerifyUnit], config: dict | None, threads: int,
@@ -358,7 +371,8 @@ def _producer_live(storage, except_owner: str | None) -> bool:
         return False
 
 
-def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool) -> list[VerifyUnit]:
+def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool,
+               layouts: tuple[int, ...] = LAYOUTS) -> list[VerifyUnit]:
     """The units of ``scope``: one per scenario that has parts or a folder."""
     parts = _part_listing(storage, report)
     indexes = index_files(storage)
@@ -370,7 +384,7 @@ def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool)
         have = parts.get(scenario, {})
         chosen = tuple((e, rel) for e, (rel, mtime) in sorted(have.items()) if scope.since is None or mtime >= scope.since)
         index = indexes.get(scenario) if len(chosen) == len(have) else None
-        units.append(VerifyUnit(scenario, chosen, frozenset(have), index, scope.since, producer_live))
+        units.append(VerifyUnit(scenario, chosen, frozenset(have), index, scope.since, producer_live, layouts))
     return units
 
 
@@ -392,14 +406,18 @@ def verify(root, threads: int = 8, progress: Callable[[VerifyProgress], None] | 
     report = VerifyReport()
     scope = scope or Scope()
 
-    recorded, damaged = None, False
+    recorded, damaged, layouts = None, False, None
     try:
         record = read_record(storage)
         recorded = record["config"] if record else None
+        layouts = (record_layout(record),) if record else None
     except RunRecordError as exc:
         report.problems.append(Problem("bad-run", RUN_FILE, None, None, str(exc)))
         damaged = True
-    units = plan_units(storage, scope, report, _producer_live(storage, except_owner))
+    if layouts is None:  # run.json lost or damaged: the layout of the frames the parts list
+        held = held_layout(storage)
+        layouts = LAYOUTS if held is None else (held,)
+    units = plan_units(storage, scope, report, _producer_live(storage, except_owner), layouts)
     if recorded is None and not damaged and any(u.with_part for u in units):
         report.problems.append(Problem("bad-run", RUN_FILE, None, None, "missing"))
     episodes_total = sum(len(u.parts) for u in units)

@@ -14,7 +14,8 @@ import pyarrow.parquet as pq
 import numpy as np
 
 from manifests.catalog import LABELS
-from manifests.schema import FIELD_SOURCE, OBJECT_FIELDS, PART_SCHEMA, frame_id, frame_path, output_columns, part_path
+from manifests.layout import frame_path
+from manifests.schema import FIELD_SOURCE, OBJECT_FIELDS, PART_SCHEMA, frame_id, output_columns, part_path
 from manifests.outputs import OUTPUTS
 from storage import sha256_bytes
 
@@ -50,7 +51,7 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
     for name in OUTPUTS:
         data = files.get(name)
         path_col, bytes_col, sha_col = output_columns(name)
-        row[path_col] = None if data is None else frame_path(spec.scenario, name, fid, spec.rgb_format)
+        row[path_col] = None if data is None else frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout)
         row[bytes_col] = None if data is None else len(data)
         row[sha_col] = None if data is None else sha256_bytes(data)
     counts = np.asarray(frame.class_counts, dtype=np.int64)

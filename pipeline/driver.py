@@ -16,9 +16,10 @@ import threading
 import time
 from collections import deque
 from contextlib import contextmanager
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Callable
 
+from manifests.layout import record_layout
 from manifests.lease import TTL_S
 from manifests.reader import compact, episode_frames, refuse_misfiled, scan
 from manifests.schema import STATS_DIR
@@ -26,7 +27,7 @@ from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
 from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
 from pipeline.repair import check_no_repair_running, repair_alone
-from pipeline.runmeta import RunConfig, RunConfigError, prepare_root
+from pipeline.runmeta import RunConfig, RunConfigError, prepare_root, read_run
 
 log = logging.getLogger(__name__)
 
@@ -416,7 +417,10 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
         refuse_misfiled(storage, summaries)  # a swapped part is damage, never "done"
         todo = pending_episodes(plan, episode_frames(storage, summaries))
         if not config.repair:
-            prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
+            record = prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
+        else:
+            record = read_run(storage)  # repair_alone prepared it
+        todo = [replace(spec, layout=record_layout(record)) for spec in todo]  # the root's layout, old or new
         del summaries
         state = None if todo else state  # nothing to render: the final fold needs no second scan
         report.skipped_episodes = len(plan.episodes) - len(todo)

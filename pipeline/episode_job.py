@@ -19,7 +19,8 @@ from dataclasses import dataclass
 from typing import Callable
 
 from manifests.outputs import OUTPUTS, encode_outputs, file_bytes
-from manifests.schema import STATS_DIR, frame_id, frame_path, part_path
+from manifests.layout import frame_path, output_dir
+from manifests.schema import STATS_DIR, frame_id, part_path
 from manifests.spec import EpisodeSpec
 from manifests.writer import frame_row, write_part
 from storage.errors import storage_error
@@ -96,7 +97,8 @@ def store_frame(spec: EpisodeSpec, frame, storage) -> dict:
     """Encode one frame's outputs, write their files; return its manifest row."""
     files = frame_files(spec, frame)
     for name, data in files.items():
-        storage.write_bytes(frame_path(spec.scenario, name, frame_id(spec.episode, frame.index), spec.rgb_format), data)
+        fid = frame_id(spec.episode, frame.index)
+        storage.write_bytes(frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout), data)
     return frame_row(spec, frame, files)
 
 
@@ -114,7 +116,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
 
     start = time.perf_counter()
     for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
-        storage.remove_stale_temp(f"{spec.scenario}/{output}", f"{spec.episode:04d}_")
+        storage.remove_stale_temp(output_dir(spec.scenario, output, spec.episode, spec.layout), f"{spec.episode:04d}_")
     part_dir, _, part_name = part_path(spec.scenario, spec.episode).rpartition("/")
     storage.remove_stale_temp(part_dir, part_name)
     rows: list[dict] = []

@@ -1,7 +1,8 @@
 """Provenance and config guard for an output root (``<root>/run.json``).
 
-The file records the run config, package versions, the git revision and the
-file encoder (``manifests.encoding.encoder_identity``). A later run into the
+The file records the run config, package versions, the git revision, the
+file encoder (``manifests.encoding.encoder_identity``) and the root's file
+layout (``manifests.layout``: a new root's, kept for the root's life). A later run into the
 same root must ask for the same config, or pass --extend; settings that decide
 what a frame looks like (seed, resolution, world) can never change within one
 root, since frames would no longer match each other. Nor can the encoder once
@@ -19,6 +20,7 @@ from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
+from manifests.layout import LAYOUT_KEY, NEW_ROOT_LAYOUT, held_layout, record_layout
 from manifests.outputs import SEED_OUTPUTS
 from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE
@@ -126,7 +128,7 @@ def _with_outputs(config: dict) -> dict:
     return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", **config}
 
 
-def _fresh_record(new: dict, history: list[dict] | None = None) -> dict:
+def _fresh_record(new: dict, history: list[dict] | None = None, layout: int = NEW_ROOT_LAYOUT) -> dict:
     from manifests.encoding import encoder_identity
 
     return {
@@ -135,7 +137,14 @@ def _fresh_record(new: dict, history: list[dict] | None = None) -> dict:
         "versions": package_versions(),
         "git_revision": git_revision(),
         "encoder": encoder_identity(new["rgb_format"]),
+        LAYOUT_KEY: layout,
     }
+
+
+def _layout_held(storage) -> int:
+    """The layout for a record written afresh: that of the frames the manifest
+    lists (run.json lost or damaged), else a new root's."""
+    return held_layout(storage) or NEW_ROOT_LAYOUT
 
 
 UNRECORDED_ENCODER = "not recorded (OpenCV's PNG encoder, before encoders were recorded)"
@@ -226,11 +235,11 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
             raise RunConfigError(f"{exc}; move it away, then run again") from None
         log.warning("rewriting the damaged %s from this run's options", storage.join(RUN_FILE))
         check_rows(storage, config, summaries)
-        storage.write_bytes(RUN_FILE, record_bytes(_fresh_record(new)))
+        storage.write_bytes(RUN_FILE, record_bytes(_fresh_record(new, layout=_layout_held(storage))))
         return read_record(storage)
     if record is None:
         check_rows(storage, config, summaries)
-        if storage.create_exclusive(RUN_FILE, record_bytes(_fresh_record(new))):
+        if storage.create_exclusive(RUN_FILE, record_bytes(_fresh_record(new, layout=_layout_held(storage)))):
             return read_record(storage)
         record = read_run(storage)  # another driver was first: compare with its record
         if record is None:
@@ -242,7 +251,7 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
         return record
     _refuse_differences(storage, old, new, extend)
     check_rows(storage, config, summaries)
-    record = _fresh_record(new, record.get("history", [old]))
+    record = _fresh_record(new, record.get("history", [old]), record_layout(record))  # a root keeps its layout
     storage.write_bytes(RUN_FILE, record_bytes(record))
     return record
 

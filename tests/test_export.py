@@ -243,7 +243,7 @@ def test_export_never_touches_an_output_root(root, tmp_path):
     before = sorted(p.relative_to(copy).as_posix() for p in copy.rglob("*"))
     app = cli_app()
     runner = CliRunner()
-    for inside in ("manifest", "T01_CS_A", "T01_CS_A/rgb", "new_folder"):
+    for inside in ("manifest", "T01_CS_A", "T01_CS_A/e0000/rgb", "new_folder"):
         result = runner.invoke(app, ["export", str(copy), "--format", "cityscapes", "--to", str(copy / inside), "--force"])
         assert result.exit_code == 2 and "inside the output root" in result.output, result.output
         assert len(result.output.strip().splitlines()) == 1

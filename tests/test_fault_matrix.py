@@ -284,7 +284,7 @@ def test_repair_killed_before_rendering_then_rerun(world, tiny):
     them again: the next repair finishes the job, byte for byte as rendered first."""
     root = world["root"]
     reference = faultkit.listing(tiny)
-    victim = next(root.glob("T07_HRN_A/rgb/*.png"))
+    victim = next(root.glob("T07_HRN_A/e*/rgb/*.png"))
     victim.write_bytes(victim.read_bytes()[:-8] + b"damaged!")
     child = faultkit.start(_produce(world, "--repair", "--workers", "1"), world["flags"],
                            pause_at="pipeline.driver:_render_on_ray:1")

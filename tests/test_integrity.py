@@ -151,7 +151,7 @@ def test_repair_beside_a_real_producer_deletes_nothing(reference, tmp_path):
     proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         deadline = time.time() + 240
-        while time.time() < deadline and proc.poll() is None and not list(out.glob("T01_CN_A/rgb/*.png")):
+        while time.time() < deadline and proc.poll() is None and not list(out.glob("T01_CN_A/e*/rgb/*.png")):
             time.sleep(0.2)
         assert proc.poll() is None, proc.stderr.read()[-2000:]
         repair = subprocess.run([*cmd, "--repair"], env=env, capture_output=True, text=True, timeout=300)
@@ -222,14 +222,17 @@ def test_card_keeps_a_users_readme(copy):
 
 
 def test_repair_removes_only_our_files(ray_local, reference, copy):
-    foreign = [copy / "T01_CN_A" / "notes.txt", copy / "T01_CN_A" / "rgb" / "my_crop.png", copy / "T07_CN_A" / "x.bin"]
+    foreign = [copy / "T01_CN_A" / "notes.txt", copy / "T01_CN_A" / "e0000" / "rgb" / "my_crop.png",
+               copy / "T07_CN_A" / "x.bin", copy / "T07_CN_A" / "e0000" / "notes.txt",
+               copy / "T01_CN_A" / "rgb" / "0009_000_T01_CN_A.png",  # ours by name in the flat layout, not this root's
+               copy / "T01_CN_A" / "e0001" / "rgb" / "0002_000_T01_CN_A.png"]  # another episode's name in e0001
     for path in foreign:
         path.parent.mkdir(parents=True, exist_ok=True)
         path.write_text("user data")
-    stray = copy / "T01_CN_A" / "rgb" / "0009_000_T01_CN_A.png"
+    stray = copy / "T01_CN_A" / "e0000" / "rgb" / "0000_009_T01_CN_A.png"  # inside an episode's folder
     stray.write_bytes(b"ours by name")
     report = verify(str(copy))
-    assert [p.path for p in report.problems] == ["T01_CN_A/rgb/0009_000_T01_CN_A.png"]
+    assert [p.path for p in report.problems] == ["T01_CN_A/e0000/rgb/0000_009_T01_CN_A.png"]
     assert produce(config(copy, repair=True)).ok
     assert all(p.read_text() == "user data" for p in foreign) and not stray.exists()
 

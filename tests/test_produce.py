@@ -81,7 +81,8 @@ def test_end_to_end_read_back(reference):
         for rel, size, sha in zip(*(table.column(c).to_pylist() for c in (path_col, bytes_col, sha_col))):
             data = (reference / rel).read_bytes()
             assert len(data) == size and hashlib.sha256(data).hexdigest() == sha
-            assert rel.startswith(rel.split("/")[0] + f"/{output}/")
+            scenario, episode = rel.split("/")[0], int(rel.split("/")[-1][:4])
+            assert rel.startswith(f"{scenario}/e{episode:04d}/{output}/")  # a new root: one folder per episode
     row = table.to_pylist()[0]
     assert 20 <= row["n_vehicles"] <= 150 and 0 <= row["n_pedestrians"] <= 100
     assert sum(row[c] for c in table.column_names if c.startswith("px_")) == 64 * 36

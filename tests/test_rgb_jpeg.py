@@ -13,7 +13,7 @@ from typer.testing import CliRunner
 from manifests import encoding as enc
 from manifests.outputs import extension, file_bytes, markdown_table, read_output
 from manifests.reader import read_manifest
-from manifests.schema import frame_path
+from manifests.layout import EPISODE_DIRS, FLAT, frame_path
 from manifests.verify import verify
 from storage import Storage
 from tests.roots import render_root
@@ -63,7 +63,8 @@ def test_jpeg_bytes_are_a_quality_95_jpeg_and_deterministic():
 def test_only_the_rgb_output_changes_format():
     assert extension("rgb", "jpg") == "jpg" and extension("rgb") == "png"
     assert extension("semantic_raw", "jpg") == "png" and extension("objects", "jpg") == "parquet"
-    assert frame_path("T01_CN_A", "rgb", "0000_001", "jpg") == "T01_CN_A/rgb/0000_001_T01_CN_A.jpg"
+    assert frame_path("T01_CN_A", "rgb", "0000_001", "jpg", EPISODE_DIRS) == "T01_CN_A/e0000/rgb/0000_001_T01_CN_A.jpg"
+    assert frame_path("T01_CN_A", "rgb", "0000_001", "jpg", FLAT) == "T01_CN_A/rgb/0000_001_T01_CN_A.jpg"
     assert "| `rgb` | jpg |" in "\n".join(markdown_table(rgb_format="jpg"))
     assert "--rgb-format jpg" in "\n".join(markdown_table())
 
@@ -149,7 +150,7 @@ def test_cli_produce_rgb_format_and_card(tmp_path):
     assert bad.exit_code == 2 and "valid formats: png, jpg" in bad.output
     result = runner.invoke(cli_app(), args + ["--rgb-format", "jpg"])
     assert result.exit_code == 0, result.output
-    assert list((root / DOMAINS / "rgb").glob("*.jpg"))
+    assert list((root / DOMAINS / "e0000" / "rgb").glob("*.jpg"))
     again = runner.invoke(cli_app(), args)  # png into a jpg root: one line, exit 2
     assert again.exit_code == 2 and "another encoder" in again.output and len(again.output.strip().splitlines()) == 1
     card = runner.invoke(cli_app(), ["card", str(root)])

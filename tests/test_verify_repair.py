@@ -49,6 +49,13 @@ def copy(reference, tmp_path) -> Path:
     return root
 
 
+def stray(root: Path, scenario: str, episode: int, frame: int = 0, output: str = "rgb") -> Path:
+    """Where a frame file of ours by name, that no part lists, goes in a new root (its episode's folder)."""
+    folder = root / scenario / f"e{episode:04d}" / output
+    folder.mkdir(parents=True, exist_ok=True)
+    return folder / f"{episode:04d}_{frame:03d}_{scenario}.png"
+
+
 def damage(root: Path) -> None:
     """One corrupt file, one missing file, one stray (ours by name), one truncated part
     (whose 32 files are then strays too: its episode renders again)."""
@@ -56,7 +63,7 @@ def damage(root: Path) -> None:
     corrupt = root / table.column("rgb_path")[0].as_py()
     corrupt.write_bytes(corrupt.read_bytes()[:-4] + b"XXXX")
     (root / table.column("depth_raw_path")[len(table) - 1].as_py()).unlink()
-    (root / "T07_HRN_A" / "rgb" / "0007_000_T07_HRN_A.png").write_bytes(b"stray")
+    stray(root, "T07_HRN_A", 7).write_bytes(b"stray")
     with open(root / part_path("T07_CN_A", 0), "r+b") as f:
         f.truncate(100)
 
@@ -128,7 +135,7 @@ def test_repair_of_a_scope_verifies_and_touches_only_that_scope(ray_local, refer
     assert verify(str(copy), scope=Scope(scenarios=frozenset({"T01_CN_A", "T01_HRN_A"}))).ok
     # T07's damage is out of scope: its truncated part and stray are still there, untouched
     assert (copy / part_path("T07_CN_A", 0)).stat().st_size == 100
-    assert (copy / "T07_HRN_A" / "rgb" / "0007_000_T07_HRN_A.png").read_bytes() == b"stray"
+    assert stray(copy, "T07_HRN_A", 7).read_bytes() == b"stray"
 
 
 # -- 21.1: never through a symbolic link -----------------------------------------------
@@ -139,8 +146,8 @@ def _linked_roots(reference, tmp_path) -> tuple[Path, Path]:
     shutil.copytree(reference, neighbour)
     shutil.rmtree(root / "T01_CN_A")
     (root / "T01_CN_A").symlink_to(neighbour / "T01_CN_A", target_is_directory=True)
-    (neighbour / "T01_CN_A" / "rgb" / "0005_000_T01_CN_A.png").write_bytes(b"neighbour's own")
-    frame = next((neighbour / "T01_CN_A" / "depth_raw").iterdir())
+    stray(neighbour, "T01_CN_A", 5).write_bytes(b"neighbour's own")
+    frame = next((neighbour / "T01_CN_A" / "e0000" / "depth_raw").iterdir())
     frame.write_bytes(frame.read_bytes()[:-3] + b"abc")
     return root, neighbour
 
@@ -186,7 +193,7 @@ def _foreign_run_json(root: Path, **changes) -> None:
 ])
 def test_repair_with_another_runs_config_deletes_nothing(ray_local, copy, changes, options):
     _foreign_run_json(copy, **changes)
-    (copy / "T01_CN_A" / "rgb" / "0009_000_T01_CN_A.png").write_bytes(b"stray")  # something repair would delete
+    stray(copy, "T01_CN_A", 9).write_bytes(b"stray")  # something repair would delete
     before = full_listing(copy)
     args = list(ARGS)
     for i in range(0, len(options), 2):
@@ -259,3 +266,53 @@ def test_make_produce_builds_a_command_the_cli_accepts(monkeypatch, assignments,
     assert result.exit_code == 0 and seen, result.output
     plan = seen[0].run.plan
     assert (plan.width, plan.height) == size and make_plan(plan).total_frames == frames
+
+
+# -- issue 22: a root made before episode folders stays flat ---------------------------
+def test_an_old_flat_root_resumes_extends_verifies_and_repairs(ray_local, reference, tmp_path):
+    from dataclasses import replace
+
+    from manifests.layout import FLAT, LAYOUT_KEY, layout_of_path
+    from manifests.outputs import OUTPUTS
+    from manifests.root import claim_root
+    from manifests.schema import output_columns
+    from pipeline.runmeta import _fresh_record
+    from tests.test_produce import PLAN, config
+
+    root = tmp_path / "old"
+    storage = Storage.from_uri(str(root))
+    claim_root(storage)
+    t01 = config(root, plan=replace(PLAN, domains="towns=T01 weathers=CN,HRN viewpoints=A"))
+    record = _fresh_record(t01.run.to_dict())
+    del record[LAYOUT_KEY]  # run.json as roots made before layouts were recorded
+    storage.write_bytes(RUN_FILE, record_bytes(record))
+    assert produce(t01).rendered_episodes == 2
+    (root / part_path("T01_HRN_A", 0)).unlink()  # killed before its part: resumed
+    assert produce(t01).rendered_episodes == 1
+    assert produce(config(root, extend=True)).rendered_episodes == 2  # T07 added, flat too
+    assert read_record(storage)[LAYOUT_KEY] == FLAT
+
+    def frames(where: Path) -> dict:
+        table = read_manifest(str(where))
+        rows = table.select(["scenario", "frame_id", *(c for o in OUTPUTS for c in output_columns(o))]).to_pylist()
+        return {(r["scenario"], r["frame_id"], o): (r[f"{o}_path"], r[f"{o}_sha256"]) for r in rows for o in OUTPUTS}
+
+    old, new = frames(root), frames(reference)
+    assert {layout_of_path(path) for path, _ in old.values()} == {FLAT}
+    assert {k: sha for k, (_, sha) in old.items()} == {k: sha for k, (_, sha) in new.items()}  # same bytes
+    assert verify(str(root)).ok
+    before = tree_digest(root)
+
+    victim = root / old[("T07_CN_A", "0000_001", "depth_raw")][0]
+    victim.write_bytes(victim.read_bytes()[:-4] + b"XXXX")
+    flat_stray = root / "T01_CN_A" / "rgb" / "0000_009_T01_CN_A.png"
+    flat_stray.write_bytes(b"stray")
+    not_ours = stray(root, "T01_CN_A", 0, 9)  # the episode-folder layout's name: not this root's
+    not_ours.write_bytes(b"user data")
+    report = verify(str(root))
+    assert sorted((p.kind, p.path) for p in report.problems) == [
+        ("corrupt", victim.relative_to(root).as_posix()), ("extra", "T01_CN_A/rgb/0000_009_T01_CN_A.png")]
+    assert produce(config(root, repair=True)).rendered_episodes == 1
+    assert not flat_stray.exists() and not_ours.read_bytes() == b"user data"
+    not_ours.unlink()
+    assert verify(str(root)).ok and tree_digest(root) == before
