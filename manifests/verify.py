@@ -35,7 +35,7 @@ from typing import Callable, Iterable, Iterator
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from manifests.catalog import SCENARIO_BY_CODE
+from manifests.catalog import scenario as lookup_scenario, using
 from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
 from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table
@@ -132,7 +132,9 @@ def config_conflict(width: int, height: int, seed: int, scenario: str, episode: 
         return None
     if (width, height) != (config["width"], config["height"]):
         return f"frames are {width}x{height}, run.json says {config['width']}x{config['height']}"
-    if seed != episode_seed(config["seed"], SCENARIO_BY_CODE[scenario], episode):
+    with using(config.get("catalog")):  # the root's own domain entries (run.json), wherever this runs
+        derived = episode_seed(config["seed"], lookup_scenario(scenario), episode)
+    if seed != derived:
         return f"episode seed does not derive from run.json's seed {config['seed']}"
     return None
 
