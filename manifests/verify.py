@@ -35,7 +35,7 @@ from typing import Callable, Iterable, Iterator
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from manifests.catalog import scenario as lookup_scenario, using
+from manifests.catalog import all_scenarios, scenario as lookup_scenario, using
 from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
 from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table
@@ -363,7 +363,8 @@ def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool)
     """The units of ``scope``: one per scenario that has parts or a folder."""
     parts = _part_listing(storage, report)
     indexes = index_files(storage)
-    folders = {name for name in root_entries(storage) if name in SCENARIO_BY_CODE}
+    codes = {s.code for s in all_scenarios()}  # of the catalog in force: the root's (verify)
+    folders = {name for name in root_entries(storage) if name in codes}
     units = []
     for scenario in sorted(set(parts) | folders | set(indexes)):
         if scope.scenarios is not None and scenario not in scope.scenarios:
@@ -400,7 +401,8 @@ def verify(root, threads: int = 8, progress: Callable[[VerifyProgress], None] | 
     except RunRecordError as exc:
         report.problems.append(Problem("bad-run", RUN_FILE, None, None, str(exc)))
         damaged = True
-    units = plan_units(storage, scope, report, _producer_live(storage, except_owner))
+    with using((recorded or {}).get("catalog")):  # the root's own domain entries: its folders are scenarios
+        units = plan_units(storage, scope, report, _producer_live(storage, except_owner))
     if recorded is None and not damaged and any(u.with_part for u in units):
         report.problems.append(Problem("bad-run", RUN_FILE, None, None, "missing"))
     episodes_total = sum(len(u.parts) for u in units)
