@@ -150,9 +150,11 @@ def active() -> Catalog:
 
 def catalog_for(layer: str | dict | None) -> Catalog:
     """The built-in catalog with a recorded user layer (``Catalog.layer_json`` text or its dict; falsy: none)."""
+    if not layer:
+        return BUILTIN
     if isinstance(layer, dict):
-        layer = json.dumps(layer, separators=(",", ":")) if layer else ""
-    return with_layer_json(BUILTIN, layer or "")
+        layer = json.dumps(layer, separators=(",", ":"))
+    return with_layer_json(BUILTIN, layer)
 
 
 @contextlib.contextmanager

@@ -98,13 +98,15 @@ def distances(
     chart: Optional[Path] = typer.Option(None, "--chart", help="Write a 2-D embedding of all sampled domains to this PNG."),
     seed: int = typer.Option(0, help="Seed of the feature extractor's random filters."),
     threads: int = typer.Option(4, help="Images read and featurised in parallel."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Domain distances as in the paper: features of the first N frames per
     domain, PCA to 50 components, Euclidean / cosine distance of the domain
     means and per-feature Bhattacharyya distance, next to the paper's values."""
     from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
+    from manifests.catalog import using
 
-    with user_errors():
+    with user_errors(), using(root_catalog(root, catalog)):
         output_root(root)
         config = DistanceConfig(
             root=root, pairs=parse_pairs(pairs), samples=samples, components=components,
