@@ -169,3 +169,29 @@ def test_plan_takes_a_catalog(tmp_path):
     assert result.exit_code == 0 and "T01_FG1_B" in result.output and "T01_CN_A" not in result.output, result.output
     result = runner.invoke(app, ["plan", "--domains", "weathers=FG1"])
     assert result.exit_code == 2 and "unknown weather 'FG1'" in result.output
+
+
+TOWN = '[[town]]\ncode = "T09"\nlike = "T01"\nroad_km = 5.8\nbuilding_height_m = [20.0, 30.0]\n'
+
+
+def test_a_user_town_is_planned_and_built_under_its_own_cache_key(tmp_path, monkeypatch):
+    from pipeline.planner import episode_target, full_scale_frames
+    from render_workers.render.episode import cached_world
+    from render_workers.worlds import worldcache
+
+    cat = with_file(BUILTIN, TOWN + '[[town]]\ncode = "T02"\nblock_m = 70.0\n', "towns.toml")
+    t09, t02 = cat.by_code("town")["T09"], cat.by_code("town")["T02"]
+    assert full_scale_frames(t09) == round(1_006_800 // 15 * 5.8 / sum(t.road_km for t in TOWNS))
+    assert full_scale_frames(t02) == full_scale_frames(TOWNS[1])  # same road length: the paper's share
+    assert 60 <= episode_target(t09) <= 80
+    assert catalog.town_variant(TOWNS[1]) == "" and catalog.town_variant(t02) not in ("", catalog.town_variant(t09))
+    monkeypatch.setenv(worldcache.CACHE_ENV, str(tmp_path))
+    with using(cat):
+        plan = make_plan(PlanConfig(domains="towns=T09,T02 weathers=CN viewpoints=A", frames_per_scenario=2,
+                                    catalog=cat.layer_json()))
+        assert [e.scenario for e in plan.episodes] == ["T02_CN_A", "T09_CN_A"]
+        assert plan.episodes[0].seed == episode_seed(0, scenario("T02_CN_A"), 0)  # an override keeps T02's place
+        world = cached_world("test", "T09", town_seed(0, t09), catalog.town_variant(t09))
+        plain = cached_world("test", "T01", town_seed(0, TOWNS[0]))
+    assert world is not plain and plan.episodes[1].catalog == cat.layer_json() != ""
+    assert sorted(p.name.split("_")[1] for p in tmp_path.glob("*.pickle")) == ["T01", f"T09-{catalog.town_variant(t09)}"]
