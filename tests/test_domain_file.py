@@ -195,3 +195,11 @@ def test_a_user_town_is_planned_and_built_under_its_own_cache_key(tmp_path, monk
         plain = cached_world("test", "T01", town_seed(0, TOWNS[0]))
     assert world is not plain and plan.episodes[1].catalog == cat.layer_json() != ""
     assert sorted(p.name.split("_")[1] for p in tmp_path.glob("*.pickle")) == ["T01", f"T09-{catalog.town_variant(t09)}"]
+
+
+def test_preview_renders_a_user_weather(tmp_path):
+    path = tmp_path / "fog.toml"
+    path.write_text(FOG)
+    result = runner.invoke(app, ["preview", "--out", str(tmp_path / "p"), "--domains", "T01_FG1_A", "--width", "64",
+                                 "--height", "36", "--world", "test", "--catalog", str(path)])
+    assert result.exit_code == 0 and (tmp_path / "p" / "preview_FG1.png").stat().st_size > 100, result.output

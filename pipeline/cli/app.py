@@ -346,15 +346,18 @@ def preview(
     height: int = typer.Option(270, help="Height of each rendered frame."),
     seed: int = typer.Option(0, help="Run seed."),
     world: str = typer.Option("procedural", help="World builder: procedural or test."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Render one frame per scenario into a contact sheet (rows = viewpoints,
     columns = towns, one sheet per weather) plus one frame's six outputs."""
     from manifests.selection import parse_selection
     from render_workers.worlds.registry import check_world
+    from manifests.catalog import using
     from render_workers.render.preview import write_preview
 
-    with user_errors():
-        PlanConfig(domains=domains, width=width, height=height, seed=seed, frames_per_scenario=1).validate()
+    with user_errors(), using(domain_file(catalog)) as in_force:
+        PlanConfig(domains=domains, width=width, height=height, seed=seed, frames_per_scenario=1,
+                   catalog=in_force.layer_json()).validate()
         check_world(world)
         out.mkdir(parents=True, exist_ok=True)
         codes = [s.code for s in parse_selection(domains)]
