@@ -165,8 +165,12 @@ def test_plan_takes_a_catalog(tmp_path):
     path = tmp_path / "fog.toml"
     path.write_text(FOG)
     result = runner.invoke(app, ["plan", "--catalog", str(path), "--domains", "weathers=FG1 towns=T01",
-                                 "--frames-per-scenario", "2"])
+                                 "--frames-per-scenario", "2", "--out", str(tmp_path / "plan.parquet")])
     assert result.exit_code == 0 and "T01_FG1_B" in result.output and "T01_CN_A" not in result.output, result.output
+    from pipeline.planio import read_plan
+
+    plan = read_plan(tmp_path / "plan.parquet")  # the plan file carries the entries: read back without the file
+    assert plan.scenarios()[0] == "T01_FG1_A" and '"fog":0.6' in plan.config.catalog
     result = runner.invoke(app, ["plan", "--domains", "weathers=FG1"])
     assert result.exit_code == 2 and "unknown weather 'FG1'" in result.output
 
