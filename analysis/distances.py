@@ -48,7 +48,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import (TOWNS, VIEWPOINTS, WEATHERS, code_axes, scenario as lookup_scenario, split_code,
+from manifests.catalog import (active, code_axes, scenario as lookup_scenario, split_code,
                                weather as lookup_weather)
 from manifests.outputs import read_output
 
@@ -438,7 +438,8 @@ def embedding_png(report: DistanceReport, title: str = "Domains: 2-D PCA of the 
     from matplotlib.lines import Line2D
 
     cmap = plt.get_cmap("tab10")
-    town_color = {t.code: cmap(i) for i, t in enumerate(TOWNS)}
+    cat = active()  # the root's catalog, with any user entries (pipeline.cli.domains)
+    town_color = {t.code: cmap(i % 10) for i, t in enumerate(cat.towns)}
     fig, ax = plt.subplots(figsize=(7.5, 6), dpi=110)
     paper_domains = {d for p in PAPER_PAIRS for d in (p.source, p.target)}
     for code, (x, y) in zip(report.domains, report.embedding):
@@ -448,14 +449,14 @@ def embedding_png(report: DistanceReport, title: str = "Domains: 2-D PCA of the 
         if code in paper_domains:
             ax.scatter(x, y, s=260, facecolors="none", edgecolors="black", linewidths=1.0)
     towns = sorted({code_axes(d)["town"] for d in report.domains})
-    weathers = sorted({code_axes(d)["weather"] for d in report.domains}, key=[w.code for w in WEATHERS].index)
+    weathers = sorted({code_axes(d)["weather"] for d in report.domains}, key=[w.code for w in cat.weathers].index)
     handles = [Line2D([], [], marker="o", ls="", color=town_color[t], label=t) for t in towns]
     handles += [Line2D([], [], marker=lookup_weather(w).marker, ls="", color="grey", label=w) for w in weathers]
     handles += [Line2D([], [], marker="o", ls="", mfc="none", mec="black", ms=12, label="paper's pairs")]
     ax.legend(handles=handles, loc="best", fontsize=8)
     ax.set_xlabel("component 1")
     ax.set_ylabel("component 2")
-    views = ", ".join(v.code for v in VIEWPOINTS)
+    views = ", ".join(v.code for v in cat.viewpoints)
     ax.set_title(f"{title}\n(text: viewpoint {views})", fontsize=10)
     ax.grid(alpha=0.3)
     fig.tight_layout()

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from manifests.catalog import LABELS, SCENARIO_BY_CODE
+from manifests.catalog import LABELS, scenario
 from manifests.layout import NEW_ROOT_LAYOUT, PATTERNS, layout_of_path
 from manifests.outputs import OUTPUTS, file_of_path, markdown_table
 from manifests.schema import PART_SCHEMA, output_columns, part_path
@@ -87,7 +87,7 @@ def _domain_section(table: pa.Table) -> list[str]:
         "|---|---|---|---|" + "---:|" * (len(SPLITS) + 1),
     ]
     for code, row in counts.items():
-        s = SCENARIO_BY_CODE[code]
+        s = scenario(code)
         cells = " | ".join(f"{row[split]:,}" for split in SPLITS)
         lines.append(
             f"| {code} | {s.town.code} ({s.town.name}) | {s.weather.code} ({s.weather.name}) | "

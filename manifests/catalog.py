@@ -1,6 +1,7 @@
 """The dataset's vocabulary: classes, towns, weathers and viewpoints.
 
-Each axis is one table of frozen rows. Everything else (palettes, lookup
+Each axis is one table of frozen rows (towns, weathers and viewpoints are
+loaded from the domain file ``manifests/catalog.toml``). Everything else (palettes, lookup
 tables, Cityscapes maps, scenario codes, the manifest's column names) is
 derived from these tables, so nothing else in the code base hard-codes an id.
 
@@ -12,19 +13,22 @@ are our documented assumptions; see ``docs/assumptions.md``.
 
 from __future__ import annotations
 
+import contextlib
+import json
 import zlib
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Iterable
+from importlib import resources
+from typing import Iterable, Iterator
 
 import numpy as np
 
-RGB = tuple[int, int, int]
+from manifests.domainfile import catalog_from_text, with_layer_json
+from manifests.domains import AXES, RGB, Catalog, Town, Viewpoint, Weather  # noqa: F401 (re-exported)
 
-# The axes of a scenario, in the order of its code ``<town>_<weather>_<viewpoint>``
+# AXES (manifests.domains): the axes of a scenario, in the order of its code ``<town>_<weather>_<viewpoint>``
 # (e.g. T01_CS_A) and of the manifest's hive partitions. The code is parsed by
 # split_code and formatted by format_code, and nowhere else.
-AXES: tuple[str, ...] = ("town", "weather", "viewpoint")
 CODE_SEPARATOR = "_"
 
 
@@ -113,123 +117,76 @@ def class_id(name: str) -> int:
 
 
 # --------------------------------------------------------------------------
-# Towns
+# Towns, weathers, viewpoints: rows declared in manifests/domains.py, values in
+# manifests/catalog.toml (the paper's 105 domains). A run may put a user's
+# domain file in force (``using``); the lookups below and every seed then see
+# it, while these module constants stay the built-in catalog.
 # --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Town:
-    code: str  # T01..T07, as in IDDA scenario codes
-    name: str  # CARLA map this town stands in for
-    road_km: float  # drivable road length; sizes the town's shards
-    style: str  # name of its look in render_workers.worlds.styles.STYLES
-    lanes: int  # lanes per direction on main roads
-    block_m: float  # typical block edge length (junction spacing)
-    building_height_m: tuple[float, float]  # min / max building height
-    building_density: float  # 0..1, share of frontage with buildings
-    vegetation_density: float  # 0..1, trees and hedges per frontage
-    traffic_light_share: float  # share of junctions that are signalised
-    railway: bool
-    bridges: bool
-    tunnels: bool
-    roundabouts: bool
-    freeway: bool
-
-    @property
-    def stream(self) -> int:
-        """Stable number of the town for seeding its generators (from its code, not its position)."""
-        return zlib.crc32(self.code.encode())
+BUILTIN_FILE = "catalog.toml"
 
 
-TOWNS: tuple[Town, ...] = (
-    #    code   name      km   style                    lanes block  heights       bld  veg   tl    rail   bridge tunnel round  freeway
-    Town("T01", "Town01", 2.9, "european old town", 1, 80.0, (6.0, 14.0), 0.70, 0.45, 0.7, False, True, False, False, False),
-    Town("T02", "Town02", 1.4, "european village", 1, 60.0, (5.0, 11.0), 0.75, 0.40, 0.7, False, True, False, False, False),
-    Town("T03", "Town03", 4.1, "modern downtown", 2, 90.0, (12.0, 45.0), 0.85, 0.25, 0.9, True, True, True, True, True),
-    Town("T04", "Town04", 6.0, "mountain town", 2, 110.0, (7.0, 16.0), 0.60, 0.50, 0.8, False, True, True, False, True),
-    Town("T05", "Town05", 3.9, "glass city", 2, 90.0, (18.0, 60.0), 0.85, 0.25, 0.9, False, True, True, True, True),
-    Town("T06", "Town06", 5.2, "suburban industrial", 2, 120.0, (5.0, 12.0), 0.65, 0.40, 0.8, False, True, False, True, True),
-    Town("T07", "Town07", 11.0, "farmland", 1, 150.0, (4.0, 9.0), 0.15, 0.8, 0.15, False, True, False, False, False),
-)
+def _load_builtin() -> Catalog:
+    text = resources.files("manifests").joinpath(BUILTIN_FILE).read_text(encoding="utf-8")
+    return catalog_from_text(text, f"manifests/{BUILTIN_FILE}")
 
 
-# --------------------------------------------------------------------------
-# Weathers
-# --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Weather:
-    code: str  # CN | CS | HRN, as in IDDA scenario codes
-    name: str  # CARLA weather preset
-    sun_elevation_deg: float  # sun height above the horizon
-    sun_azimuth_deg: float  # sun direction, degrees from +x towards +y
-    light_color: tuple[float, float, float]  # linear RGB of the sun light
-    light_intensity: float  # directional light intensity (pyrender units)
-    ambient: float  # ambient light share (0..1)
-    sky_zenith: RGB  # sky colour straight up
-    sky_horizon: RGB  # sky colour at the horizon
-    cloudiness: float  # 0..1
-    rain: float  # 0..1, rain streak intensity
-    wetness: float  # 0..1, darkening and specular sheen of the road
-    puddles: float  # 0..1, share of road covered by reflective puddles
-    fog: float  # 0..1, contrast loss per 1000 m
-    grading: tuple[float, float, float]  # per-channel colour grading gain
-    marker: str  # matplotlib marker of the weather in plots
-
-
-WEATHERS: tuple[Weather, ...] = (
-    # Calibrated to CARLA 0.9.6's presets (the version IDDA used); the mapping
-    # (CARLA value -> ours) is in docs/assumptions.md, "Weathers".
-    Weather("CN", "ClearNoon", 65.0, 40.0, (1.0, 0.98, 0.94), 4.0, 0.45,
-            (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0, 0.02, (1.0, 1.0, 1.0), "o"),
-    Weather("CS", "ClearSunset", 15.0, 200.0, (1.0, 0.86, 0.72), 3.6, 0.50,
-            (78, 104, 170), (240, 182, 148), 0.15, 0.0, 0.0, 0.0, 0.04, (1.03, 0.99, 0.95), "s"),
-    Weather("HRN", "HardRainNoon", 75.0, 40.0, (0.88, 0.90, 0.94), 2.8, 1.00,
-            (128, 133, 140), (170, 173, 178), 0.90, 0.6, 0.6, 0.2, 0.08, (0.96, 0.98, 1.0), "^"),
-)
-
-
-# --------------------------------------------------------------------------
-# Viewpoints
-# --------------------------------------------------------------------------
-@dataclass(frozen=True)
-class Viewpoint:
-    code: str  # A | M | J | V | B, as in IDDA scenario codes
-    vehicle: str  # ego vehicle the camera is mounted on
-    camera_height_m: float  # camera height above the road
-    hood_fraction: float  # share of the image covered by the hood (0 = none)
-    hood_color: RGB  # hood paint colour
-    hood_curvature: float  # bulge of the hood's top edge, in image heights
-    hood_drop_m: float  # hood surface below the camera
-    ego_size_m: tuple[float, float]  # the ego vehicle's footprint (length, width), kept clear of crossing pedestrians
-    ego_speed_mps: tuple[float, float]  # the ego's speed range off the freeway (uniform draw per episode)
-
-    @property
-    def hood_visible(self) -> bool:
-        return self.hood_fraction > 0.0
-
-
-VIEWPOINTS: tuple[Viewpoint, ...] = (
-    Viewpoint("A", "Audi TT", 1.20, 0.1399, (196, 24, 28), 0.10, 0.45, (4.8, 2.0), (10.0, 14.0)),
-    Viewpoint("M", "Ford Mustang", 1.35, 0.1250, (28, 52, 120), 0.07, 0.50, (4.8, 2.0), (10.0, 14.0)),
-    Viewpoint("J", "Jeep Wrangler", 1.80, 0.1108, (70, 82, 58), 0.02, 0.60, (4.8, 2.0), (9.0, 13.0)),
-    Viewpoint("V", "Volkswagen T2", 2.10, 0.0, (210, 200, 170), 0.0, 0.0, (4.8, 2.0), (8.0, 12.0)),
-    Viewpoint("B", "Bus", 2.50, 0.0, (230, 180, 20), 0.0, 0.0, (11.0, 2.55), (8.0, 11.0)),
-)
+BUILTIN: Catalog = _load_builtin()
+TOWNS: tuple[Town, ...] = BUILTIN.towns
+WEATHERS: tuple[Weather, ...] = BUILTIN.weathers
+VIEWPOINTS: tuple[Viewpoint, ...] = BUILTIN.viewpoints
 
 AXIS_TABLES: dict[str, tuple] = dict(zip(AXES, (TOWNS, WEATHERS, VIEWPOINTS)))  # each axis's table, in AXES order
 TOWN_BY_CODE = {t.code: t for t in TOWNS}
 WEATHER_BY_CODE = {w.code: w for w in WEATHERS}
 VIEWPOINT_BY_CODE = {v.code: v for v in VIEWPOINTS}
 
+_in_force: list[Catalog] = [BUILTIN]  # a stack; the last is in force in this process
+
+
+def active() -> Catalog:
+    """The catalog in force: the built-in one, or the one a run put in force with ``using``."""
+    return _in_force[-1]
+
+
+def catalog_for(layer: str | dict | None) -> Catalog:
+    """The built-in catalog with a recorded user layer (``Catalog.layer_json`` text or its dict; falsy: none)."""
+    if not layer:
+        return BUILTIN
+    if isinstance(layer, dict):
+        layer = json.dumps(layer, separators=(",", ":"))
+    return with_layer_json(BUILTIN, layer)
+
+
+@contextlib.contextmanager
+def using(catalog: Catalog | str | dict | None) -> Iterator[Catalog]:
+    """Put ``catalog`` (or the built-in one with a recorded user layer) in force in this process
+    for the block: lookups, selections and seeds see its entries. Workers, being other
+    processes, put in force the layer their job spec carries (``EpisodeSpec.catalog``)."""
+    chosen = catalog if isinstance(catalog, Catalog) else catalog_for(catalog)
+    _in_force.append(chosen)
+    try:
+        yield chosen
+    finally:
+        _in_force.pop()
+
 
 def town(code: str) -> Town:
-    return lookup(TOWN_BY_CODE, code, "town")
+    return lookup(active().by_code("town"), code, "town")
 
 
 def weather(code: str) -> Weather:
-    return lookup(WEATHER_BY_CODE, code, "weather")
+    return lookup(active().by_code("weather"), code, "weather")
 
 
 def viewpoint(code: str) -> Viewpoint:
-    return lookup(VIEWPOINT_BY_CODE, code, "viewpoint")
+    return lookup(active().by_code("viewpoint"), code, "viewpoint")
+
+
+def town_variant(row: Town) -> str:
+    """"" for a built-in town as shipped; else a digest of its parameters (keys its cached world)."""
+    if TOWN_BY_CODE.get(row.code) == row:
+        return ""
+    return f"{zlib.crc32(repr(row).encode()):08x}"
 
 
 # --------------------------------------------------------------------------
@@ -270,12 +227,10 @@ class Scenario:
 
     @property
     def key(self) -> tuple[int, int, int]:
-        """Stable numeric identity (table positions), used to derive seeds."""
-        return (
-            TOWNS.index(self.town),
-            WEATHERS.index(self.weather),
-            VIEWPOINTS.index(self.viewpoint),
-        )
+        """Stable numeric identity (table positions in the catalog in force), used to derive seeds.
+        User entries come after the built-in ones, so a built-in scenario's key never changes."""
+        cat = active()
+        return tuple(cat.place(axis, row.code) for axis, row in zip(AXES, (self.town, self.weather, self.viewpoint)))
 
     def __str__(self) -> str:
         return self.code
@@ -295,3 +250,11 @@ def scenario(code: str) -> Scenario:
 
 def scenarios(codes: Iterable[str]) -> list[Scenario]:
     return [scenario(c) for c in codes]
+
+
+def all_scenarios(cat: Catalog | None = None) -> tuple[Scenario, ...]:
+    """Every scenario of a catalog (default: the one in force), in table order."""
+    cat = cat or active()
+    if cat is BUILTIN:
+        return ALL_SCENARIOS
+    return tuple(Scenario(t, w, v) for t in cat.towns for w in cat.weathers for v in cat.viewpoints)

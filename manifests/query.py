@@ -17,7 +17,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
-from manifests.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup
+from manifests.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario
 from manifests.outputs import OUTPUTS
 from manifests.schema import output_columns
 from manifests.selection import parse_selection
@@ -140,12 +140,17 @@ def run_query(table_or_dataset, query: Query) -> QueryResult:
         want = {k: query.per_scenario for k in available}
     else:
         want = _allocate(query.total, available)
-    scenario_index = {s.code: i for i, s in enumerate(ALL_SCENARIOS)}
+    builtin_index = {s.code: i for i, s in enumerate(ALL_SCENARIOS)}
+
+    def stratum(code: str) -> list[int]:  # a built-in scenario's draw never depends on user entries
+        i = builtin_index.get(code)
+        return [i] if i is not None else [len(ALL_SCENARIOS), *scenario(code).key]
+
     picks = []
     shortfall = {}
     for code, start, size in zip(codes.tolist(), starts.tolist(), sizes.tolist()):
         n = min(want.get(code, 0), size)
-        rng = np.random.default_rng([query.seed, scenario_index[code]])
+        rng = np.random.default_rng([query.seed, *stratum(code)])
         picks.append(start + np.sort(rng.choice(size, size=n, replace=False)))
     for code, n in want.items():
         have = available.get(code, 0)

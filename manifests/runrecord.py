@@ -27,8 +27,9 @@ CONFIG_TYPES: dict[str, tuple[type, ...]] = {
     "world": (str,),
     "outputs": (list,),  # absent in roots from before --outputs: the six seed outputs
     "rgb_format": (str,),  # absent in roots from before --rgb-format: png
+    "catalog": (dict,),  # the user domain entries in force (docs/catalog.md); absent: the built-in catalog only
 }
-OPTIONAL_CONFIG = ("world", "outputs", "rgb_format")  # keys older records lack
+OPTIONAL_CONFIG = ("world", "outputs", "rgb_format", "catalog")  # keys older records (and built-in runs) lack
 
 
 REPAIR_HINT = "`idda produce --repair` with the run's options rewrites it"  # said with every RunRecordError

@@ -2,7 +2,9 @@
 
 A selection is a list of clauses separated by spaces or semicolons:
 
-* ``all`` selects all 105 scenarios. An empty selection (``""``, or only
+* ``all`` selects the paper's 105 scenarios (the built-in catalog), also when
+  a domain file is in force; ``catalog`` selects every scenario of the catalog
+  in force, the built-in entries and a ``--catalog`` file's. An empty selection (``""``, or only
   spaces, commas and semicolons) is an error, never "everything": a shell
   variable that came out empty must not turn a run into all 105 scenarios.
 * Scenario codes, comma-separated, e.g. ``T01_CS_A,T01_CS_J``. Any part may be
@@ -21,33 +23,39 @@ from __future__ import annotations
 
 import re
 
-from manifests.catalog import (
-    ALL_SCENARIOS,
-    AXES,
-    AXIS_TABLES,
-    CODE_SEPARATOR,
-    Scenario,
-)
+from manifests.catalog import ALL_SCENARIOS, AXES, CODE_SEPARATOR, Scenario, active, all_scenarios
 
 # One-line help for --domains, shared by every command.
 SELECTION_HELP = (
-    "Scenarios to use: 'all', codes like T01_CS_A (parts may be *), or filters like "
+    "Scenarios to use: 'all' (the paper's 105), 'catalog' (every scenario of the catalog in force), codes like T01_CS_A (parts may be *), or filters like "
     "'towns=T01-T06 weathers=CN viewpoints=A,M'."
 )
 
-_AXES = {f"{axis}s": (axis, [row.code for row in rows]) for axis, rows in AXIS_TABLES.items()}
-_ALIASES = {name: name for name in _AXES} | {name[:-1]: name for name in _AXES}
+_ALIASES = {f"{axis}s": f"{axis}s" for axis in AXES} | {axis: f"{axis}s" for axis in AXES}
+WHOLE_CATALOG = "catalog"  # the word that selects every scenario of the catalog in force
+
+
+def _axes() -> dict[str, tuple[str, list[str]]]:
+    """plural axis name -> (singular, codes in table order) of the catalog in force."""
+    cat = active()
+    return {f"{axis}s": (axis, list(cat.by_code(axis))) for axis in AXES}
+
+
+def _canonical(item: str, codes: list[str]) -> str:
+    """``item`` as spelled in the catalog (codes match whatever their case); unchanged if unknown."""
+    folded = {code.upper(): code for code in codes}
+    return folded.get(item.upper(), item)
 
 
 def _expand_values(axis: str, text: str) -> set[str]:
-    singular, codes = _AXES[axis]
+    singular, codes = _axes()[axis]
     if not text:
         raise ValueError(f"empty value list for {axis}=; valid {singular}s: {', '.join(codes)}")
     chosen: set[str] = set()
     for item in text.split(","):
-        item = item.strip().upper()
+        item = _canonical(item.strip(), codes)
         if "-" in item:
-            lo, _, hi = item.partition("-")
+            lo, _, hi = (_canonical(end, codes) for end in item.partition("-"))
             for end in (lo, hi):
                 if end not in codes:
                     raise ValueError(
@@ -65,20 +73,22 @@ def _expand_values(axis: str, text: str) -> set[str]:
 
 
 def _match_code(pattern: str) -> list[Scenario]:
-    parts = pattern.upper().split(CODE_SEPARATOR)
+    axes = _axes()
+    parts = [_canonical(part, codes) for part, (_, codes) in zip(pattern.split(CODE_SEPARATOR), axes.values())]
+    parts += pattern.split(CODE_SEPARATOR)[len(parts):]
     if len(parts) != len(AXES) or not all(parts):
         raise ValueError(
             f"malformed scenario code {pattern!r}; expected TOWN_WEATHER_VIEWPOINT such as T01_CS_A "
             "(parts may be *), or an axis filter such as towns=T01-T06"
         )
-    for part, (axis, (singular, codes)) in zip(parts, _AXES.items()):
+    for part, (axis, (singular, codes)) in zip(parts, axes.items()):
         if part != "*" and part not in codes:
             raise ValueError(
                 f"unknown {singular} {part!r} in {pattern!r}; valid {singular}s: {', '.join(codes)}"
             )
     return [
         s
-        for s in ALL_SCENARIOS
+        for s in all_scenarios()
         if all(
             p in ("*", c) for p, c in zip(parts, (s.town.code, s.weather.code, s.viewpoint.code))
         )
@@ -96,6 +106,8 @@ def parse_selection(text: str) -> list[Scenario]:
     for clause in clauses:
         if clause.lower() == "all":
             from_codes = (from_codes or set()) | {s.code for s in ALL_SCENARIOS}
+        elif clause.lower() == WHOLE_CATALOG:
+            from_codes = (from_codes or set()) | {s.code for s in all_scenarios()}
         elif "=" in clause:
             key, _, value = clause.partition("=")
             axis = _ALIASES.get(key.strip().lower())
@@ -112,9 +124,10 @@ def parse_selection(text: str) -> list[Scenario]:
                     from_codes = (from_codes or set()) | {s.code for s in _match_code(pattern)}
     if from_codes is None and not filters:
         raise ValueError(
-            f"empty selection {text!r}: name scenarios (e.g. T01_CS_A or towns=T01), or 'all' for every scenario"
+            f"empty selection {text!r}: name scenarios (e.g. T01_CS_A or towns=T01), 'all' for the paper's 105 "
+            f"or '{WHOLE_CATALOG}' for every scenario of the catalog"
         )
-    chosen = [s for s in ALL_SCENARIOS if from_codes is None or s.code in from_codes]
+    chosen = [s for s in all_scenarios() if from_codes is None or s.code in from_codes]
     axis_of = {"towns": "town", "weathers": "weather", "viewpoints": "viewpoint"}
     for axis, allowed in filters.items():
         chosen = [s for s in chosen if getattr(s, axis_of[axis]).code in allowed]

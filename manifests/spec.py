@@ -9,7 +9,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from manifests.catalog import TOWNS, Scenario, Town, code_axes
+from manifests.catalog import Scenario, Town, active, code_axes
 from manifests.encoding import check_rgb_format
 from manifests.layout import NEW_ROOT_LAYOUT, check_layout
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs, output
@@ -21,7 +21,7 @@ _TOWN_STREAM = 3
 
 def town_seed(run_seed: int, town: Town) -> int:
     """Seed of a town's static world: shared by all its weathers and viewpoints."""
-    rng = np.random.default_rng([run_seed, _TOWN_STREAM, TOWNS.index(town)])
+    rng = np.random.default_rng([run_seed, _TOWN_STREAM, active().place("town", town.code)])
     return int(rng.integers(0, 2**63 - 1))
 
 
@@ -46,6 +46,7 @@ class EpisodeSpec:
     outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # which outputs to write (manifests.outputs)
     rgb_format: str = "png"  # the rgb output's file format (manifests.encoding.RGB_FORMATS)
     layout: int = NEW_ROOT_LAYOUT  # where the frame files go: the root's layout (manifests.layout)
+    catalog: str = ""  # the run's user domain entries (manifests.domains.Catalog.layer_json); "" = built-in only
 
     @property
     def town(self) -> str:

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import INSTANCE_LABELS, LABELS, VIEWPOINT_BY_CODE
+from manifests.catalog import INSTANCE_LABELS, LABELS, using, viewpoint
 from manifests.outputs import OUTPUTS
 from manifests.layout import frame_path
 from manifests.schema import PART_SCHEMA, frame_id, output_columns
@@ -25,7 +25,8 @@ def episode_table(spec) -> pa.Table:
     rng = np.random.default_rng([spec.seed % 2**32, spec.episode])
     n = spec.frames
     pixels = spec.width * spec.height
-    view = VIEWPOINT_BY_CODE[spec.viewpoint]
+    with using(spec.catalog):
+        view = viewpoint(spec.viewpoint)
     counts = np.floor(rng.dirichlet(_SHARES * 200 + 1e-3, size=n) * pixels).astype(np.int64)
     counts[:, 20] += pixels - counts.sum(axis=1)  # remainder to sky
     fids = [frame_id(spec.episode, i) for i in range(n)]

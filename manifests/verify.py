@@ -35,7 +35,7 @@ from typing import Callable, Iterable, Iterator
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from manifests.catalog import SCENARIO_BY_CODE
+from manifests.catalog import all_scenarios, scenario as lookup_scenario, using
 from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
 from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table
@@ -136,7 +136,9 @@ def config_conflict(width: int, height: int, seed: int, scenario: str, episode: 
         return None
     if (width, height) != (config["width"], config["height"]):
         return f"frames are {width}x{height}, run.json says {config['width']}x{config['height']}"
-    if seed != episode_seed(config["seed"], SCENARIO_BY_CODE[scenario], episode):
+    with using(config.get("catalog")):  # the root's own domain entries (run.json), wherever this runs
+        derived = episode_seed(config["seed"], lookup_scenario(scenario), episode)
+    if seed != derived:
         return f"episode seed does not derive from run.json's seed {config['seed']}"
     return None
 
@@ -376,7 +378,8 @@ def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool,
     """The units of ``scope``: one per scenario that has parts or a folder."""
     parts = _part_listing(storage, report)
     indexes = index_files(storage)
-    folders = {name for name in root_entries(storage) if name in SCENARIO_BY_CODE}
+    codes = {s.code for s in all_scenarios()}  # of the catalog in force: the root's (verify)
+    folders = {name for name in root_entries(storage) if name in codes}
     units = []
     for scenario in sorted(set(parts) | folders | set(indexes)):
         if scope.scenarios is not None and scenario not in scope.scenarios:
@@ -417,7 +420,8 @@ def verify(root, threads: int = 8, progress: Callable[[VerifyProgress], None] | 
     if layouts is None:  # run.json lost or damaged: the layout of the frames the parts list
         held = held_layout(storage)
         layouts = LAYOUTS if held is None else (held,)
-    units = plan_units(storage, scope, report, _producer_live(storage, except_owner), layouts)
+    with using((recorded or {}).get("catalog")):  # the root's own domain entries: its folders are scenarios
+        units = plan_units(storage, scope, report, _producer_live(storage, except_owner), layouts)
     if recorded is None and not damaged and any(u.with_part for u in units):
         report.problems.append(Problem("bad-run", RUN_FILE, None, None, "missing"))
     episodes_total = sum(len(u.parts) for u in units)

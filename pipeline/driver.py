@@ -388,7 +388,16 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
 
     ``episode_fn(spec, storage, world=..., on_frame=...)`` renders one episode
     in a Ray task (default: ``pipeline.episode_job.run_episode``); the control
-    plane benchmark swaps in a stand-in that writes no images."""
+    plane benchmark swaps in a stand-in that writes no images. The run's user
+    domain entries (``PlanConfig.catalog``) are in force meanwhile."""
+    from manifests.catalog import using
+
+    with using(config.run.plan.catalog):
+        return _produce(config, progress, episode_fn)
+
+
+def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
+             episode_fn: Callable | None) -> ProduceReport:
     from manifests.lease import new_owner, register_producer
     from manifests.root import claim_root
     from storage import Storage, StorageError

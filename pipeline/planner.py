@@ -11,11 +11,12 @@ A plan holds episodes, never frames, so it stays small at any scale.
 
 from __future__ import annotations
 
+import json
 import math
 from dataclasses import asdict, dataclass, field
 
 
-from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Town
+from manifests.catalog import TOWN_BY_CODE, TOWNS, WEATHERS, VIEWPOINTS, Town, catalog_for, using
 from manifests.encoding import check_rgb_format
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
 from manifests.selection import parse_selection
@@ -40,10 +41,16 @@ def _largest_remainder(total: int, weights: list[float]) -> list[int]:
 
 
 def full_scale_frames(town: Town) -> int:
-    """Frames per scenario of ``town`` at full scale (paper total, by road length)."""
+    """Frames per scenario of ``town`` at full scale (paper total, by road length).
+
+    A town of the paper's (with its road length) gets its share of the paper's
+    total; any other town the same frames per km of road."""
     per_town_column = PAPER_TOTAL_FRAMES // (len(WEATHERS) * len(VIEWPOINTS))
     counts = _largest_remainder(per_town_column, [t.road_km for t in TOWNS])
-    return counts[TOWNS.index(town)]
+    builtin = TOWN_BY_CODE.get(town.code)
+    if builtin is not None and builtin.road_km == town.road_km:
+        return counts[TOWNS.index(builtin)]
+    return max(1, round(per_town_column * town.road_km / sum(t.road_km for t in TOWNS)))
 
 
 def max_frames_per_scenario() -> int:
@@ -56,7 +63,7 @@ def episode_target(town: Town) -> int:
     lo, hi = EPISODE_FRAMES
     lengths = [t.road_km for t in TOWNS]
     share = (town.road_km - min(lengths)) / (max(lengths) - min(lengths))
-    return round(lo + share * (hi - lo))
+    return round(lo + min(1.0, max(0.0, share)) * (hi - lo))
 
 
 def split_episodes(frames: int, target: int) -> list[int]:
@@ -78,9 +85,12 @@ class PlanConfig:
     seed: int = 0
     outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # what every frame writes (manifests.outputs)
     rgb_format: str = "png"  # the rgb output's file format: png (lossless) or jpg (IDDA's released format)
+    catalog: str = ""  # user domain entries in force (Catalog.layer_json; a dict when read back from JSON)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
+        if isinstance(self.catalog, dict):
+            object.__setattr__(self, "catalog", json.dumps(self.catalog, separators=(",", ":")) if self.catalog else "")
 
     def validate(self) -> None:
         if self.scale is not None and self.frames_per_scenario is not None:
@@ -103,13 +113,17 @@ class PlanConfig:
                 )
         if self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
-        parse_selection(self.domains)
+        with using(catalog_for(self.catalog)):
+            parse_selection(self.domains)
         if check_outputs(self.outputs) != self.outputs:
             raise ValueError(f"outputs must be listed once each in table order, got {', '.join(self.outputs)}")
         check_rgb_format(self.rgb_format)
 
     def to_dict(self) -> dict:
-        return {**asdict(self), "outputs": list(self.outputs)}  # as JSON holds it
+        """As JSON holds it (run.json, plan files); the catalog only where user entries are in force."""
+        out = {**asdict(self), "outputs": list(self.outputs)}
+        del out["catalog"]
+        return out | ({"catalog": json.loads(self.catalog)} if self.catalog else {})
 
 
 @dataclass(frozen=True)
@@ -161,6 +175,11 @@ def episode_split(place: int, episode: int) -> str:
 def make_plan(config: PlanConfig) -> Plan:
     """Build the plan; raises ValueError for any invalid config."""
     config.validate()
+    with using(catalog_for(config.catalog)):
+        return _plan(config)
+
+
+def _plan(config: PlanConfig) -> Plan:
     episodes: list[EpisodeSpec] = []
     for place, scenario in enumerate(parse_selection(config.domains)):
         lengths = split_episodes(scenario_frames(config, scenario.town), episode_target(scenario.town))
@@ -177,6 +196,7 @@ def make_plan(config: PlanConfig) -> Plan:
                     run_seed=config.seed,
                     outputs=config.outputs,
                     rgb_format=config.rgb_format,
+                    catalog=config.catalog,
                 )
             )
     return Plan(config=config, episodes=tuple(episodes))

@@ -1,8 +1,10 @@
 """Provenance and config guard for an output root (``<root>/run.json``).
 
-The file records the run config, package versions, the git revision, the
-file encoder (``manifests.encoding.encoder_identity``) and the root's file
-layout (``manifests.layout``: a new root's, kept for the root's life). A later run into the
+The file records the run config (with the user domain entries in force, so
+the root is resumed, extended and verified without the domain file), package
+versions, the git revision, the file encoder
+(``manifests.encoding.encoder_identity``) and the root's file layout
+(``manifests.layout``: a new root's, kept for the root's life). A later run into the
 same root must ask for the same config, or pass --extend; settings that decide
 what a frame looks like (seed, resolution, world) can never change within one
 root, since frames would no longer match each other. Nor can the encoder once
@@ -82,7 +84,11 @@ def read_run(storage) -> dict | None:
 
 
 def _differences(old: dict, new: dict) -> list[str]:
-    return [f"{k} {old.get(k)!r} -> {new.get(k)!r}" for k in sorted(new) if old.get(k) != new.get(k)]
+    def shown(k, value):  # the domain entries by their codes
+        return [f"{axis} {row['code']}" for axis, rows in (value or {}).items() for row in rows] if k == "catalog" else value
+
+    return [f"{k} {shown(k, old.get(k))!r} -> {shown(k, new.get(k))!r}"
+            for k in sorted({*new, *old} if "catalog" in old else new) if old.get(k) != new.get(k)]
 
 
 def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> None:
@@ -92,7 +98,7 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
     Checked from each part's summary (its footer's statistics, or its
     scenario's index): O(parts), no row is decoded. ``summaries``: from
     ``manifests.reader.part_summaries`` if the caller has them already."""
-    from manifests.catalog import SCENARIO_BY_CODE
+    from manifests.catalog import scenario as lookup_scenario, using
     from manifests.reader import part_summaries
     from manifests.spec import episode_seed
 
@@ -113,9 +119,11 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
             f"{storage.uri} holds frames at {found}, this run asks for {plan.width}x{plan.height}; "
             "frames would not match: use a new --out"
         )
+    with using(plan.catalog):
+        derived = {key: episode_seed(plan.seed, lookup_scenario(key[0]), key[1]) for key in held}
     for (scenario, episode), summary in sorted(held.items()):
         for seed in summary.seeds:
-            if episode_seed(plan.seed, SCENARIO_BY_CODE[scenario], episode) != seed:
+            if derived[scenario, episode] != seed:
                 raise RunConfigError(
                     f"{storage.uri} holds frames made with another run seed than {plan.seed} "
                     f"({scenario} episode {episode}); frames would not match: use a new --out"
@@ -169,10 +177,26 @@ def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
     return read_record(storage)
 
 
+def changed_entries(old: dict | None, new: dict | None) -> list[str]:
+    """The recorded user domain entries (run.json's "catalog") that ``new`` changes or drops,
+    as "weather 'FG1'"; appending entries changes none."""
+    old, new = old or {}, new or {}
+    changed = []
+    for axis, rows in old.items():
+        now = {row["code"]: row for row in new.get(axis, [])}
+        changed += [f"{axis} {row['code']!r}" for row in rows if now.get(row["code"]) != row]
+    return changed
+
+
 def _refuse_differences(storage, old: dict, new: dict, extend: bool) -> None:
     """RunConfigError unless a run of ``new`` may add to a root made with ``old``."""
     if old == new:
         return
+    if changed := changed_entries(old.get("catalog"), new.get("catalog")):
+        raise RunConfigError(
+            f"{storage.uri} was made with other parameters for the domain {', '.join(changed)} (run.json "
+            "records them); frames would not match: resume without --catalog, with the same entries, or use a new --out"
+        )
     diffs = _differences(old, new)
     fixed = [k for k in FRAME_DEFINING if old.get(k) != new.get(k)]
     if fixed == ["outputs"]:

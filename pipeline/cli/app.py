@@ -9,7 +9,8 @@ from typing import Optional
 
 import typer
 
-from pipeline.cli import data as cli_data
+from pipeline.cli import data as cli_data, domains as cli_domains
+from pipeline.cli.domains import CatalogFile, domain_file, root_catalog
 from pipeline.cli.progress import (
     ProgressDisplay, VerifyDisplay, format_interrupted, format_outage, format_produce_report, stop_signals,
     verify_advice,
@@ -91,6 +92,7 @@ def plan(
     height: int = typer.Option(1080, help="Image height in pixels."),
     seed: int = typer.Option(0, help="Run seed; every episode's seed derives from it."),
     out: Optional[Path] = typer.Option(None, help="Write the plan as Parquet (one row per episode)."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Expand a domain selection into shards and episodes, and print them.
 
@@ -98,7 +100,8 @@ def plan(
     scenarios hold the paper's 1,006,800 frames.
     """
     with user_errors():
-        the_plan = make_plan(PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width, height=height, seed=seed))
+        the_plan = make_plan(PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
+                                        height=height, seed=seed, catalog=domain_file(catalog).layer_json()))
         typer.echo(format_plan_table(the_plan))
         if out is not None:
             from pipeline.planio import write_plan
@@ -125,6 +128,7 @@ def produce(
     repair: bool = typer.Option(False, "--repair", help="Verify first and re-render exactly the damaged episodes."),
     outputs: str = typer.Option(",".join(DEFAULT_OUTPUTS), "--outputs", help=f"Outputs to write, comma-separated: any of {', '.join(OUTPUTS)}. A root keeps the outputs it was made with."),
     rgb_format: str = typer.Option("png", "--rgb-format", help="File format of the rgb output: png (lossless, the default) or jpg (quality 95, the released IDDA format; about a quarter of the bytes). A root keeps its format."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Render the selected scenarios into an output root (resumable).
 
@@ -138,8 +142,11 @@ def produce(
     with user_errors():
         if scale is None and frames_per_scenario is None:
             frames_per_scenario = 2
+        # the root's recorded domain entries (resume and extend need no file), then the file's
+        layer = root_catalog(out, catalog).layer_json()
         plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
-                              height=height, seed=seed, outputs=parse_outputs(outputs), rgb_format=rgb_format)
+                              height=height, seed=seed, outputs=parse_outputs(outputs), rgb_format=rgb_format,
+                              catalog=layer)
         config = ProduceConfig(
             run=RunConfig(plan=plan_cfg, world=world),
             out=out,
@@ -206,6 +213,7 @@ def verify(
     workers: Optional[int] = typer.Option(None, help="CPUs for a local Ray cluster (default: all cores)."),
     use_ray: Optional[bool] = typer.Option(None, "--ray/--no-ray", help="Check on Ray, or in this process (default: Ray for large roots or with an address)."),
     threads: int = typer.Option(8, help="Files checked in parallel per task."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Recompute every checksum; report missing, corrupt and extra files.
 
@@ -217,11 +225,12 @@ def verify(
     from manifests.verify import Scope, parse_since, verify as run_verify
     from pipeline.verify_ray import choose_runner
 
+    from manifests.catalog import using
+
     with user_errors():
-        scope = Scope(
-            scenarios=None if domains is None else frozenset(s.code for s in parse_selection(_non_empty(domains))),
-            since=None if since is None else parse_since(since),
-        )
+        with using(root_catalog(root, catalog)):
+            chosen = None if domains is None else frozenset(s.code for s in parse_selection(_non_empty(domains)))
+        scope = Scope(scenarios=chosen, since=None if since is None else parse_since(since))
         storage = output_root(root)
         runner = choose_runner(address=address, workers=workers, use_ray=use_ray)
         display = VerifyDisplay()
@@ -268,12 +277,14 @@ def query(
     out: Optional[Path] = typer.Option(None, help="Write the frames: .txt/.lst (file list), .csv or .parquet."),
     fmt: Optional[str] = typer.Option(None, "--format", help="list, csv or parquet (default: from --out's suffix)."),
     outputs: str = typer.Option("rgb,semantic_raw", help="Outputs listed per frame in file lists (CSV and Parquet hold every manifest column)."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Filter frames and draw seeded stratified samples, e.g. --preset best-case."""
     from manifests import query as q
+    from manifests.catalog import using
     from manifests.reader import scan_manifest
 
-    with user_errors():
+    with user_errors(), using(root_catalog(root, catalog)):
         the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
         storage = output_root(root)
         result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
@@ -305,13 +316,15 @@ def stats(
     domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
     per_scenario: bool = typer.Option(False, "--per-scenario", help="One table and one chart panel per scenario instead of overall."),
     chart: Path = typer.Option(Path("class_shares.png"), help="Write the log-scale bar chart PNG here (default: class_shares.png in the current directory; never into the root)."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Class pixel shares as a table and a log-scale bar chart (paper's Fig. pixeldistr)."""
     from manifests import query as q
+    from manifests.catalog import using
     from manifests.reader import read_manifest
     from manifests.stats import bar_chart_png, format_share_table, share_table
 
-    with user_errors():
+    with user_errors(), using(root_catalog(root, catalog)):
         storage = output_root(root)
         if storage.is_local and chart.resolve().is_relative_to(Path(storage.path()).resolve()):
             raise ValueError(f"the chart {chart} would land inside the output root {storage.uri}; "
@@ -333,15 +346,18 @@ def preview(
     height: int = typer.Option(270, help="Height of each rendered frame."),
     seed: int = typer.Option(0, help="Run seed."),
     world: str = typer.Option("procedural", help="World builder: procedural or test."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Render one frame per scenario into a contact sheet (rows = viewpoints,
     columns = towns, one sheet per weather) plus one frame's six outputs."""
     from manifests.selection import parse_selection
     from render_workers.worlds.registry import check_world
+    from manifests.catalog import using
     from render_workers.render.preview import write_preview
 
-    with user_errors():
-        PlanConfig(domains=domains, width=width, height=height, seed=seed, frames_per_scenario=1).validate()
+    with user_errors(), using(domain_file(catalog)) as in_force:
+        PlanConfig(domains=domains, width=width, height=height, seed=seed, frames_per_scenario=1,
+                   catalog=in_force.layer_json()).validate()
         check_world(world)
         out.mkdir(parents=True, exist_ok=True)
         codes = [s.code for s in parse_selection(domains)]
@@ -351,6 +367,7 @@ def preview(
 
 
 cli_data.register(app)  # export, distances, card
+cli_domains.register(app)  # catalog show
 
 
 def main() -> None:

@@ -17,6 +17,7 @@ from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
     build_query, output_root, user_errors, write_local,
 )
+from pipeline.cli.domains import CatalogFile, root_catalog
 
 
 def export(
@@ -38,6 +39,7 @@ def export(
     as_split: Optional[str] = typer.Option(None, "--as-split", help="Put every exported frame in this split (train, val or test)."),
     splits: str = typer.Option("scenario", "--splits", help="idda split files: scenario (train/val/test.json) or feddrive (FedDrive's federated splits)."),
     holdout: Optional[str] = typer.Option(None, help="With --splits feddrive: domains whose frames form test_user_diff_domain, e.g. 'towns=T07'."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Export a query's frames as a Cityscapes, IDDA or HuggingFace layout (never re-renders).
 
@@ -48,8 +50,9 @@ def export(
     manifest's, by episode (--as-split puts every frame in one split).
     """
     from exports.export import ExportConfig, export as run_export
+    from manifests.catalog import using
 
-    with user_errors():
+    with user_errors(), using(root_catalog(root, catalog)):
         if copy and symlink:
             raise ValueError("give at most one of --copy and --symlink")
         output_root(root)
@@ -95,13 +98,15 @@ def distances(
     chart: Optional[Path] = typer.Option(None, "--chart", help="Write a 2-D embedding of all sampled domains to this PNG."),
     seed: int = typer.Option(0, help="Seed of the feature extractor's random filters."),
     threads: int = typer.Option(4, help="Images read and featurised in parallel."),
+    catalog: CatalogFile = None,
 ) -> None:
     """Domain distances as in the paper: features of the first N frames per
     domain, PCA to 50 components, Euclidean / cosine distance of the domain
     means and per-feature Bhattacharyya distance, next to the paper's values."""
     from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
+    from manifests.catalog import using
 
-    with user_errors():
+    with user_errors(), using(root_catalog(root, catalog)):
         output_root(root)
         config = DistanceConfig(
             root=root, pairs=parse_pairs(pairs), samples=samples, components=components,

@@ -30,7 +30,7 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario
+from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using
 from manifests.objects import object_counts
 from manifests.spec import EpisodeSpec
 from manifests.spec import FRAME_PERIOD_S, town_seed
@@ -80,12 +80,16 @@ def world_builder(name: str) -> WorldBuilder:
 
 
 @functools.lru_cache(maxsize=8)
-def cached_world(world: str, town_code: str, seed: int) -> World:
+def cached_world(world: str, town_code: str, seed: int, variant: str = "") -> World:
     """A town's static world, loaded (or built) once per process and reused across its episodes.
+
+    ``variant`` (``manifests.catalog.town_variant``) tells a town a domain file
+    declares or changes from the built-in town of its code; the catalog that
+    declares it must be in force while it is built.
 
     The process's one world cache; behind it, built worlds are kept on disk
     (``render_workers.worlds.worldcache``), so a new worker loads instead of building."""
-    return worldcache.load_or_build(world, town_code, seed, world_builder(world).build_world)
+    return worldcache.load_or_build(world, town_code, seed, world_builder(world).build_world, variant)
 
 
 @functools.lru_cache(maxsize=1)
@@ -122,12 +126,20 @@ def validate_spec(spec: EpisodeSpec) -> None:
 
 
 def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WORLD) -> tuple[EpisodeScene, dict]:
-    """Build/reuse the world, populate it and load it into ``renderer``; returns scene and timings."""
+    """Build/reuse the world, populate it and load it into ``renderer``; returns scene and timings.
+
+    The spec's user domain entries (``spec.catalog``) are in force meanwhile:
+    the lookups by code below, and the world builders', see them."""
+    with using(spec.catalog):
+        return _load_episode(spec, renderer, world)
+
+
+def _load_episode(spec: EpisodeSpec, renderer: Renderer, world: str) -> tuple[EpisodeScene, dict]:
     validate_spec(spec)
     scen = lookup_scenario(spec.scenario)
     timings = {}
     start = time.perf_counter()
-    static = cached_world(world, scen.town.code, town_seed(spec.run_seed, scen.town))
+    static = cached_world(world, scen.town.code, town_seed(spec.run_seed, scen.town), town_variant(scen.town))
     timings["world"] = time.perf_counter() - start
     start = time.perf_counter()
     scene = world_builder(world).populate(static, scen.viewpoint.code, spec.seed)

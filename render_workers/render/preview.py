@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS, scenario as lookup_scenario
+from manifests.catalog import active, scenario as lookup_scenario
 from manifests.outputs import SEED_OUTPUTS, encode_outputs
 from manifests.spec import EpisodeSpec
 from manifests.spec import episode_seed
@@ -85,7 +85,8 @@ def render_first_frame(code: str, width: int, height: int, seed: int, world: str
     """Frame 0 of episode 0 of a scenario, seeded as a production run with ``seed`` would."""
     scen = lookup_scenario(code)
     spec = EpisodeSpec(scenario=scen.code, episode=0, seed=episode_seed(seed, scen, 0), frames=1,
-                       width=width, height=height, split="train", run_seed=seed, outputs=SEED_OUTPUTS)
+                       width=width, height=height, split="train", run_seed=seed, outputs=SEED_OUTPUTS,
+                       catalog=active().layer_json())  # a --catalog file's entries
     frames: list[Frame] = []
     render_episode(spec, frames.append, world=world, renderer=renderer)
     return frames[0]
@@ -108,12 +109,12 @@ def write_preview(out_dir, scenario_codes, width: int, height: int, seed: int,
         frames[scen.code] = render_first_frame(scen.code, width, height, seed, world)
 
     written: list[Path] = []
-    for weather in WEATHERS:  # catalog order, only weathers present in the selection
+    for weather in active().weathers:  # catalog order, only weathers present in the selection
         chosen = [s for s in scenarios if s.weather == weather]
         if not chosen:
             continue
-        rows = [v.code for v in VIEWPOINTS if any(s.viewpoint == v for s in chosen)]
-        cols = [t.code for t in TOWNS if any(s.town == t for s in chosen)]
+        rows = [v.code for v in active().viewpoints if any(s.viewpoint == v for s in chosen)]
+        cols = [t.code for t in active().towns if any(s.town == t for s in chosen)]
         cells = {(s.viewpoint.code, s.town.code): _thumbnail(frames[s.code].buffers["rgb"], cell_w) for s in chosen}
         sheet = contact_sheet(cells, rows, cols, title=f"{weather.code} ({weather.name})")
         written.append(_write(out / f"preview_{weather.code}.png", sheet))

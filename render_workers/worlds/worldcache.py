@@ -6,7 +6,7 @@ outside: the builders know nothing about it.
 
 An entry is keyed by the world's name, the town code, the town seed and
 :func:`code_digest`, a digest of every module the builders could read
-(``render_workers/*.py`` and ``manifests/*.py``) and of the Python, numpy and
+(``render_workers/*.py``, ``manifests/*.py`` and the built-in catalog ``manifests/catalog.toml``) and of the Python, numpy and
 trimesh versions. Any edit to that code makes new keys, so a stale world is
 never loaded. Entries unused for ``KEEP_DAYS`` days are deleted when a new one
 is written (not every other digest: two checkouts sharing the cache would
@@ -89,13 +89,14 @@ def code_digest() -> str:
     root = Path(__file__).resolve().parents[2]
     digest = hashlib.sha256(f"{platform.python_version()} numpy {numpy.__version__} trimesh {trimesh.__version__}".encode())
     for package in _PACKAGES:
-        for path in sorted((root / package).glob("*.py")):
+        for path in sorted([*(root / package).glob("*.py"), *(root / package).glob("*.toml")]):  # the built-in catalog
             digest.update(path.name.encode() + b"\0" + path.read_bytes() + b"\0")
     return digest.hexdigest()[:16]
 
 
-def entry_path(directory: Path, world: str, town_code: str, seed: int) -> Path:
-    return directory / f"{world}_{town_code}_{seed}_{code_digest()}.pickle"
+def entry_path(directory: Path, world: str, town_code: str, seed: int, variant: str = "") -> Path:
+    town = f"{town_code}-{variant}" if variant else town_code  # variant: a domain file's town of that code
+    return directory / f"{world}_{town}_{seed}_{code_digest()}.pickle"
 
 
 def _read(path: Path):
@@ -166,12 +167,13 @@ def prune(directory: Path, keep: Path | None = None, limit: int | None = None) -
     return deleted
 
 
-def load_or_build(world: str, town_code: str, seed: int, build: Callable[[str, int], W]) -> W:
-    """``build(town_code, seed)``, from the disk cache when an entry for this code exists."""
+def load_or_build(world: str, town_code: str, seed: int, build: Callable[[str, int], W], variant: str = "") -> W:
+    """``build(town_code, seed)``, from the disk cache when an entry for this code (and variant:
+    ``manifests.catalog.town_variant``) exists."""
     directory = cache_dir()
     if directory is None:
         return build(town_code, seed)
-    path = entry_path(directory, world, town_code, seed)
+    path = entry_path(directory, world, town_code, seed, variant)
     value = _read(path)
     if value is None:
         value = build(town_code, seed)

@@ -1,0 +1,209 @@
+"""Domain files: TOML that declares towns, weathers and viewpoints (docs/catalog.md).
+
+A file holds arrays of tables, one per axis: ``[[town]]``, ``[[weather]]``,
+``[[viewpoint]]``. Each entry has a ``code`` and the row's parameters
+(``manifests.domains``). ``like = "CN"`` starts from another entry's
+parameters (a built-in one, or one earlier in the same file) and the keys
+given override them; an entry whose code exists already overrides only the
+keys it gives. Every other entry gives every parameter.
+
+Any mistake (unknown key, value of the wrong type or out of range, unknown
+``like``, duplicate code, a code with ``_`` in it) raises one CatalogError
+whose message names the file, the entry and the key.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import tomllib
+import typing
+from dataclasses import fields
+from functools import lru_cache
+
+from manifests.domains import AXES, ROW_TYPES, Catalog, row_dict
+
+CODE_PATTERN = re.compile(r"[A-Za-z0-9]+")  # no "_" (joins a scenario code), no "-" (ranges), no "*" (wildcards)
+HEADER = """\
+# IDDA domain catalog: towns, weathers and viewpoints (docs/catalog.md).
+# Each [[town]], [[weather]] or [[viewpoint]] entry has a code and its parameters;
+# a comment above each parameter gives its meaning, unit and accepted range.
+"""
+
+
+class CatalogError(ValueError):
+    """A domain file that cannot be loaded; the message names file, entry and key."""
+
+
+def _hints(cls) -> dict:
+    return typing.get_type_hints(cls)
+
+
+def _scalar(kind, value, where: str):
+    if kind is bool:
+        if not isinstance(value, bool):
+            raise CatalogError(f"{where}: expected true or false, got {value!r}")
+        return value
+    if kind is str:
+        if not isinstance(value, str) or not value:
+            raise CatalogError(f"{where}: expected a non-empty string, got {value!r}")
+        return value
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise CatalogError(f"{where}: expected a number, got {value!r}")
+    if kind is int:
+        if not isinstance(value, int):
+            raise CatalogError(f"{where}: expected a whole number, got {value!r}")
+        return value
+    if not math.isfinite(value):
+        raise CatalogError(f"{where}: expected a finite number, got {value!r}")
+    return float(value)
+
+
+def coerce(f, kind, value, where: str):
+    """``value`` (as TOML or JSON holds it) as field ``f`` of type ``kind`` holds it; CatalogError if it cannot."""
+    lo, hi = f.metadata["range"]
+    if typing.get_origin(kind) is tuple:
+        parts = typing.get_args(kind)
+        if not isinstance(value, (list, tuple)) or len(value) != len(parts):
+            raise CatalogError(f"{where}: expected a list of {len(parts)} numbers, got {value!r}")
+        out = tuple(_scalar(p, v, where) for p, v in zip(parts, value))
+        if f.metadata["ordered"] and out[0] > out[1]:
+            raise CatalogError(f"{where}: the first value (min) exceeds the second (max): {list(out)}")
+    else:
+        out = _scalar(kind, value, where)
+    if lo is not None:
+        for v in out if isinstance(out, tuple) else (out,):
+            if not lo <= v <= hi:
+                raise CatalogError(f"{where}: {v!r} is out of range [{lo}, {hi}]")
+    return out
+
+
+def _check_code(code, where: str, known: dict[str, str]) -> str:
+    if not isinstance(code, str) or not CODE_PATTERN.fullmatch(code):
+        raise CatalogError(f"{where}: key 'code': {code!r} is not a code: use letters and digits only "
+                           "('_' joins the parts of a scenario code)")
+    other = known.get(code.upper())
+    if other is not None and other != code:
+        raise CatalogError(f"{where}: key 'code': {code!r} differs from {other!r} only in case")
+    return code
+
+
+def resolve_entry(axis: str, entry: dict, base: dict, where: str):
+    """One entry of a file as a row: its ``like`` (or the existing entry of its code) overridden by its keys."""
+    cls = ROW_TYPES[axis]
+    hints, by_name = _hints(cls), {f.name: f for f in fields(cls)}
+    unknown = [k for k in entry if k not in by_name and k != "like"]
+    if unknown:
+        raise CatalogError(f"{where}: key {unknown[0]!r}: unknown key; valid keys: like, {', '.join(by_name)}")
+    code = entry["code"]
+    start: dict = {}
+    if "like" in entry:
+        like = entry["like"]
+        if like not in base:
+            valid = ", ".join(base)
+            raise CatalogError(f"{where}: key 'like': unknown {axis} {like!r}; valid {axis}s: {valid}")
+        start = row_dict(base[like])
+    elif code in base:
+        start = row_dict(base[code])
+    values = {**start, **{k: v for k, v in entry.items() if k != "like"}}
+    missing = [name for name in by_name if name not in values]
+    if missing:
+        raise CatalogError(f"{where}: key {missing[0]!r}: missing (give every parameter, or like = an existing "
+                           f"{axis}); missing: {', '.join(missing)}")
+    return cls(**{name: coerce(f, hints[name], values[name], f"{where}: key {name!r}") for name, f in by_name.items()})
+
+
+def rows_from_data(data: dict, base: Catalog, source: str) -> dict[str, list]:
+    """axis -> resolved rows of a parsed file (TOML or the JSON layer of a run record)."""
+    if not isinstance(data, dict):
+        raise CatalogError(f"{source}: expected tables {', '.join(AXES)}")
+    unknown = [k for k in data if k not in AXES]
+    if unknown:
+        raise CatalogError(f"{source}: key {unknown[0]!r}: unknown table; valid tables: "
+                           + ", ".join(f"[[{a}]]" for a in AXES))
+    rows: dict[str, list] = {}
+    for axis in AXES:
+        entries = data.get(axis, [])
+        if not isinstance(entries, list):
+            raise CatalogError(f"{source}: key {axis!r}: declare entries as [[{axis}]] tables")
+        known = dict(base.by_code(axis))
+        seen: set[str] = set()
+        folded = {code.upper(): code for code in known}
+        for n, entry in enumerate(entries, 1):
+            where = f"{source}: {axis} #{n}"
+            if not isinstance(entry, dict) or "code" not in entry:
+                raise CatalogError(f"{where}: key 'code': missing (every entry has a code)")
+            code = _check_code(entry["code"], where, folded)
+            where = f"{source}: {axis} {code!r}"
+            if code in seen:
+                raise CatalogError(f"{where}: key 'code': duplicate code {code!r} (declared twice in this file)")
+            row = resolve_entry(axis, entry, known, where)
+            seen.add(code)
+            folded[code.upper()] = code
+            known[code] = row
+            rows.setdefault(axis, []).append(row)
+    return rows
+
+
+def parse_text(text: str, source: str) -> dict:
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as exc:
+        raise CatalogError(f"{source}: not valid TOML: {exc}") from None
+
+
+def catalog_from_text(text: str, source: str) -> Catalog:
+    """A whole catalog from one file (the built-in one): no layer beneath it."""
+    rows = rows_from_data(parse_text(text, source), Catalog((), (), ()), source)
+    return Catalog(*(tuple(rows.get(axis, ())) for axis in AXES))
+
+
+def with_file(base: Catalog, text: str, source: str) -> Catalog:
+    """``base`` with a user file's entries added or overriding (its user layer records them)."""
+    return base.with_rows(rows_from_data(parse_text(text, source), base, source))
+
+
+@lru_cache(maxsize=16)
+def with_layer_json(base: Catalog, layer: str, source: str = "the run's catalog") -> Catalog:
+    """``base`` with a recorded user layer (``Catalog.layer_json``; "" for none)."""
+    if not layer:
+        return base
+    return base.with_rows(rows_from_data(json.loads(layer), base, source))
+
+
+# --------------------------------------------------------------------------
+# Writing: the resolved catalog as TOML with a comment per parameter
+# --------------------------------------------------------------------------
+def _toml_value(value) -> str:
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, str):
+        return json.dumps(value)  # a TOML basic string
+    if isinstance(value, (list, tuple)):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    return repr(value)  # float repr round-trips, and always has '.' or 'e'
+
+
+def _comment(f) -> str:
+    meta = f.metadata
+    parts = [meta["meaning"]]
+    if meta["unit"]:
+        parts.append(meta["unit"])
+    lo, hi = meta["range"]
+    if lo is not None:
+        parts.append(f"range {lo} to {hi}" + (", min <= max" if meta["ordered"] else ""))
+    return "# " + "; ".join(parts)
+
+
+def catalog_toml(catalog: Catalog) -> str:
+    """The resolved catalog as a domain file: every entry with every parameter, each under its comment."""
+    out = [HEADER]
+    for axis in AXES:
+        for row in catalog.table(axis):
+            out.append(f"[[{axis}]]")
+            for f in fields(row):
+                out.append(_comment(f))
+                out.append(f"{f.name} = {_toml_value(getattr(row, f.name))}")
+            out.append("")
+    return "\n".join(out)

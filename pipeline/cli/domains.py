@@ -1,0 +1,87 @@
+"""Domain files on the command line: ``--catalog FILE`` and ``idda catalog show`` (docs/catalog.md).
+
+Every command that takes ``--domains`` takes ``--catalog FILE`` too: the
+file's towns, weathers and viewpoints are added to the built-in ones (or
+override them) while the command runs. A command on an output root puts the
+root's own entries (recorded in its run.json) in force first, so a root is
+resumed, queried and verified without the file.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from pipeline.cli.common import user_errors
+
+CATALOG_HELP = ("Domain file (TOML) whose towns, weathers and viewpoints are added to the built-in ones or "
+                "override them (docs/catalog.md); select them all with --domains catalog.")
+CatalogFile = Annotated[Optional[Path], typer.Option("--catalog", help=CATALOG_HELP)]
+
+
+def domain_file(path: Path | None, base=None):
+    """``base`` (default: the built-in catalog) with the entries of the domain file at ``path`` (None: none).
+
+    CatalogError (a ValueError: one ``error:`` line) names file, entry and key."""
+    from manifests.catalog import BUILTIN
+    from manifests.domainfile import CatalogError, with_file
+    from render_workers.worlds.styles import STYLE_BY_NAME
+
+    base = BUILTIN if base is None else base
+    if path is None:
+        return base
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"cannot read the domain file {path}: {getattr(exc, 'strerror', None) or exc}") from None
+    catalog = with_file(base, text, str(path))
+    for town in dict(catalog.layer).get("town", ()):
+        if town.style not in STYLE_BY_NAME:
+            raise CatalogError(f"{path}: town {town.code!r}: key 'style': unknown style {town.style!r}; "
+                               f"valid styles: {', '.join(STYLE_BY_NAME)}")
+    return catalog
+
+
+def recorded_layer(root: str) -> dict | None:
+    """The user domain entries a root's run.json records; None where it has no (readable) record:
+    the command itself then reports what is wrong with the root."""
+    from manifests.runrecord import RunRecordError, read_record
+    from storage import Storage, StorageError
+
+    try:
+        record = read_record(Storage.from_uri(root))
+    except (RunRecordError, StorageError, OSError, ValueError):
+        return None
+    return (record or {}).get("config", {}).get("catalog")
+
+
+def root_catalog(root: str | None, path: Path | None):
+    """The catalog a command on ``root`` works with: the root's recorded entries, then the file's."""
+    from manifests.catalog import catalog_for
+
+    return domain_file(path, catalog_for(recorded_layer(root) if root else None))
+
+
+catalog_app = typer.Typer(help="The domain catalog: towns, weathers and viewpoints (docs/catalog.md).",
+                          no_args_is_help=True)
+
+
+@catalog_app.command("show")
+def show(
+    catalog: CatalogFile = None,
+    root: Optional[str] = typer.Option(None, "--root", help="Show the catalog an output root was made with (its run.json)."),
+) -> None:
+    """Print the resolved catalog as a domain file: every entry with every parameter, each
+    under a comment giving its meaning, unit and range. The output loads back as the same catalog."""
+    from manifests.domainfile import catalog_toml
+
+    with user_errors():
+        typer.echo(catalog_toml(root_catalog(root, catalog)), nl=False)
+
+
+def register(app: typer.Typer) -> None:
+    """Add the ``catalog`` group to ``app`` (once)."""
+    if not any(group.name == "catalog" for group in app.registered_groups):
+        app.add_typer(catalog_app, name="catalog")
