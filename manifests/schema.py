@@ -54,6 +54,12 @@ _FRAME_FIELDS = [
     ("ego_speed_mps", pa.float32(), "frame"),
     ("width", pa.int32(), "spec"),
     ("height", pa.int32(), "spec"),
+    # Calibration and poses, row-major (manifests.geometry: OpenCV camera axes, world z up, metres).
+    # Null in roots written before they existed.
+    ("K", pa.list_(pa.float64()), "frame"),  # 3x3 intrinsics in pixels, pixel centres at integers
+    ("cam_to_world", pa.list_(pa.float64()), "frame"),  # 4x4
+    ("ego_to_world", pa.list_(pa.float64()), "frame"),  # 4x4, the ego's reference point on the road
+    ("cam_to_ego", pa.list_(pa.float64()), "frame"),  # 4x4, fixed per viewpoint
 ]
 FIELD_SOURCE = {name: source for name, _, source in _FRAME_FIELDS}
 # An output a run did not ask for has null path, size and checksum.

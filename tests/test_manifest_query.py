@@ -1,6 +1,8 @@
 """Manifest parts written through the writer, read back through the public
 reader, then queried and summarised."""
 
+import json
+
 import numpy as np
 import pyarrow.csv as pv
 import pyarrow.parquet as pq
@@ -126,6 +128,7 @@ def test_writers(root, tmp_path):
     back = pv.read_csv(tmp_path / "s.csv")
     assert back.column("frame_id").to_pylist() == table.column("frame_id").to_pylist()
     assert back.column("px_sky").to_pylist() == table.column("px_sky").to_pylist()
+    assert json.loads(back.column("cam_to_world")[0].as_py()) == table.column("cam_to_world")[0].as_py()
     (tmp_path / "s.parquet").write_bytes(q.encode_result(table, "parquet"))
     assert pq.read_table(tmp_path / "s.parquet").equals(table)
     with pytest.raises(ValueError, match="valid formats: list, csv, parquet"):
@@ -284,3 +287,18 @@ def test_every_command_refuses_an_empty_selection_in_one_line(root, tmp_path, mo
             assert result.exit_code == 2, (name, result.output)
             assert len(lines) == 1 and lines[0].startswith("error: ") and "empty selection" in lines[0], (name, result.output)
     assert not out.exists() and not (tmp_path / "export").exists() and not (tmp_path / "preview").exists()
+
+
+def test_parts_written_before_the_pose_columns_still_read(tmp_path):
+    """A part of an older version (no calibration or pose columns) reads with those columns null."""
+    storage = Storage.from_uri(str(tmp_path))
+    spec = make_plan(PlanConfig(domains="towns=T01 weathers=CN viewpoints=A", frames_per_scenario=2,
+                                width=64, height=36)).episodes[0]
+    new = ("K", "cam_to_world", "ego_to_world", "cam_to_ego")
+    old = part_table(episode_rows(spec)).drop_columns(list(new))
+    storage.write_bytes(part_path(spec.scenario, spec.episode), part_bytes(old))
+    table = read_manifest(storage)
+    assert table.schema.names == MANIFEST_SCHEMA.names and len(table) == 2
+    for name in new:
+        assert table.column(name).null_count == 2
+    assert table.column("frame_id").to_pylist() == old.column("frame_id").to_pylist()

@@ -31,6 +31,7 @@ from typing import Callable
 import numpy as np
 
 from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario
+from manifests.geometry import CV_FROM_GL, pose_cells
 from manifests.objects import object_counts
 from manifests.spec import EpisodeSpec
 from manifests.spec import FRAME_PERIOD_S, town_seed
@@ -172,11 +173,13 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     counts = np.bincount(buffers["classes"].ravel(), minlength=NUM_CLASSES).astype(np.int64)
     objects = object_counts(buffers["instance"], instance_classes(renderer.instances))
     timings["outputs"] = time.perf_counter() - start
+    ego_to_world = scene.ego.pose(t)
     frame = Frame(
         index=index, sim_time_s=t, buffers=buffers, class_counts=counts, object_counts=objects,
         camera_height_m=renderer.rig.viewpoint.camera_height_m,
         hood_fraction=measured_hood_fraction(result.hood_mask), ego_speed_mps=float(scene.ego.speed_mps),
         n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
+        **pose_cells(result.rig.K, result.world_from_camera @ CV_FROM_GL, ego_to_world, result.rig.cam_to_ego),
     )
     return frame, timings
 

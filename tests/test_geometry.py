@@ -1,0 +1,104 @@
+"""Calibration and poses in the manifest: the convention holds, and depth reprojects between frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from manifests.catalog import class_id
+from manifests.encoding import decode_depth_raw, decode_png
+from manifests.geometry import CV_FROM_GL, HFOV_DEG, as_matrix, depth_to_world, intrinsics, project, world_to_camera
+from manifests.spec import EpisodeSpec
+from manifests.writer import read_part
+from render_workers.render.camera import camera_rig
+
+W, H = 160, 90
+# Classes that can move, and the sky (no surface): the rest is the static world.
+NOT_STATIC = tuple(class_id(name) for name in ("vehicle", "pedestrian", "rider", "bicycle", "motorcycle", "sky"))
+# A flat road looks the same from anywhere along it: these say nothing about the ego's position on it.
+FLAT = tuple(class_id(name) for name in ("road", "road line", "sidewalk", "terrain", "ground", "railway"))
+
+
+def test_intrinsics_project_as_the_renderer_does():
+    """K in OpenCV's convention (pixel centres at integers) puts a point where the
+    renderer's own projection (centres at +0.5, OpenGL axes) does, half a pixel apart."""
+    rig = camera_rig("M", W, H)
+    K = rig.K
+    assert K[0, 0] == K[1, 1] == pytest.approx(W / 2 / np.tan(np.radians(HFOV_DEG / 2)))
+    assert (K[0, 2], K[1, 2]) == ((W - 1) / 2, (H - 1) / 2)
+    points_gl = np.array([[1.0, 0.5, -10.0], [-3.0, -1.2, -4.0], [0.0, 0.0, -100.0]])
+    points_cv = points_gl @ CV_FROM_GL[:3, :3]
+    assert np.allclose(project(points_cv, K) + 0.5, rig.project(points_gl))
+    assert np.allclose(intrinsics(1920, 1080, 90.0)[:2, 2], (959.5, 539.5))
+
+
+def test_camera_axes_in_the_ego_frame():
+    """OpenCV camera axes: x right (ego -y), y down (ego -z), z forward (ego +x), at the mirror's height."""
+    rig = camera_rig("B", W, H)
+    R, t = rig.cam_to_ego[:3, :3], rig.cam_to_ego[:3, 3]
+    assert np.allclose(R @ [1, 0, 0], [0, -1, 0]) and np.allclose(R @ [0, 1, 0], [0, 0, -1])
+    assert np.allclose(R @ [0, 0, 1], [1, 0, 0])
+    assert t[2] == pytest.approx(rig.viewpoint.camera_height_m) and t[0] > 0
+
+
+def test_depth_to_world_round_trip():
+    """The docs' snippet: pixels back-projected with K and the pose project back onto themselves."""
+    K = intrinsics(W, H, HFOV_DEG)
+    pose = np.eye(4)
+    pose[:3, :3] = [[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]]  # looking along world +x
+    pose[:3, 3] = (5.0, -2.0, 1.5)
+    depth = np.full((H, W), 1000.0, np.float32)
+    depth[50:, :] = 12.5
+    points = depth_to_world(depth, list(K.ravel()), list(pose.ravel()))
+    assert points.shape == ((H - 50) * W, 3)
+    assert np.allclose(points[:, 0], 5.0 + 12.5)  # 12.5 m ahead along world +x
+    cam = world_to_camera(points, pose)
+    v, u = np.nonzero(depth < 999)
+    assert np.allclose(project(cam, K), np.stack([u, v], axis=1)) and np.allclose(cam[:, 2], 12.5)
+
+
+def reprojection_errors(depth_a, depth_b, classes_a, classes_b, row_a, row_b, skip=NOT_STATIC) -> np.ndarray:
+    """Relative depth errors of frame a's static pixels moved into frame b, where b sees static world
+    (``skip``: the classes left out)."""
+    static_a = ~np.isin(classes_a, skip)
+    points = depth_to_world(np.where(static_a, depth_a, 1000.0), row_a["K"], row_a["cam_to_world"])
+    cam = world_to_camera(points, row_b["cam_to_world"])
+    cam = cam[cam[:, 2] > 0.5]
+    uv = np.rint(project(cam, row_b["K"])).astype(int)
+    inside = (uv[:, 0] >= 0) & (uv[:, 0] < W) & (uv[:, 1] >= 0) & (uv[:, 1] < H)
+    cam, uv = cam[inside], uv[inside]
+    seen = depth_b[uv[:, 1], uv[:, 0]]
+    keep = ~np.isin(classes_b[uv[:, 1], uv[:, 0]], skip)
+    return np.abs(cam[keep, 2] - seen[keep]) / seen[keep]
+
+
+def test_depth_reprojects_between_frames_with_the_manifest_poses(tmp_path):
+    """The proof of issue 24: frame t's planar depth, back-projected with the row's K and
+    cam_to_world and moved into frame t+1, matches frame t+1's depth on static classes."""
+    from pipeline.episode_job import run_episode
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    spec = EpisodeSpec("T01_CN_M", 0, 11, 3, W, H, "train", 0)
+    run_episode(spec, storage, world="test")
+    rows = read_part(storage, spec.scenario, spec.episode).to_pylist()
+    depth = [decode_depth_raw(decode_png(storage.read_bytes(r["depth_raw_path"]), "depth")) for r in rows]
+    classes = [decode_png(storage.read_bytes(r["semantic_raw_path"]), "semantic")[..., 0] for r in rows]
+    for r in rows:
+        assert len(r["K"]) == 9 and len(r["cam_to_world"]) == len(r["ego_to_world"]) == len(r["cam_to_ego"]) == 16
+        assert np.allclose(as_matrix(r["cam_to_world"], 4), as_matrix(r["ego_to_world"], 4) @ as_matrix(r["cam_to_ego"], 4))
+    moved = np.linalg.norm(as_matrix(rows[1]["cam_to_world"], 4)[:3, 3] - as_matrix(rows[0]["cam_to_world"], 4)[:3, 3])
+    assert moved > 1.0  # the ego drove: a wrong pose would not reproject
+    for a in range(len(rows) - 1):
+        errors = reprojection_errors(depth[a], depth[a + 1], classes[a], classes[a + 1], rows[a], rows[a + 1])
+        # 3 s apart the ego drove ~30 m: most of frame a's near road is behind it, the far world still in view
+        assert errors.size > 100
+        assert np.median(errors) <= 0.01, (a, np.median(errors))
+        # Off the flat ground (buildings, poles, walls...) too; and there frame a's pose in place of
+        # frame a+1's is far off, so a wrong pose fails the test.
+        upright = reprojection_errors(depth[a], depth[a + 1], classes[a], classes[a + 1], rows[a], rows[a + 1],
+                                      NOT_STATIC + FLAT)
+        assert upright.size > 50 and np.median(upright) <= 0.01, (a, np.median(upright))
+        still = reprojection_errors(depth[a], depth[a + 1], classes[a], classes[a + 1], rows[a], rows[a],
+                                    NOT_STATIC + FLAT)
+        assert np.median(still) > 0.05
