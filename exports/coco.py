@@ -69,7 +69,7 @@ def write_coco(storage, frames: list, tmp: str, place, threads: int = 8) -> tupl
     _mask_api()
 
     def one(frame) -> tuple[str, list[dict]]:
-        rel = f"images/{frame.split}/{frame.frame_id}_{frame.scenario}{os.path.splitext(frame.path('rgb'))[1]}"
+        rel = f"images/{frame.split}/{frame.uid}{os.path.splitext(frame.path('rgb'))[1]}"
         place(storage, frame.path("rgb"), os.path.join(tmp, rel))
         anns = frame_annotations(decode(storage, frame.path("instance"), "instance"),
                                  decode(storage, frame.path("objects"), "objects"))
@@ -86,7 +86,8 @@ def write_coco(storage, frames: list, tmp: str, place, threads: int = 8) -> tupl
         image_id = len(coco["images"]) + 1
         height, width = frame.height, frame.width
         coco["images"].append({"id": image_id, "file_name": os.path.relpath(rel, "images"), "width": width,
-                               "height": height, "idda_frame_id": frame.frame_id, "scenario": frame.scenario})
+                               "height": height, "idda_frame_id": frame.frame_id, "idda_uid": frame.uid,
+                               "scenario": frame.scenario})
         for ann in anns:
             coco["annotations"].append({"id": len(coco["annotations"]) + 1, "image_id": image_id, **ann})
         exported.append({"image": rel, "annotations": ANNOTATIONS.format(split=frame.split)})

@@ -20,10 +20,10 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.outputs import OUTPUTS, file_of_path, read_output
-from manifests.schema import output_columns
+from manifests.schema import output_columns, with_uids
 
 # ------------------------------------------------------------ the frames ----
-_META = ("frame_id", "scenario", "episode", "frame", "split", "width", "height")
+_META = ("frame_id", "uid", "scenario", "episode", "frame", "split", "width", "height")
 
 
 @dataclass(frozen=True)
@@ -32,6 +32,7 @@ class ExportFrame:
     root-relative file of every output the root holds (None where it has not)."""
 
     frame_id: str
+    uid: str  # unique in the root (manifests.schema.frame_uid)
     scenario: str
     episode: int
     frame: int
@@ -49,6 +50,7 @@ class ExportFrame:
 
 def frames_of(table: pa.Table) -> list[ExportFrame]:
     """The export frames of a manifest table, in its row order."""
+    table = with_uids(table)
     meta = {name: table.column(name).to_pylist() for name in _META}
     paths = {o: table.column(output_columns(o)[0]).to_pylist()
              for o in OUTPUTS if output_columns(o)[0] in table.column_names}
@@ -134,9 +136,9 @@ def index_csv(frames: list[ExportFrame], exported: list[dict[str, str]]) -> byte
     kinds = list(exported[0]) if exported else []
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(["frame_id", "scenario", "episode", "frame", "split", *kinds])
+    writer.writerow(["frame_id", "scenario", "episode", "frame", "split", "uid", *kinds])
     for f, paths in zip(frames, exported):
-        writer.writerow([f.frame_id, f.scenario, f.episode, f.frame, f.split, *(paths[k] for k in kinds)])
+        writer.writerow([f.frame_id, f.scenario, f.episode, f.frame, f.split, f.uid, *(paths[k] for k in kinds)])
     return buf.getvalue().encode()
 
 

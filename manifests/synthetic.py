@@ -31,6 +31,7 @@ def episode_table(spec) -> pa.Table:
     fids = [frame_id(spec.episode, i) for i in range(n)]
     columns = {
         "frame_id": fids,
+        "uid": [f"{f}_{spec.scenario}" for f in fids],
         "scenario": [spec.scenario] * n,
         "episode": np.full(n, spec.episode, np.int32),
         "frame": np.arange(n, dtype=np.int32),

@@ -65,6 +65,10 @@ def test_frame_dataset_gives_the_pixels_on_disk(root, rows):
         assert sample["index"] == i
         assert_sample(sample, root, row, keys)
         assert sample["rgb"].shape == (36, 64, 3) and sample["depth"].shape == (36, 64)
+        assert sample["uid"] == f"{row['frame_id']}_{row['scenario']}"
+        assert sample["K"].shape == (3, 3) and np.array_equal(sample["K"].ravel(), row["K"])
+        assert np.array_equal(sample["cam_to_world"].ravel(), row["cam_to_world"])
+    assert len({data[i]["uid"] for i in range(len(data))}) == len(data)
     assert data[-1]["frame_id"] == rows[-1]["frame_id"]
     with pytest.raises(IndexError, match="out of range for 4 frames"):
         data[4]

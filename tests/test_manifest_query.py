@@ -11,7 +11,7 @@ import pytest
 from manifests import query as q
 from manifests.catalog import LABELS, split_code
 from manifests.reader import done_episodes, manifest_dataset, read_manifest
-from manifests.schema import MANIFEST_SCHEMA, PART_SCHEMA, part_path
+from manifests.schema import MANIFEST_SCHEMA, PART_SCHEMA, part_path, with_uids
 from manifests.stats import PAPER_SHARES, bar_chart_png, class_pixels, share_table
 from manifests.synthetic import episode_rows
 from manifests.writer import ManifestError, part_bytes, part_table, write_part
@@ -294,7 +294,7 @@ def test_parts_written_before_the_pose_columns_still_read(tmp_path):
     storage = Storage.from_uri(str(tmp_path))
     spec = make_plan(PlanConfig(domains="towns=T01 weathers=CN viewpoints=A", frames_per_scenario=2,
                                 width=64, height=36)).episodes[0]
-    new = ("K", "cam_to_world", "ego_to_world", "cam_to_ego")
+    new = ("uid", "K", "cam_to_world", "ego_to_world", "cam_to_ego")
     old = part_table(episode_rows(spec)).drop_columns(list(new))
     storage.write_bytes(part_path(spec.scenario, spec.episode), part_bytes(old))
     table = read_manifest(storage)
@@ -302,3 +302,14 @@ def test_parts_written_before_the_pose_columns_still_read(tmp_path):
     for name in new:
         assert table.column(name).null_count == 2
     assert table.column("frame_id").to_pylist() == old.column("frame_id").to_pylist()
+    assert with_uids(table).column("uid").to_pylist() == [f"{f}_{spec.scenario}" for f in table["frame_id"].to_pylist()]
+
+
+def test_uids_are_unique_in_a_root(root):
+    """frame_id repeats across scenarios (0000_000 in each); uid does not, and names the files."""
+    table = read_manifest(root[0])
+    uids = table.column("uid").to_pylist()
+    assert len(set(uids)) == len(uids) > len(set(table.column("frame_id").to_pylist()))
+    assert with_uids(table).equals(table)
+    for uid, path in zip(uids, table.column("rgb_path").to_pylist()):
+        assert path.rsplit("/", 1)[1].split(".")[0] == uid
