@@ -11,7 +11,10 @@ which turns one of the renderer's buffers into the array its file holds:
   ``n = depth/1000`` and 0 for n = 0 (CARLA ``LogarithmicDepth``);
 * ``semantic_raw``: the class id in R, G = B = 0;
 * ``semantic_color``: ``PALETTE[class id]``;
-* ``instance``: the per-episode instance ids, HxW uint16 (a 16-bit PNG).
+* ``instance``: the per-episode instance ids, HxW uint16 (a 16-bit PNG);
+* ``semantic_trainid`` (opt-in): the Cityscapes trainId of each pixel's class
+  (``catalog.TRAIN_ID_LUT``, 255 = ignore), HxW uint8 (an 8-bit grey PNG, as
+  Cityscapes' ``*_labelTrainIds.png``).
 
 Depth is metric planar Z (float, metres) with background/sky at 1000 m.
 
@@ -42,7 +45,7 @@ from functools import cache
 
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, PALETTE
+from manifests.catalog import NUM_CLASSES, PALETTE, TRAIN_ID_LUT
 
 FAR_M = 1000.0  # depth far limit; sky and background count as this
 DEPTH_LEVELS = 256**3 - 1
@@ -227,6 +230,23 @@ def decode_jpeg(data: bytes, name: str = "image") -> np.ndarray:
     return _decode_colour(data, name, "JPEG")
 
 
+def encode_semantic_trainid(classes: np.ndarray) -> np.ndarray:
+    """Cityscapes trainIds (19 classes, 255 = ignore) of a class-id image: HxW uint8."""
+    _check_classes(classes, "semantic_trainid")
+    return TRAIN_ID_LUT[classes]
+
+
+def encode_png8(image: np.ndarray, name: str = "image") -> bytes:
+    """Lossless, deterministic 8-bit single-channel (grey) PNG bytes of an HxW uint8 image."""
+    _check(name, image, np.uint8, 2)
+    return png_bytes(image, name)
+
+
+def decode_png8(data: bytes, name: str = "image") -> np.ndarray:
+    """HxW uint8 image from 8-bit single-channel PNG bytes."""
+    return _decode_single(data, name, np.uint8)
+
+
 def encode_instance(instances: np.ndarray) -> np.ndarray:
     """Instance ids as they are stored: HxW uint16 (0 = no object)."""
     _check("instance", instances, np.uint16, 2)
@@ -241,11 +261,18 @@ def encode_png16(image: np.ndarray, name: str = "image") -> bytes:
 
 def decode_png16(data: bytes, name: str = "image") -> np.ndarray:
     """HxW uint16 image from 16-bit single-channel PNG bytes."""
+    return _decode_single(data, name, np.uint16)
+
+
+def _decode_single(data: bytes, name: str, dtype) -> np.ndarray:
+    """HxW image of ``dtype`` (uint8 or uint16) from single-channel PNG bytes of that depth."""
     import cv2
 
     image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(f"{name}: not a decodable PNG ({len(data)} bytes)")
-    if image.dtype != np.uint16 or image.ndim != 2:
-        raise ValueError(f"{name}: expected a 16-bit single-channel PNG, got {image.dtype} {image.shape}")
+    if image.dtype != dtype or image.ndim != 2:
+        bits = np.dtype(dtype).itemsize * 8
+        article = "an" if bits == 8 else "a"
+        raise ValueError(f"{name}: expected {article} {bits}-bit single-channel PNG, got {image.dtype} {image.shape}")
     return image

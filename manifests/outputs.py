@@ -27,6 +27,7 @@ from manifests.encoding import (
     decode_jpeg,
     decode_png,
     decode_png16,
+    decode_png8,
     encode_depth_gray,
     encode_depth_log,
     encode_depth_raw,
@@ -34,9 +35,11 @@ from manifests.encoding import (
     encode_jpeg,
     encode_png,
     encode_png16,
+    encode_png8,
     encode_rgb,
     encode_semantic_color,
     encode_semantic_raw,
+    encode_semantic_trainid,
 )
 from manifests.objects import encode_objects, objects_as_arrays, read_objects, write_objects
 
@@ -62,6 +65,7 @@ class FileFormat:
 FORMATS: dict[str, FileFormat] = {
     "png": FileFormat("png", encode_png, decode_png),  # HxWx3 uint8 RGB
     "png16": FileFormat("png", encode_png16, decode_png16),  # HxW uint16
+    "png8": FileFormat("png", encode_png8, decode_png8),  # HxW uint8 (grey)
     "jpg": FileFormat("jpg", encode_jpeg, decode_jpeg),  # HxWx3 uint8 RGB, lossy (the rgb output's option)
     "parquet": FileFormat("parquet", write_objects, read_objects),  # a table
 }
@@ -128,12 +132,17 @@ OUTPUT_TABLE: tuple[Output, ...] = (
            "traffic light and sign; the hood has its own; static geometry and sky 0"),
     Output("objects", "objects", encode_objects, "parquet", objects_as_arrays, "objects", "table", 0,
            "Parquet, one row per visible object: instance id, class, tight 2D box, visible pixels, occlusion, "
-           "truncation, 3D box (centre, size, yaw) in camera coordinates"),
+           "truncation, 3D box (centre, size, yaw) in the OpenCV camera frame of the row's `cam_to_world` "
+           "(x right, y down, z forward; docs/conventions.md)"),
+    # Opt-in outputs (not in DEFAULT_OUTPUTS): ask for them with --outputs.
+    Output("semantic_trainid", "classes", encode_semantic_trainid, "png8", _same, "semantic_trainid", "uint8", 1,
+           "8-bit grey: the Cityscapes trainId (0-18) of the pixel's class, 255 = ignore (as `*_labelTrainIds.png`)"),
 )
 OUTPUT_BY_NAME: dict[str, Output] = {o.name: o for o in OUTPUT_TABLE}
 OUTPUTS: tuple[str, ...] = tuple(OUTPUT_BY_NAME)
 SEED_OUTPUTS: tuple[str, ...] = OUTPUTS[:6]  # the six images of the IDDA paper
-DEFAULT_OUTPUTS: tuple[str, ...] = OUTPUTS  # what `idda produce` writes unless --outputs says otherwise
+# what `idda produce` writes unless --outputs says otherwise: the paper's six, instance and objects
+DEFAULT_OUTPUTS: tuple[str, ...] = OUTPUTS[:8]
 IMAGE_OUTPUTS: tuple[str, ...] = tuple(o.name for o in OUTPUT_TABLE if o.channels)
 
 for _output in OUTPUT_TABLE:  # every row reads a known buffer and writes known formats

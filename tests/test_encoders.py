@@ -25,8 +25,9 @@ images = hnp.arrays(np.uint8, st.tuples(st.integers(1, 16), st.integers(1, 16), 
 
 
 def test_output_table_names_are_unique_and_known():
-    assert len(set(OUTPUTS)) == len(OUTPUTS) == 8
+    assert len(set(OUTPUTS)) == len(OUTPUTS) == 9
     assert OUTPUTS[:6] == SEED_OUTPUTS
+    assert out_table.DEFAULT_OUTPUTS == SEED_OUTPUTS + ("instance", "objects")  # new outputs are opt-in
     with pytest.raises(ValueError, match="valid outputs"):
         out_table.output("depth_fancy")
     with pytest.raises(ValueError, match="valid outputs"):
@@ -165,3 +166,21 @@ def test_encoder_identity_names_the_encoder_and_version():
 
     identity = enc.encoder_identity()
     assert enc.PNG_ENCODER in identity and f"isal {metadata.version('isal')}" in identity
+
+
+def test_semantic_trainid_is_the_cityscapes_export_table():
+    """The opt-in trainId output maps through the catalog's one table (the Cityscapes export's
+    labelTrainIds too): road 0, sky 10, vehicle 13, unlabeled and excluded classes 255."""
+    from exports.cityscapes import cityscapes_targets
+    from manifests.catalog import class_id
+
+    names = ("road", "sky", "vehicle", "unlabeled", "road line", "pedestrian", "terrain")
+    classes = np.array([[class_id(n) for n in names]], dtype=np.uint8)
+    train = out_table.encode_outputs({"classes": classes}, ("semantic_trainid",))["semantic_trainid"]
+    assert train.tolist() == [[0, 10, 13, 255, 255, 11, 9]]
+    assert np.array_equal(train, cityscapes_targets(classes, None)["labelTrainIds"])
+    data = out_table.file_bytes("semantic_trainid", train)
+    assert data[25] == 0  # PNG colour type 0: one grey channel, as Cityscapes' *_labelTrainIds.png
+    assert np.array_equal(out_table.read_output("semantic_trainid", data), train)
+    with pytest.raises(ValueError):
+        out_table.file_bytes("semantic_trainid", np.zeros((2, 2, 3), np.uint8))
