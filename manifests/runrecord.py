@@ -26,8 +26,9 @@ CONFIG_TYPES: dict[str, tuple[type, ...]] = {
     "world": (str,),
     "outputs": (list,),  # absent in roots from before --outputs: the six seed outputs
     "rgb_format": (str,),  # absent in roots from before --rgb-format: png
+    "frame_interval_s": (float, int),  # absent in roots from before --frame-interval: 3.0
 }
-OPTIONAL_CONFIG = ("world", "outputs", "rgb_format")  # keys older records lack
+OPTIONAL_CONFIG = ("world", "outputs", "rgb_format", "frame_interval_s")  # keys older records lack
 
 
 REPAIR_HINT = "`idda produce --repair` with the run's options rewrites it"  # said with every RunRecordError

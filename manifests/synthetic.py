@@ -35,7 +35,7 @@ def episode_table(spec) -> pa.Table:
         "scenario": [spec.scenario] * n,
         "episode": np.full(n, spec.episode, np.int32),
         "frame": np.arange(n, dtype=np.int32),
-        "sim_time_s": 3.0 * np.arange(n, dtype=np.float32),
+        "sim_time_s": (spec.frame_interval_s * np.arange(n)).astype(np.float32),
         "split": [spec.split] * n,
         "seed": np.full(n, spec.seed, np.int64),
         "n_vehicles": np.full(n, rng.integers(20, 151), np.int16),
@@ -46,7 +46,7 @@ def episode_table(spec) -> pa.Table:
         "width": np.full(n, spec.width, np.int32),
         "height": np.full(n, spec.height, np.int32),
     }
-    columns.update(_poses(spec, view.camera_height_m, 3.0 * np.arange(n)))
+    columns.update(_poses(spec, view.camera_height_m, spec.frame_interval_s * np.arange(n)))
     for output in OUTPUTS:
         path_col, bytes_col, sha_col = output_columns(output)
         columns[path_col] = [frame_path(spec.scenario, output, f) for f in fids]

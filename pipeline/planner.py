@@ -19,7 +19,7 @@ from manifests.catalog import TOWNS, WEATHERS, VIEWPOINTS, Town
 from manifests.encoding import check_rgb_format
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
 from manifests.selection import parse_selection
-from manifests.spec import EpisodeSpec, episode_seed
+from manifests.spec import FRAME_PERIOD_S, EpisodeSpec, check_frame_interval, episode_seed
 
 PAPER_TOTAL_FRAMES = 1_006_800
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
@@ -78,6 +78,7 @@ class PlanConfig:
     seed: int = 0
     outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # what every frame writes (manifests.outputs)
     rgb_format: str = "png"  # the rgb output's file format: png (lossless) or jpg (IDDA's released format)
+    frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (3 s: the paper's sparse sampling)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
@@ -107,6 +108,7 @@ class PlanConfig:
         if check_outputs(self.outputs) != self.outputs:
             raise ValueError(f"outputs must be listed once each in table order, got {', '.join(self.outputs)}")
         check_rgb_format(self.rgb_format)
+        check_frame_interval(self.frame_interval_s)
 
     def to_dict(self) -> dict:
         return {**asdict(self), "outputs": list(self.outputs)}  # as JSON holds it
@@ -177,6 +179,7 @@ def make_plan(config: PlanConfig) -> Plan:
                     run_seed=config.seed,
                     outputs=config.outputs,
                     rgb_format=config.rgb_format,
+                    frame_interval_s=float(config.frame_interval_s),
                 )
             )
     return Plan(config=config, episodes=tuple(episodes))

@@ -99,6 +99,11 @@ def test_resume_with_other_outputs_is_refused(subset_root):
     assert "holds the outputs rgb,semantic_raw" in line
     line = one_line_error(runner.invoke(app, args + ["--outputs", "rgb,lidar"]))
     assert "unknown output 'lidar'" in line
+    line = one_line_error(runner.invoke(app, args + ["--outputs", "rgb,semantic_raw", "--frame-interval", "0.1"]))
+    assert "frame_interval_s 3.0 -> 0.1" in line and "use a new --out" in line  # frames would not match
+    line = one_line_error(runner.invoke(app, args + ["--outputs", "rgb,semantic_raw", "--frame-interval", "0"]))
+    assert "frame interval must be in (0, 60]" in line
+    assert json.loads((subset_root / "run.json").read_text())["config"]["frame_interval_s"] == 3.0
     result = runner.invoke(app, args + ["--outputs", "semantic_raw,rgb"])  # the same set: resumes (nothing left to do)
     assert result.exit_code == 0, result.output
 

@@ -2,8 +2,8 @@
 
 Reads top to bottom like a worker script: look up the scenario, build (or reuse)
 the town's world, populate it from the episode seed, load it into the
-process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
-seconds) render the named buffers, post-process the colour, add the ``objects``
+process's renderer, then for each frame (one every ``spec.frame_interval_s`` simulated
+seconds, 3 by default) render the named buffers, post-process the colour, add the ``objects``
 table when asked and call ``sink(frame)``; encoding the spec's outputs and
 writing them is the sink's business (``pipeline.episode_job``). Only the drawing (``Renderer.render``) runs on the calling
 thread; the rest of a frame (resolving the GL reads, post effects, outputs,
@@ -34,7 +34,7 @@ from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario
 from manifests.geometry import CV_FROM_GL, pose_cells
 from manifests.objects import object_counts
 from manifests.spec import EpisodeSpec
-from manifests.spec import FRAME_PERIOD_S, town_seed
+from manifests.spec import town_seed
 from render_workers.render import postfx
 from render_workers.worlds import worldcache
 from render_workers.render.camera import measured_hood_fraction
@@ -141,7 +141,7 @@ def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WOR
 
 def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, index: int) -> tuple[Frame, dict]:
     """Render frame ``index`` of a loaded episode; returns the frame and its stage timings."""
-    result = renderer.render(index * FRAME_PERIOD_S)
+    result = renderer.render(spec.frame_time(index))
     frame, timings = finish_frame(result, renderer, scene, spec, index)
     return frame, {**result.timings, **timings}
 
@@ -153,7 +153,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     No GL here: it reads only the episode's fixed state (weather, rig,
     instances, actors' paths), so it may run on another thread while the
     renderer draws the next frame."""
-    t = index * FRAME_PERIOD_S
+    t = spec.frame_time(index)
     buffers = dict(result.buffers)  # the GL reads are resolved here, off the render thread
     timings = {"resolve": result.resolve_s}
     start = time.perf_counter()
@@ -224,7 +224,7 @@ def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: s
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
         try:
             for index in range(spec.frames):
-                result = renderer.render(index * FRAME_PERIOD_S)
+                result = renderer.render(spec.frame_time(index))
                 for stage, seconds in result.timings.items():
                     timings[stage] += seconds
                 while pending and pending[0].done():  # surface a sink error early
