@@ -112,3 +112,31 @@ def test_depth_reprojects_between_frames_with_the_manifest_poses(tmp_path, inter
         still = reprojection_errors(depth[a], depth[a + 1], classes[a], classes[a + 1], rows[a], rows[a],
                                     NOT_STATIC + FLAT)
         assert np.median(still) > (0.05 if interval > 1 else 0.002)
+
+
+def test_the_docs_depth_snippet_gives_the_world_points(tmp_path):
+    """docs/conventions.md's numpy snippet, run as written on a rendered frame and its manifest row,
+    gives manifests.geometry.depth_to_world's points; and they are where the renderer put the road."""
+    import re
+    from pathlib import Path
+
+    from pipeline.episode_job import run_episode
+    from storage import Storage
+
+    doc = (Path(__file__).resolve().parents[1] / "docs" / "conventions.md").read_text()
+    section = doc[doc.index("## Depth PNG to world points"):]
+    code = re.search(r"```python\n(.*?)```", section, re.S).group(1)
+    namespace: dict = {}
+    exec(compile(code, "docs/conventions.md", "exec"), namespace)
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    spec = EpisodeSpec("T02_CN_B", 0, 5, 1, 64, 36, "train", 0)
+    run_episode(spec, storage, world="test")
+    row = read_part(storage, spec.scenario, spec.episode).to_pylist()[0]
+    points = namespace["depth_png_to_world"](storage.path(row["depth_raw_path"]), row["K"], row["cam_to_world"])
+    depth = decode_depth_raw(decode_png(storage.read_bytes(row["depth_raw_path"]), "depth"))
+    assert points.shape[0] > 0.3 * 64 * 36
+    assert np.allclose(points, depth_to_world(depth, row["K"], row["cam_to_world"]))
+    classes = decode_png(storage.read_bytes(row["semantic_raw_path"]), "semantic")[..., 0]
+    road = classes[depth < 999.0] == class_id("road")
+    ego_z = as_matrix(row["ego_to_world"], 4)[2, 3]
+    assert road.sum() > 50 and np.median(np.abs(points[road, 2] - ego_z)) < 0.05  # the road is at the ego's feet
