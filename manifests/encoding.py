@@ -247,6 +247,39 @@ def decode_png8(data: bytes, name: str = "image") -> np.ndarray:
     return _decode_single(data, name, np.uint8)
 
 
+def encode_normals(normals: np.ndarray) -> np.ndarray:
+    """Unit normals (HxWx3 float, camera frame) as stored: ``round((n + 1) / 2 * 65535)`` per
+    component, HxWx3 uint16; no surface (a zero vector) is stored as (0, 0, 0)."""
+    _check("normals", normals, np.float32, 3)
+    n = np.asarray(normals, dtype=np.float64)
+    out = np.rint((np.clip(n, -1.0, 1.0) + 1.0) * (65535 / 2.0)).astype(np.uint16)
+    out[~n.any(axis=-1)] = 0
+    return out
+
+
+def decode_normals(image: np.ndarray) -> np.ndarray:
+    """HxWx3 float32 normals from a ``normals`` file's uint16 RGB image; (0, 0, 0) stays a zero vector."""
+    n = image.astype(np.float32) * np.float32(2.0 / 65535) - np.float32(1.0)
+    n[~image.any(axis=-1)] = 0.0
+    return n
+
+
+def encode_png16rgb(image: np.ndarray, name: str = "image") -> bytes:
+    """Lossless, deterministic 16-bit RGB PNG bytes of an HxWx3 uint16 image."""
+    _check(name, image, np.uint16, 3)
+    return png_bytes(image, name)
+
+
+def decode_png16rgb(data: bytes, name: str = "image") -> np.ndarray:
+    """HxWx3 uint16 RGB image from 16-bit RGB PNG bytes."""
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None or image.dtype != np.uint16 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"{name}: expected a 16-bit RGB PNG ({len(data)} bytes)")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
 def encode_instance(instances: np.ndarray) -> np.ndarray:
     """Instance ids as they are stored: HxW uint16 (0 = no object)."""
     _check("instance", instances, np.uint16, 2)

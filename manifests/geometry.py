@@ -81,3 +81,34 @@ def project(points_cam: np.ndarray, K) -> np.ndarray:
     K = as_matrix(K, 3)
     p = np.asarray(points_cam, dtype=np.float64)
     return np.stack([K[0, 0] * p[:, 0] / p[:, 2] + K[0, 2], K[1, 1] * p[:, 1] / p[:, 2] + K[1, 2]], axis=1)
+
+
+def normals_from_depth(depth: np.ndarray, K) -> np.ndarray:
+    """HxWx3 float32 unit surface normals in the camera frame (OpenCV axes), facing the camera,
+    from a planar depth image (metres); 0 where there is no surface (depth >= 999: the sky).
+
+    Each pixel's surface point is back-projected with ``K``; along each image axis the
+    one-sided difference to the neighbour of nearer depth is taken (so a normal does not
+    straddle an occluding edge), and the normal is their cross product. On the renderer's
+    flat-shaded triangles this is the triangle's normal away from its edges."""
+    K = as_matrix(K, 3)
+    h, w = depth.shape
+    z = depth.astype(np.float64)
+    u = (np.arange(w) - K[0, 2]) / K[0, 0]
+    v = (np.arange(h) - K[1, 2]) / K[1, 1]
+    points = np.stack([u[None, :] * z, v[:, None] * z, z], axis=-1)
+    padded = np.pad(points, ((1, 1), (1, 1), (0, 0)), constant_values=np.nan)  # no neighbour past the border
+
+    def tangent(before: np.ndarray, after: np.ndarray) -> np.ndarray:
+        back, ahead = points - before, after - points
+        step_back = np.nan_to_num(np.abs(back[..., 2]), nan=np.inf)
+        use_back = step_back < np.nan_to_num(np.abs(ahead[..., 2]), nan=np.inf)
+        return np.where(use_back[..., None], back, ahead)
+
+    du = tangent(padded[1:-1, :-2], padded[1:-1, 2:])
+    dv = tangent(padded[:-2, 1:-1], padded[2:, 1:-1])
+    n = np.cross(du, dv)
+    n *= -np.sign(np.einsum("hwc,hwc->hw", n, points))[..., None]  # face the camera
+    length = np.linalg.norm(n, axis=-1, keepdims=True)
+    valid = (z < 999.0)[..., None] & (length > 0)
+    return np.where(valid, n / np.where(length > 0, length, 1.0), 0.0).astype(np.float32)

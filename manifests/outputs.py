@@ -28,6 +28,8 @@ from manifests.encoding import (
     decode_png,
     decode_png16,
     decode_png8,
+    decode_png16rgb,
+    decode_normals,
     encode_depth_gray,
     encode_depth_log,
     encode_depth_raw,
@@ -36,6 +38,8 @@ from manifests.encoding import (
     encode_png,
     encode_png16,
     encode_png8,
+    encode_png16rgb,
+    encode_normals,
     encode_rgb,
     encode_semantic_color,
     encode_semantic_raw,
@@ -50,6 +54,7 @@ BUFFERS: dict[str, str] = {
     "classes": "HxW uint8 class ids",
     "instance": "HxW uint16 per-episode instance ids (0 = static geometry and sky)",
     "objects": "pyarrow table of the visible objects (manifests.objects.OBJECT_SCHEMA)",
+    "normals": "HxWx3 float32 unit surface normals, OpenCV camera frame, 0 for the sky (manifests.geometry)",
 }
 
 
@@ -66,6 +71,7 @@ FORMATS: dict[str, FileFormat] = {
     "png": FileFormat("png", encode_png, decode_png),  # HxWx3 uint8 RGB
     "png16": FileFormat("png", encode_png16, decode_png16),  # HxW uint16
     "png8": FileFormat("png", encode_png8, decode_png8),  # HxW uint8 (grey)
+    "png16rgb": FileFormat("png", encode_png16rgb, decode_png16rgb),  # HxWx3 uint16
     "jpg": FileFormat("jpg", encode_jpeg, decode_jpeg),  # HxWx3 uint8 RGB, lossy (the rgb output's option)
     "parquet": FileFormat("parquet", write_objects, read_objects),  # a table
 }
@@ -137,6 +143,9 @@ OUTPUT_TABLE: tuple[Output, ...] = (
     # Opt-in outputs (not in DEFAULT_OUTPUTS): ask for them with --outputs.
     Output("semantic_trainid", "classes", encode_semantic_trainid, "png8", _same, "semantic_trainid", "uint8", 1,
            "8-bit grey: the Cityscapes trainId (0-18) of the pixel's class, 255 = ignore (as `*_labelTrainIds.png`)"),
+    Output("normals", "normals", encode_normals, "png16rgb", decode_normals, "normals", "float32", 3,
+           "16-bit RGB: unit surface normal in the OpenCV camera frame (x right, y down, z forward), facing the "
+           "camera, `n = RGB / 65535 * 2 - 1`; (0, 0, 0) = no surface (sky)"),
 )
 OUTPUT_BY_NAME: dict[str, Output] = {o.name: o for o in OUTPUT_TABLE}
 OUTPUTS: tuple[str, ...] = tuple(OUTPUT_BY_NAME)

@@ -25,7 +25,7 @@ images = hnp.arrays(np.uint8, st.tuples(st.integers(1, 16), st.integers(1, 16), 
 
 
 def test_output_table_names_are_unique_and_known():
-    assert len(set(OUTPUTS)) == len(OUTPUTS) == 9
+    assert len(set(OUTPUTS)) == len(OUTPUTS) == 10
     assert OUTPUTS[:6] == SEED_OUTPUTS
     assert out_table.DEFAULT_OUTPUTS == SEED_OUTPUTS + ("instance", "objects")  # new outputs are opt-in
     with pytest.raises(ValueError, match="valid outputs"):
@@ -184,3 +184,15 @@ def test_semantic_trainid_is_the_cityscapes_export_table():
     assert np.array_equal(out_table.read_output("semantic_trainid", data), train)
     with pytest.raises(ValueError):
         out_table.file_bytes("semantic_trainid", np.zeros((2, 2, 3), np.uint8))
+
+
+def test_normals_round_trip_within_a_16_bit_step():
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(5, 7, 3))
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    n[0, 0] = 0.0  # no surface
+    n = n.astype(np.float32)
+    data = out_table.file_bytes("normals", out_table.encode_outputs({"normals": n}, ("normals",))["normals"])
+    back = out_table.output("normals").decode(out_table.read_output("normals", data))
+    assert back.dtype == np.float32 and np.abs(back - n).max() <= 1.0 / 65535 + 1e-6
+    assert not back[0, 0].any() and np.allclose(np.linalg.norm(back[1:], axis=-1), 1.0, atol=1e-4)

@@ -140,3 +140,26 @@ def test_the_docs_depth_snippet_gives_the_world_points(tmp_path):
     road = classes[depth < 999.0] == class_id("road")
     ego_z = as_matrix(row["ego_to_world"], 4)[2, 3]
     assert road.sum() > 50 and np.median(np.abs(points[road, 2] - ego_z)) < 0.05  # the road is at the ego's feet
+
+
+def test_normals_face_up_on_the_road_and_sideways_on_walls(tmp_path):
+    """The opt-in normals output, taken to the world with cam_to_world: the road's point up,
+    buildings' and walls' lie flat; unit length wherever there is a surface, zero in the sky."""
+    from manifests.outputs import output, read_output
+    from pipeline.episode_job import run_episode
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    spec = EpisodeSpec("T01_CN_A", 0, 7, 1, W, H, "train", 0, outputs=("semantic_raw", "normals"))
+    run_episode(spec, storage, world="test")
+    row = read_part(storage, spec.scenario, spec.episode).to_pylist()[0]
+    normals = output("normals").decode(read_output("normals", storage.read_bytes(row["normals_path"])))
+    classes = decode_png(storage.read_bytes(row["semantic_raw_path"]), "semantic")[..., 0]
+    sky = classes == class_id("sky")
+    assert not normals[sky].any()
+    assert np.allclose(np.linalg.norm(normals[~sky], axis=-1), 1.0, atol=1e-3)
+    world = normals @ as_matrix(row["cam_to_world"], 4)[:3, :3].T
+    road = classes == class_id("road")
+    assert road.sum() > 200 and np.median(world[road, 2]) > np.cos(np.radians(2))
+    upright = np.isin(classes, [class_id("building"), class_id("wall")])
+    assert upright.sum() > 50 and np.median(np.abs(world[upright, 2])) < np.sin(np.radians(5))

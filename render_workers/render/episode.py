@@ -31,7 +31,7 @@ from typing import Callable
 import numpy as np
 
 from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario
-from manifests.geometry import CV_FROM_GL, pose_cells
+from manifests.geometry import CV_FROM_GL, normals_from_depth, pose_cells
 from manifests.objects import object_counts
 from manifests.spec import EpisodeSpec
 from manifests.spec import town_seed
@@ -170,6 +170,8 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
         poses = [actor.pose(t) for actor in scene.actors]
         buffers["objects"] = frame_objects(buffers["instance"], renderer.instances, poses,
                                            result.world_from_camera, result.rig.focal_px)
+    if "normals" in spec.buffers:  # opt-in: from the planar depth and the rig's intrinsics
+        buffers["normals"] = normals_from_depth(buffers["depth"], result.rig.K)
     counts = np.bincount(buffers["classes"].ravel(), minlength=NUM_CLASSES).astype(np.int64)
     objects = object_counts(buffers["instance"], instance_classes(renderer.instances))
     timings["outputs"] = time.perf_counter() - start
