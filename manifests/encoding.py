@@ -264,6 +264,26 @@ def decode_normals(image: np.ndarray) -> np.ndarray:
     return n
 
 
+def encode_flow(flow: np.ndarray) -> np.ndarray:
+    """KITTI's flow encoding of an HxWx3 float (u, v, valid) buffer: ``R = u * 64 + 2**15``,
+    ``G = v * 64 + 2**15`` (clamped to 16 bits), ``B = 1`` where valid; invalid pixels are (0, 0, 0)."""
+    _check("flow", flow, np.float32, 3)
+    valid = flow[..., 2] > 0
+    out = np.zeros(flow.shape, np.uint16)
+    out[..., :2] = np.clip(np.rint(flow[..., :2].astype(np.float64) * 64.0 + 2**15), 0, 65535)
+    out[..., 2] = valid
+    out[~valid] = 0
+    return out
+
+
+def decode_flow(image: np.ndarray) -> np.ndarray:
+    """HxWx3 float32 (u, v, valid) from a ``flow`` file's uint16 RGB image (KITTI's encoding)."""
+    out = (image.astype(np.float32) - np.float32(2**15)) / np.float32(64.0)
+    out[..., 2] = image[..., 2] > 0
+    out[image[..., 2] == 0, :2] = 0.0
+    return out
+
+
 def encode_png16rgb(image: np.ndarray, name: str = "image") -> bytes:
     """Lossless, deterministic 16-bit RGB PNG bytes of an HxWx3 uint16 image."""
     _check(name, image, np.uint16, 3)

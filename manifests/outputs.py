@@ -30,6 +30,7 @@ from manifests.encoding import (
     decode_png8,
     decode_png16rgb,
     decode_normals,
+    decode_flow,
     encode_depth_gray,
     encode_depth_log,
     encode_depth_raw,
@@ -40,6 +41,7 @@ from manifests.encoding import (
     encode_png8,
     encode_png16rgb,
     encode_normals,
+    encode_flow,
     encode_rgb,
     encode_semantic_color,
     encode_semantic_raw,
@@ -54,6 +56,7 @@ BUFFERS: dict[str, str] = {
     "classes": "HxW uint8 class ids",
     "instance": "HxW uint16 per-episode instance ids (0 = static geometry and sky)",
     "objects": "pyarrow table of the visible objects (manifests.objects.OBJECT_SCHEMA)",
+    "flow": "HxWx3 float32 forward flow to the next frame in pixels (u, v) and valid (1/0) (render_workers.render.flow)",
     "normals": "HxWx3 float32 unit surface normals, OpenCV camera frame, 0 for the sky (manifests.geometry)",
 }
 
@@ -146,6 +149,10 @@ OUTPUT_TABLE: tuple[Output, ...] = (
     Output("normals", "normals", encode_normals, "png16rgb", decode_normals, "normals", "float32", 3,
            "16-bit RGB: unit surface normal in the OpenCV camera frame (x right, y down, z forward), facing the "
            "camera, `n = RGB / 65535 * 2 - 1`; (0, 0, 0) = no surface (sky)"),
+    Output("flow", "flow", encode_flow, "png16rgb", decode_flow, "flow", "float32", 3,
+           "16-bit RGB, KITTI's flow encoding: forward flow to the episode's next frame from geometry and object "
+           "motion, `u = (R - 2**15) / 64`, `v = (G - 2**15) / 64`, B = 1 where valid (0 for the last frame, the sky "
+           "and points whose next position is out of view)"),
 )
 OUTPUT_BY_NAME: dict[str, Output] = {o.name: o for o in OUTPUT_TABLE}
 OUTPUTS: tuple[str, ...] = tuple(OUTPUT_BY_NAME)

@@ -25,7 +25,7 @@ images = hnp.arrays(np.uint8, st.tuples(st.integers(1, 16), st.integers(1, 16), 
 
 
 def test_output_table_names_are_unique_and_known():
-    assert len(set(OUTPUTS)) == len(OUTPUTS) == 10
+    assert len(set(OUTPUTS)) == len(OUTPUTS) == 11
     assert OUTPUTS[:6] == SEED_OUTPUTS
     assert out_table.DEFAULT_OUTPUTS == SEED_OUTPUTS + ("instance", "objects")  # new outputs are opt-in
     with pytest.raises(ValueError, match="valid outputs"):
@@ -196,3 +196,14 @@ def test_normals_round_trip_within_a_16_bit_step():
     back = out_table.output("normals").decode(out_table.read_output("normals", data))
     assert back.dtype == np.float32 and np.abs(back - n).max() <= 1.0 / 65535 + 1e-6
     assert not back[0, 0].any() and np.allclose(np.linalg.norm(back[1:], axis=-1), 1.0, atol=1e-4)
+
+
+def test_flow_uses_kittis_encoding():
+    flow = np.array([[[1.5, -2.25, 1.0], [0.0, 0.0, 0.0], [-600.0, 0.015625, 1.0]]], np.float32)
+    image = out_table.encode_outputs({"flow": flow}, ("flow",))["flow"]
+    assert image.dtype == np.uint16
+    assert image[0, 0].tolist() == [2**15 + 96, 2**15 - 144, 1] and image[0, 1].tolist() == [0, 0, 0]
+    back = out_table.output("flow").decode(out_table.read_output("flow", out_table.file_bytes("flow", image)))
+    assert back[0, 2, 0] == -512.0  # KITTI's range: +-512 px, clamped
+    flow[0, 2, 0] = -512.0
+    assert np.allclose(back, flow)

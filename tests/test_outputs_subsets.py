@@ -123,7 +123,7 @@ def test_manifest_object_counts_sum_the_objects_sidecars(tmp_path_factory):
     assert total >= 5
 
 
-OPT_IN = ("semantic_raw", "semantic_trainid", "normals")
+OPT_IN = ("semantic_raw", "semantic_trainid", "normals", "flow")
 
 
 def test_an_opt_in_output_follows_through_verify_query_and_loaders(tmp_path):
@@ -148,3 +148,4 @@ def test_an_opt_in_output_follows_through_verify_query_and_loaders(tmp_path):
         assert sample["semantic_trainid"].dtype == np.uint8 and sample["semantic_trainid"].shape == (36, 64)
         assert np.array_equal(sample["semantic_trainid"], TRAIN_ID_LUT[sample["semantic"]])
         assert sample["normals"].dtype == np.float32 and sample["normals"].shape == (36, 64, 3)
+        assert sample["flow"].shape == (36, 64, 3) and sample["flow"][..., 2].any() == (i % 2 == 0)  # none after the last

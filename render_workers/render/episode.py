@@ -38,6 +38,7 @@ from manifests.spec import town_seed
 from render_workers.render import postfx
 from render_workers.worlds import worldcache
 from render_workers.render.camera import measured_hood_fraction
+from render_workers.render.flow import episode_flow
 from render_workers.render.instances import frame_objects, instance_classes
 from render_workers.render.renderer import Renderer, RenderResult
 from render_workers.worlds.scene import EpisodeScene, Frame, World
@@ -172,6 +173,10 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
                                            result.world_from_camera, result.rig.focal_px)
     if "normals" in spec.buffers:  # opt-in: from the planar depth and the rig's intrinsics
         buffers["normals"] = normals_from_depth(buffers["depth"], result.rig.K)
+    if "flow" in spec.buffers:  # opt-in: to the next frame; none after the last
+        buffers["flow"] = (episode_flow(buffers["depth"], buffers["instance"], result.rig, scene, renderer.instances,
+                                        t, spec.frame_time(index + 1)) if index + 1 < spec.frames
+                           else np.zeros(buffers["depth"].shape + (3,), np.float32))
     counts = np.bincount(buffers["classes"].ravel(), minlength=NUM_CLASSES).astype(np.int64)
     objects = object_counts(buffers["instance"], instance_classes(renderer.instances))
     timings["outputs"] = time.perf_counter() - start
