@@ -82,7 +82,7 @@ def test_label_maps_and_raw_bytes(root, rows):
     everything = FrameDataset(str(root))
     assert len(everything) == len(read_manifest(str(root)))
     with pytest.raises(ValueError, match="valid outputs: rgb, depth_raw"):
-        FrameDataset(root, outputs=("normals",))
+        FrameDataset(root, outputs=("lidar",))
     with pytest.raises(ValueError, match="valid label maps: idda, cityscapes, train"):
         FrameDataset(root, labels="coco")
 
@@ -147,6 +147,6 @@ def test_ray_dataset_gives_the_pixels_on_disk(root, rows):
         got_frames = sorted(a.tobytes() for a in flat[key])
         assert got_frames == sorted(on_disk(root, r)[key].tobytes() for r in rows), key
     with pytest.raises(ValueError, match="valid outputs"):
-        ray_dataset(root, outputs=("flow",))
+        ray_dataset(root, outputs=("lidar",))
     with pytest.raises(ValueError, match="valid columns"):
         ray_dataset(root, metadata=("seed",))
