@@ -11,7 +11,10 @@ sidecar: ``segmentation`` is its visible mask from the ``instance`` PNG as a
 compressed RLE (pycocotools), ``bbox`` the sidecar's tight box ``[x, y, w,
 h]``, ``area`` its visible pixel count, ``iscrowd`` 0; the IDDA extras
 ``instance_id``, ``occlusion``, ``truncation`` and ``box3d`` (centre, size,
-yaw in camera coordinates) ride along. The ego hood is not an object.
+yaw in the OpenCV camera frame) ride along. The ego hood is not an object.
+Each ``images`` entry also carries ``idda_uid`` (unique in the root), ``K``
+(row-major 3x3) and ``cam_to_world`` (row-major 4x4), as docs/conventions.md
+states them (null for roots written before they existed).
 pycocotools' ``COCO(annotation_file)`` reads the files as they are.
 """
 
@@ -87,7 +90,7 @@ def write_coco(storage, frames: list, tmp: str, place, threads: int = 8) -> tupl
         height, width = frame.height, frame.width
         coco["images"].append({"id": image_id, "file_name": os.path.relpath(rel, "images"), "width": width,
                                "height": height, "idda_frame_id": frame.frame_id, "idda_uid": frame.uid,
-                               "scenario": frame.scenario})
+                               "scenario": frame.scenario, "K": frame.K, "cam_to_world": frame.cam_to_world})
         for ann in anns:
             coco["annotations"].append({"id": len(coco["annotations"]) + 1, "image_id": image_id, **ann})
         exported.append({"image": rel, "annotations": ANNOTATIONS.format(split=frame.split)})

@@ -23,7 +23,7 @@ from manifests.outputs import OUTPUTS, file_of_path, read_output
 from manifests.schema import output_columns, with_uids
 
 # ------------------------------------------------------------ the frames ----
-_META = ("frame_id", "uid", "scenario", "episode", "frame", "split", "width", "height")
+_META = ("frame_id", "uid", "scenario", "episode", "frame", "split", "width", "height", "K", "cam_to_world")
 
 
 @dataclass(frozen=True)
@@ -39,6 +39,8 @@ class ExportFrame:
     split: str
     width: int
     height: int
+    K: list | None  # row-major 3x3 intrinsics (docs/conventions.md); None in roots written before it
+    cam_to_world: list | None  # row-major 4x4, OpenCV camera axes
     paths: Mapping[str, str | None]
 
     def path(self, output: str) -> str | None:
