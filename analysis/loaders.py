@@ -36,13 +36,17 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.catalog import AXES, CITYSCAPES_ID_LUT, TRAIN_ID_LUT
+from manifests.geometry import as_matrix
 from manifests.outputs import OUTPUT_BY_NAME as DECODERS, OUTPUTS, read_output
 from manifests.query import Query, run_query
 from manifests.reader import as_storage, read_manifest, require_outputs
-from manifests.schema import output_columns
+from manifests.schema import output_columns, with_uids
 
 # Per-frame metadata returned with the arrays.
-META_COLUMNS = ("frame_id", "scenario", *AXES, "episode", "frame", "split", "width", "height")
+META_COLUMNS = ("uid", "frame_id", "scenario", *AXES, "episode", "frame", "split", "width", "height")
+# Calibration and pose returned by FrameDataset as float64 matrices (manifests.geometry's convention;
+# None in roots written before they existed): K 3x3, cam_to_world 4x4.
+POSE_META = {"K": 3, "cam_to_world": 4}
 # The numeric ones: what ray_dataset keeps by default, because Ray's
 # iter_torch_batches turns every column into a tensor and strings cannot be.
 NUMERIC_META = ("episode", "frame", "width", "height")
@@ -67,7 +71,7 @@ def _check_options(outputs: tuple[str, ...], labels: str) -> None:
 
 def select_frames(root, query: Query | None = None) -> pa.Table:
     """Manifest rows of the query's frames (all frames without a query)."""
-    table = read_manifest(as_storage(root))
+    table = with_uids(read_manifest(as_storage(root)))  # roots written before the uid column get it derived
     return table if query is None else run_query(table, query).table
 
 
@@ -88,7 +92,7 @@ class FrameDataset:
 
     A sample holds the decoded arrays (keys as ``manifests.outputs.OUTPUT_TABLE``'s ``key``; with
     ``decode=False`` the PNG bytes under the output names) and the frame's
-    metadata (``META_COLUMNS`` plus ``index``). Frames are in manifest order
+    metadata (``META_COLUMNS``, ``index``, and ``K`` and ``cam_to_world`` as matrices: ``POSE_META``). Frames are in manifest order
     (scenario, episode, frame). The object is small and picklable and opens
     its storage lazily in each process, so DataLoader workers (fork or spawn)
     never share a file-system handle. ``transform``, if given, is applied to
@@ -109,7 +113,7 @@ class FrameDataset:
         storage = as_storage(root)
         table = select_frames(storage, query)
         require_outputs(table, outputs, storage.uri)
-        columns = list(META_COLUMNS) + [output_columns(o)[0] for o in outputs]
+        columns = list(META_COLUMNS) + list(POSE_META) + [output_columns(o)[0] for o in outputs]
         self._table = table.select(columns).combine_chunks()
         self._storage = copy.copy(storage)  # a fresh copy holds no open file system
         self._pid: int | None = None
@@ -142,6 +146,9 @@ class FrameDataset:
             raise IndexError(f"frame index {index} out of range for {n} frames")
         index %= n
         row = {name: self._table.column(name)[index].as_py() for name in META_COLUMNS}
+        for name, size in POSE_META.items():
+            cell = self._table.column(name)[index].as_py()
+            row[name] = None if cell is None else as_matrix(cell, size)
         row["index"] = index
         return row
 

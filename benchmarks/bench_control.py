@@ -33,6 +33,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from manifests.catalog import INSTANCE_LABELS, LABELS
+from manifests.geometry import HFOV_DEG, flat, intrinsics
 from manifests.schema import STATS_DIR
 from manifests.writer import frame_row
 from pipeline.episode_job import EpisodeResult, commit_part
@@ -58,6 +59,8 @@ def _standin_frame(spec, index: int) -> SimpleNamespace:
         index=index, sim_time_s=3.0 * index, outputs={}, class_counts=counts,
         object_counts={label.object_column: 0 for label in INSTANCE_LABELS},
         camera_height_m=1.5, hood_fraction=0.0, ego_speed_mps=0.0, n_vehicles=20, n_pedestrians=0,
+        K=flat(intrinsics(spec.width, spec.height, HFOV_DEG)), cam_to_world=flat(np.eye(4)),
+        ego_to_world=flat(np.eye(4)), cam_to_ego=flat(np.eye(4)),
     )
 
 

@@ -11,7 +11,10 @@ sidecar: ``segmentation`` is its visible mask from the ``instance`` PNG as a
 compressed RLE (pycocotools), ``bbox`` the sidecar's tight box ``[x, y, w,
 h]``, ``area`` its visible pixel count, ``iscrowd`` 0; the IDDA extras
 ``instance_id``, ``occlusion``, ``truncation`` and ``box3d`` (centre, size,
-yaw in camera coordinates) ride along. The ego hood is not an object.
+yaw in the OpenCV camera frame) ride along. The ego hood is not an object.
+Each ``images`` entry also carries ``idda_uid`` (unique in the root), ``K``
+(row-major 3x3) and ``cam_to_world`` (row-major 4x4), as docs/conventions.md
+states them (null for roots written before they existed).
 pycocotools' ``COCO(annotation_file)`` reads the files as they are.
 """
 
@@ -69,7 +72,7 @@ def write_coco(storage, frames: list, tmp: str, place, threads: int = 8) -> tupl
     _mask_api()
 
     def one(frame) -> tuple[str, list[dict]]:
-        rel = f"images/{frame.split}/{frame.frame_id}_{frame.scenario}{os.path.splitext(frame.path('rgb'))[1]}"
+        rel = f"images/{frame.split}/{frame.uid}{os.path.splitext(frame.path('rgb'))[1]}"
         place(storage, frame.path("rgb"), os.path.join(tmp, rel))
         anns = frame_annotations(decode(storage, frame.path("instance"), "instance"),
                                  decode(storage, frame.path("objects"), "objects"))
@@ -86,7 +89,8 @@ def write_coco(storage, frames: list, tmp: str, place, threads: int = 8) -> tupl
         image_id = len(coco["images"]) + 1
         height, width = frame.height, frame.width
         coco["images"].append({"id": image_id, "file_name": os.path.relpath(rel, "images"), "width": width,
-                               "height": height, "idda_frame_id": frame.frame_id, "scenario": frame.scenario})
+                               "height": height, "idda_frame_id": frame.frame_id, "idda_uid": frame.uid,
+                               "scenario": frame.scenario, "K": frame.K, "cam_to_world": frame.cam_to_world})
         for ann in anns:
             coco["annotations"].append({"id": len(coco["annotations"]) + 1, "image_id": image_id, **ann})
         exported.append({"image": rel, "annotations": ANNOTATIONS.format(split=frame.split)})

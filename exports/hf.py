@@ -53,6 +53,7 @@ SCHEMA = pa.schema(
         ("semantic", _IMAGE),
         ("depth", _IMAGE),
         ("frame_id", pa.string()),
+        ("uid", pa.string()),  # unique in the root (manifests.schema.frame_uid)
         ("scenario", pa.string()),
         ("town", pa.string()),
         ("weather", pa.string()),
@@ -86,6 +87,7 @@ def _row(storage, frame) -> dict:
         "semantic": {"bytes": semantic, "path": os.path.basename(frame.path("semantic_raw"))},
         "depth": {"bytes": storage.read_bytes(depth_rel), "path": os.path.basename(depth_rel)},
         "frame_id": frame.frame_id,
+        "uid": frame.uid,
         "scenario": scenario,
         **code_axes(scenario),
         "episode": frame.episode,

@@ -23,7 +23,7 @@ from exports.placing import ExportFrame, Layout, decode, is_jpeg, per_frame, png
 
 def idda_paths(frame: ExportFrame) -> tuple[str, str]:
     """A frame's RGB and Semantic paths in the IDDA layout (the split files list the same)."""
-    stem = f"{frame.frame_id}_{frame.scenario}"
+    stem = frame.uid  # <frame_id>_<scenario>, as IDDA names its files
     return f"{frame.scenario}/RGB/{stem}.jpg", f"{frame.scenario}/Semantic/{stem}.png"
 
 

@@ -20,10 +20,10 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.outputs import OUTPUTS, file_of_path, read_output
-from manifests.schema import output_columns
+from manifests.schema import output_columns, with_uids
 
 # ------------------------------------------------------------ the frames ----
-_META = ("frame_id", "scenario", "episode", "frame", "split", "width", "height")
+_META = ("frame_id", "uid", "scenario", "episode", "frame", "split", "width", "height", "K", "cam_to_world")
 
 
 @dataclass(frozen=True)
@@ -32,12 +32,15 @@ class ExportFrame:
     root-relative file of every output the root holds (None where it has not)."""
 
     frame_id: str
+    uid: str  # unique in the root (manifests.schema.frame_uid)
     scenario: str
     episode: int
     frame: int
     split: str
     width: int
     height: int
+    K: list | None  # row-major 3x3 intrinsics (docs/conventions.md); None in roots written before it
+    cam_to_world: list | None  # row-major 4x4, OpenCV camera axes
     paths: Mapping[str, str | None]
 
     def path(self, output: str) -> str | None:
@@ -49,6 +52,7 @@ class ExportFrame:
 
 def frames_of(table: pa.Table) -> list[ExportFrame]:
     """The export frames of a manifest table, in its row order."""
+    table = with_uids(table)
     meta = {name: table.column(name).to_pylist() for name in _META}
     paths = {o: table.column(output_columns(o)[0]).to_pylist()
              for o in OUTPUTS if output_columns(o)[0] in table.column_names}
@@ -134,9 +138,9 @@ def index_csv(frames: list[ExportFrame], exported: list[dict[str, str]]) -> byte
     kinds = list(exported[0]) if exported else []
     buf = io.StringIO()
     writer = csv.writer(buf, lineterminator="\n")
-    writer.writerow(["frame_id", "scenario", "episode", "frame", "split", *kinds])
+    writer.writerow(["frame_id", "scenario", "episode", "frame", "split", "uid", *kinds])
     for f, paths in zip(frames, exported):
-        writer.writerow([f.frame_id, f.scenario, f.episode, f.frame, f.split, *(paths[k] for k in kinds)])
+        writer.writerow([f.frame_id, f.scenario, f.episode, f.frame, f.split, f.uid, *(paths[k] for k in kinds)])
     return buf.getvalue().encode()
 
 

@@ -11,7 +11,10 @@ which turns one of the renderer's buffers into the array its file holds:
   ``n = depth/1000`` and 0 for n = 0 (CARLA ``LogarithmicDepth``);
 * ``semantic_raw``: the class id in R, G = B = 0;
 * ``semantic_color``: ``PALETTE[class id]``;
-* ``instance``: the per-episode instance ids, HxW uint16 (a 16-bit PNG).
+* ``instance``: the per-episode instance ids, HxW uint16 (a 16-bit PNG);
+* ``semantic_trainid`` (opt-in): the Cityscapes trainId of each pixel's class
+  (``catalog.TRAIN_ID_LUT``, 255 = ignore), HxW uint8 (an 8-bit grey PNG, as
+  Cityscapes' ``*_labelTrainIds.png``).
 
 Depth is metric planar Z (float, metres) with background/sky at 1000 m.
 
@@ -42,7 +45,7 @@ from functools import cache
 
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, PALETTE
+from manifests.catalog import NUM_CLASSES, PALETTE, TRAIN_ID_LUT
 
 FAR_M = 1000.0  # depth far limit; sky and background count as this
 DEPTH_LEVELS = 256**3 - 1
@@ -227,6 +230,76 @@ def decode_jpeg(data: bytes, name: str = "image") -> np.ndarray:
     return _decode_colour(data, name, "JPEG")
 
 
+def encode_semantic_trainid(classes: np.ndarray) -> np.ndarray:
+    """Cityscapes trainIds (19 classes, 255 = ignore) of a class-id image: HxW uint8."""
+    _check_classes(classes, "semantic_trainid")
+    return TRAIN_ID_LUT[classes]
+
+
+def encode_png8(image: np.ndarray, name: str = "image") -> bytes:
+    """Lossless, deterministic 8-bit single-channel (grey) PNG bytes of an HxW uint8 image."""
+    _check(name, image, np.uint8, 2)
+    return png_bytes(image, name)
+
+
+def decode_png8(data: bytes, name: str = "image") -> np.ndarray:
+    """HxW uint8 image from 8-bit single-channel PNG bytes."""
+    return _decode_single(data, name, np.uint8)
+
+
+def encode_normals(normals: np.ndarray) -> np.ndarray:
+    """Unit normals (HxWx3 float, camera frame) as stored: ``round((n + 1) / 2 * 65535)`` per
+    component, HxWx3 uint16; no surface (a zero vector) is stored as (0, 0, 0)."""
+    _check("normals", normals, np.float32, 3)
+    n = np.asarray(normals, dtype=np.float64)
+    out = np.rint((np.clip(n, -1.0, 1.0) + 1.0) * (65535 / 2.0)).astype(np.uint16)
+    out[~n.any(axis=-1)] = 0
+    return out
+
+
+def decode_normals(image: np.ndarray) -> np.ndarray:
+    """HxWx3 float32 normals from a ``normals`` file's uint16 RGB image; (0, 0, 0) stays a zero vector."""
+    n = image.astype(np.float32) * np.float32(2.0 / 65535) - np.float32(1.0)
+    n[~image.any(axis=-1)] = 0.0
+    return n
+
+
+def encode_flow(flow: np.ndarray) -> np.ndarray:
+    """KITTI's flow encoding of an HxWx3 float (u, v, valid) buffer: ``R = u * 64 + 2**15``,
+    ``G = v * 64 + 2**15`` (clamped to 16 bits), ``B = 1`` where valid; invalid pixels are (0, 0, 0)."""
+    _check("flow", flow, np.float32, 3)
+    valid = flow[..., 2] > 0
+    out = np.zeros(flow.shape, np.uint16)
+    out[..., :2] = np.clip(np.rint(flow[..., :2].astype(np.float64) * 64.0 + 2**15), 0, 65535)
+    out[..., 2] = valid
+    out[~valid] = 0
+    return out
+
+
+def decode_flow(image: np.ndarray) -> np.ndarray:
+    """HxWx3 float32 (u, v, valid) from a ``flow`` file's uint16 RGB image (KITTI's encoding)."""
+    out = (image.astype(np.float32) - np.float32(2**15)) / np.float32(64.0)
+    out[..., 2] = image[..., 2] > 0
+    out[image[..., 2] == 0, :2] = 0.0
+    return out
+
+
+def encode_png16rgb(image: np.ndarray, name: str = "image") -> bytes:
+    """Lossless, deterministic 16-bit RGB PNG bytes of an HxWx3 uint16 image."""
+    _check(name, image, np.uint16, 3)
+    return png_bytes(image, name)
+
+
+def decode_png16rgb(data: bytes, name: str = "image") -> np.ndarray:
+    """HxWx3 uint16 RGB image from 16-bit RGB PNG bytes."""
+    import cv2
+
+    image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
+    if image is None or image.dtype != np.uint16 or image.ndim != 3 or image.shape[2] != 3:
+        raise ValueError(f"{name}: expected a 16-bit RGB PNG ({len(data)} bytes)")
+    return cv2.cvtColor(image, cv2.COLOR_BGR2RGB)
+
+
 def encode_instance(instances: np.ndarray) -> np.ndarray:
     """Instance ids as they are stored: HxW uint16 (0 = no object)."""
     _check("instance", instances, np.uint16, 2)
@@ -241,11 +314,18 @@ def encode_png16(image: np.ndarray, name: str = "image") -> bytes:
 
 def decode_png16(data: bytes, name: str = "image") -> np.ndarray:
     """HxW uint16 image from 16-bit single-channel PNG bytes."""
+    return _decode_single(data, name, np.uint16)
+
+
+def _decode_single(data: bytes, name: str, dtype) -> np.ndarray:
+    """HxW image of ``dtype`` (uint8 or uint16) from single-channel PNG bytes of that depth."""
     import cv2
 
     image = cv2.imdecode(np.frombuffer(data, dtype=np.uint8), cv2.IMREAD_UNCHANGED)
     if image is None:
         raise ValueError(f"{name}: not a decodable PNG ({len(data)} bytes)")
-    if image.dtype != np.uint16 or image.ndim != 2:
-        raise ValueError(f"{name}: expected a 16-bit single-channel PNG, got {image.dtype} {image.shape}")
+    if image.dtype != dtype or image.ndim != 2:
+        bits = np.dtype(dtype).itemsize * 8
+        article = "an" if bits == 8 else "a"
+        raise ValueError(f"{name}: expected {article} {bits}-bit single-channel PNG, got {image.dtype} {image.shape}")
     return image

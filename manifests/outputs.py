@@ -27,6 +27,10 @@ from manifests.encoding import (
     decode_jpeg,
     decode_png,
     decode_png16,
+    decode_png8,
+    decode_png16rgb,
+    decode_normals,
+    decode_flow,
     encode_depth_gray,
     encode_depth_log,
     encode_depth_raw,
@@ -34,9 +38,14 @@ from manifests.encoding import (
     encode_jpeg,
     encode_png,
     encode_png16,
+    encode_png8,
+    encode_png16rgb,
+    encode_normals,
+    encode_flow,
     encode_rgb,
     encode_semantic_color,
     encode_semantic_raw,
+    encode_semantic_trainid,
 )
 from manifests.objects import encode_objects, objects_as_arrays, read_objects, write_objects
 
@@ -47,6 +56,8 @@ BUFFERS: dict[str, str] = {
     "classes": "HxW uint8 class ids",
     "instance": "HxW uint16 per-episode instance ids (0 = static geometry and sky)",
     "objects": "pyarrow table of the visible objects (manifests.objects.OBJECT_SCHEMA)",
+    "flow": "HxWx3 float32 forward flow to the next frame in pixels (u, v) and valid (1/0) (render_workers.render.flow)",
+    "normals": "HxWx3 float32 unit surface normals, OpenCV camera frame, 0 for the sky (manifests.geometry)",
 }
 
 
@@ -62,6 +73,8 @@ class FileFormat:
 FORMATS: dict[str, FileFormat] = {
     "png": FileFormat("png", encode_png, decode_png),  # HxWx3 uint8 RGB
     "png16": FileFormat("png", encode_png16, decode_png16),  # HxW uint16
+    "png8": FileFormat("png", encode_png8, decode_png8),  # HxW uint8 (grey)
+    "png16rgb": FileFormat("png", encode_png16rgb, decode_png16rgb),  # HxWx3 uint16
     "jpg": FileFormat("jpg", encode_jpeg, decode_jpeg),  # HxWx3 uint8 RGB, lossy (the rgb output's option)
     "parquet": FileFormat("parquet", write_objects, read_objects),  # a table
 }
@@ -128,12 +141,24 @@ OUTPUT_TABLE: tuple[Output, ...] = (
            "traffic light and sign; the hood has its own; static geometry and sky 0"),
     Output("objects", "objects", encode_objects, "parquet", objects_as_arrays, "objects", "table", 0,
            "Parquet, one row per visible object: instance id, class, tight 2D box, visible pixels, occlusion, "
-           "truncation, 3D box (centre, size, yaw) in camera coordinates"),
+           "truncation, 3D box (centre, size, yaw) in the OpenCV camera frame of the row's `cam_to_world` "
+           "(x right, y down, z forward; docs/conventions.md)"),
+    # Opt-in outputs (not in DEFAULT_OUTPUTS): ask for them with --outputs.
+    Output("semantic_trainid", "classes", encode_semantic_trainid, "png8", _same, "semantic_trainid", "uint8", 1,
+           "8-bit grey: the Cityscapes trainId (0-18) of the pixel's class, 255 = ignore (as `*_labelTrainIds.png`)"),
+    Output("normals", "normals", encode_normals, "png16rgb", decode_normals, "normals", "float32", 3,
+           "16-bit RGB: unit surface normal in the OpenCV camera frame (x right, y down, z forward), facing the "
+           "camera, `n = RGB / 65535 * 2 - 1`; (0, 0, 0) = no surface (sky)"),
+    Output("flow", "flow", encode_flow, "png16rgb", decode_flow, "flow", "float32", 3,
+           "16-bit RGB, KITTI's flow encoding: forward flow to the episode's next frame from geometry and object "
+           "motion, `u = (R - 2**15) / 64`, `v = (G - 2**15) / 64`, B = 1 where valid (0 for the last frame, the sky "
+           "and points whose next position is out of view)"),
 )
 OUTPUT_BY_NAME: dict[str, Output] = {o.name: o for o in OUTPUT_TABLE}
 OUTPUTS: tuple[str, ...] = tuple(OUTPUT_BY_NAME)
 SEED_OUTPUTS: tuple[str, ...] = OUTPUTS[:6]  # the six images of the IDDA paper
-DEFAULT_OUTPUTS: tuple[str, ...] = OUTPUTS  # what `idda produce` writes unless --outputs says otherwise
+# what `idda produce` writes unless --outputs says otherwise: the paper's six, instance and objects
+DEFAULT_OUTPUTS: tuple[str, ...] = OUTPUTS[:8]
 IMAGE_OUTPUTS: tuple[str, ...] = tuple(o.name for o in OUTPUT_TABLE if o.channels)
 
 for _output in OUTPUT_TABLE:  # every row reads a known buffer and writes known formats

@@ -9,6 +9,7 @@ over scenarios in proportion to what each has. Presets give the paper's
 from __future__ import annotations
 
 import io
+import json
 import math
 from dataclasses import dataclass, field, replace
 
@@ -169,9 +170,14 @@ def _file_list(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
 
 
 def _csv(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
-    """Every manifest column, as in Parquet (``outputs`` only shapes file lists)."""
+    """Every manifest column, as in Parquet (``outputs`` only shapes file lists); list columns
+    (``K``, the poses) as JSON arrays, e.g. ``"[1.0, 0.0, ...]"``."""
     import pyarrow.csv as pcsv
 
+    for i, field in enumerate(table.schema):
+        if pa.types.is_list(field.type):
+            text = [None if v is None else json.dumps(v) for v in table.column(i).to_pylist()]
+            table = table.set_column(i, field.name, pa.array(text, pa.string()))
     sink = io.BytesIO()
     pcsv.write_csv(table, sink, pcsv.WriteOptions(quoting_style="needed"))
     return sink.getvalue()

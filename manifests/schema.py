@@ -41,6 +41,7 @@ def output_columns(output: str) -> tuple[str, str, str]:
 # frame, or derived from both)
 _FRAME_FIELDS = [
     ("frame_id", pa.string(), "derived"),  # <episode:04d>_<frame:03d>; file stem is <frame_id>_<scenario>
+    ("uid", pa.string(), "derived"),  # <frame_id>_<scenario>: unique in a root, stable across reruns (frame_uid)
     ("scenario", pa.string(), "spec"),
     ("episode", pa.int32(), "spec"),
     ("frame", pa.int32(), "derived"),  # index within the episode
@@ -54,6 +55,12 @@ _FRAME_FIELDS = [
     ("ego_speed_mps", pa.float32(), "frame"),
     ("width", pa.int32(), "spec"),
     ("height", pa.int32(), "spec"),
+    # Calibration and poses, row-major (manifests.geometry: OpenCV camera axes, world z up, metres).
+    # Null in roots written before they existed.
+    ("K", pa.list_(pa.float64()), "frame"),  # 3x3 intrinsics in pixels, pixel centres at integers
+    ("cam_to_world", pa.list_(pa.float64()), "frame"),  # 4x4
+    ("ego_to_world", pa.list_(pa.float64()), "frame"),  # 4x4, the ego's reference point on the road
+    ("cam_to_ego", pa.list_(pa.float64()), "frame"),  # 4x4, fixed per viewpoint
 ]
 FIELD_SOURCE = {name: source for name, _, source in _FRAME_FIELDS}
 # An output a run did not ask for has null path, size and checksum.
@@ -76,6 +83,24 @@ STATS_DIR = "_stats"  # <root>/_stats/<scenario>_eNNNN.json: worker timings (not
 
 def frame_id(episode: int, frame: int) -> str:
     return f"{episode:04d}_{frame:03d}"
+
+
+def frame_uid(scenario: str, episode: int, frame: int) -> str:
+    """A frame's id, unique in its root and the same in every rerun: ``<episode:04d>_<frame:03d>_<scenario>``,
+    the stem of its files."""
+    return f"{frame_id(episode, frame)}_{scenario}"
+
+
+def with_uids(table: pa.Table) -> pa.Table:
+    """``table`` (manifest rows) with its ``uid`` column filled where it is null (roots written before it existed)."""
+    import pyarrow.compute as pc
+
+    derived = pc.binary_join_element_wise(table.column("frame_id"), table.column("scenario"), "_")
+    if "uid" not in table.column_names:
+        return table.append_column("uid", derived)
+    if table.column("uid").null_count == 0:
+        return table
+    return table.set_column(table.column_names.index("uid"), "uid", pc.coalesce(table.column("uid"), derived))
 
 
 # Per-scenario compaction of its parts (see manifests.reader.compact). Indexes

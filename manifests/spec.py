@@ -14,9 +14,17 @@ from manifests.encoding import check_rgb_format
 from manifests.layout import NEW_ROOT_LAYOUT, check_layout
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs, output
 
-FRAME_PERIOD_S = 3.0  # one frame every 3 s of simulated time
+FRAME_PERIOD_S = 3.0  # the default frame interval: one frame every 3 s of simulated time (the paper's)
+MAX_FRAME_INTERVAL_S = 60.0
 _EPISODE_STREAM = 2  # rng stream ids keep seeds of different uses apart
 _TOWN_STREAM = 3
+
+
+def check_frame_interval(seconds: float) -> float:
+    """ValueError unless ``seconds`` is a usable frame interval: (0, MAX_FRAME_INTERVAL_S]."""
+    if not (isinstance(seconds, (int, float)) and 0.0 < seconds <= MAX_FRAME_INTERVAL_S):
+        raise ValueError(f"frame interval must be in (0, {MAX_FRAME_INTERVAL_S:g}] seconds, got {seconds!r}")
+    return float(seconds)
 
 
 def town_seed(run_seed: int, town: Town) -> int:
@@ -38,7 +46,7 @@ class EpisodeSpec:
     scenario: str  # scenario code, e.g. T01_CS_A
     episode: int  # episode index within the scenario
     seed: int  # episode seed (traffic, spawn point, pedestrians)
-    frames: int  # frames to render, one every FRAME_PERIOD_S
+    frames: int  # frames to render, one every frame_interval_s
     width: int
     height: int
     split: str  # train | val | test
@@ -47,6 +55,11 @@ class EpisodeSpec:
     rgb_format: str = "png"  # the rgb output's file format (manifests.encoding.RGB_FORMATS)
     layout: int = NEW_ROOT_LAYOUT  # where the frame files go: the root's layout (manifests.layout)
     catalog: str = ""  # the run's user domain entries (manifests.domains.Catalog.layer_json); "" = built-in only
+    frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (--frame-interval)
+
+    def frame_time(self, index: int) -> float:
+        """Simulated time of frame ``index`` in seconds (frame 0 at 0)."""
+        return index * self.frame_interval_s
 
     @property
     def town(self) -> str:
@@ -66,10 +79,11 @@ class EpisodeSpec:
         return frozenset(output(name).source for name in self.outputs)
 
     def check_outputs(self) -> None:
-        """ValueError for an unknown output, rgb format or layout."""
+        """ValueError for an unknown output, rgb format or layout, or a frame interval out of range."""
         check_outputs(self.outputs)
         check_rgb_format(self.rgb_format)
         check_layout(self.layout)
+        check_frame_interval(self.frame_interval_s)
 
     @property
     def key(self) -> str:

@@ -12,6 +12,7 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.catalog import INSTANCE_LABELS, LABELS, using, viewpoint
+from manifests.geometry import HFOV_DEG, flat, intrinsics
 from manifests.outputs import OUTPUTS
 from manifests.layout import frame_path
 from manifests.schema import PART_SCHEMA, frame_id, output_columns
@@ -32,10 +33,11 @@ def episode_table(spec) -> pa.Table:
     fids = [frame_id(spec.episode, i) for i in range(n)]
     columns = {
         "frame_id": fids,
+        "uid": [f"{f}_{spec.scenario}" for f in fids],
         "scenario": [spec.scenario] * n,
         "episode": np.full(n, spec.episode, np.int32),
         "frame": np.arange(n, dtype=np.int32),
-        "sim_time_s": 3.0 * np.arange(n, dtype=np.float32),
+        "sim_time_s": (spec.frame_interval_s * np.arange(n)).astype(np.float32),
         "split": [spec.split] * n,
         "seed": np.full(n, spec.seed, np.int64),
         "n_vehicles": np.full(n, rng.integers(20, 151), np.int16),
@@ -46,6 +48,7 @@ def episode_table(spec) -> pa.Table:
         "width": np.full(n, spec.width, np.int32),
         "height": np.full(n, spec.height, np.int32),
     }
+    columns.update(_poses(spec, view.camera_height_m, spec.frame_interval_s * np.arange(n)))
     for output in OUTPUTS:
         path_col, bytes_col, sha_col = output_columns(output)
         columns[path_col] = [frame_path(spec.scenario, output, f, spec.rgb_format, spec.layout) for f in fids]
@@ -56,6 +59,18 @@ def episode_table(spec) -> pa.Table:
     for label in INSTANCE_LABELS:
         columns[label.object_column] = rng.integers(0, 20, n, dtype=np.int32)
     return pa.table(columns, schema=PART_SCHEMA)
+
+
+def _poses(spec, camera_height_m: float, times: np.ndarray) -> dict[str, list]:
+    """Calibration and poses of an ego driving along world +x at 10 m/s (manifests.geometry's convention)."""
+    cam_to_ego = np.array([[0.0, 0.0, 1.0, 0.2], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, camera_height_m],
+                           [0.0, 0.0, 0.0, 1.0]])
+    ego = [np.eye(4) for _ in times]
+    for pose, t in zip(ego, times):
+        pose[0, 3] = 10.0 * t
+    K = flat(intrinsics(spec.width, spec.height, HFOV_DEG))
+    return {"K": [K] * len(times), "cam_to_world": [flat(e @ cam_to_ego) for e in ego],
+            "ego_to_world": [flat(e) for e in ego], "cam_to_ego": [flat(cam_to_ego)] * len(times)}
 
 
 def episode_rows(spec) -> list[dict]:

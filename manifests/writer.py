@@ -15,7 +15,7 @@ import numpy as np
 
 from manifests.catalog import LABELS
 from manifests.layout import frame_path
-from manifests.schema import FIELD_SOURCE, OBJECT_FIELDS, PART_SCHEMA, frame_id, output_columns, part_path
+from manifests.schema import FIELD_SOURCE, OBJECT_FIELDS, PART_SCHEMA, frame_id, frame_uid, output_columns, part_path
 from manifests.outputs import OUTPUTS
 from storage import sha256_bytes
 
@@ -41,7 +41,7 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
     per object column); ``files`` the bytes written per output (outputs not
     asked for get null columns)."""
     fid = frame_id(spec.episode, frame.index)
-    derived = {"frame_id": fid, "frame": frame.index}
+    derived = {"frame_id": fid, "uid": frame_uid(spec.scenario, spec.episode, frame.index), "frame": frame.index}
     row = {}
     for name, source in FIELD_SOURCE.items():
         row[name] = derived[name] if source == "derived" else getattr(spec if source == "spec" else frame, name)

@@ -20,7 +20,7 @@ from manifests.catalog import TOWN_BY_CODE, TOWNS, WEATHERS, VIEWPOINTS, Town, c
 from manifests.encoding import check_rgb_format
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
 from manifests.selection import parse_selection
-from manifests.spec import EpisodeSpec, episode_seed
+from manifests.spec import FRAME_PERIOD_S, EpisodeSpec, check_frame_interval, episode_seed
 
 PAPER_TOTAL_FRAMES = 1_006_800
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
@@ -86,6 +86,7 @@ class PlanConfig:
     outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # what every frame writes (manifests.outputs)
     rgb_format: str = "png"  # the rgb output's file format: png (lossless) or jpg (IDDA's released format)
     catalog: str = ""  # user domain entries in force (Catalog.layer_json; a dict when read back from JSON)
+    frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (3 s: the paper's sparse sampling)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
@@ -118,6 +119,7 @@ class PlanConfig:
         if check_outputs(self.outputs) != self.outputs:
             raise ValueError(f"outputs must be listed once each in table order, got {', '.join(self.outputs)}")
         check_rgb_format(self.rgb_format)
+        check_frame_interval(self.frame_interval_s)
 
     def to_dict(self) -> dict:
         """As JSON holds it (run.json, plan files); the catalog only where user entries are in force."""
@@ -197,6 +199,7 @@ def _plan(config: PlanConfig) -> Plan:
                     outputs=config.outputs,
                     rgb_format=config.rgb_format,
                     catalog=config.catalog,
+                    frame_interval_s=float(config.frame_interval_s),
                 )
             )
     return Plan(config=config, episodes=tuple(episodes))

@@ -26,10 +26,11 @@ from manifests.layout import LAYOUT_KEY, NEW_ROOT_LAYOUT, held_layout, record_la
 from manifests.outputs import SEED_OUTPUTS
 from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE
+from manifests.spec import FRAME_PERIOD_S
 from pipeline.planner import PlanConfig
 
 # Changing these would make new frames inconsistent with the ones on disk.
-FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format")
+FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s")
 _PACKAGES = ("idda-pipeline", "numpy", "pyrender", "PyOpenGL", "trimesh", "ray", "pyarrow", "opencv-python-headless")
 
 
@@ -132,8 +133,8 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
 
 def _with_outputs(config: dict) -> dict:
     """A recorded config; roots from before ``--outputs`` hold the six seed outputs, roots
-    from before ``--rgb-format`` PNG rgb files."""
-    return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", **config}
+    from before ``--rgb-format`` PNG rgb files, roots from before ``--frame-interval`` one frame every 3 s."""
+    return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", "frame_interval_s": FRAME_PERIOD_S, **config}
 
 
 def _fresh_record(new: dict, history: list[dict] | None = None, layout: int = NEW_ROOT_LAYOUT) -> dict:

@@ -235,6 +235,7 @@ def test_hf_export_loads_with_image_features(root, manifest, tmp_path):
     for split in data:
         for sample in data[split]:
             row = by_name[sample["frame_id"] + sample["scenario"]]
+            assert sample["uid"] == row["uid"]
             assert sample["split"] == split and {"train": "train", "validation": "val", "test": "test"}[split] == row["split"]
             semantic = np.array(sample["semantic"])
             assert sample["semantic"].mode == "L" and semantic.shape == (HEIGHT, WIDTH)

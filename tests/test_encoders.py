@@ -25,8 +25,9 @@ images = hnp.arrays(np.uint8, st.tuples(st.integers(1, 16), st.integers(1, 16), 
 
 
 def test_output_table_names_are_unique_and_known():
-    assert len(set(OUTPUTS)) == len(OUTPUTS) == 8
+    assert len(set(OUTPUTS)) == len(OUTPUTS) == 11
     assert OUTPUTS[:6] == SEED_OUTPUTS
+    assert out_table.DEFAULT_OUTPUTS == SEED_OUTPUTS + ("instance", "objects")  # new outputs are opt-in
     with pytest.raises(ValueError, match="valid outputs"):
         out_table.output("depth_fancy")
     with pytest.raises(ValueError, match="valid outputs"):
@@ -165,3 +166,44 @@ def test_encoder_identity_names_the_encoder_and_version():
 
     identity = enc.encoder_identity()
     assert enc.PNG_ENCODER in identity and f"isal {metadata.version('isal')}" in identity
+
+
+def test_semantic_trainid_is_the_cityscapes_export_table():
+    """The opt-in trainId output maps through the catalog's one table (the Cityscapes export's
+    labelTrainIds too): road 0, sky 10, vehicle 13, unlabeled and excluded classes 255."""
+    from exports.cityscapes import cityscapes_targets
+    from manifests.catalog import class_id
+
+    names = ("road", "sky", "vehicle", "unlabeled", "road line", "pedestrian", "terrain")
+    classes = np.array([[class_id(n) for n in names]], dtype=np.uint8)
+    train = out_table.encode_outputs({"classes": classes}, ("semantic_trainid",))["semantic_trainid"]
+    assert train.tolist() == [[0, 10, 13, 255, 255, 11, 9]]
+    assert np.array_equal(train, cityscapes_targets(classes, None)["labelTrainIds"])
+    data = out_table.file_bytes("semantic_trainid", train)
+    assert data[25] == 0  # PNG colour type 0: one grey channel, as Cityscapes' *_labelTrainIds.png
+    assert np.array_equal(out_table.read_output("semantic_trainid", data), train)
+    with pytest.raises(ValueError):
+        out_table.file_bytes("semantic_trainid", np.zeros((2, 2, 3), np.uint8))
+
+
+def test_normals_round_trip_within_a_16_bit_step():
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(5, 7, 3))
+    n /= np.linalg.norm(n, axis=-1, keepdims=True)
+    n[0, 0] = 0.0  # no surface
+    n = n.astype(np.float32)
+    data = out_table.file_bytes("normals", out_table.encode_outputs({"normals": n}, ("normals",))["normals"])
+    back = out_table.output("normals").decode(out_table.read_output("normals", data))
+    assert back.dtype == np.float32 and np.abs(back - n).max() <= 1.0 / 65535 + 1e-6
+    assert not back[0, 0].any() and np.allclose(np.linalg.norm(back[1:], axis=-1), 1.0, atol=1e-4)
+
+
+def test_flow_uses_kittis_encoding():
+    flow = np.array([[[1.5, -2.25, 1.0], [0.0, 0.0, 0.0], [-600.0, 0.015625, 1.0]]], np.float32)
+    image = out_table.encode_outputs({"flow": flow}, ("flow",))["flow"]
+    assert image.dtype == np.uint16
+    assert image[0, 0].tolist() == [2**15 + 96, 2**15 - 144, 1] and image[0, 1].tolist() == [0, 0, 0]
+    back = out_table.output("flow").decode(out_table.read_output("flow", out_table.file_bytes("flow", image)))
+    assert back[0, 2, 0] == -512.0  # KITTI's range: +-512 px, clamped
+    flow[0, 2, 0] = -512.0
+    assert np.allclose(back, flow)

@@ -196,6 +196,8 @@ def test_idda_layout_and_split_files(root, manifest, tmp_path):
         assert {(s, f) for s, ids in listing.items() for f in ids} == want
     lines = (target / ex.INDEX).read_text().splitlines()
     assert lines[0].startswith("frame_id,scenario") and len(lines) == len(rows) + 1
+    uid = lines[0].split(",").index("uid")
+    assert sorted(line.split(",")[uid] for line in lines[1:]) == sorted(r["uid"] for r in rows)
 
 
 def test_query_selects_frames_and_symlinks(root, tmp_path):

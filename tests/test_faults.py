@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from manifests.outputs import OUTPUTS
+from manifests.outputs import DEFAULT_OUTPUTS as OUTPUTS
 from manifests.reader import read_manifest
 from manifests.schema import index_path, part_path
 from manifests.verify import verify

@@ -82,6 +82,8 @@ def test_coco_export_loads_in_pycocotools_and_masks_round_trip(root, tmp_path):
         for image in coco.loadImgs(coco.getImgIds()):
             assert os.path.isfile(target / "images" / image["file_name"])
             row = by_frame[(image["scenario"], image["idda_frame_id"])]
+            assert image["idda_uid"] == row["uid"] and image["file_name"].endswith(row["uid"] + ".png")
+            assert image["K"] == row["K"] and image["cam_to_world"] == row["cam_to_world"]  # docs/conventions.md
             instance = read_output("instance", (root / row["instance_path"]).read_bytes())
             anns = coco.loadAnns(coco.getAnnIds(imgIds=image["id"]))
             assert len(anns) == sum(row[label.object_column] for label in INSTANCE_LABELS)

@@ -65,6 +65,10 @@ def test_frame_dataset_gives_the_pixels_on_disk(root, rows):
         assert sample["index"] == i
         assert_sample(sample, root, row, keys)
         assert sample["rgb"].shape == (36, 64, 3) and sample["depth"].shape == (36, 64)
+        assert sample["uid"] == f"{row['frame_id']}_{row['scenario']}"
+        assert sample["K"].shape == (3, 3) and np.array_equal(sample["K"].ravel(), row["K"])
+        assert np.array_equal(sample["cam_to_world"].ravel(), row["cam_to_world"])
+    assert len({data[i]["uid"] for i in range(len(data))}) == len(data)
     assert data[-1]["frame_id"] == rows[-1]["frame_id"]
     with pytest.raises(IndexError, match="out of range for 4 frames"):
         data[4]
@@ -78,7 +82,7 @@ def test_label_maps_and_raw_bytes(root, rows):
     everything = FrameDataset(str(root))
     assert len(everything) == len(read_manifest(str(root)))
     with pytest.raises(ValueError, match="valid outputs: rgb, depth_raw"):
-        FrameDataset(root, outputs=("normals",))
+        FrameDataset(root, outputs=("lidar",))
     with pytest.raises(ValueError, match="valid label maps: idda, cityscapes, train"):
         FrameDataset(root, labels="coco")
 
@@ -143,6 +147,6 @@ def test_ray_dataset_gives_the_pixels_on_disk(root, rows):
         got_frames = sorted(a.tobytes() for a in flat[key])
         assert got_frames == sorted(on_disk(root, r)[key].tobytes() for r in rows), key
     with pytest.raises(ValueError, match="valid outputs"):
-        ray_dataset(root, outputs=("flow",))
+        ray_dataset(root, outputs=("lidar",))
     with pytest.raises(ValueError, match="valid columns"):
         ray_dataset(root, metadata=("seed",))

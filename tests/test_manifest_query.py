@@ -1,6 +1,8 @@
 """Manifest parts written through the writer, read back through the public
 reader, then queried and summarised."""
 
+import json
+
 import pyarrow.csv as pv
 import pyarrow.parquet as pq
 import pytest
@@ -8,7 +10,7 @@ import pytest
 from manifests import query as q
 from manifests.catalog import LABELS, split_code
 from manifests.reader import done_episodes, manifest_dataset, read_manifest
-from manifests.schema import MANIFEST_SCHEMA, PART_SCHEMA, part_path
+from manifests.schema import MANIFEST_SCHEMA, PART_SCHEMA, part_path, with_uids
 from manifests.stats import PAPER_SHARES, bar_chart_png, class_pixels, share_table
 from manifests.synthetic import episode_rows
 from manifests.writer import ManifestError, part_bytes, part_table, write_part
@@ -125,6 +127,7 @@ def test_writers(root, tmp_path):
     back = pv.read_csv(tmp_path / "s.csv")
     assert back.column("frame_id").to_pylist() == table.column("frame_id").to_pylist()
     assert back.column("px_sky").to_pylist() == table.column("px_sky").to_pylist()
+    assert json.loads(back.column("cam_to_world")[0].as_py()) == table.column("cam_to_world")[0].as_py()
     (tmp_path / "s.parquet").write_bytes(q.encode_result(table, "parquet"))
     assert pq.read_table(tmp_path / "s.parquet").equals(table)
     with pytest.raises(ValueError, match="valid formats: list, csv, parquet"):
@@ -283,3 +286,29 @@ def test_every_command_refuses_an_empty_selection_in_one_line(root, tmp_path, mo
             assert result.exit_code == 2, (name, result.output)
             assert len(lines) == 1 and lines[0].startswith("error: ") and "empty selection" in lines[0], (name, result.output)
     assert not out.exists() and not (tmp_path / "export").exists() and not (tmp_path / "preview").exists()
+
+
+def test_parts_written_before_the_pose_columns_still_read(tmp_path):
+    """A part of an older version (no calibration or pose columns) reads with those columns null."""
+    storage = Storage.from_uri(str(tmp_path))
+    spec = make_plan(PlanConfig(domains="towns=T01 weathers=CN viewpoints=A", frames_per_scenario=2,
+                                width=64, height=36)).episodes[0]
+    new = ("uid", "K", "cam_to_world", "ego_to_world", "cam_to_ego")
+    old = part_table(episode_rows(spec)).drop_columns(list(new))
+    storage.write_bytes(part_path(spec.scenario, spec.episode), part_bytes(old))
+    table = read_manifest(storage)
+    assert table.schema.names == MANIFEST_SCHEMA.names and len(table) == 2
+    for name in new:
+        assert table.column(name).null_count == 2
+    assert table.column("frame_id").to_pylist() == old.column("frame_id").to_pylist()
+    assert with_uids(table).column("uid").to_pylist() == [f"{f}_{spec.scenario}" for f in table["frame_id"].to_pylist()]
+
+
+def test_uids_are_unique_in_a_root(root):
+    """frame_id repeats across scenarios (0000_000 in each); uid does not, and names the files."""
+    table = read_manifest(root[0])
+    uids = table.column("uid").to_pylist()
+    assert len(set(uids)) == len(uids) > len(set(table.column("frame_id").to_pylist()))
+    assert with_uids(table).equals(table)
+    for uid, path in zip(uids, table.column("rgb_path").to_pylist()):
+        assert path.rsplit("/", 1)[1].split(".")[0] == uid

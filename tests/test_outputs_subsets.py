@@ -99,6 +99,11 @@ def test_resume_with_other_outputs_is_refused(subset_root):
     assert "holds the outputs rgb,semantic_raw" in line
     line = one_line_error(runner.invoke(app, args + ["--outputs", "rgb,lidar"]))
     assert "unknown output 'lidar'" in line
+    line = one_line_error(runner.invoke(app, args + ["--outputs", "rgb,semantic_raw", "--frame-interval", "0.1"]))
+    assert "frame_interval_s 3.0 -> 0.1" in line and "use a new --out" in line  # frames would not match
+    line = one_line_error(runner.invoke(app, args + ["--outputs", "rgb,semantic_raw", "--frame-interval", "0"]))
+    assert "frame interval must be in (0, 60]" in line
+    assert json.loads((subset_root / "run.json").read_text())["config"]["frame_interval_s"] == 3.0
     result = runner.invoke(app, args + ["--outputs", "semantic_raw,rgb"])  # the same set: resumes (nothing left to do)
     assert result.exit_code == 0, result.output
 
@@ -116,3 +121,31 @@ def test_manifest_object_counts_sum_the_objects_sidecars(tmp_path_factory):
         assert sorted(objects.column("instance_id").to_pylist()) == [i for i in np.unique(instance) if i > 1]
         total += len(classes)
     assert total >= 5
+
+
+OPT_IN = ("semantic_raw", "semantic_trainid", "normals", "flow")
+
+
+def test_an_opt_in_output_follows_through_verify_query_and_loaders(tmp_path):
+    """semantic_trainid is not a default output; asked for, it is written, verified, listed and loaded."""
+    from analysis.loaders import FrameDataset
+    from manifests.catalog import TRAIN_ID_LUT
+    from manifests.outputs import DEFAULT_OUTPUTS
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
+
+    assert "semantic_trainid" not in DEFAULT_OUTPUTS
+    root = tmp_path / "root"
+    render_root(root, RunConfig(plan=plan_config(OPT_IN), world="test"))
+    report = verify(str(root))
+    assert report.ok and report.files_checked == 2 * len(OPT_IN)
+    result = runner.invoke(cli_app(), ["query", str(root), "--outputs", "semantic_trainid", "--out", str(tmp_path / "l.txt")])
+    assert result.exit_code == 0, result.output
+    assert all("/semantic_trainid/" in line for line in (tmp_path / "l.txt").read_text().splitlines())
+    data = FrameDataset(root, outputs=OPT_IN)
+    for i in range(len(data)):
+        sample = data[i]
+        assert sample["semantic_trainid"].dtype == np.uint8 and sample["semantic_trainid"].shape == (36, 64)
+        assert np.array_equal(sample["semantic_trainid"], TRAIN_ID_LUT[sample["semantic"]])
+        assert sample["normals"].dtype == np.float32 and sample["normals"].shape == (36, 64, 3)
+        assert sample["flow"].shape == (36, 64, 3) and sample["flow"][..., 2].any() == (i % 2 == 0)  # none after the last

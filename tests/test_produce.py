@@ -16,7 +16,7 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from manifests.outputs import OUTPUTS
+from manifests.outputs import DEFAULT_OUTPUTS as OUTPUTS
 from manifests.reader import done_episodes, read_manifest
 from manifests.schema import output_columns
 from manifests.verify import verify

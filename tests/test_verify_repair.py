@@ -20,6 +20,7 @@ from manifests.runrecord import read_record, record_bytes
 from manifests.schema import RUN_FILE, index_path, part_path
 from manifests.verify import Scope, verify
 from pipeline.cli import app
+from pipeline.driver import produce
 from storage import Storage
 from tests.test_integrity import one_line_error
 from tests.test_produce import ARGS, ray_local, tree_digest  # noqa: F401 (fixtures)

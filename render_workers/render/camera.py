@@ -29,8 +29,8 @@ import numpy as np
 import trimesh
 
 from manifests.catalog import Viewpoint, viewpoint as lookup_viewpoint
+from manifests.geometry import CV_FROM_GL, HFOV_DEG, intrinsics
 
-HFOV_DEG = 90.0
 CAMERA_FORWARD_M = 0.2  # camera position ahead of the ego's centre (rear-view mirror)
 HOOD_SEGMENTS = 96  # segments along the hood's top edge (chord error ~1e-5 of the image)
 HOOD_ROWS = 6  # vertex rows from the edge down, for the paint gradient
@@ -97,6 +97,16 @@ class CameraRig:
 
     def world_from_camera(self, world_from_ego: np.ndarray) -> np.ndarray:
         return world_from_ego @ self.ego_from_camera
+
+    @property
+    def K(self) -> np.ndarray:
+        """3x3 intrinsics in the manifest's convention (``manifests.geometry``: OpenCV, pixel centres at integers)."""
+        return intrinsics(self.width, self.height, HFOV_DEG)
+
+    @cached_property
+    def cam_to_ego(self) -> np.ndarray:
+        """4x4 ego-from-camera with OpenCV camera axes (x right, y down, z forward), as the manifest stores it."""
+        return self.ego_from_camera @ CV_FROM_GL
 
     def project(self, points_cam: np.ndarray) -> np.ndarray:
         """Pixel coordinates (x right, y down; centres at +0.5) of camera-frame points."""

@@ -2,8 +2,8 @@
 
 Reads top to bottom like a worker script: look up the scenario, build (or reuse)
 the town's world, populate it from the episode seed, load it into the
-process's renderer, then for each frame (one every ``FRAME_PERIOD_S`` simulated
-seconds) render the named buffers, post-process the colour, add the ``objects``
+process's renderer, then for each frame (one every ``spec.frame_interval_s`` simulated
+seconds, 3 by default) render the named buffers, post-process the colour, add the ``objects``
 table when asked and call ``sink(frame)``; encoding the spec's outputs and
 writing them is the sink's business (``pipeline.episode_job``). Only the drawing (``Renderer.render``) runs on the calling
 thread; the rest of a frame (resolving the GL reads, post effects, outputs,
@@ -31,12 +31,14 @@ from typing import Callable
 import numpy as np
 
 from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using
+from manifests.geometry import CV_FROM_GL, normals_from_depth, pose_cells
 from manifests.objects import object_counts
 from manifests.spec import EpisodeSpec
-from manifests.spec import FRAME_PERIOD_S, town_seed
+from manifests.spec import town_seed
 from render_workers.render import postfx
 from render_workers.worlds import worldcache
 from render_workers.render.camera import measured_hood_fraction
+from render_workers.render.flow import episode_flow
 from render_workers.render.instances import frame_objects, instance_classes
 from render_workers.render.renderer import Renderer, RenderResult
 from render_workers.worlds.scene import EpisodeScene, Frame, World
@@ -152,7 +154,7 @@ def _load_episode(spec: EpisodeSpec, renderer: Renderer, world: str) -> tuple[Ep
 
 def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, index: int) -> tuple[Frame, dict]:
     """Render frame ``index`` of a loaded episode; returns the frame and its stage timings."""
-    result = renderer.render(index * FRAME_PERIOD_S)
+    result = renderer.render(spec.frame_time(index))
     frame, timings = finish_frame(result, renderer, scene, spec, index)
     return frame, {**result.timings, **timings}
 
@@ -164,7 +166,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     No GL here: it reads only the episode's fixed state (weather, rig,
     instances, actors' paths), so it may run on another thread while the
     renderer draws the next frame."""
-    t = index * FRAME_PERIOD_S
+    t = spec.frame_time(index)
     buffers = dict(result.buffers)  # the GL reads are resolved here, off the render thread
     timings = {"resolve": result.resolve_s}
     start = time.perf_counter()
@@ -181,14 +183,22 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
         poses = [actor.pose(t) for actor in scene.actors]
         buffers["objects"] = frame_objects(buffers["instance"], renderer.instances, poses,
                                            result.world_from_camera, result.rig.focal_px)
+    if "normals" in spec.buffers:  # opt-in: from the planar depth and the rig's intrinsics
+        buffers["normals"] = normals_from_depth(buffers["depth"], result.rig.K)
+    if "flow" in spec.buffers:  # opt-in: to the next frame; none after the last
+        buffers["flow"] = (episode_flow(buffers["depth"], buffers["instance"], result.rig, scene, renderer.instances,
+                                        t, spec.frame_time(index + 1)) if index + 1 < spec.frames
+                           else np.zeros(buffers["depth"].shape + (3,), np.float32))
     counts = np.bincount(buffers["classes"].ravel(), minlength=NUM_CLASSES).astype(np.int64)
     objects = object_counts(buffers["instance"], instance_classes(renderer.instances))
     timings["outputs"] = time.perf_counter() - start
+    ego_to_world = scene.ego.pose(t)
     frame = Frame(
         index=index, sim_time_s=t, buffers=buffers, class_counts=counts, object_counts=objects,
         camera_height_m=renderer.rig.viewpoint.camera_height_m,
         hood_fraction=measured_hood_fraction(result.hood_mask), ego_speed_mps=float(scene.ego.speed_mps),
         n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
+        **pose_cells(result.rig.K, result.world_from_camera @ CV_FROM_GL, ego_to_world, result.rig.cam_to_ego),
     )
     return frame, timings
 
@@ -233,7 +243,7 @@ def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: s
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
         try:
             for index in range(spec.frames):
-                result = renderer.render(index * FRAME_PERIOD_S)
+                result = renderer.render(spec.frame_time(index))
                 for stage, seconds in result.timings.items():
                     timings[stage] += seconds
                 while pending and pending[0].done():  # surface a sink error early

@@ -172,7 +172,7 @@ class Frame:
     spec's outputs and files; rendering knows no output table."""
 
     index: int  # frame index within the episode
-    sim_time_s: float  # simulated time of the frame (index * 3 s)
+    sim_time_s: float  # simulated time of the frame (index * the spec's frame interval)
     buffers: dict  # rgb (post effects applied), depth, classes, instance, and objects (a table) when asked
     class_counts: np.ndarray  # (24,) int64 pixel count per class id, sums to W*H
     object_counts: dict  # manifest column obj_<class> -> visible objects of that class
@@ -181,3 +181,8 @@ class Frame:
     ego_speed_mps: float
     n_vehicles: int  # the episode's traffic
     n_pedestrians: int
+    # Calibration and poses, flat row-major (manifests.geometry: OpenCV camera axes, world z up, metres)
+    K: list  # 9 values, 3x3 intrinsics in pixels
+    cam_to_world: list  # 16 values, 4x4
+    ego_to_world: list  # 16 values, 4x4
+    cam_to_ego: list  # 16 values, 4x4, fixed per viewpoint
