@@ -9,7 +9,9 @@ no loading script::
 Columns: ``rgb`` (the RGB PNG), ``semantic`` (a single-channel PNG of the 24
 IDDA class ids), ``depth`` (the depth_raw PNG, CARLA's 24-bit encoding) as
 ``datasets.Image()`` features (Arrow ``struct<bytes, path>``), then the
-frame's metadata. The features are declared in each shard's Arrow schema
+frame's metadata, with ``K`` (row-major 3x3) and ``cam_to_world`` (row-major
+4x4, OpenCV camera axes) as lists of float64, as docs/conventions.md defines
+them. The features are declared in each shard's Arrow schema
 metadata (key ``huggingface``), where ``datasets`` looks for them.
 
 The card header (``card_header``) is shared with the output root's card
@@ -61,21 +63,37 @@ SCHEMA = pa.schema(
         ("episode", pa.int32()),
         ("frame", pa.int32()),
         ("split", pa.string()),
+        ("K", pa.list_(pa.float64())),  # row-major 3x3 intrinsics (docs/conventions.md)
+        ("cam_to_world", pa.list_(pa.float64())),  # row-major 4x4, OpenCV camera axes, world z up, metres
     ]
 )
 IMAGE_COLUMNS = ("rgb", "semantic", "depth")
 # HuggingFace's split names for the manifest's splits: its loaders and the Hub
 # know train, validation and test (a split named "val" is just another name).
 HF_SPLITS = {"train": "train", "val": "validation", "test": "test"}
-_VALUE_DTYPES = {pa.string(): "string", pa.int32(): "int32"}
+_VALUE_DTYPES = {pa.string(): "string", pa.int32(): "int32", pa.float64(): "float64"}
 
 
 def features() -> dict:
     """The ``datasets`` features of ``SCHEMA``, as its serialised dict."""
     out = {}
     for f in SCHEMA:
-        out[f.name] = {"_type": "Image"} if f.name in IMAGE_COLUMNS else {"dtype": _VALUE_DTYPES[f.type], "_type": "Value"}
+        if f.name in IMAGE_COLUMNS:
+            out[f.name] = {"_type": "Image"}
+        elif pa.types.is_list(f.type):
+            out[f.name] = {"feature": {"dtype": _VALUE_DTYPES[f.type.value_type], "_type": "Value"}, "_type": "List"}
+        else:
+            out[f.name] = {"dtype": _VALUE_DTYPES[f.type], "_type": "Value"}
     return out
+
+
+def _yaml_feature(name: str, spec: dict) -> dict:
+    """One feature as the card's YAML header lists it (``datasets``' ``_to_yaml_list`` form)."""
+    if spec["_type"] == "Image":
+        return {"name": name, "dtype": "image"}
+    if spec["_type"] == "List":
+        return {"name": name, "list": spec["feature"]["dtype"]}
+    return {"name": name, "dtype": spec["dtype"]}
 
 
 def _row(storage, frame) -> dict:
@@ -93,6 +111,8 @@ def _row(storage, frame) -> dict:
         "episode": frame.episode,
         "frame": frame.frame,
         "split": HF_SPLITS[frame.split],
+        "K": frame.K,
+        "cam_to_world": frame.cam_to_world,
     }
 
 
@@ -147,10 +167,7 @@ def card_header(split_sizes: dict[str, tuple[int, int]], data_files: dict[str, s
     bytes as Arrow counts them, which is what ``datasets`` records)."""
     info: dict = {"config_name": config}
     if with_features:
-        info["features"] = [
-            {"name": name, "dtype": "image"} if spec["_type"] == "Image" else {"name": name, "dtype": spec["dtype"]}
-            for name, spec in features().items()
-        ]
+        info["features"] = [_yaml_feature(name, spec) for name, spec in features().items()]
     info["splits"] = [{"name": s, "num_bytes": b, "num_examples": n} for s, (n, b) in split_sizes.items()]
     header = {
         "license": LICENSE,

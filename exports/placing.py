@@ -23,7 +23,8 @@ from manifests.outputs import OUTPUTS, file_of_path, read_output
 from manifests.schema import output_columns, with_uids
 
 # ------------------------------------------------------------ the frames ----
-_META = ("frame_id", "uid", "scenario", "episode", "frame", "split", "width", "height", "K", "cam_to_world")
+_META = ("frame_id", "uid", "scenario", "episode", "frame", "split", "width", "height", "K", "cam_to_world",
+         "cam_to_ego")
 
 
 @dataclass(frozen=True)
@@ -41,6 +42,7 @@ class ExportFrame:
     height: int
     K: list | None  # row-major 3x3 intrinsics (docs/conventions.md); None in roots written before it
     cam_to_world: list | None  # row-major 4x4, OpenCV camera axes
+    cam_to_ego: list | None  # row-major 4x4, OpenCV camera axes -> ego (x forward, y left, z up)
     paths: Mapping[str, str | None]
 
     def path(self, output: str) -> str | None:
