@@ -6,6 +6,7 @@
     gtFine/<split>/<city>/<name>_gtFine_labelTrainIds.png   trainIds, 255 = ignore
     gtFine/<split>/<city>/<name>_gtFine_color.png           Cityscapes colours (RGBA)
     gtFine/<split>/<city>/<name>_gtFine_instanceIds.png     instances (16 bit)
+    camera/<split>/<city>/<name>_camera.json                 calibration, Cityscapes' camera format
 
 ``<name>`` is ``<city>_<episode:06d>_<frame:06d>`` with ``<city>`` the scenario
 code with ``-`` for ``_`` (``T01-CS-A``): cityscapesScripts splits file names at
@@ -17,18 +18,30 @@ frame's objects of that class from 0, in instance id order) and the label id
 elsewhere (the hood too). A root produced without the ``instance`` output gets
 label ids only. Excluded IDDA classes map to Cityscapes ids that the
 evaluation ignores.
+
+The camera file is Cityscapes' (cityscapesScripts docs/csCalibration.pdf):
+``intrinsic`` {fx, fy, u0, v0} in pixels from the row's ``K``; ``extrinsic``
+{x, y, z} the camera's position in the vehicle frame (ISO 8855: x forward,
+y left, z up; metres) and {yaw, pitch, roll} in radians, the rotation
+``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` from a camera frame with the vehicle's
+axes to the vehicle frame, from the row's ``cam_to_ego``. ``baseline`` is 0:
+the ego camera is mono, there is no right image. Our ego frame has the
+vehicle's axes but its origin on the road under the ego's centre, where
+Cityscapes' is under the rear axle (docs/conventions.md).
 """
 
 from __future__ import annotations
 
+import math
 import os
 
 import numpy as np
 
 from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
 from manifests.encoding import decode_png16
+from manifests.geometry import as_matrix
 from manifests.objects import HOOD_ID
-from exports.placing import ExportFrame, Layout, decode, is_jpeg, per_frame, png, write
+from exports.placing import ExportFrame, Layout, decode, is_jpeg, per_frame, png, write, write_json
 
 # Cityscapes label ids and colours (cityscapesScripts helpers/labels.py) for
 # the ids the catalog maps to; the gtFine colour image derives from this.
@@ -103,6 +116,28 @@ def cityscapes_name(scenario: str, episode: int, frame: int) -> str:
     return f"{cityscapes_city(scenario)}_{episode:06d}_{frame:06d}"
 
 
+# Camera axes with the vehicle's orientation (x forward, y left, z up) -> OpenCV's (x right, y down, z forward).
+CV_FROM_VEHICLE_AXES = np.array([[0.0, -1.0, 0.0], [0.0, 0.0, -1.0], [1.0, 0.0, 0.0]])
+
+
+def cityscapes_camera(K, cam_to_ego) -> dict:
+    """Cityscapes' camera JSON of a row's ``K`` and ``cam_to_ego`` (cells or matrices)."""
+    K, T = as_matrix(K, 3), as_matrix(cam_to_ego, 4)
+    R = T[:3, :3] @ CV_FROM_VEHICLE_AXES  # Rz(yaw) @ Ry(pitch) @ Rx(roll)
+    x, y, z = (float(v) for v in T[:3, 3])
+    extrinsic = {
+        "baseline": 0.0,  # mono camera
+        "pitch": float(-math.asin(max(-1.0, min(1.0, R[2, 0])))),
+        "roll": float(math.atan2(R[2, 1], R[2, 2])),
+        "x": x,
+        "y": y,
+        "yaw": float(math.atan2(R[1, 0], R[0, 0])),
+        "z": z,
+    }
+    intrinsic = {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "u0": float(K[0, 2]), "v0": float(K[1, 2])}
+    return {"extrinsic": extrinsic, "intrinsic": intrinsic}
+
+
 def _frame(storage, frame: ExportFrame, tmp: str, place) -> dict[str, str]:
     name = cityscapes_name(frame.scenario, frame.episode, frame.frame)
     image_dir = f"leftImg8bit/{frame.split}/{cityscapes_city(frame.scenario)}"
@@ -122,11 +157,15 @@ def _frame(storage, frame: ExportFrame, tmp: str, place) -> dict[str, str]:
         rel = f"{gt_dir}/{name}_gtFine_{kind}.png"
         write(os.path.join(tmp, rel), png(array))
         written[kind] = rel
+    if frame.K is not None and frame.cam_to_ego is not None:  # roots written before the calibration columns lack them
+        rel = f"camera/{frame.split}/{cityscapes_city(frame.scenario)}/{name}_camera.json"
+        written["camera"] = write_json(tmp, rel, cityscapes_camera(frame.K, frame.cam_to_ego))
     return written
 
 
 def _dirs(frames: list[ExportFrame]) -> set[str]:
-    return {f"{top}/{f.split}/{cityscapes_city(f.scenario)}" for f in frames for top in ("leftImg8bit", "gtFine")}
+    dirs = {f"{top}/{f.split}/{cityscapes_city(f.scenario)}" for f in frames for top in ("leftImg8bit", "gtFine")}
+    return dirs | {f"camera/{f.split}/{cityscapes_city(f.scenario)}" for f in frames if f.K is not None}
 
 
 # The cityscapes export also uses `instance` when the root holds it.

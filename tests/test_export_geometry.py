@@ -1,4 +1,5 @@
-"""Calibration in the exports: HF rows carry K and cam_to_world.
+"""Calibration in the exports: HF rows carry K and cam_to_world, the Cityscapes
+export writes Cityscapes' camera JSON.
 
 One small rendered root (one scenario, 3 frames, 64x36, world "test") is shared by the module.
 """
@@ -6,13 +7,16 @@ One small rendered root (one scenario, 3 frames, 64x36, world "test") is shared 
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
 import pyarrow.parquet as pq
 import pytest
 
+from exports import cityscapes as cs_layout
 from exports import export as ex
+from manifests.geometry import unflat
 from manifests.reader import read_manifest
 
 DOMAINS = "T01_CS_A"
@@ -47,3 +51,45 @@ def test_hf_rows_carry_k_and_cam_to_world(root, rows, tmp_path):
         assert sample["cam_to_world"] == row["cam_to_world"] and len(sample["cam_to_world"]) == 16
     features = json.loads(table.schema.metadata[b"huggingface"])["info"]["features"]
     assert features["K"] == {"feature": {"dtype": "float64", "_type": "Value"}, "_type": "List"}
+
+
+def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
+    """Cityscapes' (csCalibration.pdf) camera-to-vehicle rotation Rz(yaw) Ry(pitch) Rx(roll)."""
+    cy, sy, cp, sp, cr, sr = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
+    rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
+    ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
+    rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
+    return rz @ ry @ rx
+
+
+def test_cityscapes_camera_json_per_image(root, rows, tmp_path):
+    target = tmp_path / "cs"
+    ex.export(ex.ExportConfig(root=str(root), to=str(target), format="cityscapes"))
+    for row in rows:
+        name = cs_layout.cityscapes_name(row["scenario"], row["episode"], row["frame"])
+        city = cs_layout.cityscapes_city(row["scenario"])
+        camera = json.loads((target / "camera" / row["split"] / city / f"{name}_camera.json").read_text())
+        K, cam_to_ego = unflat(row["K"], 3), unflat(row["cam_to_ego"], 4)
+        assert camera["intrinsic"] == {"fx": K[0, 0], "fy": K[1, 1], "u0": K[0, 2], "v0": K[1, 2]}
+        ext = camera["extrinsic"]
+        assert set(ext) == {"baseline", "pitch", "roll", "yaw", "x", "y", "z"} and ext["baseline"] == 0.0
+        # Position: our ego frame has Cityscapes' vehicle axes (x forward, y left, z up).
+        assert (ext["x"], ext["y"], ext["z"]) == tuple(cam_to_ego[:3, 3])
+        assert ext["x"] > 0 and ext["z"] > 0.5
+        # Angles: the vehicle-axes camera's rotation; its forward (x) axis is the optical axis (OpenCV z).
+        R = _rotation(ext["yaw"], ext["pitch"], ext["roll"])
+        assert np.allclose(R[:, 0], cam_to_ego[:3, 2]) and np.allclose(R[:, 1], -cam_to_ego[:3, 0])
+        assert np.allclose(R[:, 2], -cam_to_ego[:3, 1])
+
+
+def test_cityscapes_camera_angles_of_a_tilted_camera():
+    """A camera yawed left by 0.3 rad and pitched down by 0.1 rad gives those angles back."""
+    R_vehicle = _rotation(0.3, 0.1, -0.05)
+    cam_to_ego = np.eye(4)
+    cam_to_ego[:3, :3] = R_vehicle @ cs_layout.CV_FROM_VEHICLE_AXES.T
+    cam_to_ego[:3, 3] = (1.5, 0.2, 1.3)
+    ext = cs_layout.cityscapes_camera(np.eye(3), cam_to_ego)["extrinsic"]
+    assert (ext["yaw"], ext["pitch"], ext["roll"]) == pytest.approx((0.3, 0.1, -0.05))
+    assert (ext["x"], ext["y"], ext["z"]) == (1.5, 0.2, 1.3)
+    # Pitch down: the optical axis points below the horizon (vehicle z < 0).
+    assert (cam_to_ego[:3, :3] @ [0, 0, 1])[2] < 0
