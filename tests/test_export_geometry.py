@@ -1,5 +1,6 @@
 """Calibration in the exports: HF rows carry K and cam_to_world, the Cityscapes
-export writes Cityscapes' camera JSON.
+export writes Cityscapes' camera JSON, and the bird's-eye picture of
+docs/conventions.md is drawn from a rendered episode.
 
 One small rendered root (one scenario, 3 frames, 64x36, world "test") is shared by the module.
 """
@@ -93,3 +94,21 @@ def test_cityscapes_camera_angles_of_a_tilted_camera():
     assert (ext["x"], ext["y"], ext["z"]) == (1.5, 0.2, 1.3)
     # Pitch down: the optical axis points below the horizon (vehicle z < 0).
     assert (cam_to_ego[:3, :3] @ [0, 0, 1])[2] < 0
+
+
+def test_conventions_bev_writes_a_png(tmp_path):
+    """reports.conventions_bev: a tiny episode drawn from above (docs/images/conventions_bev.png at full size)."""
+    from PIL import Image
+
+    from reports import conventions_bev
+
+    out = tmp_path / "images" / "bev.png"
+    assert conventions_bev.write_bev(str(out), root=str(tmp_path / "root"), frames=2, width=64, height=36) == str(out)
+    image = Image.open(out)
+    assert image.format == "PNG" and image.size == (640, 640)
+    rows, points, classes = conventions_bev.episode_points(str(tmp_path / "root"))
+    assert [r["frame"] for r in rows] == [0, 1] and len(points) == len(classes) > 0
+    # The cloud lies around the camera path, under the cameras (world z up).
+    centres = np.array([[r["cam_to_world"][i] for i in (3, 7, 11)] for r in rows])
+    assert np.median(points[:, 2]) < centres[:, 2].min()
+    assert np.linalg.norm(points[:, :2] - centres[0, :2], axis=1).min() < 5.0
