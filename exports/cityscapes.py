@@ -23,8 +23,9 @@ The camera file is Cityscapes' (cityscapesScripts docs/csCalibration.pdf):
 ``intrinsic`` {fx, fy, u0, v0} in pixels from the row's ``K``; ``extrinsic``
 {x, y, z} the camera's position in the vehicle frame (ISO 8855: x forward,
 y left, z up; metres) and {yaw, pitch, roll} in radians, the rotation
-``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` from a camera frame with the vehicle's
-axes to the vehicle frame, from the row's ``cam_to_ego``. ``baseline`` is 0:
+``Rz(yaw) @ Ry(pitch) @ Rx(roll)`` (the pdf's eq. 3) from a camera frame
+with the vehicle's axes to the vehicle frame, from the row's ``cam_to_ego``
+(its eq. 6 turns those axes into OpenCV's: ``CV_FROM_VEHICLE_AXES``). ``baseline`` is 0:
 the ego camera is mono, there is no right image. Our ego frame has the
 vehicle's axes but its origin on the road under the ego's centre, where
 Cityscapes' is under the rear axle (docs/conventions.md).

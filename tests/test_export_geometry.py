@@ -17,7 +17,7 @@ import pytest
 
 from exports import cityscapes as cs_layout
 from exports import export as ex
-from manifests.geometry import unflat
+from manifests.geometry import project, unflat
 from manifests.reader import read_manifest
 
 DOMAINS = "T01_CS_A"
@@ -31,7 +31,8 @@ def root(tmp_path_factory) -> Path:
     from tests.roots import render_root
 
     path = tmp_path_factory.mktemp("geometry_exports") / "run"
-    config = RunConfig(PlanConfig(domains=DOMAINS, frames_per_scenario=FRAMES, width=64, height=36, seed=5), world="test")
+    plan = PlanConfig(domains=DOMAINS, frames_per_scenario=FRAMES, width=64, height=36, seed=5)
+    config = RunConfig(plan, world="test")
     render_root(path, config)
     return path
 
@@ -56,7 +57,8 @@ def test_hf_rows_carry_k_and_cam_to_world(root, rows, tmp_path):
 
 def _rotation(yaw: float, pitch: float, roll: float) -> np.ndarray:
     """Cityscapes' (csCalibration.pdf) camera-to-vehicle rotation Rz(yaw) Ry(pitch) Rx(roll)."""
-    cy, sy, cp, sp, cr, sr = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch), math.cos(roll), math.sin(roll)
+    cy, sy, cp, sp = math.cos(yaw), math.sin(yaw), math.cos(pitch), math.sin(pitch)
+    cr, sr = math.cos(roll), math.sin(roll)
     rz = np.array([[cy, -sy, 0], [sy, cy, 0], [0, 0, 1]])
     ry = np.array([[cp, 0, sp], [0, 1, 0], [-sp, 0, cp]])
     rx = np.array([[1, 0, 0], [0, cr, -sr], [0, sr, cr]])
@@ -81,6 +83,13 @@ def test_cityscapes_camera_json_per_image(root, rows, tmp_path):
         R = _rotation(ext["yaw"], ext["pitch"], ext["roll"])
         assert np.allclose(R[:, 0], cam_to_ego[:3, 2]) and np.allclose(R[:, 1], -cam_to_ego[:3, 0])
         assert np.allclose(R[:, 2], -cam_to_ego[:3, 1])
+        # csCalibration.pdf eq. (1), (6): a vehicle-frame point lands on the pixel our K and cam_to_ego give.
+        p_vehicle = np.array([12.0, 1.5, 0.4])
+        cs_K = np.array([[camera["intrinsic"]["fx"], 0, camera["intrinsic"]["u0"]],
+                         [0, camera["intrinsic"]["fy"], camera["intrinsic"]["v0"]], [0, 0, 1]])
+        uvw = cs_K @ cs_layout.CV_FROM_VEHICLE_AXES @ R.T @ (p_vehicle - [ext["x"], ext["y"], ext["z"]])
+        p_cam = np.linalg.inv(cam_to_ego) @ np.append(p_vehicle, 1.0)
+        assert np.allclose(uvw[:2] / uvw[2], project(p_cam[None, :3], K)[0])
 
 
 def test_cityscapes_camera_angles_of_a_tilted_camera():
