@@ -20,6 +20,7 @@ from __future__ import annotations
 import re
 
 from manifests.outputs import FORMATS, OUTPUT_TABLE, OUTPUTS, extension
+from manifests.schema import frame_stem
 
 FLAT = 1
 EPISODE_DIRS = 2
@@ -51,7 +52,7 @@ def frame_path(scenario: str, name: str, fid: str, rgb_format: str, layout: int)
     """Relative path of one output file of frame ``fid`` (``<episode:04d>_<frame:03d>``);
     the rgb output's extension is the root's rgb format."""
     episode = int(fid.partition("_")[0])
-    return f"{output_dir(scenario, name, episode, layout)}/{fid}_{scenario}.{extension(name, rgb_format)}"
+    return f"{output_dir(scenario, name, episode, layout)}/{frame_stem(fid, scenario)}.{extension(name, rgb_format)}"
 
 
 # The names of frame files, the only files repair may delete from a scenario

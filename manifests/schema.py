@@ -85,10 +85,15 @@ def frame_id(episode: int, frame: int) -> str:
     return f"{episode:04d}_{frame:03d}"
 
 
+def frame_stem(fid: str, scenario: str) -> str:
+    """The stem of a frame's files, ``<frame_id>_<scenario>``: its uid too."""
+    return f"{fid}_{scenario}"
+
+
 def frame_uid(scenario: str, episode: int, frame: int) -> str:
     """A frame's id, unique in its root and the same in every rerun: ``<episode:04d>_<frame:03d>_<scenario>``,
     the stem of its files."""
-    return f"{frame_id(episode, frame)}_{scenario}"
+    return frame_stem(frame_id(episode, frame), scenario)
 
 
 def with_uids(table: pa.Table) -> pa.Table:

@@ -160,3 +160,21 @@ def commit_part(storage, spec: EpisodeSpec, rows: list[dict], fence=None) -> Non
     except LeaseLost:
         storage.delete(rel)
         raise
+
+
+def render_plan(storage, config) -> None:
+    """Claim ``storage`` as a root, prepare it for ``config`` (a RunConfig) and
+    render every planned episode into it here, one after another, with no Ray:
+    the same files produce's workers write (tests, reports)."""
+    from dataclasses import replace
+
+    from manifests.layout import record_layout
+    from manifests.root import claim_root
+    from pipeline.planner import make_plan
+    from pipeline.runmeta import prepare_root
+
+    storage.ensure_writable()
+    claim_root(storage)  # as produce does: the root marker first
+    layout = record_layout(prepare_root(storage, config))  # a new root's, or an old root's own
+    for spec in make_plan(config.plan).episodes:
+        run_episode(replace(spec, layout=layout), storage, world=config.world)

@@ -33,25 +33,15 @@ log = logging.getLogger(__name__)
 def render_episode(root: str, domain: str = DOMAIN, frames: int = FRAMES, width: int = WIDTH,
                    height: int = HEIGHT, interval_s: float = INTERVAL_S, world: str = WORLD) -> None:
     """Render the planned episodes of ``domain`` into a fresh ``root`` with the worker function."""
-    from dataclasses import replace
-
-    from manifests.layout import record_layout
-    from manifests.root import claim_root
-    from pipeline.episode_job import run_episode
-    from pipeline.planner import PlanConfig, make_plan
-    from pipeline.runmeta import RunConfig, prepare_root
+    from pipeline.episode_job import render_plan
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
     from storage import Storage
 
     shutil.rmtree(root, ignore_errors=True)
     plan = PlanConfig(domains=domain, frames_per_scenario=frames, width=width, height=height, seed=SEED,
                       frame_interval_s=interval_s)
-    config = RunConfig(plan=plan, world=world)
-    storage = Storage.from_uri(root)
-    storage.ensure_writable()
-    claim_root(storage)
-    layout = record_layout(prepare_root(storage, config))
-    for spec in make_plan(plan).episodes:
-        run_episode(replace(spec, layout=layout), storage, world=world)
+    render_plan(Storage.from_uri(root), RunConfig(plan=plan, world=world))
 
 
 def episode_points(root: str) -> tuple[list[dict], np.ndarray, np.ndarray]:
