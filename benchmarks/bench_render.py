@@ -282,7 +282,7 @@ def _markdown(result: dict) -> str:
         "",
         f"Load average (1 min) when each probe ended: {', '.join(f'{x:.1f}' for x in loads)}.",
         "",
-        "PNG encoding after: PNG filter Sub in numpy, one IDAT deflated by ISA-L level 1",
+        "PNG encoding after: PNG filter Sub in numpy, one IDAT deflated by the root's deflater (libdeflate; ISA-L before issue 21.11)",
         "(`manifests.encoding`); before: OpenCV's libpng at zlib level 1 with its adaptive filters.",
         "In production resolve, post effects, outputs and PNG encoding run on the episode's second thread,",
         "overlapping the next frame's GL passes.",

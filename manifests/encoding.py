@@ -1,4 +1,4 @@
-"""Per-frame output encodings (CARLA conventions) and PNG bytes, in numpy + ISA-L (cv2 decodes).
+"""Per-frame output encodings (CARLA conventions) and PNG bytes, in numpy + libdeflate (cv2 decodes).
 
 Each output in ``manifests.outputs.OUTPUT_TABLE`` names one of these encoders,
 which turns one of the renderer's buffers into the array its file holds:
@@ -22,12 +22,12 @@ This is part of the dataset's vocabulary: the renderer encodes with it, and
 exports, loaders and verification decode with it.
 
 PNG files are written here, not by a codec library: every row gets PNG filter
-1 (Sub, in numpy) and the image is one IDAT compressed by ISA-L's deflate at
-level 1 (``isal``). At 1920x1080 that is about 14x faster than OpenCV's libpng
-at zlib level 1 (whose adaptive per-row filter choice is most of its cost) for
-files of the same size. Any PNG reader decodes them; a different encoder (or
-version) gives different bytes, so :data:`PNG_ENCODER` names it and the run
-record keeps it (:func:`encoder_identity`).
+1 (Sub, in numpy) and the image is one IDAT deflated by libdeflate
+(``manifests.deflaters``; roots written before keep ISA-L, which they were
+made with). Skipping libpng's adaptive per-row filter choice, most of its
+cost, makes this several times faster than OpenCV's PNG writer. Any PNG reader
+decodes the files; a different deflater (or version) gives different bytes,
+so the run record names it (:func:`encoder_identity`).
 
 The ``rgb`` output may instead be a JPEG (``--rgb-format jpg``, the format of
 the released IDDA RGB images): quality :data:`JPEG_QUALITY`, 4:2:0 chroma,
@@ -46,13 +46,12 @@ from functools import cache
 import numpy as np
 
 from manifests.catalog import NUM_CLASSES, PALETTE, TRAIN_ID_LUT
+from manifests.deflaters import DEFAULT_DEFLATER, deflate_png_data, deflater
 
 FAR_M = 1000.0  # depth far limit; sky and background count as this
 DEPTH_LEVELS = 256**3 - 1
 DEPTH_STEP_M = FAR_M / DEPTH_LEVELS  # one depth_raw quantisation step
 LOG_DEPTH_SCALE = 5.70378  # ln(300): the log ramp covers ~3.33 m .. 1000 m
-PNG_COMPRESSION = 1  # deflate level (ISA-L 0..3): fast; PNG stays lossless and deterministic
-PNG_ENCODER = "png-sub-isal"  # PNG filter Sub on every row, one IDAT deflated by ISA-L
 JPEG_QUALITY = 95  # the released IDDA RGB images' quality
 JPEG_ENCODER = "jpeg-libjpeg-turbo-opencv"  # cv2.imencode: libjpeg-turbo, 4:2:0, baseline Huffman
 RGB_FORMATS = ("png", "jpg")  # file formats of the rgb output; the first is the default
@@ -157,9 +156,8 @@ def _sub_filtered(rows: np.ndarray, bpp: int) -> np.ndarray:
 
 
 def png_bytes(image: np.ndarray, name: str = "image") -> bytes:
-    """Lossless, deterministic PNG bytes of an HxW (grey), HxWx3 (RGB) or HxWx4 (RGBA) image, uint8 or uint16."""
-    from isal import isal_zlib
-
+    """Lossless, deterministic PNG bytes of an HxW (grey), HxWx3 (RGB) or HxWx4 (RGBA) image, uint8 or uint16,
+    deflated by the deflater in force (``manifests.deflaters.deflating_with``)."""
     if not isinstance(image, np.ndarray) or image.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"{name}: expected a uint8 or uint16 numpy array, got {getattr(image, 'dtype', type(image))}")
     channels = 1 if image.ndim == 2 else (image.shape[2] if image.ndim == 3 else 0)
@@ -169,7 +167,7 @@ def png_bytes(image: np.ndarray, name: str = "image") -> bytes:
     depth = image.dtype.itemsize * 8
     big_endian = image.astype(">u2", copy=False) if depth == 16 else image
     rows = np.ascontiguousarray(big_endian).view(np.uint8).reshape(height, -1)
-    data = isal_zlib.compress(_sub_filtered(rows, channels * image.dtype.itemsize), PNG_COMPRESSION)
+    data = deflate_png_data(_sub_filtered(rows, channels * image.dtype.itemsize))
     header = struct.pack(">IIBBBBB", width, height, depth, _PNG_COLOUR_TYPE[channels], 0, 0, 0)
     return _PNG_SIGNATURE + _png_chunk(b"IHDR", header) + _png_chunk(b"IDAT", data) + _png_chunk(b"IEND", b"")
 
@@ -198,12 +196,10 @@ def check_rgb_format(rgb_format: str) -> str:
 
 
 @cache
-def encoder_identity(rgb_format: str = "png") -> str:
-    """What makes the files' bytes: the PNG encoder, its level and the ISA-L binding's version;
+def encoder_identity(rgb_format: str = "png", png_deflater: str = DEFAULT_DEFLATER) -> str:
+    """What makes the files' bytes: the PNG deflater, its level and its package's version;
     with JPEG rgb files also the JPEG encoder, its quality and the OpenCV build."""
-    from importlib import metadata
-
-    png = f"{PNG_ENCODER} level {PNG_COMPRESSION}, isal {metadata.version('isal')}"
+    png = deflater(png_deflater).identity
     if check_rgb_format(rgb_format) == "png":
         return png
     import cv2

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from manifests.catalog import Scenario, Town, active, code_axes
+from manifests.deflaters import DEFAULT_DEFLATER
 from manifests.encoding import check_rgb_format
 from manifests.layout import NEW_ROOT_LAYOUT, check_layout
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs, output
@@ -56,6 +57,7 @@ class EpisodeSpec:
     layout: int = NEW_ROOT_LAYOUT  # where the frame files go: the root's layout (manifests.layout)
     catalog: str = ""  # the run's user domain entries (manifests.domains.Catalog.layer_json); "" = built-in only
     frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (--frame-interval)
+    png_deflater: str = DEFAULT_DEFLATER  # the root's PNG deflater (manifests.deflaters): an older root keeps its own
 
     def frame_time(self, index: int) -> float:
         """Simulated time of frame ``index`` in seconds (frame 0 at 0)."""

@@ -27,7 +27,7 @@ from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
 from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
 from pipeline.repair import check_no_repair_running, repair_alone
-from pipeline.runmeta import RunConfig, RunConfigError, prepare_root, read_run
+from pipeline.runmeta import RunConfig, RunConfigError, prepare_root, read_run, root_deflater
 
 log = logging.getLogger(__name__)
 
@@ -429,7 +429,8 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
             record = prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
         else:
             record = read_run(storage)  # repair_alone prepared it
-        todo = [replace(spec, layout=record_layout(record)) for spec in todo]  # the root's layout, old or new
+        # the root's layout and PNG deflater, old or new
+        todo = [replace(spec, layout=record_layout(record), png_deflater=root_deflater(record)) for spec in todo]
         del summaries
         state = None if todo else state  # nothing to render: the final fold needs no second scan
         report.skipped_episodes = len(plan.episodes) - len(todo)

@@ -18,6 +18,7 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
+from manifests.deflaters import deflating_with
 from manifests.outputs import OUTPUTS, encode_outputs, file_bytes
 from manifests.layout import frame_path, output_dir
 from manifests.schema import STATS_DIR, frame_id, part_path
@@ -95,7 +96,8 @@ def frame_files(spec: EpisodeSpec, frame) -> dict[str, bytes]:
 
 def store_frame(spec: EpisodeSpec, frame, storage) -> dict:
     """Encode one frame's outputs, write their files; return its manifest row."""
-    files = frame_files(spec, frame)
+    with deflating_with(spec.png_deflater):  # the root's deflater (an older root keeps its own)
+        files = frame_files(spec, frame)
     for name, data in files.items():
         fid = frame_id(spec.episode, frame.index)
         storage.write_bytes(frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout), data)
@@ -171,10 +173,11 @@ def render_plan(storage, config) -> None:
     from manifests.layout import record_layout
     from manifests.root import claim_root
     from pipeline.planner import make_plan
-    from pipeline.runmeta import prepare_root
+    from pipeline.runmeta import prepare_root, root_deflater
 
     storage.ensure_writable()
     claim_root(storage)  # as produce does: the root marker first
-    layout = record_layout(prepare_root(storage, config))  # a new root's, or an old root's own
+    record = prepare_root(storage, config)
+    layout, deflater = record_layout(record), root_deflater(record)  # a new root's, or an old root's own
     for spec in make_plan(config.plan).episodes:
-        run_episode(replace(spec, layout=layout), storage, world=config.world)
+        run_episode(replace(spec, layout=layout, png_deflater=deflater), storage, world=config.world)

@@ -159,8 +159,26 @@ def _layout_held(storage) -> int:
 UNRECORDED_ENCODER = "not recorded (OpenCV's PNG encoder, before encoders were recorded)"
 
 
+def root_deflater(record: dict | None) -> str:
+    """The PNG deflater of a root's frames: the one its run.json names where that is
+    installed here (an older root keeps its own), else the default (a new root's)."""
+    from manifests.deflaters import DEFAULT_DEFLATER, deflater_named_by
+
+    encoder = (record or {}).get("encoder", "")
+    return deflater_named_by(encoder.split("; rgb ", 1)[0]) or DEFAULT_DEFLATER
+
+
+def _same_encoder(theirs: str, rgb_format: str) -> bool:
+    """True if frames encoded as ``theirs`` can be written here: by the default deflater or the
+    root's own older one, with the same JPEG settings."""
+    from manifests.encoding import encoder_identity
+
+    return theirs == encoder_identity(rgb_format, root_deflater({"encoder": theirs}))
+
+
 def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
-    """Refuse to add frames encoded otherwise than the root's; records the encoder in an empty root."""
+    """Refuse to add frames encoded otherwise than the root's; records the encoder in an empty root.
+    A root written with an older PNG deflater that is still installed keeps it (``root_deflater``)."""
     from manifests.encoding import encoder_identity
     from manifests.reader import done_episodes
 
@@ -168,6 +186,8 @@ def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
     if theirs == ours:
         return record
     if done_episodes(storage):
+        if _same_encoder(theirs, rgb_format):
+            return record
         raise RunConfigError(
             f"{storage.uri} holds frames written by another encoder ({theirs}; this run writes {ours}); "
             "one root never mixes encoders, since a re-rendered frame would not match its files: "
@@ -223,7 +243,6 @@ def check_before_repair(storage, config: RunConfig, extend: bool = False) -> Non
     and the same config unless ``extend``), and the encoder must be the
     root's. Reads only. A damaged or missing run.json passes: the manifest
     rows are then checked against this command's options instead."""
-    from manifests.encoding import encoder_identity
     from manifests.reader import done_episodes
 
     try:
@@ -234,7 +253,7 @@ def check_before_repair(storage, config: RunConfig, extend: bool = False) -> Non
         return
     _refuse_differences(storage, _with_outputs(record["config"]), config.to_dict(), extend)
     theirs = record.get("encoder", UNRECORDED_ENCODER)
-    if theirs != encoder_identity(config.plan.rgb_format) and done_episodes(storage):
+    if not _same_encoder(theirs, config.plan.rgb_format) and done_episodes(storage):
         raise RunConfigError(
             f"{storage.uri} holds frames written by another encoder ({theirs}); repair would re-render them "
             "with this one: repair with the encoder that made the root"

@@ -161,13 +161,6 @@ def test_png_bytes_rejects_what_png_cannot_hold():
             enc.png_bytes(bad, "instance")
 
 
-def test_encoder_identity_names_the_encoder_and_version():
-    from importlib import metadata
-
-    identity = enc.encoder_identity()
-    assert enc.PNG_ENCODER in identity and f"isal {metadata.version('isal')}" in identity
-
-
 def test_semantic_trainid_is_the_cityscapes_export_table():
     """The opt-in trainId output maps through the catalog's one table (the Cityscapes export's
     labelTrainIds too): road 0, sky 10, vehicle 13, unlabeled and excluded classes 255."""

@@ -1,0 +1,107 @@
+"""The PNG deflater: libdeflate for new roots, ISA-L kept by roots written with it (issue 21.11)."""
+
+from __future__ import annotations
+
+import json
+import struct
+import zlib
+from dataclasses import replace
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from manifests import encoding as enc
+from manifests.deflaters import DEFLATERS, deflater, deflater_named_by, deflating_with
+from manifests.reader import read_manifest
+from manifests.runrecord import record_bytes
+from pipeline.episode_job import run_episode
+from pipeline.planner import PlanConfig, make_plan
+from pipeline.runmeta import RunConfig, RunConfigError, check_encoder, prepare_root, root_deflater
+from storage import Storage
+
+PLAN = PlanConfig(domains="T01_CN_A,T01_HRN_A", frames_per_scenario=2, width=64, height=36, seed=5)
+ISAL_IDENTITY = f"png-sub-isal level 1, isal {metadata.version('isal')}"  # as roots written before recorded it
+
+
+def idat(data: bytes) -> bytes:
+    """The zlib stream of a PNG (its IDAT chunks joined)."""
+    out, i = b"", 8
+    while i < len(data):
+        (n,) = struct.unpack(">I", data[i:i + 4])
+        if data[i + 4:i + 8] == b"IDAT":
+            out += data[i + 8:i + 8 + n]
+        i += 12 + n
+    return out
+
+
+def deflated_by(png: bytes) -> set[str]:
+    """The deflaters that give this PNG's zlib stream from its own rows."""
+    stream = idat(png)
+    rows = zlib.decompress(stream)
+    return {name for name, row in DEFLATERS.items() if row.compress(rows) == stream}
+
+
+def test_identities_name_the_deflater_its_level_and_version():
+    assert enc.encoder_identity() == f"png-sub-libdeflate level 2, deflate {metadata.version('deflate')}"
+    assert enc.encoder_identity("png", "isal") == ISAL_IDENTITY  # what older run.json files hold, to the letter
+    assert deflater_named_by(ISAL_IDENTITY) == "isal" and deflater_named_by(enc.encoder_identity()) == "libdeflate"
+    assert deflater_named_by("png-sub-isal level 1, isal 0.0.1") is None  # another version: not ours
+    with pytest.raises(ValueError, match="unknown PNG deflater 'zopfli'; valid PNG deflaters: libdeflate, isal"):
+        deflater("zopfli")
+
+
+def test_png_files_are_deflated_by_the_deflater_in_force_in_this_thread_only():
+    image = np.random.default_rng(0).integers(0, 4, (27, 48, 3), dtype=np.uint8)
+    assert deflated_by(enc.encode_png(image)) >= {"libdeflate"}
+    with deflating_with("isal"):
+        old = enc.encode_png(image)
+        assert deflated_by(old) >= {"isal"}
+    assert enc.encode_png(image) != old  # the two deflaters write different bytes for this image
+    assert np.array_equal(enc.decode_png(old), image) and np.array_equal(enc.decode_png(enc.encode_png(image)), image)
+
+
+def test_root_deflater_reads_the_record():
+    assert root_deflater(None) == "libdeflate" and root_deflater({}) == "libdeflate"
+    assert root_deflater({"encoder": ISAL_IDENTITY}) == "isal"
+    assert root_deflater({"encoder": f"{ISAL_IDENTITY}; rgb jpeg-libjpeg-turbo-opencv quality 95, opencv 4"}) == "isal"
+    assert root_deflater({"encoder": "png-sub-isal level 1, isal 0.0.1"}) == "libdeflate"
+
+
+def _old_root(root: Path) -> Storage:
+    """A root as the ISA-L version left it: run.json names ISA-L, its first episode done with it."""
+    storage = Storage.from_uri(str(root))
+    storage.ensure_writable()
+    config = RunConfig(plan=PLAN, world="test")
+    record = prepare_root(storage, config)
+    storage.write_bytes("run.json", record_bytes({**record, "encoder": ISAL_IDENTITY}))
+    first = make_plan(PLAN).episodes[0]
+    run_episode(replace(first, png_deflater="isal"), storage, world="test")
+    return storage
+
+
+def test_an_isal_root_resumes_with_isal_and_a_new_root_uses_libdeflate(tmp_path):
+    from pipeline.episode_job import render_plan
+
+    storage = _old_root(tmp_path / "old")
+    render_plan(storage, RunConfig(plan=PLAN, world="test"))  # resume: the second episode, the root's deflater
+    assert json.loads((tmp_path / "old" / "run.json").read_text())["encoder"] == ISAL_IDENTITY
+    table = read_manifest(str(tmp_path / "old"))
+    pngs = [p for col in ("rgb_path", "semantic_color_path", "depth_raw_path", "instance_path")
+            for p in table.column(col).to_pylist()]
+    assert len(pngs) == 16 and all("isal" in deflated_by((tmp_path / "old" / p).read_bytes()) for p in pngs)
+
+    fresh = Storage.from_uri(str(tmp_path / "new"))
+    render_plan(fresh, RunConfig(plan=PLAN, world="test"))
+    record = json.loads((tmp_path / "new" / "run.json").read_text())
+    assert record["encoder"] == enc.encoder_identity()
+    assert all("libdeflate" in deflated_by((tmp_path / "new" / p).read_bytes()) for p in pngs)
+
+
+def test_a_root_of_an_unknown_deflater_is_still_refused(tmp_path):
+    storage = _old_root(tmp_path / "old")
+    record = json.loads((tmp_path / "old" / "run.json").read_text())
+    with pytest.raises(RunConfigError, match="another encoder"):
+        check_encoder(storage, {**record, "encoder": "png-sub-isal level 1, isal 0.0.1"})
+    assert check_encoder(storage, record)["encoder"] == ISAL_IDENTITY  # its own: kept
