@@ -78,7 +78,7 @@ OBJECT_FIELDS = [(label.object_column, pa.int32()) for label in INSTANCE_LABELS]
 PART_SCHEMA = pa.schema([(n, t) for n, t, _ in _FRAME_FIELDS] + _OUTPUT_FIELDS + PIXEL_FIELDS + OBJECT_FIELDS)
 MANIFEST_SCHEMA = pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA))
 
-MANIFEST_DIR = "manifest"  # <root>/manifest/town=../weather=../viewpoint=../<scenario>_eNNNN.parquet
+MANIFEST_DIR = "manifest"  # <root>/manifest/town=../weather=../viewpoint=../<scenario>_eNNNN_n<rows>.parquet
 RUN_FILE = "run.json"  # <root>/run.json: config, versions, git revision
 STATS_DIR = "_stats"  # <root>/_stats/<scenario>_eNNNN.json: worker timings (not part of the data)
 
