@@ -36,6 +36,8 @@ BASELINE = "93dc98a"  # main before the control-plane work (issue 22)
 KILLED = ("T01_CN_A", "T04_HRN_M", "T07_CS_B")  # scenarios whose index a killed run left stale
 REPO = Path(__file__).resolve().parent.parent
 DOMAINS = os.environ.get("BENCH_CONTROL_DOMAINS", "all")  # a smaller root for a quick try of the benchmark
+# "status": only the status rows (the indexes of the finished state then come from compact(), not a resume)
+ACTIONS = tuple(os.environ.get("BENCH_CONTROL_ACTIONS", "status,resume").split(","))
 
 # Run inside each side's subprocess: the same calls on both revisions.
 PROBE = r"""
@@ -85,6 +87,11 @@ else:
 """
 
 
+def baseline_measured() -> bool:
+    """Whether the baseline side runs (``BENCH_BASELINE=none``: this tree's side alone)."""
+    return os.environ.get("BENCH_BASELINE", BASELINE) != "none"
+
+
 def _probe(tree: Path, action: str, uri: str) -> dict:
     from benchmarks.baseline import tree_env
 
@@ -109,15 +116,36 @@ def _build(storage, threads: int) -> float:
     return time.perf_counter() - start
 
 
-def _copy(source, target, threads: int = 32) -> float:
-    """The same root on another storage, file for file (cheaper than building it again)."""
+def _copy(source, target, threads: int = 32, old_names: bool = False) -> float:
+    """The same root on another storage, file for file (cheaper than building it again);
+    ``old_names``: its parts under the names they had before names carried row counts."""
     from concurrent.futures import ThreadPoolExecutor
 
     start = time.perf_counter()
     files = source.list_files()
     with ThreadPoolExecutor(max_workers=threads) as pool:
-        list(pool.map(lambda rel: target.write_bytes(rel, source.read_bytes(rel)), files))
+        list(pool.map(lambda rel: target.write_bytes(_old_name(rel) if old_names else rel, source.read_bytes(rel)), files))
     return time.perf_counter() - start
+
+
+def _old_name(rel: str) -> str:
+    from manifests.schema import PART_RE, part_path
+
+    match = PART_RE.match(rel)
+    return rel if match is None else part_path(match.group("scenario"), int(match.group("episode")))
+
+
+def _rename_parts(storage, counted: bool) -> None:
+    """A local root's parts under counted names or the old ones (the baseline reads only those)."""
+    import pyarrow.parquet as pq
+
+    from manifests.reader import part_listing
+    from manifests.schema import part_path
+
+    for scenario, episodes in part_listing(storage).items():
+        for episode, (rel, _) in episodes.items():
+            rows = pq.read_metadata(storage.path(rel)).num_rows if counted else None
+            os.rename(storage.path(rel), storage.path(part_path(scenario, episode, rows)))
 
 
 def _drop_indexes(storage, scenarios=None) -> None:
@@ -138,6 +166,8 @@ def _side(tree: Path, storage, counter=None, indexes: Path | None = None) -> dic
     out: dict[str, dict] = {}
 
     def measure(name: str, action: str) -> None:
+        if action not in ACTIONS:
+            return
         if counter is not None:
             counter.reset()
         fig = _probe(tree, action, storage.uri)
@@ -150,6 +180,10 @@ def _side(tree: Path, storage, counter=None, indexes: Path | None = None) -> dic
     if storage.is_local:
         measure("status_parts_only", "status")
         measure("resume_parts_only", "resume")  # its fold writes every index: now finished
+        if "resume" not in ACTIONS:
+            from manifests.reader import compact
+
+            compact(storage)
         shutil.copytree(storage.path("_index"), indexes)
     else:
         for path in sorted(indexes.iterdir()):
@@ -163,13 +197,19 @@ def _side(tree: Path, storage, counter=None, indexes: Path | None = None) -> dic
     return out
 
 
-def _both(storage, work: Path, counter=None) -> dict:
+def _both(storage, work: Path, counter=None, old=None) -> dict:
+    """Both sides; the baseline on the root's parts under their old names
+    (``old``: a copy named so on S3; locally they are renamed and back)."""
     from benchmarks.baseline import baseline_tree
 
     os.environ.setdefault("BENCH_BASELINE", BASELINE)
     with baseline_tree() as (ref, tree, reason):
+        if tree is not None and old is None:
+            _rename_parts(storage, counted=False)
         before = {"ref": ref, "not_measured": reason} if tree is None else {
-            "ref": ref, **_side(tree, storage, counter, work / "before_index")}
+            "ref": ref, **_side(tree, storage if old is None else old, counter, work / "before_index")}
+        if tree is not None and old is None:
+            _rename_parts(storage, counted=True)
     return {"before": before, "after": _side(REPO, storage, counter, work / "after_index")}
 
 
@@ -187,9 +227,14 @@ def main(out_dir: str = "docs") -> dict:
         result["local_build_s"] = _build(local, threads=4)
         result["local"] = _both(local, work)
         with counting_s3_server() as (server, counter):
-            remote = Storage.from_uri(server.uri("root"))
+            remote, old = Storage.from_uri(server.uri("root")), Storage.from_uri(server.uri("old"))
             result["s3_build_s"] = _copy(local, remote)
-            result["s3"] = _both(remote, work, counter)
+            if baseline_measured():
+                _copy(local, old, old_names=True)
+            result["s3"] = _both(remote, work, counter, old)
+        if "status" in ACTIONS:  # an old root (no counted names) without indexes: status reads footers, as before
+            _rename_parts(local, counted=False)
+            result["local"]["after"]["status_old_names"] = _probe(REPO, "status", local.uri)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench_control_root.json").write_text(json.dumps(result, indent=2) + "\n")

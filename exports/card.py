@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import tempfile
+from collections import Counter
 from dataclasses import dataclass
 
 import pyarrow as pa
@@ -61,11 +62,14 @@ def split_counts(table: pa.Table) -> dict[str, dict[str, int]]:
     return dict(sorted(counts.items()))
 
 
-def manifest_splits(table: pa.Table) -> tuple[dict[str, tuple[int, int]], dict[str, list[str]]]:
+def manifest_splits(table: pa.Table, listed: dict[str, dict[int, str]] | None = None
+                    ) -> tuple[dict[str, tuple[int, int]], dict[str, list[str]]]:
     """The card's ``manifest`` config: per HF split name its (frames, Arrow
     bytes of the part columns) and its manifest parts. A part holds one episode,
     so each part belongs to one split; parts hold no town/weather/viewpoint
-    (those are hive path keys, which ``datasets`` does not read)."""
+    (those are hive path keys, which ``datasets`` does not read). ``listed``: the
+    root's part files as listed (``reader.part_files``: old roots' names too);
+    without it, the names the writer gives (rows counted in ``table``)."""
     parts = table.select(PART_SCHEMA.names)
     sizes: dict[str, tuple[int, int]] = {}
     files: dict[str, list[str]] = {}
@@ -73,8 +77,9 @@ def manifest_splits(table: pa.Table) -> tuple[dict[str, tuple[int, int]], dict[s
         rows = parts.filter(pc.equal(parts.column("split"), split))
         if len(rows):
             sizes[HF_SPLITS[split]] = (len(rows), rows.nbytes)
-            episodes = set(zip(rows.column("scenario").to_pylist(), rows.column("episode").to_pylist()))
-            files[HF_SPLITS[split]] = sorted(part_path(code, episode) for code, episode in episodes)
+            episodes = Counter(zip(rows.column("scenario").to_pylist(), rows.column("episode").to_pylist()))
+            files[HF_SPLITS[split]] = sorted((listed or {}).get(code, {}).get(episode) or part_path(code, episode, n)
+                                             for (code, episode), n in episodes.items())
     return sizes, files
 
 
@@ -228,7 +233,8 @@ def _usage_section(uri: str) -> list[str]:
     ]
 
 
-def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list[str]) -> str:
+def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list[str],
+                  parts: dict[str, dict[int, str]] | None = None) -> str:
     """The card's text for a manifest ``table`` (all frames of the root); ``uri``
     is how the usage examples name the root."""
     if len(table) == 0:
@@ -247,7 +253,7 @@ def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list
         "(Alberti et al., 2020) by idda-pipeline; every frame is listed with checksums and per-class "
         "pixel counts in the Parquet manifest under `manifest/`.",
     ]
-    sizes, files = manifest_splits(table)
+    sizes, files = manifest_splits(table, parts)
     header = card_header(sizes, files, config="manifest")
     sections = [
         intro,
@@ -292,7 +298,7 @@ def render_contact_sheet(storage, record: dict | None, codes: list[str]) -> list
 
 def write_card(config: CardConfig) -> CardResult:
     """Write ``README.md`` and ``class_shares.png`` into the root (and a contact sheet if asked)."""
-    from manifests.reader import read_manifest
+    from manifests.reader import part_files, read_manifest
     from manifests.stats import bar_chart_png, share_table
     from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record
     from storage import Storage
@@ -312,7 +318,7 @@ def write_card(config: CardConfig) -> CardResult:
         render_contact_sheet(storage, record, sorted(set(table.column("scenario").to_pylist())))
     previews = find_previews(storage)
     # Local cards say "." (run the commands in the root, which may move); s3 cards the URI.
-    text = card_markdown(table, record, "." if storage.is_local else storage.uri, previews)
+    text = card_markdown(table, record, "." if storage.is_local else storage.uri, previews, part_files(storage))
     storage.write_bytes(CHART_FILE, bar_chart_png(share_table(table), title=f"Class pixel shares, {len(table):,} frames"))
     storage.write_bytes(CARD_FILE, text.encode())
     return CardResult(storage.join(CARD_FILE), storage.join(CHART_FILE), previews, len(table))

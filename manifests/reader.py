@@ -30,15 +30,16 @@ from manifests.schema import (
     PARTITION_SCHEMA,
     PART_SCHEMA,
     index_path,
+    PART_RE,
+    named_rows,
+    newer_part,
     part_path,
+    part_stem,
     output_columns,
 )
 from manifests.outputs import OUTPUTS
 from manifests.summary import _SUMMARY_COLUMNS, PartSummary, summary_of_footer, summary_of_table  # noqa: F401 (public here too)
 
-_PART_RE = re.compile(
-    r"^manifest/town=(T\d\d)/weather=(\w+)/viewpoint=(\w)/((T\d\d)_(\w+)_(\w))_e(\d{4})\.parquet$"
-)
 _INDEX_RE = re.compile(r"^" + INDEX_DIR + r"/((T\d\d)_(\w+)_(\w))\.parquet$")
 
 log = logging.getLogger(__name__)
@@ -58,16 +59,35 @@ def part_listing(storage) -> dict[str, dict[int, tuple[str, int]]]:
 
 
 def _manifest_listing(storage) -> tuple[dict[str, dict[int, tuple[str, int]]], list[str]]:
-    """One listing of manifest/: its parts (as :func:`part_listing`) and the indexes older versions wrote there."""
+    """One listing of manifest/: its parts (as :func:`part_listing`) and what compaction
+    removes: the indexes older versions wrote there, and parts under another name of an
+    episode than the one read (``schema.newer_part``: a writer killed between the two)."""
     parts: dict[str, dict[int, tuple[str, int]]] = defaultdict(dict)
     legacy = []
     for rel, size in storage.list_sizes(MANIFEST_DIR + "/", suffix=".parquet").items():
-        match = _PART_RE.match(rel)
+        match = PART_RE.match(rel)
         if match:
-            parts[match.group(4)][int(match.group(8))] = (rel, size)
+            scenario, episode = match.group("scenario"), int(match.group("episode"))
+            held = parts[scenario].get(episode)
+            if held is None or newer_part(rel, held[0]):
+                parts[scenario][episode] = (rel, size)
+            if held is not None:  # the one of the two not read
+                legacy.append(held[0] if parts[scenario][episode][0] == rel else rel)
         elif rel.endswith("/" + LEGACY_INDEX_NAME):
             legacy.append(rel)
     return parts, sorted(legacy)
+
+
+def episode_parts(storage, scenario: str, episode: int) -> list[str]:
+    """Every part file of one episode (one listing of its folder), the one readers use first:
+    one name normally; an old name beside a counted one if a writer was killed between them."""
+    folder = part_path(scenario, episode).rpartition("/")[0]
+    found = []
+    for rel in storage.list_files(f"{folder}/{part_stem(scenario, episode)}", suffix=".parquet"):
+        match = PART_RE.match(rel)
+        if match and match.group("scenario") == scenario and int(match.group("episode")) == episode:
+            found.append(rel)
+    return sorted(found, key=lambda rel: -1 if named_rows(rel) is None else named_rows(rel), reverse=True)
 
 
 def part_files(storage) -> dict[str, dict[int, str]]:
@@ -165,7 +185,7 @@ class ManifestScan:
     parts: dict[str, dict[int, tuple[str, int]]]  # {scenario: {episode: (path, bytes)}}
     indexes: dict[str, str]  # every index file present
     current: dict[str, dict[int, PartSummary]]  # scenarios whose index is current: its summaries
-    legacy: list[str] = field(default_factory=list)  # indexes older versions left inside manifest/
+    legacy: list[str] = field(default_factory=list)  # indexes older versions left inside manifest/, shadowed parts
 
     def summaries(self, storage, threads: int = FOOTER_THREADS, read=part_summary) -> dict[tuple[str, int], PartSummary | None]:
         """Every part's summary: from its scenario's index where that is current, else
@@ -189,11 +209,17 @@ def scan(root) -> ManifestScan:
         listing = pool.submit(_manifest_listing, storage)
         indexes = index_listing(storage)
         parts, legacy = listing.result()
+    return _scan_listed(storage, dict(parts), legacy, indexes)
+
+
+def _scan_listed(storage, parts: dict[str, dict[int, tuple[str, int]]], legacy: list[str],
+                 indexes: dict[str, tuple[str, int]]) -> ManifestScan:
+    """The scan of ``parts`` as listed: each listed index's footer read (in parallel) to say which are current."""
     candidates = sorted(s for s in indexes if s in parts)
     with ThreadPoolExecutor(max_workers=FOOTER_THREADS) as pool:
         recorded = dict(zip(candidates, pool.map(lambda s: index_summaries(storage, *indexes[s]), candidates)))
     current = {s: recorded[s] for s in candidates if _is_current(recorded[s], parts[s])}
-    return ManifestScan(parts=dict(parts), indexes={s: rel for s, (rel, _) in indexes.items()}, current=current,
+    return ManifestScan(parts=parts, indexes={s: rel for s, (rel, _) in indexes.items()}, current=current,
                         legacy=legacy)
 
 
@@ -208,13 +234,28 @@ def episode_frames(root, summaries: dict | None = None) -> dict[tuple[str, int],
     (0 for an unreadable part). Read from a scenario's index where it is
     current, else from each part's footer; ``summaries`` if already scanned."""
     if summaries is None:  # the row counts alone: no footer is searched for statistics
-        storage = as_storage(root)
-        summaries = scan(storage).summaries(storage, read=_part_rows)
+        summaries = _listed_rows(as_storage(root))
     return {key: 0 if s is None else s if isinstance(s, int) else 0 if s.misfiled(*key) else s.rows
             for key, s in summaries.items()}
 
 
+def _listed_rows(storage) -> dict[tuple[str, int], PartSummary | int | None]:
+    """Each part's rows from the listing where its name carries them (every part
+    written since counted names): no read at all. A scenario with old names
+    is scanned as before: its index where current, else its parts' footers."""
+    parts, legacy = _manifest_listing(storage)
+    found: dict[tuple[str, int], PartSummary | int | None] = {
+        (s, e): named_rows(rel) for s, eps in parts.items() for e, (rel, _) in eps.items()}
+    old = sorted({s for (s, _), rows in found.items() if rows is None})
+    if old:
+        state = _scan_listed(storage, {s: parts[s] for s in old}, legacy, index_listing(storage))
+        found.update(state.summaries(storage, read=_part_rows))
+    return found
+
+
 def _part_rows(storage, rel: str, size: int) -> int | None:
+    if named_rows(rel) is not None:
+        return named_rows(rel)
     meta = _footer(storage, rel, size)
     return None if meta is None else meta.num_rows
 
@@ -226,7 +267,7 @@ def refuse_misfiled(storage, summaries: dict[tuple[str, int], PartSummary | None
 
     wrong = sorted(key for key, s in summaries.items() if isinstance(s, PartSummary) and s.misfiled(*key))
     if wrong:
-        names = ", ".join(part_path(*key) for key in wrong[:3]) + (f" and {len(wrong) - 3} more" if len(wrong) > 3 else "")
+        names = ", ".join(part_stem(*key) for key in wrong[:3]) + (f" and {len(wrong) - 3} more" if len(wrong) > 3 else "")
         raise MisfiledParts(
             f"{storage.uri}: {len(wrong)} manifest part(s) hold the rows of another scenario or episode ({names}); "
             f"`idda verify {storage.uri}` lists them, `idda produce ... --repair` renders those episodes again"
@@ -302,8 +343,9 @@ def build_index(storage, scenario: str, episodes: list[int]) -> bytes:
     from manifests.writer import read_part_file
 
     tables, sizes = [], {}
+    listed = part_listing(storage).get(scenario, {})
     for e in episodes:
-        rel = part_path(scenario, e)
+        rel = listed[e][0] if e in listed else part_path(scenario, e)
         data = storage.read_bytes(rel)
         tables.append(read_part_file(storage, rel, PART_SCHEMA, data=data))
         sizes[e] = len(data)
@@ -362,7 +404,8 @@ def compact(root, scenarios: list[str] | None = None, state: ManifestScan | None
     compaction, leaves an index that is current or one that readers bypass.
     ``state``: a scan of the root just made (default: one now); indexes
     older versions wrote inside manifest/ (they doubled rows for glob readers)
-    are removed. Returns the scenarios whose index was (re)written.
+    are removed, and so are the parts no reader uses beside an episode's
+    newer name (the old name a killed writer left). Returns the scenarios whose index was (re)written.
     """
     storage = as_storage(root)
     state = scan(storage) if state is None else state

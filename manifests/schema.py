@@ -3,6 +3,8 @@ readers and tests. Column lists derive from the catalog tables."""
 
 from __future__ import annotations
 
+import re
+
 import pyarrow as pa
 
 from manifests.catalog import AXES, INSTANCE_LABELS, LABELS, code_axes
@@ -76,7 +78,7 @@ OBJECT_FIELDS = [(label.object_column, pa.int32()) for label in INSTANCE_LABELS]
 PART_SCHEMA = pa.schema([(n, t) for n, t, _ in _FRAME_FIELDS] + _OUTPUT_FIELDS + PIXEL_FIELDS + OBJECT_FIELDS)
 MANIFEST_SCHEMA = pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA))
 
-MANIFEST_DIR = "manifest"  # <root>/manifest/town=../weather=../viewpoint=../<scenario>_eNNNN.parquet
+MANIFEST_DIR = "manifest"  # <root>/manifest/town=../weather=../viewpoint=../<scenario>_eNNNN_n<rows>.parquet
 RUN_FILE = "run.json"  # <root>/run.json: config, versions, git revision
 STATS_DIR = "_stats"  # <root>/_stats/<scenario>_eNNNN.json: worker timings (not part of the data)
 
@@ -124,7 +126,42 @@ def index_path(scenario: str) -> str:
     return f"{INDEX_DIR}/{scenario}.parquet"
 
 
-def part_path(scenario: str, episode: int) -> str:
-    """Relative path of an episode's manifest part (its "done" marker)."""
+def part_stem(scenario: str, episode: int) -> str:
+    """What every name of an episode's part starts with: ``<scenario>_e<episode:04d>``."""
+    return f"{scenario}_e{episode:04d}"
+
+
+def part_path(scenario: str, episode: int, rows: int | None = None) -> str:
+    """Relative path of an episode's manifest part (its "done" marker).
+
+    ``rows``: the part's row count, which its name carries (``..._e0003_n72.parquet``)
+    so that a listing alone says how many frames each part holds (``idda status``
+    reads no part). Every part is written so; None gives the name parts had
+    before (``..._e0003.parquet``), which old roots keep and readers still read
+    (``PART_RE``)."""
     hive = "/".join(f"{axis}={value}" for axis, value in code_axes(scenario).items())
-    return f"{MANIFEST_DIR}/{hive}/{scenario}_e{episode:04d}.parquet"
+    counted = "" if rows is None else f"_n{int(rows)}"
+    return f"{MANIFEST_DIR}/{hive}/{part_stem(scenario, episode)}{counted}.parquet"
+
+
+# A part's path, old names and counted ones: groups town, weather, viewpoint,
+# scenario, episode and rows (None in an old name).
+PART_RE = re.compile(
+    r"^manifest/town=(?P<town>T\d\d)/weather=(?P<weather>\w+)/viewpoint=(?P<viewpoint>\w)/"
+    r"(?P<scenario>T\d\d_\w+_\w)_e(?P<episode>\d{4})(?:_n(?P<rows>[1-9]\d*))?\.parquet$"
+)
+
+
+def named_rows(rel: str) -> int | None:
+    """The row count a part's name carries; None for an old name (or not a part)."""
+    match = PART_RE.match(rel)
+    return None if match is None or match.group("rows") is None else int(match.group("rows"))
+
+
+def newer_part(rel: str, other: str) -> bool:
+    """Whether ``rel`` is the part to read where ``other`` names the same episode
+    too (a writer killed between writing a part and removing its old name): a
+    counted name over an old one, then the one with more rows (an episode is
+    rendered again only when its part held fewer frames than the plan asks)."""
+    rank = [-1 if n is None else n for n in (named_rows(rel), named_rows(other))]
+    return rank[0] > rank[1]

@@ -42,7 +42,8 @@ from manifests.reader import as_storage, index_bytes, index_episodes, index_file
 from manifests.layout import LAYOUTS, frame_path, held_layout, match_frame_file, record_layout
 from manifests.root import root_entries
 from manifests.runrecord import RunRecordError, read_record
-from manifests.schema import MANIFEST_DIR, PART_SCHEMA, RUN_FILE, frame_id, output_columns, part_path
+from manifests.schema import (MANIFEST_DIR, PART_RE, PART_SCHEMA, RUN_FILE, frame_id, named_rows, newer_part,
+                              output_columns, part_path)
 from manifests.spec import episode_seed
 from manifests.writer import ManifestError, part_bytes, read_part_file
 from storage import StorageError, sha256_bytes
@@ -53,7 +54,6 @@ EPISODE_KINDS = ("missing", "corrupt", "bad-part")  # the episode must be render
 LINK_DETAIL = "a symbolic link; verify and repair never follow links"
 
 log = logging.getLogger(__name__)
-_PART_NAME_RE = re.compile(r"^manifest/town=T\d\d/weather=\w+/viewpoint=\w/((T\d\d_\w+_\w))_e(\d{4})\.parquet$")
 
 
 @dataclass(frozen=True)
@@ -151,6 +151,8 @@ def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | N
     except (ManifestError, StorageError, OSError) as exc:
         return None, Problem("bad-part", rel, scenario, episode, str(exc))
     detail, conflict = part_problem(table, scenario, episode, None, layouts), False  # the part's own shape first
+    if detail is None and named_rows(rel) not in (None, len(table)):  # status counts frames from the name
+        detail = f"its name says {named_rows(rel)} rows, it holds {len(table)}"
     if detail is None:
         first = {name: table.column(name)[0].as_py() for name in ("width", "height", "seed")}
         detail = config_conflict(first["width"], first["height"], first["seed"], scenario, episode, config)
@@ -358,9 +360,12 @@ def _part_listing(storage, report: VerifyReport) -> dict[str, dict[int, tuple[st
         if entry.link:
             report.problems.append(Problem("link", entry.rel, None, None, LINK_DETAIL))
             continue
-        match = _PART_NAME_RE.match(entry.rel)
+        match = PART_RE.match(entry.rel)
         if match:
-            parts.setdefault(match.group(1), {})[int(match.group(3))] = (entry.rel, entry.mtime)
+            held = parts.setdefault(match.group("scenario"), {})
+            episode = int(match.group("episode"))
+            if episode not in held or newer_part(entry.rel, held[episode][0]):  # the part readers use
+                held[episode] = (entry.rel, entry.mtime)
     return parts
 
 

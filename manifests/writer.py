@@ -93,17 +93,26 @@ def part_bytes(table: pa.Table, store_schema: bool = False) -> bytes:
 
 
 def write_part(storage, scenario: str, episode: int, rows: list[dict] | pa.Table) -> str:
-    """Write an episode's part (rows or a PART_SCHEMA table) atomically; returns its path."""
-    rel = part_path(scenario, episode)
+    """Write an episode's part (rows or a PART_SCHEMA table) atomically; returns its path.
+
+    Its name carries its row count (``schema.part_path``). Once it is written,
+    the episode's part under the old name (an old root's episode rendered again)
+    is removed: until then readers prefer the new name (``schema.newer_part``)."""
     table = rows if isinstance(rows, pa.Table) else part_table(rows)
     if table.schema != PART_SCHEMA:
         raise ManifestError(f"part for {scenario} episode {episode} does not have the manifest schema")
+    rel = part_path(scenario, episode, len(table))
     storage.write_bytes(rel, part_bytes(table))
+    storage.delete(part_path(scenario, episode))
     return rel
 
 
 def read_part(storage, scenario: str, episode: int) -> pa.Table:
-    return read_part_file(storage, part_path(scenario, episode), PART_SCHEMA)
+    """An episode's part, under whichever name it was written."""
+    from manifests.reader import episode_parts
+
+    listed = episode_parts(storage, scenario, episode)
+    return read_part_file(storage, listed[0] if listed else part_path(scenario, episode), PART_SCHEMA)
 
 
 def read_part_file(storage, rel: str, schema: pa.Schema | None = None, data: bytes | None = None) -> pa.Table:

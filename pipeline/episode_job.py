@@ -21,7 +21,7 @@ from typing import Callable
 from manifests.deflaters import deflating_with
 from manifests.outputs import OUTPUTS, encode_outputs, file_bytes
 from manifests.layout import frame_path, output_dir
-from manifests.schema import STATS_DIR, frame_id, part_path
+from manifests.schema import STATS_DIR, frame_id, part_path, part_stem
 from manifests.spec import EpisodeSpec
 from manifests.writer import frame_row, write_part
 from storage.errors import storage_error
@@ -119,8 +119,8 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     start = time.perf_counter()
     for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
         storage.remove_stale_temp(output_dir(spec.scenario, output, spec.episode, spec.layout), f"{spec.episode:04d}_")
-    part_dir, _, part_name = part_path(spec.scenario, spec.episode).rpartition("/")
-    storage.remove_stale_temp(part_dir, part_name)
+    part_dir = part_path(spec.scenario, spec.episode).rpartition("/")[0]
+    storage.remove_stale_temp(part_dir, part_stem(spec.scenario, spec.episode))  # under any of its names
     rows: list[dict] = []
     kill_after, full_after = _fault_after(), _enospc_after()
 

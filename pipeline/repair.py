@@ -7,6 +7,7 @@ from __future__ import annotations
 import logging
 from typing import TYPE_CHECKING
 
+from manifests.reader import episode_parts
 from manifests.schema import index_path, part_path
 from pipeline.cluster import cluster_address
 from pipeline.runmeta import RunConfigError, prepare_root
@@ -51,7 +52,8 @@ def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
     planned = {(e.scenario, e.episode) for e in plan.episodes}
     touched = []
     for scenario, episode in sorted(report.affected_episodes()):
-        storage.delete(part_path(scenario, episode))
+        for rel in episode_parts(storage, scenario, episode) or [part_path(scenario, episode)]:
+            storage.delete(rel)
         storage.delete(index_path(scenario))
         if (scenario, episode) not in planned:
             log.warning("%s_e%04d is damaged but not in the current plan; it stays pending", scenario, episode)

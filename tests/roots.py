@@ -18,3 +18,29 @@ def render_root(root: Path, config, compact: bool = False):
     if compact:
         write_indexes(storage)
     return storage
+
+
+def part_of(root, scenario: str, episode: int) -> str:
+    """The relative path of an episode's part as written (its name carries its row count)."""
+    from manifests.reader import as_storage, episode_parts
+
+    found = episode_parts(as_storage(root if hasattr(root, "list_files") else str(root)), scenario, episode)
+    assert found, f"no part of {scenario} episode {episode} under {root}"
+    return found[0]
+
+
+def to_old_names(storage) -> int:
+    """Rename every part of ``storage`` to the name parts had before names carried
+    their row count (an old root); returns how many were renamed."""
+    from manifests.reader import part_listing
+    from manifests.schema import part_path
+
+    renamed = 0
+    for scenario, episodes in part_listing(storage).items():
+        for episode, (rel, _) in episodes.items():
+            old = part_path(scenario, episode)
+            if rel != old:
+                storage.write_bytes(old, storage.read_bytes(rel))
+                storage.delete(rel)
+                renamed += 1
+    return renamed

@@ -16,7 +16,7 @@ from typer.testing import CliRunner
 
 from manifests.catalog import LABELS
 from manifests.reader import read_manifest
-from manifests.schema import part_path
+from tests.roots import part_of
 from manifests.stats import share_table
 from exports import card as card_mod
 from manifests.encoding import decode_depth_raw
@@ -96,7 +96,8 @@ def test_card_header_parses_with_huggingface_hub(root):
     want = {"train": "train", "validation": "val", "test": "test"}
     for split, paths in files.items():  # each split lists exactly its episodes' parts
         rows = [r for r in table.to_pylist() if r["split"] == want[split]]
-        assert paths == sorted(part_path(r["scenario"], r["episode"]) for r in rows if r["frame"] == 0)
+        assert paths == sorted(part_of(root, r["scenario"], r["episode"]) for r in rows if r["frame"] == 0)
+        assert all(root.joinpath(p).is_file() for p in paths)
     sizes = {s["name"]: s for s in data["dataset_info"]["splits"]}
     assert list(sizes) == list(files)
     assert sum(s["num_examples"] for s in sizes.values()) == len(table)

@@ -34,7 +34,8 @@ from manifests.reader import (
     scan,
 )
 from manifests.root import ROOT_MARKER, claim_root
-from manifests.schema import index_path, part_path
+from manifests.schema import index_path
+from tests.roots import part_of, to_old_names
 from manifests.synthetic import episode_table, write_parts
 from manifests.writer import write_part
 from pipeline.planner import PlanConfig, make_plan
@@ -82,7 +83,7 @@ def test_scan_reads_footers_not_rows(tmp_path):
     still scans. Reading rows (O(rows), 3.3 GB at full scale) would fail on it."""
     storage = synthetic_root(str(tmp_path / "root"))
     spec = make_plan(PLAN).episodes[0]
-    path = tmp_path / "root" / part_path(spec.scenario, spec.episode)
+    path = tmp_path / "root" / part_of(tmp_path / "root", spec.scenario, spec.episode)
     data = bytearray(path.read_bytes())
     data[8:4008] = bytes(4000)  # the first data pages; the footer sits at the end
     path.write_bytes(bytes(data))
@@ -116,7 +117,7 @@ def test_a_swapped_part_is_misfiled_not_done_from_its_footer_or_its_index(tmp_pa
     storage = synthetic_root(str(tmp_path / "root"))
     a, b = make_plan(PLAN).episodes[0], make_plan(PLAN).episodes[-1]
     assert a.scenario != b.scenario
-    pa_, pb = (tmp_path / "root" / part_path(s.scenario, s.episode) for s in (a, b))
+    pa_, pb = (tmp_path / "root" / part_of(tmp_path / "root", s.scenario, s.episode) for s in (a, b))
     shutil.move(pa_, tmp_path / "x")
     shutil.move(pb, pa_)
     shutil.move(tmp_path / "x", pb)
@@ -137,7 +138,7 @@ def test_current_indexes_answer_without_reading_parts(tmp_path):
     storage = synthetic_root(str(tmp_path / "root"))
     assert compact(storage) == sorted(PLAN_SCENARIOS())
     for spec in make_plan(PLAN).episodes:
-        path = tmp_path / "root" / part_path(spec.scenario, spec.episode)
+        path = tmp_path / "root" / part_of(tmp_path / "root", spec.scenario, spec.episode)
         path.write_bytes(bytes(path.stat().st_size))  # zeros: any read of it would fail
     assert set(scan(storage).current) == set(PLAN_SCENARIOS())
     assert episode_frames(storage) == expected_frames()
@@ -163,13 +164,13 @@ def test_fold_reads_only_new_parts_and_equals_a_full_rebuild(tmp_path):
     write_parts(storage, first)
     compact(storage)
     for spec in first:  # folded already: a second fold must not read them again
-        os.chmod(tmp_path / "inc" / part_path(spec.scenario, spec.episode), 0)
+        os.chmod(tmp_path / "inc" / part_of(tmp_path / "inc", spec.scenario, spec.episode), 0)
     try:
         write_parts(storage, rest)
         assert compact(storage) == sorted({e.scenario for e in rest})
     finally:
         for spec in first:
-            os.chmod(tmp_path / "inc" / part_path(spec.scenario, spec.episode), 0o644)
+            os.chmod(tmp_path / "inc" / part_of(tmp_path / "inc", spec.scenario, spec.episode), 0o644)
     for scenario in PLAN_SCENARIOS():
         assert (tmp_path / "inc" / index_path(scenario)).read_bytes() == (tmp_path / "full" / index_path(scenario)).read_bytes()
     assert compact(storage) == []  # all current
@@ -388,11 +389,13 @@ def test_racing_drivers_create_one_root(tmp_path):
 def test_s3_status_and_resume_scan_cost_o_scenarios_requests():
     """On S3 (a local server counting requests), a root whose indexes are
     current scans in a few requests per scenario, whatever its part count,
-    with the right counts; without indexes, about one footer read per part."""
+    with the right counts; without indexes, about one footer read per part
+    (an old root's part names carry no row count: tests/test_part_names.py)."""
     from tests.s3_counter import counting_s3_server
 
     with counting_s3_server() as (server, counter):
         storage = synthetic_root(server.uri("root"), MANY)
+        to_old_names(storage)
         parts = len(make_plan(MANY).episodes)
         counter.reset()
         assert episode_frames(storage) == expected_frames(MANY)
@@ -423,6 +426,7 @@ def test_s3_footers_cost_one_get_each_and_no_head():
 
     with counting_s3_server() as (server, counter):
         storage = synthetic_root(server.uri("root"), MANY)
+        to_old_names(storage)  # names without row counts: the footers are read
         parts = len(make_plan(MANY).episodes)
         listing = 1 + 1 + 1 + 2 + 1  # manifest/, town, weather, two viewpoints; _index/
         counter.reset()

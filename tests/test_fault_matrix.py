@@ -19,7 +19,7 @@ from pathlib import Path
 
 import pytest
 
-from manifests.schema import part_path
+from tests.roots import part_of
 from manifests.verify import verify
 from tests import faultkit
 
@@ -209,7 +209,8 @@ def test_compaction_with_two_parts_swapped_indexes_nothing(world):
     not index them as if fine, nor touch anything; verify names both. Before the
     fix produce wrote _index/T01_CN_A.parquet from T07_HRN_A's rows, and said all done."""
     root = world["root"]
-    faultkit.swap(root / part_path("T01_CN_A", 0), root / part_path("T07_HRN_A", 0))
+    a, b = part_of(root, "T01_CN_A", 0), part_of(root, "T07_HRN_A", 0)
+    faultkit.swap(root / a, root / b)
     check = unchanged(root, world["neighbour"])
     result = faultkit.run(_produce(world), world["flags"])
     if result.returncode != 0:
@@ -217,7 +218,7 @@ def test_compaction_with_two_parts_swapped_indexes_nothing(world):
     check()
     report = verify(str(root))
     assert sorted((p.kind, p.path) for p in report.problems if p.kind == "bad-part") == [
-        ("bad-part", part_path("T01_CN_A", 0)), ("bad-part", part_path("T07_HRN_A", 0))]
+        ("bad-part", a), ("bad-part", b)]
 
 
 def test_produce_does_not_call_swapped_parts_done(world):
@@ -226,7 +227,7 @@ def test_produce_does_not_call_swapped_parts_done(world):
     and a repair then renders both episodes again, byte for byte."""
     root = world["root"]
     reference = faultkit.listing(root)
-    faultkit.swap(root / part_path("T01_CN_A", 0), root / part_path("T07_HRN_A", 0))
+    faultkit.swap(root / part_of(root, "T01_CN_A", 0), root / part_of(root, "T07_HRN_A", 0))
     result = faultkit.run(_produce(world), world["flags"])
     assert result.returncode == 1 and "T01_CN_A" in result.error_line() and "--repair" in result.error_line()
     result = faultkit.run(_produce(world, "--repair", "--workers", "1"), world["flags"] / "repair")

@@ -8,6 +8,7 @@ import hashlib
 import shutil
 from pathlib import Path
 
+import pyarrow.compute as pc
 import pytest
 
 from manifests.outputs import DEFAULT_OUTPUTS as OUTPUTS
@@ -15,6 +16,7 @@ from manifests.reader import read_manifest
 from manifests.schema import index_path, part_path
 from manifests.verify import verify
 from pipeline.driver import produce
+from tests.roots import part_of
 from tests.test_produce import config, ray_local  # noqa: F401 (fixtures)
 
 pytestmark = pytest.mark.slow
@@ -22,7 +24,8 @@ pytestmark = pytest.mark.slow
 # One file of each kind (relative paths in the small run of tests.test_produce).
 KINDS = {
     "frame": lambda table: table.column("semantic_raw_path")[5].as_py(),
-    "part": lambda table: part_path("T07_CN_A", 0),
+    "part": lambda table: part_path("T07_CN_A", 0, table.filter(pc.and_(pc.equal(table.column("scenario"), "T07_CN_A"),
+                                                                      pc.equal(table.column("episode"), 0))).num_rows),
     "index": lambda table: index_path("T01_HRN_A"),
     "run.json": lambda table: "run.json",
 }
@@ -108,7 +111,7 @@ def test_s3_damaged_part_and_index_are_repaired(clean):
         for path in sorted(clean.rglob("*")):
             if path.is_file():
                 storage.write_bytes(path.relative_to(clean).as_posix(), path.read_bytes())
-        part, index = part_path("T07_CN_A", 0), index_path("T01_HRN_A")
+        part, index = part_of(storage, "T07_CN_A", 0), index_path("T01_HRN_A")
         data = bytearray(storage.read_bytes(part))
         data[len(data) // 2] ^= 0x5A
         storage.write_bytes(part, bytes(data))

@@ -11,6 +11,7 @@ from manifests import query as q
 from manifests.catalog import LABELS, split_code
 from manifests.reader import done_episodes, manifest_dataset, read_manifest
 from manifests.schema import MANIFEST_SCHEMA, PART_SCHEMA, part_path, with_uids
+from tests.roots import part_of
 from manifests.stats import PAPER_SHARES, bar_chart_png, class_pixels, share_table
 from manifests.synthetic import episode_rows
 from manifests.writer import ManifestError, part_bytes, part_table, write_part
@@ -166,7 +167,7 @@ def test_compaction_is_used_only_while_it_matches_the_parts(root, tmp_path):
     assert read_manifest(copy).equals(before)
     # A part removed (as --repair does) makes that scenario's index stale.
     spec = plan.episodes[0]
-    copy.delete(part_path(spec.scenario, spec.episode))
+    copy.delete(part_of(copy, spec.scenario, spec.episode))
     files = manifest_files(copy)
     assert index_path(spec.scenario) not in files
     assert len(read_manifest(copy)) == len(before) - spec.frames
@@ -189,7 +190,7 @@ def test_manifest_dir_holds_one_row_per_frame_after_compaction(root, tmp_path):
     shutil.copytree(storage.path(), copy.path(), dirs_exist_ok=True)
     # A root compacted by an older version: the index inside manifest/ goes.
     legacy = "manifest/town=T01/weather=CN/viewpoint=A/_index.parquet"
-    copy.write_bytes(legacy, copy.read_bytes(part_path(plan.episodes[0].scenario, plan.episodes[0].episode)))
+    copy.write_bytes(legacy, copy.read_bytes(part_of(copy, plan.episodes[0].scenario, plan.episodes[0].episode)))
     compact(copy)
     assert not copy.exists(legacy)
     files = copy.list_files("manifest/")
@@ -215,7 +216,7 @@ def test_what_is_in_the_files_and_what_in_the_paths(root, tmp_path):
     shutil.copytree(storage.path(), copy.path(), dirs_exist_ok=True)
     compact(copy)
     spec = plan.episodes[0]
-    part = pq.read_table(copy.path(part_path(spec.scenario, spec.episode)))
+    part = pq.read_table(copy.path(part_of(copy, spec.scenario, spec.episode)))
     assert part.schema.names == PART_SCHEMA.names and not set(PARTITION_KEYS) & set(part.schema.names)
     index = pq.read_table(copy.path(index_path(spec.scenario)))
     assert index.schema.names == MANIFEST_SCHEMA.names

@@ -224,7 +224,8 @@ def test_changed_config_is_refused_unless_extended(ray_local, reference, tmp_pat
 def test_resume_refuses_to_mix_encoders(ray_local, reference, tmp_path):
     from manifests.encoding import encoder_identity
     from manifests.runrecord import read_record, record_bytes
-    from manifests.schema import RUN_FILE, part_path
+    from manifests.schema import RUN_FILE
+    from tests.roots import part_of
 
     root = tmp_path / "encoders"
     shutil.copytree(reference, root)
@@ -232,7 +233,7 @@ def test_resume_refuses_to_mix_encoders(ray_local, reference, tmp_path):
     record = read_record(storage)
     assert record["encoder"] == encoder_identity()
     scenario, episode = sorted(done_episodes(storage))[0]
-    storage.delete(part_path(scenario, episode))  # one episode to resume
+    storage.delete(part_of(storage, scenario, episode))  # one episode to resume
     storage.write_bytes(RUN_FILE, record_bytes({**record, "encoder": "png-other level 9, zlib 1.0"}))
     with pytest.raises(RunConfigError, match="another encoder.*png-other"):
         produce(config(root))

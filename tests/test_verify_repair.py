@@ -17,11 +17,12 @@ from typer.testing import CliRunner
 
 from manifests.reader import read_manifest
 from manifests.runrecord import read_record, record_bytes
-from manifests.schema import RUN_FILE, index_path, part_path
+from manifests.schema import RUN_FILE, index_path
 from manifests.verify import Scope, verify
 from pipeline.cli import app
 from pipeline.driver import produce
 from storage import Storage
+from tests.roots import part_of
 from tests.test_integrity import one_line_error
 from tests.test_produce import ARGS, ray_local, tree_digest  # noqa: F401 (fixtures)
 
@@ -65,7 +66,7 @@ def damage(root: Path) -> None:
     corrupt.write_bytes(corrupt.read_bytes()[:-4] + b"XXXX")
     (root / table.column("depth_raw_path")[len(table) - 1].as_py()).unlink()
     stray(root, "T07_HRN_A", 7).write_bytes(b"stray")
-    with open(root / part_path("T07_CN_A", 0), "r+b") as f:
+    with open(root / part_of(root, "T07_CN_A", 0), "r+b") as f:
         f.truncate(100)
 
 
@@ -118,7 +119,7 @@ def test_verify_scoped_by_domains_and_since(copy):
     for path in copy.rglob("*"):
         if path.is_file():
             os.utime(path, (old, old))
-    os.utime(copy / part_path("T01_HRN_A", 0), None)
+    os.utime(copy / part_of(copy, "T01_HRN_A", 0), None)
     scoped = verify(str(copy), scope=Scope(since=time.time() - 3600))
     assert scoped.episodes_checked == 1 and scoped.ok  # T01_HRN_A's files are intact; the damage is older
     result = runner.invoke(app, ["verify", str(copy), "--since", "1h"])
@@ -135,7 +136,7 @@ def test_repair_of_a_scope_verifies_and_touches_only_that_scope(ray_local, refer
     assert result.exit_code == 0, result.output
     assert verify(str(copy), scope=Scope(scenarios=frozenset({"T01_CN_A", "T01_HRN_A"}))).ok
     # T07's damage is out of scope: its truncated part and stray are still there, untouched
-    assert (copy / part_path("T07_CN_A", 0)).stat().st_size == 100
+    assert (copy / part_of(copy, "T07_CN_A", 0)).stat().st_size == 100
     assert stray(copy, "T07_HRN_A", 7).read_bytes() == b"stray"
 
 
@@ -214,7 +215,7 @@ def test_repair_still_fixes_a_root_whose_run_json_is_its_own(ray_local, referenc
 def test_verify_beside_a_live_producer_reports_in_progress(copy):
     from manifests.lease import register_producer
 
-    (copy / part_path("T01_CN_A", 0)).unlink()  # its frames are on disk, its part not yet
+    (copy / part_of(copy, "T01_CN_A", 0)).unlink()  # its frames are on disk, its part not yet
     (copy / index_path("T01_CN_A")).unlink()  # as produce does before it renders an episode again
     storage = Storage.from_uri(str(copy))
     producer = register_producer(storage)
@@ -288,7 +289,7 @@ def test_an_old_flat_root_resumes_extends_verifies_and_repairs(ray_local, refere
     del record[LAYOUT_KEY]  # run.json as roots made before layouts were recorded
     storage.write_bytes(RUN_FILE, record_bytes(record))
     assert produce(t01).rendered_episodes == 2
-    (root / part_path("T01_HRN_A", 0)).unlink()  # killed before its part: resumed
+    (root / part_of(root, "T01_HRN_A", 0)).unlink()  # killed before its part: resumed
     assert produce(t01).rendered_episodes == 1
     assert produce(config(root, extend=True)).rendered_episodes == 2  # T07 added, flat too
     assert read_record(storage)[LAYOUT_KEY] == FLAT
