@@ -19,7 +19,7 @@ import math
 import re
 import tomllib
 import typing
-from dataclasses import fields
+from dataclasses import MISSING, fields
 from functools import lru_cache
 
 from manifests.domains import AXES, ROW_TYPES, Catalog, row_dict
@@ -106,7 +106,8 @@ def resolve_entry(axis: str, entry: dict, base: dict, where: str):
         start = row_dict(base[like])
     elif code in base:
         start = row_dict(base[code])
-    values = {**start, **{k: v for k, v in entry.items() if k != "like"}}
+    defaults = {name: f.default for name, f in by_name.items() if f.default is not MISSING}
+    values = {**defaults, **start, **{k: v for k, v in entry.items() if k != "like"}}
     missing = [name for name in by_name if name not in values]
     if missing:
         raise CatalogError(f"{where}: key {missing[0]!r}: missing (give every parameter, or like = an existing "
@@ -193,6 +194,8 @@ def _comment(f) -> str:
     lo, hi = meta["range"]
     if lo is not None:
         parts.append(f"range {lo} to {hi}" + (", min <= max" if meta["ordered"] else ""))
+    if f.default is not MISSING:
+        parts.append(f"default {f.default}")
     return "# " + "; ".join(parts)
 
 

@@ -1,7 +1,9 @@
 """Select frames from a manifest and draw seeded, stratified samples.
 
-Filters: domains (the selection grammar), split, episode, class presence and
-minimum class share. Sampling: N frames per scenario, or N in total spread
+Filters: domains (the selection grammar), split, episode, class presence,
+minimum class share and the per-frame conditions (``manifests.conditions``:
+a minimum or maximum of e.g. fog_density; rows without conditions, from older
+roots, never pass one). Sampling: N frames per scenario, or N in total spread
 over scenarios in proportion to what each has. Presets give the paper's
 "best case" and "worst case" subsets.
 """
@@ -19,6 +21,7 @@ import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
 from manifests.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario
+from manifests.conditions import check_condition
 from manifests.outputs import OUTPUTS
 from manifests.schema import output_columns
 from manifests.selection import parse_selection
@@ -34,6 +37,8 @@ class Query:
     episodes: tuple[int, ...] = ()  # empty: any episode
     classes: tuple[str, ...] = ()  # each frame must contain all of these
     min_share: tuple[tuple[str, float], ...] = ()  # (class, minimum share in [0, 1])
+    min_condition: tuple[tuple[str, float], ...] = ()  # (condition column, minimum value), inclusive
+    max_condition: tuple[tuple[str, float], ...] = ()  # (condition column, maximum value), inclusive
     per_scenario: int | None = None  # sample this many frames per scenario
     total: int | None = None  # or this many in total, stratified by scenario
     seed: int = 0
@@ -49,6 +54,10 @@ class Query:
             class_id(name)
             if not 0.0 <= share <= 1.0:
                 raise ValueError(f"minimum share of {name} must be in [0, 1], got {share}")
+        for name, value in self.min_condition + self.max_condition:
+            check_condition(name)
+            if not math.isfinite(value):
+                raise ValueError(f"the bound on {name} must be a finite number, got {value}")
         if self.per_scenario is not None and self.total is not None:
             raise ValueError("give either a per-scenario or a total sample size, not both")
         for label, n in (("per-scenario sample", self.per_scenario), ("total sample", self.total)):
@@ -108,6 +117,13 @@ def filter_frames(table_or_dataset, query: Query) -> pa.Table:
         for name, share in query.min_share:
             frac = pc.divide(pc.cast(table.column(NAME2LABEL[name].column), pa.float64()), pc.cast(pixels, pa.float64()))
             mask = pc.and_(mask, pc.greater_equal(frac, share))
+        table = table.filter(mask)
+    if query.min_condition or query.max_condition:
+        mask = pa.array(np.ones(len(table), dtype=bool))
+        for bounds, compare in ((query.min_condition, pc.greater_equal), (query.max_condition, pc.less_equal)):
+            for name, value in bounds:
+                passed = compare(pc.cast(table.column(name), pa.float64()), value)
+                mask = pc.and_(mask, pc.fill_null(passed, False))  # null: a row from before the columns
         table = table.filter(mask)
     return table.sort_by([("scenario", "ascending"), ("episode", "ascending"), ("frame", "ascending")])
 

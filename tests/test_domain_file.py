@@ -33,13 +33,16 @@ TOWNS_REF = (
     ('T06', 'Town06', 5.2, 'suburban industrial', 2, 120.0, (5.0, 12.0), 0.65, 0.4, 0.8, False, True, False, True, True),
     ('T07', 'Town07', 11.0, 'farmland', 1, 150.0, (4.0, 9.0), 0.15, 0.8, 0.15, False, True, False, False, False),
 )
+# Parameters added with fog, night and snow (snowfall, snow_cover, street_lights, car_lights): their
+# defaults, which the paper's three weathers keep.
+NEW_WEATHER_DEFAULTS = (0.0, 0.0, 0.0, 0.0)
 WEATHERS_REF = (
     ('CN', 'ClearNoon', 65.0, 40.0, (1.0, 0.98, 0.94), 4.0, 0.45, (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0,
-     0.02, (1.0, 1.0, 1.0), 'o'),
+     0.02, (1.0, 1.0, 1.0), 'o', *NEW_WEATHER_DEFAULTS),
     ('CS', 'ClearSunset', 15.0, 200.0, (1.0, 0.86, 0.72), 3.6, 0.5, (78, 104, 170), (240, 182, 148), 0.15, 0.0, 0.0,
-     0.0, 0.04, (1.03, 0.99, 0.95), 's'),
+     0.0, 0.04, (1.03, 0.99, 0.95), 's', *NEW_WEATHER_DEFAULTS),
     ('HRN', 'HardRainNoon', 75.0, 40.0, (0.88, 0.9, 0.94), 2.8, 1.0, (128, 133, 140), (170, 173, 178), 0.9, 0.6, 0.6,
-     0.2, 0.08, (0.96, 0.98, 1.0), '^'),
+     0.2, 0.08, (0.96, 0.98, 1.0), '^', *NEW_WEATHER_DEFAULTS),
 )
 VIEWPOINTS_REF = (
     ('A', 'Audi TT', 1.2, 0.1399, (196, 24, 28), 0.1, 0.45, (4.8, 2.0), (10.0, 14.0)),

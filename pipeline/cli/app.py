@@ -16,8 +16,8 @@ from pipeline.cli.progress import (
     verify_advice,
 )
 from pipeline.cli.common import (
-    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, OneLineUsageErrors, PerScenario, Preset, SampleSeed,
-    Splits, Total, build_query, count, output_root, user_errors, write_local,
+    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MaxCondition, MinCondition, MinShare, OneLineUsageErrors, PerScenario,
+    Preset, SampleSeed, Splits, Total, build_query, count, output_root, user_errors, write_local,
 )
 from manifests.outputs import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import require_outputs
@@ -272,6 +272,8 @@ def query(
     episode: list[int] = typer.Option([], help="Keep this episode index; repeatable."),
     has_class: HasClass = [],
     min_share: MinShare = [],
+    min_condition: MinCondition = [],
+    max_condition: MaxCondition = [],
     per_scenario: PerScenario = None,
     total: Total = None,
     seed: SampleSeed = None,
@@ -286,7 +288,8 @@ def query(
     from manifests.reader import scan_manifest
 
     with user_errors(), using(root_catalog(root, catalog)):
-        the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
+        the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode),
+                                min_condition, max_condition)
         storage = output_root(root)
         result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
         for code, missing in sorted(result.shortfall.items()):

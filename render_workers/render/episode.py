@@ -31,6 +31,7 @@ from typing import Callable
 import numpy as np
 
 from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using
+from manifests.conditions import frame_conditions
 from manifests.geometry import CV_FROM_GL, normals_from_depth, pose_cells
 from manifests.objects import object_counts
 from manifests.spec import EpisodeSpec
@@ -198,6 +199,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
         camera_height_m=renderer.rig.viewpoint.camera_height_m,
         hood_fraction=measured_hood_fraction(result.hood_mask), ego_speed_mps=float(scene.ego.speed_mps),
         n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
+        conditions=frame_conditions(renderer.weather),
         **pose_cells(result.rig.K, result.world_from_camera @ CV_FROM_GL, ego_to_world, result.rig.cam_to_ego),
     )
     return frame, timings
