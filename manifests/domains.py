@@ -81,6 +81,11 @@ class Weather:
     street_lights: float = param("street lamps and lit windows (0 = off)", "share", 0.0, 1.0, default=0.0)
     car_lights: float = param("headlights and tail lights of the ego and other cars (0 = off)", "share",
                               0.0, 1.0, default=0.0)
+    # A shift inside an episode (manifests.shifts): frame i is rendered under the parameters of
+    # shift_from blended towards shift_to by easing(i / (frames - 1)). Written `from` and `to` in files.
+    shift_from: str = param("weather the episode starts in (\"\" = no shift)", default="")
+    shift_to: str = param("weather the episode ends in", default="")
+    easing: str = param("how the shift runs over the episode: linear or smoothstep", default="linear")
 
     @property
     def precipitation(self) -> float:

@@ -33,9 +33,9 @@ TOWNS_REF = (
     ('T06', 'Town06', 5.2, 'suburban industrial', 2, 120.0, (5.0, 12.0), 0.65, 0.4, 0.8, False, True, False, True, True),
     ('T07', 'Town07', 11.0, 'farmland', 1, 150.0, (4.0, 9.0), 0.15, 0.8, 0.15, False, True, False, False, False),
 )
-# Parameters added with fog, night and snow (snowfall, snow_cover, street_lights, car_lights): their
-# defaults, which the paper's three weathers keep.
-NEW_WEATHER_DEFAULTS = (0.0, 0.0, 0.0, 0.0)
+# Parameters added with fog, night, snow and shifts (snowfall, snow_cover, street_lights, car_lights,
+# shift_from, shift_to, easing): their defaults, which the paper's three weathers keep.
+NEW_WEATHER_DEFAULTS = (0.0, 0.0, 0.0, 0.0, "", "", "linear")
 WEATHERS_REF = (
     ('CN', 'ClearNoon', 65.0, 40.0, (1.0, 0.98, 0.94), 4.0, 0.45, (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0,
      0.02, (1.0, 1.0, 1.0), 'o', *NEW_WEATHER_DEFAULTS),
@@ -106,13 +106,13 @@ def test_like_derives_and_user_entries_come_after_the_builtin_ones():
     cn = BUILTIN.by_code("weather")["CN"]
     assert (fg.sun_elevation_deg, fg.fog, fg.name) == (35.0, 0.6, "FoggyNoon")
     assert (fg.sky_zenith, fg.light_intensity, fg.marker) == (cn.sky_zenith, cn.light_intensity, cn.marker)
-    assert [w.code for w in cat.weathers] == ["CN", "CS", "HRN", "FG", "NT", "SN", "FG1"]
+    assert [w.code for w in cat.weathers] == ["CN", "CS", "HRN", "FG", "NT", "SN", "CNtoNT", "CNtoFG", "CNtoHRN", "FG1"]
     assert cat.by_code("viewpoint")["A"].camera_height_m == 1.3 and cat.place("viewpoint", "A") == 0
     assert cat.by_code("viewpoint")["A"].vehicle == "Audi TT"  # an override keeps what it does not give
     assert [(axis, [r.code for r in rows]) for axis, rows in cat.layer] == [("weather", ["FG1"]), ("viewpoint", ["A"])]
     with using(cat):
         assert scenario("T01_FG1_A").key == (0, 3, 0)
-        assert len(parse_selection("all")) == 105 and len(parse_selection("catalog")) == 7 * 7 * 5
+        assert len(parse_selection("all")) == 105 and len(parse_selection("catalog")) == 7 * 10 * 5
         assert [s.code for s in parse_selection("weathers=fg1 towns=T02 viewpoints=B")] == ["T02_FG1_B"]
         builtin_seeds = [episode_seed(5, s, 1) for s in ALL_SCENARIOS]
     assert builtin_seeds == [episode_seed(5, s, 1) for s in ALL_SCENARIOS]  # user entries move no built-in seed
@@ -199,7 +199,7 @@ def test_a_user_town_is_planned_and_built_under_its_own_cache_key(tmp_path, monk
         plan = make_plan(PlanConfig(domains="towns=T09,T02 weathers=CN viewpoints=A", frames_per_scenario=2,
                                     catalog=cat.layer_json()))
         assert [e.scenario for e in plan.episodes] == ["T02_CN_A", "T09_CN_A"]
-        assert plan.episodes[0].seed == episode_seed(0, scenario("T02_CN_A"), 0, PAIRED)  # an override keeps T02's place
+        assert plan.episodes[0].seed == episode_seed(0, scenario("T02_CN_A"), 0, PAIRED)  # T02's place kept
         world = cached_world("test", "T09", town_seed(0, t09), catalog.town_variant(t09))
         plain = cached_world("test", "T01", town_seed(0, TOWNS[0]))
     assert world is not plain and plan.episodes[1].catalog == cat.layer_json() != ""
