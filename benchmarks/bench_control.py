@@ -32,7 +32,8 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from manifests.catalog import INSTANCE_LABELS, LABELS
+from manifests.catalog import INSTANCE_LABELS, LABELS, weather
+from manifests.conditions import frame_conditions
 from manifests.geometry import HFOV_DEG, flat, intrinsics
 from manifests.schema import STATS_DIR
 from manifests.writer import frame_row
@@ -61,6 +62,7 @@ def _standin_frame(spec, index: int) -> SimpleNamespace:
         camera_height_m=1.5, hood_fraction=0.0, ego_speed_mps=0.0, n_vehicles=20, n_pedestrians=0,
         K=flat(intrinsics(spec.width, spec.height, HFOV_DEG)), cam_to_world=flat(np.eye(4)),
         ego_to_world=flat(np.eye(4)), cam_to_ego=flat(np.eye(4)),
+        conditions=frame_conditions(weather(spec.weather)),
     )
 
 

@@ -131,9 +131,14 @@ def _load_builtin() -> Catalog:
 
 
 BUILTIN: Catalog = _load_builtin()
+# The paper's domains: every town and viewpoint of the file, and its first three weathers (CN, CS, HRN).
+# The weathers appended after them (FG, NT, SN, ...) are built in but beyond the paper: `all` and the
+# tables below leave them out; `catalog`, or naming them, selects them (EXTRA_WEATHERS).
+PAPER_WEATHER_COUNT = 3
 TOWNS: tuple[Town, ...] = BUILTIN.towns
-WEATHERS: tuple[Weather, ...] = BUILTIN.weathers
+WEATHERS: tuple[Weather, ...] = BUILTIN.weathers[:PAPER_WEATHER_COUNT]
 VIEWPOINTS: tuple[Viewpoint, ...] = BUILTIN.viewpoints
+EXTRA_WEATHERS: frozenset[str] = frozenset(w.code for w in BUILTIN.weathers[PAPER_WEATHER_COUNT:])
 
 AXIS_TABLES: dict[str, tuple] = dict(zip(AXES, (TOWNS, WEATHERS, VIEWPOINTS)))  # each axis's table, in AXES order
 TOWN_BY_CODE = {t.code: t for t in TOWNS}
@@ -194,6 +199,13 @@ def town_variant(row: Town) -> str:
 # --------------------------------------------------------------------------
 
 
+def _weather_seed_place(cat: Catalog, code: str) -> int:
+    """A weather's place in its table with the built-in extras (FG, NT, SN, ...) moved to the end."""
+    codes = [w.code for w in cat.weathers]
+    order = [c for c in codes if c not in EXTRA_WEATHERS] + [c for c in codes if c in EXTRA_WEATHERS]
+    return order.index(code)
+
+
 def split_code(code: str) -> tuple[str, ...]:
     """``T01_CS_A`` -> ``("T01", "CS", "A")``, one part per axis; ValueError if malformed."""
     parts = code.split(CODE_SEPARATOR)
@@ -228,9 +240,13 @@ class Scenario:
     @property
     def key(self) -> tuple[int, int, int]:
         """Stable numeric identity (table positions in the catalog in force), used to derive seeds.
-        User entries come after the built-in ones, so a built-in scenario's key never changes."""
+        User entries come after the built-in ones, so a built-in scenario's key never changes. The
+        built-in weathers beyond the paper (EXTRA_WEATHERS) count after a file's entries, so a user
+        weather keeps the place it had before they were built in (its old roots, its old seeds)."""
         cat = active()
-        return tuple(cat.place(axis, row.code) for axis, row in zip(AXES, (self.town, self.weather, self.viewpoint)))
+        town, weather, view = (cat.place(axis, row.code) for axis, row in zip(AXES, (self.town, self.weather,
+                                                                                        self.viewpoint)))
+        return town, _weather_seed_place(cat, self.weather.code), view
 
     def __str__(self) -> str:
         return self.code
@@ -240,6 +256,9 @@ ALL_SCENARIOS: tuple[Scenario, ...] = tuple(
     Scenario(t, w, v) for t in TOWNS for w in WEATHERS for v in VIEWPOINTS
 )
 SCENARIO_BY_CODE = {s.code: s for s in ALL_SCENARIOS}
+BUILTIN_SCENARIOS: tuple[Scenario, ...] = tuple(  # the paper's and the extra weathers'
+    Scenario(t, w, v) for t in BUILTIN.towns for w in BUILTIN.weathers for v in BUILTIN.viewpoints
+)
 
 
 def scenario(code: str) -> Scenario:
@@ -256,5 +275,5 @@ def all_scenarios(cat: Catalog | None = None) -> tuple[Scenario, ...]:
     """Every scenario of a catalog (default: the one in force), in table order."""
     cat = cat or active()
     if cat is BUILTIN:
-        return ALL_SCENARIOS
+        return BUILTIN_SCENARIOS
     return tuple(Scenario(t, w, v) for t in cat.towns for w in cat.weathers for v in cat.viewpoints)

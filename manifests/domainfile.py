@@ -19,10 +19,11 @@ import math
 import re
 import tomllib
 import typing
-from dataclasses import fields
+from dataclasses import MISSING, fields
 from functools import lru_cache
 
 from manifests.domains import AXES, ROW_TYPES, Catalog, row_dict
+from manifests.shifts import check_shift
 
 CODE_PATTERN = re.compile(r"[A-Za-z0-9]+")  # no "_" (joins a scenario code), no "-" (ranges), no "*" (wildcards)
 HEADER = """\
@@ -63,6 +64,8 @@ def _scalar(kind, value, where: str):
 def coerce(f, kind, value, where: str):
     """``value`` (as TOML or JSON holds it) as field ``f`` of type ``kind`` holds it; CatalogError if it cannot."""
     lo, hi = f.metadata["range"]
+    if kind is str and value == "" and f.default == "":  # an optional text parameter left empty
+        return value
     if typing.get_origin(kind) is tuple:
         parts = typing.get_args(kind)
         if not isinstance(value, (list, tuple)) or len(value) != len(parts):
@@ -89,9 +92,16 @@ def _check_code(code, where: str, known: dict[str, str]) -> str:
     return code
 
 
+# Keys a file writes for fields whose names are not TOML-friendly or clear: key -> field (weathers' shifts).
+KEY_ALIASES = {"from": "shift_from", "to": "shift_to"}
+_FIELD_KEYS = {name: key for key, name in KEY_ALIASES.items()}
+
+
 def resolve_entry(axis: str, entry: dict, base: dict, where: str):
     """One entry of a file as a row: its ``like`` (or the existing entry of its code) overridden by its keys."""
     cls = ROW_TYPES[axis]
+    if axis == "weather":
+        entry = {KEY_ALIASES.get(k, k): v for k, v in entry.items()}
     hints, by_name = _hints(cls), {f.name: f for f in fields(cls)}
     unknown = [k for k in entry if k not in by_name and k != "like"]
     if unknown:
@@ -106,7 +116,8 @@ def resolve_entry(axis: str, entry: dict, base: dict, where: str):
         start = row_dict(base[like])
     elif code in base:
         start = row_dict(base[code])
-    values = {**start, **{k: v for k, v in entry.items() if k != "like"}}
+    defaults = {name: f.default for name, f in by_name.items() if f.default is not MISSING}
+    values = {**defaults, **start, **{k: v for k, v in entry.items() if k != "like"}}
     missing = [name for name in by_name if name not in values]
     if missing:
         raise CatalogError(f"{where}: key {missing[0]!r}: missing (give every parameter, or like = an existing "
@@ -139,6 +150,8 @@ def rows_from_data(data: dict, base: Catalog, source: str) -> dict[str, list]:
             if code in seen:
                 raise CatalogError(f"{where}: key 'code': duplicate code {code!r} (declared twice in this file)")
             row = resolve_entry(axis, entry, known, where)
+            if axis == "weather" and (why := check_shift(row, known)):
+                raise CatalogError(f"{where}: {why}")
             seen.add(code)
             folded[code.upper()] = code
             known[code] = row
@@ -193,6 +206,8 @@ def _comment(f) -> str:
     lo, hi = meta["range"]
     if lo is not None:
         parts.append(f"range {lo} to {hi}" + (", min <= max" if meta["ordered"] else ""))
+    if f.default is not MISSING:
+        parts.append(f"default {f.default}")
     return "# " + "; ".join(parts)
 
 
@@ -204,6 +219,6 @@ def catalog_toml(catalog: Catalog) -> str:
             out.append(f"[[{axis}]]")
             for f in fields(row):
                 out.append(_comment(f))
-                out.append(f"{f.name} = {_toml_value(getattr(row, f.name))}")
+                out.append(f"{_FIELD_KEYS.get(f.name, f.name)} = {_toml_value(getattr(row, f.name))}")
             out.append("")
     return "\n".join(out)

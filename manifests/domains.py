@@ -17,17 +17,20 @@ from __future__ import annotations
 
 import json
 import zlib
-from dataclasses import astuple, dataclass, field, fields
+from dataclasses import MISSING, astuple, dataclass, field, fields
 from functools import cached_property
 
 RGB = tuple[int, int, int]
 AXES: tuple[str, ...] = ("town", "weather", "viewpoint")  # the order of a scenario code's parts
 
 
-def param(meaning: str, unit: str = "", lo: float | None = None, hi: float | None = None, ordered: bool = False):
+def param(meaning: str, unit: str = "", lo: float | None = None, hi: float | None = None, ordered: bool = False,
+          default=MISSING):
     """A row field with its documentation: meaning, unit, inclusive range [lo, hi] (numbers, and each
-    element of a tuple); ``ordered``: a (min, max) pair whose first element may not exceed the second."""
-    return field(metadata={"meaning": meaning, "unit": unit, "range": (lo, hi), "ordered": ordered})
+    element of a tuple); ``ordered``: a (min, max) pair whose first element may not exceed the second.
+    ``default``: parameters added after the first catalog have one (it leaves older entries, and run
+    records that lack the key, as they were), so a file may leave them out."""
+    return field(default=default, metadata={"meaning": meaning, "unit": unit, "range": (lo, hi), "ordered": ordered})
 
 
 @dataclass(frozen=True)
@@ -72,6 +75,22 @@ class Weather:
     fog: float = param("contrast loss per 1000 m", "share per km", 0.0, 1.0)
     grading: tuple[float, float, float] = param("per-channel colour grading gain", "gain", 0.0, 2.0)
     marker: str = param("matplotlib marker of the weather in plots")
+    # Added with fog, night and snow (issue 25); the defaults leave the paper's three weathers as they were.
+    snowfall: float = param("falling snow flake intensity", "share", 0.0, 1.0, default=0.0)
+    snow_cover: float = param("snow on up-facing ground, roofs and vegetation", "share", 0.0, 1.0, default=0.0)
+    street_lights: float = param("street lamps and lit windows (0 = off)", "share", 0.0, 1.0, default=0.0)
+    car_lights: float = param("headlights and tail lights of the ego and other cars (0 = off)", "share",
+                              0.0, 1.0, default=0.0)
+    # A shift inside an episode (manifests.shifts): frame i is rendered under the parameters of
+    # shift_from blended towards shift_to by easing(i / (frames - 1)). Written `from` and `to` in files.
+    shift_from: str = param("weather the episode starts in (\"\" = no shift)", default="")
+    shift_to: str = param("weather the episode ends in", default="")
+    easing: str = param("how the shift runs over the episode: linear or smoothstep", default="linear")
+
+    @property
+    def precipitation(self) -> float:
+        """Rain or snowfall intensity, whichever is stronger (share 0-1)."""
+        return max(self.rain, self.snowfall)
 
 
 @dataclass(frozen=True)

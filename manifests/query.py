@@ -1,7 +1,9 @@
 """Select frames from a manifest and draw seeded, stratified samples.
 
-Filters: domains (the selection grammar), split, episode, class presence and
-minimum class share. Sampling: N frames per scenario, or N in total spread
+Filters: domains (the selection grammar), split, episode, class presence,
+minimum class share and the per-frame conditions (``manifests.conditions``:
+a minimum or maximum of e.g. fog_density; rows without conditions, from older
+roots, never pass one). Sampling: N frames per scenario, or N in total spread
 over scenarios in proportion to what each has. Presets give the paper's
 "best case" and "worst case" subsets.
 """
@@ -11,6 +13,7 @@ from __future__ import annotations
 import io
 import json
 import math
+from collections import Counter
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -18,7 +21,8 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
-from manifests.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario
+from manifests.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario, weather
+from manifests.conditions import check_condition
 from manifests.outputs import OUTPUTS
 from manifests.schema import output_columns
 from manifests.selection import parse_selection
@@ -34,6 +38,9 @@ class Query:
     episodes: tuple[int, ...] = ()  # empty: any episode
     classes: tuple[str, ...] = ()  # each frame must contain all of these
     min_share: tuple[tuple[str, float], ...] = ()  # (class, minimum share in [0, 1])
+    min_condition: tuple[tuple[str, float], ...] = ()  # (condition column, minimum value), inclusive
+    max_condition: tuple[tuple[str, float], ...] = ()  # (condition column, maximum value), inclusive
+    paired: tuple[str, ...] = ()  # weathers: keep frames present under all of them (the same scene), aligned
     per_scenario: int | None = None  # sample this many frames per scenario
     total: int | None = None  # or this many in total, stratified by scenario
     seed: int = 0
@@ -49,6 +56,16 @@ class Query:
             class_id(name)
             if not 0.0 <= share <= 1.0:
                 raise ValueError(f"minimum share of {name} must be in [0, 1], got {share}")
+        for name, value in self.min_condition + self.max_condition:
+            check_condition(name)
+            if not math.isfinite(value):
+                raise ValueError(f"the bound on {name} must be a finite number, got {value}")
+        for code in self.paired:
+            weather(code)
+        if len(set(self.paired)) != len(self.paired) or len(self.paired) == 1:
+            raise ValueError(f"pairs need two or more different weathers, got {', '.join(self.paired)}")
+        if self.paired and (self.per_scenario is not None or self.total is not None):
+            raise ValueError("pairs are whole: give either weathers to pair or a sample size, not both")
         if self.per_scenario is not None and self.total is not None:
             raise ValueError("give either a per-scenario or a total sample size, not both")
         for label, n in (("per-scenario sample", self.per_scenario), ("total sample", self.total)):
@@ -109,6 +126,13 @@ def filter_frames(table_or_dataset, query: Query) -> pa.Table:
             frac = pc.divide(pc.cast(table.column(NAME2LABEL[name].column), pa.float64()), pc.cast(pixels, pa.float64()))
             mask = pc.and_(mask, pc.greater_equal(frac, share))
         table = table.filter(mask)
+    if query.min_condition or query.max_condition:
+        mask = pa.array(np.ones(len(table), dtype=bool))
+        for bounds, compare in ((query.min_condition, pc.greater_equal), (query.max_condition, pc.less_equal)):
+            for name, value in bounds:
+                passed = compare(pc.cast(table.column(name), pa.float64()), value)
+                mask = pc.and_(mask, pc.fill_null(passed, False))  # null: a row from before the columns
+        table = table.filter(mask)
     return table.sort_by([("scenario", "ascending"), ("episode", "ascending"), ("frame", "ascending")])
 
 
@@ -125,9 +149,31 @@ def _allocate(total: int, available: dict[str, int]) -> dict[str, int]:
     return counts
 
 
+PAIR_KEY = ("town", "viewpoint", "episode", "frame")  # what a frame's paired frames share
+
+
+def paired_frames(table: pa.Table, weathers: tuple[str, ...]) -> pa.Table:
+    """The rows of ``table`` (manifest rows) whose frame is present under every one of ``weathers``
+    with the same episode seed (the same scene: a paired root, manifests.spec), sorted so each
+    group of len(weathers) rows is one frame under the weathers in the order given."""
+    table = table.filter(pc.is_in(table.column("weather"), pa.array(list(weathers))))
+    if len(table) == 0:
+        return table
+    keys = list(zip(*(table.column(k).to_pylist() for k in (*PAIR_KEY, "seed"))))
+    present = Counter(keys)  # one row per weather: (town, viewpoint, episode, frame) is unique per scenario
+    table = table.filter(pa.array([present[k] == len(weathers) for k in keys], pa.bool_()))
+    rank = pa.array([weathers.index(w) for w in table.column("weather").to_pylist()], pa.int32())
+    table = table.append_column("_rank", rank)
+    order = [(k, "ascending") for k in PAIR_KEY] + [("_rank", "ascending")]
+    return table.sort_by(order).drop_columns(["_rank"])
+
+
 def run_query(table_or_dataset, query: Query) -> QueryResult:
-    """Filter, then draw the seeded stratified sample the query asks for."""
+    """Filter, then draw the seeded stratified sample the query asks for (or keep the pairs asked for)."""
     table = filter_frames(table_or_dataset, query)
+    if query.paired:
+        table = paired_frames(table, query.paired)
+        return QueryResult(table, len(table))
     matched = len(table)
     if query.per_scenario is None and query.total is None:
         return QueryResult(table, matched)

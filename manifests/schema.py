@@ -8,6 +8,7 @@ import re
 import pyarrow as pa
 
 from manifests.catalog import AXES, INSTANCE_LABELS, LABELS, code_axes
+from manifests.conditions import CONDITIONS
 from manifests.outputs import OUTPUTS
 
 # ---------------------------------------------------------------- plan ----
@@ -63,6 +64,9 @@ _FRAME_FIELDS = [
     ("cam_to_world", pa.list_(pa.float64()), "frame"),  # 4x4
     ("ego_to_world", pa.list_(pa.float64()), "frame"),  # 4x4, the ego's reference point on the road
     ("cam_to_ego", pa.list_(pa.float64()), "frame"),  # 4x4, fixed per viewpoint
+    # The weather the frame was rendered under (manifests.conditions: units there and in docs/weathers.md).
+    # Null in roots written before they existed.
+    *((c.column, pa.float32(), "condition") for c in CONDITIONS),
 ]
 FIELD_SOURCE = {name: source for name, _, source in _FRAME_FIELDS}
 # An output a run did not ask for has null path, size and checksum.

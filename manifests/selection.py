@@ -9,6 +9,10 @@ A selection is a list of clauses separated by spaces or semicolons:
   variable that came out empty must not turn a run into all 105 scenarios.
 * Scenario codes, comma-separated, e.g. ``T01_CS_A,T01_CS_J``. Any part may be
   ``*``: ``T07_HRN_*`` is the five viewpoints of T07 in hard rain.
+* The built-in weathers beyond the paper (``manifests.catalog.EXTRA_WEATHERS``:
+  FG, NT, SN, ...) are selected only when named (``T01_FG_A``, ``weathers=NT``)
+  or by ``catalog``: a ``*`` or an axis left open covers the paper's weathers and
+  a domain file's, so selections written before they existed choose the same.
 * Axis filters ``towns=...``, ``weathers=...``, ``viewpoints=...`` (singular
   forms work too). Values are comma-separated codes; a range ``T01-T06``
   covers the codes between two ends in table order.
@@ -23,7 +27,7 @@ from __future__ import annotations
 
 import re
 
-from manifests.catalog import ALL_SCENARIOS, AXES, CODE_SEPARATOR, Scenario, active, all_scenarios
+from manifests.catalog import ALL_SCENARIOS, AXES, CODE_SEPARATOR, EXTRA_WEATHERS, Scenario, active, all_scenarios
 
 # One-line help for --domains, shared by every command.
 SELECTION_HELP = (
@@ -91,7 +95,7 @@ def _match_code(pattern: str) -> list[Scenario]:
         for s in all_scenarios()
         if all(
             p in ("*", c) for p, c in zip(parts, (s.town.code, s.weather.code, s.viewpoint.code))
-        )
+        ) and (parts[1] != "*" or s.weather.code not in EXTRA_WEATHERS)
     ]
 
 
@@ -127,7 +131,9 @@ def parse_selection(text: str) -> list[Scenario]:
             f"empty selection {text!r}: name scenarios (e.g. T01_CS_A or towns=T01), 'all' for the paper's 105 "
             f"or '{WHOLE_CATALOG}' for every scenario of the catalog"
         )
-    chosen = [s for s in all_scenarios() if from_codes is None or s.code in from_codes]
+    named = filters.get("weathers", set())
+    chosen = [s for s in all_scenarios() if s.code in from_codes] if from_codes is not None else [
+        s for s in all_scenarios() if s.weather.code not in EXTRA_WEATHERS or s.weather.code in named]
     axis_of = {"towns": "town", "weathers": "weather", "viewpoints": "viewpoint"}
     for axis, allowed in filters.items():
         chosen = [s for s in chosen if getattr(s, axis_of[axis]).code in allowed]

@@ -19,6 +19,14 @@ FRAME_PERIOD_S = 3.0  # the default frame interval: one frame every 3 s of simul
 MAX_FRAME_INTERVAL_S = 60.0
 _EPISODE_STREAM = 2  # rng stream ids keep seeds of different uses apart
 _TOWN_STREAM = 3
+_PAIRED_STREAM = 5
+# Pairing (docs/weathers.md, "Paired scenes"): in a paired root an episode's seed (traffic, spawn
+# point, motion) comes from the run seed, town, viewpoint and episode, not the weather, so the same
+# episode under every weather is the same scene and its labels match pixel for pixel. New roots are
+# paired (run.json's config records "pairing": 1); a root made before, without the key, keeps the
+# old per-weather seeds (UNPAIRED) for its life.
+UNPAIRED, PAIRED = 0, 1
+PAIRINGS = (UNPAIRED, PAIRED)
 
 
 def check_frame_interval(seconds: float) -> float:
@@ -34,10 +42,23 @@ def town_seed(run_seed: int, town: Town) -> int:
     return int(rng.integers(0, 2**63 - 1))
 
 
-def episode_seed(run_seed: int, scenario: Scenario, episode: int) -> int:
-    """Seed of one episode (traffic, spawn point); independent of the selection."""
-    rng = np.random.default_rng([run_seed, _EPISODE_STREAM, *scenario.key, episode])
+def episode_seed(run_seed: int, scenario: Scenario, episode: int, pairing: int = UNPAIRED) -> int:
+    """Seed of one episode (traffic, spawn point); independent of the selection. ``pairing``:
+    PAIRED leaves the weather out (the same scene under every weather), UNPAIRED (roots made
+    before pairing) keeps it in."""
+    if pairing == PAIRED:
+        cat = active()
+        key = [cat.place("town", scenario.town.code), cat.place("viewpoint", scenario.viewpoint.code)]
+        rng = np.random.default_rng([run_seed, _PAIRED_STREAM, *key, episode])
+    else:
+        rng = np.random.default_rng([run_seed, _EPISODE_STREAM, *scenario.key, episode])
     return int(rng.integers(0, 2**63 - 1))
+
+
+def check_pairing(pairing) -> int:
+    if isinstance(pairing, bool) or pairing not in PAIRINGS:
+        raise ValueError(f"unknown pairing {pairing!r} (known: {', '.join(map(str, PAIRINGS))})")
+    return pairing
 
 
 @dataclass(frozen=True)

@@ -11,7 +11,9 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import INSTANCE_LABELS, LABELS, using, viewpoint
+from manifests.catalog import INSTANCE_LABELS, LABELS, using, viewpoint, weather
+from manifests.conditions import frame_conditions
+from manifests.shifts import weather_at
 from manifests.geometry import HFOV_DEG, flat, intrinsics
 from manifests.outputs import OUTPUTS
 from manifests.layout import frame_path
@@ -28,6 +30,8 @@ def episode_table(spec) -> pa.Table:
     pixels = spec.width * spec.height
     with using(spec.catalog):
         view = viewpoint(spec.viewpoint)
+        row = weather(spec.weather)
+        conditions = [frame_conditions(weather_at(row, i, n, weather)) for i in range(n)]
     counts = np.floor(rng.dirichlet(_SHARES * 200 + 1e-3, size=n) * pixels).astype(np.int64)
     counts[:, 20] += pixels - counts.sum(axis=1)  # remainder to sky
     fids = [frame_id(spec.episode, i) for i in range(n)]
@@ -49,6 +53,7 @@ def episode_table(spec) -> pa.Table:
         "height": np.full(n, spec.height, np.int32),
     }
     columns.update(_poses(spec, view.camera_height_m, spec.frame_interval_s * np.arange(n)))
+    columns.update({name: np.array([c[name] for c in conditions], np.float32) for name in conditions[0]})
     for output in OUTPUTS:
         path_col, bytes_col, sha_col = output_columns(output)
         columns[path_col] = [frame_path(spec.scenario, output, f, spec.rgb_format, spec.layout) for f in fids]

@@ -44,7 +44,7 @@ from manifests.root import root_entries
 from manifests.runrecord import RunRecordError, read_record
 from manifests.schema import (MANIFEST_DIR, PART_RE, PART_SCHEMA, RUN_FILE, frame_id, named_rows, newer_part,
                               output_columns, part_path)
-from manifests.spec import episode_seed
+from manifests.spec import UNPAIRED, episode_seed
 from manifests.writer import ManifestError, part_bytes, read_part_file
 from storage import StorageError, sha256_bytes
 
@@ -137,7 +137,7 @@ def config_conflict(width: int, height: int, seed: int, scenario: str, episode: 
     if (width, height) != (config["width"], config["height"]):
         return f"frames are {width}x{height}, run.json says {config['width']}x{config['height']}"
     with using(config.get("catalog")):  # the root's own domain entries (run.json), wherever this runs
-        derived = episode_seed(config["seed"], lookup_scenario(scenario), episode)
+        derived = episode_seed(config["seed"], lookup_scenario(scenario), episode, config.get("pairing", UNPAIRED))
     if seed != derived:
         return f"episode seed does not derive from run.json's seed {config['seed']}"
     return None

@@ -37,14 +37,16 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
 
     ``spec`` is the episode's ``EpisodeSpec``; ``frame`` a rendered frame
     (``render_workers.worlds.scene.Frame``: the FIELD_SOURCE "frame" columns as
-    attributes, ``index``, ``class_counts`` per class id and ``object_counts``
+    attributes, the "condition" columns in ``conditions``, ``index``, ``class_counts`` per class id and ``object_counts``
     per object column); ``files`` the bytes written per output (outputs not
     asked for get null columns)."""
     fid = frame_id(spec.episode, frame.index)
-    derived = {"frame_id": fid, "uid": frame_uid(spec.scenario, spec.episode, frame.index), "frame": frame.index}
+    derived = {"frame_id": fid, "uid": frame_uid(spec.scenario, spec.episode, frame.index), "frame": frame.index,
+               **frame.conditions}
     row = {}
     for name, source in FIELD_SOURCE.items():
-        row[name] = derived[name] if source == "derived" else getattr(spec if source == "spec" else frame, name)
+        row[name] = (derived[name] if source in ("derived", "condition")
+                     else getattr(spec if source == "spec" else frame, name))
     unknown = set(files) - set(OUTPUTS)
     if unknown:
         raise ManifestError(f"{spec.key} frame {frame.index}: unknown outputs {sorted(unknown)}")

@@ -20,7 +20,7 @@ from manifests.catalog import TOWN_BY_CODE, TOWNS, WEATHERS, VIEWPOINTS, Town, c
 from manifests.encoding import check_rgb_format
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
 from manifests.selection import parse_selection
-from manifests.spec import FRAME_PERIOD_S, EpisodeSpec, check_frame_interval, episode_seed
+from manifests.spec import FRAME_PERIOD_S, PAIRED, UNPAIRED, EpisodeSpec, check_frame_interval, check_pairing, episode_seed
 
 PAPER_TOTAL_FRAMES = 1_006_800
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
@@ -73,6 +73,10 @@ def split_episodes(frames: int, target: int) -> list[int]:
     return [base + (1 if i < extra else 0) for i in range(n)]
 
 
+# What a recorded config (run.json, a plan file) that lacks a key meant when it was written.
+RECORDED_DEFAULTS = {"pairing": UNPAIRED}
+
+
 @dataclass(frozen=True)
 class PlanConfig:
     """What the user asked for; validated before any work starts."""
@@ -87,6 +91,9 @@ class PlanConfig:
     rgb_format: str = "png"  # the rgb output's file format: png (lossless) or jpg (IDDA's released format)
     catalog: str = ""  # user domain entries in force (Catalog.layer_json; a dict when read back from JSON)
     frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (3 s: the paper's sparse sampling)
+    # manifests.spec.PAIRED (new roots): episode seeds leave the weather out; UNPAIRED is what a config
+    # recorded before pairing means (run.json or a plan file without the key: RECORDED_DEFAULTS)
+    pairing: int = PAIRED
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
@@ -120,6 +127,7 @@ class PlanConfig:
             raise ValueError(f"outputs must be listed once each in table order, got {', '.join(self.outputs)}")
         check_rgb_format(self.rgb_format)
         check_frame_interval(self.frame_interval_s)
+        check_pairing(self.pairing)
 
     def to_dict(self) -> dict:
         """As JSON holds it (run.json, plan files); the catalog only where user entries are in force."""
@@ -190,7 +198,7 @@ def _plan(config: PlanConfig) -> Plan:
                 EpisodeSpec(
                     scenario=scenario.code,
                     episode=index,
-                    seed=episode_seed(config.seed, scenario, index),
+                    seed=episode_seed(config.seed, scenario, index, config.pairing),
                     frames=frames,
                     width=config.width,
                     height=config.height,

@@ -27,10 +27,10 @@ from manifests.outputs import SEED_OUTPUTS
 from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE
 from manifests.spec import FRAME_PERIOD_S
-from pipeline.planner import PlanConfig
+from pipeline.planner import RECORDED_DEFAULTS, PlanConfig
 
 # Changing these would make new frames inconsistent with the ones on disk.
-FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s")
+FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s", "pairing")
 _PACKAGES = ("idda-pipeline", "numpy", "pyrender", "PyOpenGL", "trimesh", "ray", "pyarrow", "opencv-python-headless")
 
 
@@ -121,7 +121,7 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
             "frames would not match: use a new --out"
         )
     with using(plan.catalog):
-        derived = {key: episode_seed(plan.seed, lookup_scenario(key[0]), key[1]) for key in held}
+        derived = {key: episode_seed(plan.seed, lookup_scenario(key[0]), key[1], plan.pairing) for key in held}
     for (scenario, episode), summary in sorted(held.items()):
         for seed in summary.seeds:
             if derived[scenario, episode] != seed:
@@ -133,8 +133,10 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
 
 def _with_outputs(config: dict) -> dict:
     """A recorded config; roots from before ``--outputs`` hold the six seed outputs, roots
-    from before ``--rgb-format`` PNG rgb files, roots from before ``--frame-interval`` one frame every 3 s."""
-    return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", "frame_interval_s": FRAME_PERIOD_S, **config}
+    from before ``--rgb-format`` PNG rgb files, roots from before ``--frame-interval`` one frame every 3 s,
+    roots from before pairing per-weather episode seeds."""
+    return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", "frame_interval_s": FRAME_PERIOD_S,
+            **RECORDED_DEFAULTS, **config}
 
 
 def _fresh_record(new: dict, history: list[dict] | None = None, layout: int = NEW_ROOT_LAYOUT) -> dict:

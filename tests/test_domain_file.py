@@ -16,7 +16,7 @@ from manifests import catalog
 from manifests.catalog import ALL_SCENARIOS, BUILTIN, TOWNS, VIEWPOINTS, WEATHERS, scenario, using
 from manifests.domainfile import CatalogError, catalog_from_text, catalog_toml, with_file
 from manifests.selection import parse_selection
-from manifests.spec import episode_seed, town_seed
+from manifests.spec import PAIRED, UNPAIRED, episode_seed, town_seed
 from pipeline.cli import app
 from pipeline.planner import PlanConfig, make_plan
 
@@ -33,13 +33,16 @@ TOWNS_REF = (
     ('T06', 'Town06', 5.2, 'suburban industrial', 2, 120.0, (5.0, 12.0), 0.65, 0.4, 0.8, False, True, False, True, True),
     ('T07', 'Town07', 11.0, 'farmland', 1, 150.0, (4.0, 9.0), 0.15, 0.8, 0.15, False, True, False, False, False),
 )
+# Parameters added with fog, night, snow and shifts (snowfall, snow_cover, street_lights, car_lights,
+# shift_from, shift_to, easing): their defaults, which the paper's three weathers keep.
+NEW_WEATHER_DEFAULTS = (0.0, 0.0, 0.0, 0.0, "", "", "linear")
 WEATHERS_REF = (
     ('CN', 'ClearNoon', 65.0, 40.0, (1.0, 0.98, 0.94), 4.0, 0.45, (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0,
-     0.02, (1.0, 1.0, 1.0), 'o'),
+     0.02, (1.0, 1.0, 1.0), 'o', *NEW_WEATHER_DEFAULTS),
     ('CS', 'ClearSunset', 15.0, 200.0, (1.0, 0.86, 0.72), 3.6, 0.5, (78, 104, 170), (240, 182, 148), 0.15, 0.0, 0.0,
-     0.0, 0.04, (1.03, 0.99, 0.95), 's'),
+     0.0, 0.04, (1.03, 0.99, 0.95), 's', *NEW_WEATHER_DEFAULTS),
     ('HRN', 'HardRainNoon', 75.0, 40.0, (0.88, 0.9, 0.94), 2.8, 1.0, (128, 133, 140), (170, 173, 178), 0.9, 0.6, 0.6,
-     0.2, 0.08, (0.96, 0.98, 1.0), '^'),
+     0.2, 0.08, (0.96, 0.98, 1.0), '^', *NEW_WEATHER_DEFAULTS),
 )
 VIEWPOINTS_REF = (
     ('A', 'Audi TT', 1.2, 0.1399, (196, 24, 28), 0.1, 0.45, (4.8, 2.0), (10.0, 14.0)),
@@ -50,6 +53,7 @@ VIEWPOINTS_REF = (
 )
 # sha256 of make_plan's episodes (scenario, episode, seed, frames, split) for `all` at full scale (seed 0)
 # and at 130 frames per scenario (seed 7), and of the town seeds; computed with the Python tables.
+# Unpaired, as roots made before pairing keep (a paired plan leaves the weather out of the seeds).
 PLAN_DIGEST = "da7ebfe1539a68dd"
 
 FOG = """
@@ -82,7 +86,8 @@ def test_builtin_file_gives_the_python_tables_bit_for_bit():
 
 def test_plan_and_seeds_are_those_of_the_python_tables():
     digest = hashlib.sha256()
-    for cfg in (PlanConfig(domains="all", scale=1.0, seed=0), PlanConfig(domains="all", frames_per_scenario=130, seed=7)):
+    for cfg in (PlanConfig(domains="all", scale=1.0, seed=0, pairing=UNPAIRED),
+                PlanConfig(domains="all", frames_per_scenario=130, seed=7, pairing=UNPAIRED)):
         for e in make_plan(cfg).episodes:
             digest.update(repr((e.scenario, e.episode, e.seed, e.frames, e.split)).encode())
     digest.update(repr([town_seed(3, t) for t in TOWNS]).encode())
@@ -101,13 +106,13 @@ def test_like_derives_and_user_entries_come_after_the_builtin_ones():
     cn = BUILTIN.by_code("weather")["CN"]
     assert (fg.sun_elevation_deg, fg.fog, fg.name) == (35.0, 0.6, "FoggyNoon")
     assert (fg.sky_zenith, fg.light_intensity, fg.marker) == (cn.sky_zenith, cn.light_intensity, cn.marker)
-    assert [w.code for w in cat.weathers] == ["CN", "CS", "HRN", "FG1"]
+    assert [w.code for w in cat.weathers] == ["CN", "CS", "HRN", "FG", "NT", "SN", "CNtoNT", "CNtoFG", "CNtoHRN", "FG1"]
     assert cat.by_code("viewpoint")["A"].camera_height_m == 1.3 and cat.place("viewpoint", "A") == 0
     assert cat.by_code("viewpoint")["A"].vehicle == "Audi TT"  # an override keeps what it does not give
     assert [(axis, [r.code for r in rows]) for axis, rows in cat.layer] == [("weather", ["FG1"]), ("viewpoint", ["A"])]
     with using(cat):
         assert scenario("T01_FG1_A").key == (0, 3, 0)
-        assert len(parse_selection("all")) == 105 and len(parse_selection("catalog")) == 140
+        assert len(parse_selection("all")) == 105 and len(parse_selection("catalog")) == 7 * 10 * 5
         assert [s.code for s in parse_selection("weathers=fg1 towns=T02 viewpoints=B")] == ["T02_FG1_B"]
         builtin_seeds = [episode_seed(5, s, 1) for s in ALL_SCENARIOS]
     assert builtin_seeds == [episode_seed(5, s, 1) for s in ALL_SCENARIOS]  # user entries move no built-in seed
@@ -194,7 +199,7 @@ def test_a_user_town_is_planned_and_built_under_its_own_cache_key(tmp_path, monk
         plan = make_plan(PlanConfig(domains="towns=T09,T02 weathers=CN viewpoints=A", frames_per_scenario=2,
                                     catalog=cat.layer_json()))
         assert [e.scenario for e in plan.episodes] == ["T02_CN_A", "T09_CN_A"]
-        assert plan.episodes[0].seed == episode_seed(0, scenario("T02_CN_A"), 0)  # an override keeps T02's place
+        assert plan.episodes[0].seed == episode_seed(0, scenario("T02_CN_A"), 0, PAIRED)  # T02's place kept
         world = cached_world("test", "T09", town_seed(0, t09), catalog.town_variant(t09))
         plain = cached_world("test", "T01", town_seed(0, TOWNS[0]))
     assert world is not plain and plan.episodes[1].catalog == cat.layer_json() != ""

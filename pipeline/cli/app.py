@@ -4,20 +4,21 @@ call one function. Errors reach the user as one line and exit code 2."""
 from __future__ import annotations
 
 import logging
+from dataclasses import replace
 from pathlib import Path
 from typing import Optional
 
 import typer
 
 from pipeline.cli import data as cli_data, domains as cli_domains
-from pipeline.cli.domains import CatalogFile, domain_file, root_catalog
+from pipeline.cli.domains import CatalogFile, domain_file, root_catalog, root_pairing
 from pipeline.cli.progress import (
     ProgressDisplay, VerifyDisplay, format_interrupted, format_outage, format_produce_report, stop_signals,
     verify_advice,
 )
 from pipeline.cli.common import (
-    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, OneLineUsageErrors, PerScenario, Preset, SampleSeed,
-    Splits, Total, build_query, count, output_root, user_errors, write_local,
+    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MaxCondition, MinCondition, MinShare, OneLineUsageErrors, PerScenario,
+    Preset, SampleSeed, Splits, Total, build_query, count, output_root, user_errors, write_local,
 )
 from manifests.outputs import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import require_outputs
@@ -147,7 +148,7 @@ def produce(
         layer = root_catalog(out, catalog).layer_json()
         plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
                               height=height, seed=seed, outputs=parse_outputs(outputs), rgb_format=rgb_format,
-                              catalog=layer, frame_interval_s=frame_interval)
+                              catalog=layer, frame_interval_s=frame_interval, pairing=root_pairing(out))
         config = ProduceConfig(
             run=RunConfig(plan=plan_cfg, world=world),
             out=out,
@@ -272,6 +273,9 @@ def query(
     episode: list[int] = typer.Option([], help="Keep this episode index; repeatable."),
     has_class: HasClass = [],
     min_share: MinShare = [],
+    min_condition: MinCondition = [],
+    max_condition: MaxCondition = [],
+    paired: Optional[str] = typer.Option(None, "--paired", metavar="WEATHERS", help="Comma-separated weathers, e.g. CN,HRN,SN: keep the frames present under all of them (the same scene in a paired root), one group per frame, aligned by town, viewpoint, episode and frame."),
     per_scenario: PerScenario = None,
     total: Total = None,
     seed: SampleSeed = None,
@@ -286,7 +290,13 @@ def query(
     from manifests.reader import scan_manifest
 
     with user_errors(), using(root_catalog(root, catalog)):
-        the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode))
+        the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode),
+                                min_condition, max_condition)
+        if paired is not None:
+            chosen = tuple(w.strip() for w in paired.split(",") if w.strip())
+            # without --domains, every scenario of the catalog: 'all' would leave out FG, NT and SN
+            the_query = replace(the_query, paired=chosen, domains=the_query.domains if domains else "catalog")
+            the_query.validate()
         storage = output_root(root)
         result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
         for code, missing in sorted(result.shortfall.items()):

@@ -34,6 +34,12 @@ Splits = Annotated[list[str], typer.Option("--split", help="Keep frames of this 
 HasClass = Annotated[list[str], typer.Option("--has", help="Keep frames containing this class, e.g. --has rider; repeatable.")]
 MinShare = Annotated[list[str], typer.Option(
     "--min-share", help="CLASS=SHARE: keep frames where the class covers at least SHARE (0-1); repeatable.")]
+MinCondition = Annotated[list[str], typer.Option(
+    "--min-condition", help="NAME=VALUE: keep frames whose condition NAME is at least VALUE, e.g. fog_density=0.5 "
+    "(sun_altitude_deg, cloudiness, precipitation, fog_density, road_wetness, snow_cover); repeatable.")]
+MaxCondition = Annotated[list[str], typer.Option(
+    "--max-condition", help="NAME=VALUE: keep frames whose condition NAME is at most VALUE, e.g. "
+    "sun_altitude_deg=0 for night; repeatable.")]
 PerScenario = Annotated[Optional[int], typer.Option(help="Sample this many frames per scenario.")]
 Total = Annotated[Optional[int], typer.Option(help="Sample this many frames in total, stratified by scenario.")]
 SampleSeed = Annotated[Optional[int], typer.Option("--seed", help="Sampling seed (default 0).")]
@@ -113,6 +119,20 @@ def write_local(path: Path, data: bytes) -> None:
         tmp.unlink(missing_ok=True)
 
 
+def _pairs(items: list[str], option: str, form: str, value_rule: str) -> tuple[tuple[str, float], ...]:
+    """``NAME=NUMBER`` items of a repeatable option as (name, number) pairs; ValueError naming the option."""
+    pairs = []
+    for item in items:
+        name, sep, value = item.rpartition("=")
+        if not sep:
+            raise ValueError(f"{option} takes {form}, got {item!r}")
+        try:
+            pairs.append((name.strip(), float(value)))
+        except ValueError:
+            raise ValueError(f"{option} takes {form} with {value_rule}, got {item!r}") from None
+    return tuple(pairs)
+
+
 def build_query(
     preset: Optional[str],
     domains: Optional[str],
@@ -123,23 +143,19 @@ def build_query(
     total: Optional[int],
     seed: Optional[int],
     episode: tuple[int, ...] = (),
+    min_condition: list[str] = (),
+    max_condition: list[str] = (),
 ):
     """A validated Query from the shared query options (as in `idda query`)."""
     from manifests import query as q
 
-    shares = []
-    for item in min_share:
-        name, sep, value = item.rpartition("=")
-        if not sep:
-            raise ValueError(f"--min-share takes CLASS=SHARE, got {item!r}")
-        try:
-            shares.append((name, float(value)))
-        except ValueError:
-            raise ValueError(f"--min-share takes CLASS=SHARE with SHARE a number in [0, 1], got {item!r}") from None
+    shares = _pairs(min_share, "--min-share", "CLASS=SHARE", "SHARE a number in [0, 1]")
+    lows = _pairs(min_condition, "--min-condition", "NAME=VALUE", "VALUE a number")
+    highs = _pairs(max_condition, "--max-condition", "NAME=VALUE", "VALUE a number")
     fields = dict(
         domains=domains, splits=tuple(split) or None, episodes=tuple(episode) or None,
-        classes=tuple(has_class) or None,
-        min_share=tuple(shares) or None, per_scenario=per_scenario, total=total, seed=seed,
+        classes=tuple(has_class) or None, min_share=shares or None, min_condition=lows or None,
+        max_condition=highs or None, per_scenario=per_scenario, total=total, seed=seed,
     )
     if preset is not None:
         the_query = q.preset(preset, **fields)

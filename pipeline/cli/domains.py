@@ -57,6 +57,21 @@ def recorded_layer(root: str) -> dict | None:
     return (record or {}).get("config", {}).get("catalog")
 
 
+def root_pairing(root: str) -> int:
+    """The pairing of a root's episode seeds (manifests.spec): what its run.json records (absent: a root
+    from before pairing, UNPAIRED); PAIRED for a new root (or one whose record cannot be read: the
+    command then reports what is wrong with it)."""
+    from manifests.runrecord import RunRecordError, read_record
+    from manifests.spec import PAIRED, UNPAIRED
+    from storage import Storage, StorageError
+
+    try:
+        record = read_record(Storage.from_uri(root))
+    except (RunRecordError, StorageError, OSError, ValueError):
+        return PAIRED
+    return PAIRED if record is None else record["config"].get("pairing", UNPAIRED)
+
+
 def root_catalog(root: str | None, path: Path | None):
     """The catalog a command on ``root`` works with: the root's recorded entries, then the file's."""
     from manifests.catalog import catalog_for

@@ -30,7 +30,9 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using
+from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using, weather as lookup_weather
+from manifests.shifts import weather_at
+from manifests.conditions import frame_conditions
 from manifests.geometry import CV_FROM_GL, normals_from_depth, pose_cells
 from manifests.objects import object_counts
 from manifests.spec import EpisodeSpec
@@ -152,9 +154,16 @@ def _load_episode(spec: EpisodeSpec, renderer: Renderer, world: str) -> tuple[Ep
     return scene, timings
 
 
+def frame_weathers(spec: EpisodeSpec) -> list:
+    """The weather each frame of ``spec`` is rendered under: its scenario's, or a shift's at that frame."""
+    with using(spec.catalog):
+        row = lookup_scenario(spec.scenario).weather
+        return [weather_at(row, i, spec.frames, lookup_weather) for i in range(spec.frames)]
+
+
 def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, index: int) -> tuple[Frame, dict]:
     """Render frame ``index`` of a loaded episode; returns the frame and its stage timings."""
-    result = renderer.render(spec.frame_time(index))
+    result = renderer.render(spec.frame_time(index), frame_weathers(spec)[index])
     frame, timings = finish_frame(result, renderer, scene, spec, index)
     return frame, {**result.timings, **timings}
 
@@ -172,7 +181,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     start = time.perf_counter()
     ctx = postfx.FxContext(
         depth=buffers["depth"], classes=buffers["classes"], hood_mask=result.hood_mask, rig=result.rig,
-        world_from_camera=result.world_from_camera, weather=renderer.weather,
+        world_from_camera=result.world_from_camera, weather=result.weather,
         ego_speed_mps=scene.ego.speed_mps, sun_pixel=result.sun_pixel,
         rng=np.random.default_rng([spec.seed, _FX_STREAM, index]), episode_seed=spec.seed,
     )
@@ -198,6 +207,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
         camera_height_m=renderer.rig.viewpoint.camera_height_m,
         hood_fraction=measured_hood_fraction(result.hood_mask), ego_speed_mps=float(scene.ego.speed_mps),
         n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
+        conditions=frame_conditions(result.weather),
         **pose_cells(result.rig.K, result.world_from_camera @ CV_FROM_GL, ego_to_world, result.rig.cam_to_ego),
     )
     return frame, timings
@@ -226,6 +236,7 @@ def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: s
     thread."""
     renderer = renderer if renderer is not None else process_renderer()
     scene, timings = load_episode(spec, renderer, world)
+    weathers = frame_weathers(spec)
     for stage in FRAME_STAGES:
         timings[stage] = 0.0
     pending: deque[Future] = deque()
@@ -243,7 +254,7 @@ def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: s
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
         try:
             for index in range(spec.frames):
-                result = renderer.render(spec.frame_time(index))
+                result = renderer.render(spec.frame_time(index), weathers[index])
                 for stage, seconds in result.timings.items():
                     timings[stage] += seconds
                 while pending and pending[0].done():  # surface a sink error early

@@ -4,7 +4,8 @@ Each effect takes a float32 HxWx3 image in [0, 1] (sRGB) and an :class:`FxContex
 (the frame's depth, classes, camera, weather, ego speed and rng) and returns a
 new image. :data:`ORDER` applies them scene first (puddles, wet road, fog), then
 atmosphere (rain), then lens and camera (bloom, flare, motion blur), then the
-weather's colour grading. An effect whose weather strength is zero is a no-op.
+weather's colour grading. An effect whose weather strength is zero is a no-op. Snow cover,
+night lights and snowfall live in ``render_workers.render.weatherfx``.
 
 Randomness comes only from ``FxContext.rng`` (per frame) and
 ``FxContext.episode_seed`` (world-anchored puddles), so a frame is reproducible.
@@ -20,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from manifests.catalog import Weather, class_id
+from render_workers.render import weatherfx
 from render_workers.render.camera import CameraRig
 
 ROAD_IDS = np.array([class_id("road"), class_id("road line")])
@@ -172,7 +174,8 @@ def fog(img: np.ndarray, ctx: FxContext) -> np.ndarray:
         return img
     import cv2
 
-    transmittance = cv2.exp(ctx.depth * np.float32(math.log(1.0 - min(density, 0.999)) / 1000.0))
+    # dense fog (FG: 1 - 1e-5 per km) needs densities this close to 1; below 0.999 as it always was
+    transmittance = cv2.exp(ctx.depth * np.float32(math.log(1.0 - min(density, 1.0 - 1e-12)) / 1000.0))
     return _lerp(_flat(img.shape, np.asarray(ctx.weather.sky_horizon, np.float32) / 255.0), img, transmittance)
 
 
@@ -315,8 +318,11 @@ EFFECTS: dict[str, Effect] = {
     "antialias": antialias,
     "puddles": puddles,
     "wet_road": wet_road,
+    "snow_cover": weatherfx.snow_cover,
+    "night": weatherfx.night,
     "fog": fog,
     "rain": rain,
+    "snowfall": weatherfx.snowfall,
     "bloom": bloom,
     "lens_flare": lens_flare,
     "motion_blur": motion_blur,

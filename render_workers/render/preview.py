@@ -19,7 +19,7 @@ import numpy as np
 from manifests.catalog import active, scenario as lookup_scenario
 from manifests.outputs import SEED_OUTPUTS, encode_outputs
 from manifests.spec import EpisodeSpec
-from manifests.spec import episode_seed
+from manifests.spec import PAIRED, episode_seed
 from manifests.encoding import encode_png
 from render_workers.render.episode import DEFAULT_WORLD, render_episode
 from render_workers.render.renderer import Renderer
@@ -84,7 +84,7 @@ def render_first_frame(code: str, width: int, height: int, seed: int, world: str
                        renderer: Renderer | None = None) -> Frame:
     """Frame 0 of episode 0 of a scenario, seeded as a production run with ``seed`` would."""
     scen = lookup_scenario(code)
-    spec = EpisodeSpec(scenario=scen.code, episode=0, seed=episode_seed(seed, scen, 0), frames=1,
+    spec = EpisodeSpec(scenario=scen.code, episode=0, seed=episode_seed(seed, scen, 0, PAIRED), frames=1,
                        width=width, height=height, split="train", run_seed=seed, outputs=SEED_OUTPUTS,
                        catalog=active().layer_json())  # a --catalog file's entries
     frames: list[Frame] = []

@@ -107,8 +107,9 @@ class RenderResult:
 
     def __init__(self, *, rgba: np.ndarray, seg: np.ndarray, depth: np.ndarray, sky: Callable[[], np.ndarray],
                  zfar: float, world_from_camera: np.ndarray, rig: CameraRig,
-                 sun_pixel: tuple[float, float] | None, timings: dict) -> None:
+                 sun_pixel: tuple[float, float] | None, timings: dict, weather: Weather) -> None:
         self.world_from_camera = world_from_camera  # 4x4
+        self.weather = weather  # the parameters this frame was lit under (a shift's, at its time)
         self.rig = rig
         self.sun_pixel = sun_pixel  # sun position in pixels when in front of the camera
         self.timings = timings  # stage -> seconds, of the GL passes
@@ -243,8 +244,7 @@ class Renderer:
             self._static_world = scene.world
         self._actors, self._actor_of = self._build_actors(scene)
 
-        ambient = weather.ambient * np.asarray(weather.light_color)
-        prs = pr.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=ambient)
+        prs = pr.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=_ambient(weather))
         self.instances = episode_instances(scene, self._static_objects)
         static_ids = [i.id for i in self.instances if i.actor < 0]
         actor_ids = {(i.actor, i.class_id): i.id for i in self.instances if i.actor >= 0}
@@ -275,10 +275,24 @@ class Renderer:
         light = pr.DirectionalLight(color=np.asarray(weather.light_color),
                                     intensity=weather.light_intensity * SUN_SCALE)
         light.shadow_texture = passes.shadow_texture(self.shadow_map_px)
-        prs.add(light, pose=_look_along(-sun))
+        self._light = light
+        self._light_node = prs.add(light, pose=_look_along(-sun))
         self._sun = sun
         self._shadow_strength = shadow_strength(weather)
         self._scene = prs
+
+    def set_weather(self, weather: Weather) -> None:
+        """Light the loaded episode by ``weather`` from the next frame on (a shift's frame weather):
+        sun colour, strength and direction, ambient light, shadows and sky."""
+        if weather == self.weather:
+            return
+        self.weather = weather
+        self._scene.ambient_light = _ambient(weather)
+        self._light.color = np.asarray(weather.light_color)
+        self._light.intensity = weather.light_intensity * SUN_SCALE
+        self._sun = sun_direction(weather.sun_elevation_deg, weather.sun_azimuth_deg)
+        self._scene.set_pose(self._light_node, _look_along(-self._sun))
+        self._shadow_strength = shadow_strength(weather)
 
     def _build_static(self, world) -> _NodeSet:
         pr = compat.import_pyrender()
@@ -364,9 +378,12 @@ class Renderer:
         params = np.array([self._shadow_strength, 1.5 * texel, SHADOW_FADE_M, SHADOW_FAR_M], np.float32)
         return passes.ShadowFrame(view=view, proj=proj, casters=ordered, uniforms={"shadow_params": params})
 
-    def render(self, t: float) -> RenderResult:
-        """Render the loaded episode at simulated time ``t`` (seconds)."""
+    def render(self, t: float, weather: Weather | None = None) -> RenderResult:
+        """Render the loaded episode at simulated time ``t`` (seconds), under ``weather`` if given
+        (a shift's weather at that frame; see ``set_weather``), else the episode's."""
         pr = compat.import_pyrender()
+        if weather is not None:
+            self.set_weather(weather)
         timings = {}
         start = time.perf_counter()
         cam = self.update(t)
@@ -389,6 +406,7 @@ class Renderer:
         return RenderResult(
             rgba=rgba, seg=seg, depth=depth, sky=sky, zfar=self.zfar,
             world_from_camera=cam, rig=self.rig, sun_pixel=self._sun_pixel(cam), timings=timings,
+            weather=self.weather,
         )
 
     def _sun_pixel(self, cam: np.ndarray) -> tuple[float, float] | None:
@@ -397,6 +415,10 @@ class Renderer:
             return None
         x, y = self.rig.project(sun_cam[None, :])[0]
         return float(x), float(y)
+
+
+def _ambient(weather: Weather) -> np.ndarray:
+    return weather.ambient * np.asarray(weather.light_color)
 
 
 def _seg_color(class_id: int, instance_id: int) -> tuple[int, int, int]:

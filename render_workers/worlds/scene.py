@@ -186,3 +186,4 @@ class Frame:
     cam_to_world: list  # 16 values, 4x4
     ego_to_world: list  # 16 values, 4x4
     cam_to_ego: list  # 16 values, 4x4, fixed per viewpoint
+    conditions: dict  # condition column -> value (manifests.conditions): the weather this frame was rendered under

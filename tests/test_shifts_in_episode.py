@@ -1,0 +1,60 @@
+"""Issue 25.3: a weather may shift inside an episode (from, to, easing); frames are rendered
+under their own weather and their condition columns carry it."""
+
+from __future__ import annotations
+
+import cv2
+import pytest
+
+from manifests.catalog import BUILTIN, weather
+from manifests.domainfile import CatalogError, catalog_toml, catalog_from_text, with_file
+from manifests.shifts import weather_at
+from manifests.spec import EpisodeSpec
+from manifests.synthetic import episode_rows
+from render_workers.render import episode
+from render_workers.render.renderer import Renderer
+
+
+def test_shift_entries_blend_their_ends_by_the_easing():
+    row = weather("CNtoNT")
+    frames = [weather_at(row, i, 5, weather) for i in range(5)]
+    assert frames[0].sun_elevation_deg == 65.0 and frames[-1].sun_elevation_deg == -25.0
+    assert frames[-1].sky_zenith == weather("NT").sky_zenith and frames[-1].code == "CNtoNT"
+    suns = [w.sun_elevation_deg for w in frames]
+    assert all(a > b for a, b in zip(suns, suns[1:]))
+    assert suns[1] > 65.0 - 90.0 / 4  # smoothstep starts slowly
+    fog = [weather_at(weather("CNtoFG"), i, 3, weather).fog for i in range(3)]
+    assert fog == pytest.approx([0.02, (0.02 + 0.99999) / 2, 0.99999])
+    # the built-in file round-trips with its shifts written as from / to
+    text = catalog_toml(BUILTIN)
+    assert 'from = "CN"' in text and 'to = "NT"' in text and catalog_from_text(text, "shown") == BUILTIN
+
+
+@pytest.mark.parametrize("entry, words", [
+    ('from = "CN"\nto = "XX"\n', "key 'to': unknown weather 'XX'"),
+    ('from = "CNtoNT"\nto = "NT"\n', "key 'from': 'CNtoNT' shifts itself"),
+    ('from = "CN"\nto = "NT"\neasing = "bounce"\n', "key 'easing': unknown easing 'bounce'"),
+])
+def test_bad_shifts_give_one_line(entry, words):
+    with pytest.raises(CatalogError, match=words):
+        with_file(BUILTIN, f'[[weather]]\ncode = "S1"\nlike = "CN"\n{entry}', "s.toml")
+
+
+def test_a_user_shift_and_synthetic_rows_carry_each_frames_conditions():
+    cat = with_file(BUILTIN, '[[weather]]\ncode = "S1"\nlike = "CN"\nfrom = "HRN"\nto = "SN"\n', "s.toml")
+    assert cat.by_code("weather")["S1"].shift_to == "SN"
+    rows = episode_rows(EpisodeSpec("T01_CNtoHRN_A", 0, 1, 3, 64, 36, "train", 0))
+    assert [r["precipitation"] for r in rows] == pytest.approx([0.0, 0.3, 0.6])
+
+
+def test_a_shifting_episode_moves_monotonically():
+    got = []
+    with Renderer() as renderer:
+        spec = EpisodeSpec("T01_CNtoNT_A", 0, 3, 4, 160, 90, "train", 0, frame_interval_s=0.5)
+        episode.render_episode(spec, got.append, world="test", renderer=renderer)
+    suns = [f.conditions["sun_altitude_deg"] for f in got]
+    luminance = [float(cv2.cvtColor(f.buffers["rgb"], cv2.COLOR_RGB2GRAY).mean()) for f in got]
+    print("CNtoNT sun altitude", [round(s, 1) for s in suns], "mean luminance", [round(v, 1) for v in luminance])
+    assert all(a > b for a, b in zip(suns, suns[1:])) and suns[0] == 65.0 and suns[-1] == -25.0
+    assert all(a > b for a, b in zip(luminance, luminance[1:]))
+    assert luminance[-1] < 0.4 * luminance[0]

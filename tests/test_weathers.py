@@ -1,0 +1,100 @@
+"""Issue 25.2: the built-in weathers beyond the paper (FG, NT, SN) look like what they are,
+their labels are the paper's weathers' labels, and each frame records its conditions."""
+
+from __future__ import annotations
+
+import cv2
+import numpy as np
+import pytest
+
+from manifests.catalog import ALL_SCENARIOS, BUILTIN, EXTRA_WEATHERS, class_id, weather
+from manifests.conditions import frame_conditions
+from manifests.domainfile import with_file
+from manifests.selection import parse_selection
+from manifests.spec import EpisodeSpec
+from render_workers.render import episode
+from render_workers.render.renderer import Renderer
+
+W, H = 160, 90
+GROUND = [class_id(name) for name in ("road", "sidewalk", "terrain")]
+DENSER = """
+[[weather]]
+code = "FG2"
+like = "FG"
+fog = 0.999999999
+"""
+
+
+@pytest.fixture(scope="module")
+def frames():
+    """Frame 1 of the same episode (same seed) under CN, FG, a denser FG, NT and SN, in the test world."""
+    layer = with_file(BUILTIN, DENSER, "dense.toml").layer_json()
+    out = {}
+    with Renderer() as renderer:
+        for code in ("CN", "FG", "FG2", "NT", "SN"):
+            got = []
+            spec = EpisodeSpec(f"T01_{code}_A", 0, 3, 2, W, H, "train", 0, catalog=layer)
+            episode.render_episode(spec, got.append, world="test", renderer=renderer)
+            out[code] = got[-1]
+    return out
+
+
+def _luminance(frame) -> np.ndarray:
+    return cv2.cvtColor(frame.buffers["rgb"], cv2.COLOR_RGB2GRAY).astype(np.float64)
+
+
+def _far_contrast(frame) -> float:
+    """Standard deviation of luminance over surfaces 40 m or more away (not the sky)."""
+    far = (frame.buffers["depth"] >= 40.0) & (frame.buffers["classes"] != class_id("sky"))
+    assert far.sum() > 50
+    return float(_luminance(frame)[far].std())
+
+
+def test_the_paper_catalog_is_unchanged_and_catalog_selects_the_new_weathers():
+    assert [w.code for w in BUILTIN.weathers[:6]] == ["CN", "CS", "HRN", "FG", "NT", "SN"]
+    assert {"FG", "NT", "SN"} <= EXTRA_WEATHERS
+    assert len(ALL_SCENARIOS) == 105 and len(parse_selection("all")) == 105
+    assert {s.weather.code for s in parse_selection("catalog")} >= {"CN", "FG", "NT", "SN"}
+    # an open axis or a '*' keeps meaning the paper's weathers; naming them selects the new ones
+    assert {s.weather.code for s in parse_selection("towns=T01 viewpoints=A")} == {"CN", "CS", "HRN"}
+    assert {s.weather.code for s in parse_selection("T01_*_A")} == {"CN", "CS", "HRN"}
+    assert [s.code for s in parse_selection("T01_SN_A weathers=SN")] == ["T01_SN_A"]
+    assert [s.code for s in parse_selection("towns=T01 weathers=FG,NT viewpoints=A")] == ["T01_FG_A", "T01_NT_A"]
+
+
+def test_fog_lowers_far_contrast_with_density(frames):
+    cn, fg, denser = (_far_contrast(frames[c]) for c in ("CN", "FG", "FG2"))
+    print(f"far contrast (luminance std, depth >= 40 m): CN {cn:.1f}, FG {fg:.1f}, FG2 {denser:.1f}")
+    assert denser < 0.8 * fg and fg < 0.6 * cn
+    near = frames["FG"].buffers["depth"] < 8.0
+    assert _luminance(frames["FG"])[near].std() > 2 * denser  # near things keep their contrast
+
+
+def test_night_is_dark_except_where_lights_are(frames):
+    noon, night = _luminance(frames["CN"]), _luminance(frames["NT"])
+    bright = np.percentile(night, 99.5)
+    print(f"mean luminance CN {noon.mean():.1f}, NT {night.mean():.1f}; NT 99.5th percentile {bright:.0f}")
+    assert night.mean() < 0.4 * noon.mean()
+    assert bright >= 150  # lamps, windows and car lights stay bright
+
+
+def test_snow_whitens_the_ground(frames):
+    ground = np.isin(frames["CN"].buffers["classes"], GROUND)
+    assert ground.sum() > 100
+    stats = {}
+    for code in ("CN", "SN"):
+        rgb = frames[code].buffers["rgb"][ground].astype(np.float64)
+        stats[code] = (rgb.mean(), rgb.min(axis=1).mean())  # brightness; whiteness (the darkest channel)
+    print(f"ground brightness / whiteness: CN {stats['CN'][0]:.1f} / {stats['CN'][1]:.1f}, "
+          f"SN {stats['SN'][0]:.1f} / {stats['SN'][1]:.1f}")
+    assert stats["SN"][0] > stats["CN"][0] + 12 and stats["SN"][1] > stats["CN"][1] + 12
+
+
+def test_labels_are_the_same_under_every_weather_and_rows_carry_conditions(frames):
+    reference = frames["CN"].buffers
+    for code, frame in frames.items():
+        for name in ("classes", "instance", "depth"):
+            assert np.array_equal(frame.buffers[name], reference[name]), (code, name)
+        if code != "FG2":
+            assert frame.conditions == frame_conditions(weather(code))
+    assert frames["SN"].conditions["snow_cover"] == 0.85 and frames["NT"].conditions["sun_altitude_deg"] < 0
