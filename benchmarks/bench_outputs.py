@@ -1,10 +1,11 @@
 """What the opt-in outputs cost per frame at 1920x1080, and the default outputs before and after issue 24.
 
 Each probe is this file run with ``--probe`` in a fresh process, inside the
-tree it measures. It renders episodes of ``FRAMES`` frames of ``SCENARIO``
-through ``render_episode`` with a sink that encodes every output
-(``pipeline.episode_job.frame_files``) and writes the files, as production
-does, after a warm-up episode (shader compile, world build). Per frame it
+tree it measures. After a warm-up run of the measured episode (world
+build, shader compile, uploads), it renders episodes of ``FRAMES`` frames
+of ``SCENARIO`` through ``render_episode`` with a sink that encodes every
+output (``pipeline.episode_job.frame_files``) and writes the files, as
+production does. Per frame it
 reports wall seconds, process CPU seconds (all threads), the ``outputs``
 stage (objects, normals and flow computed from the buffers) and the sink
 (encoding and writing), and the bytes written per output.
@@ -91,7 +92,9 @@ def probe(world: str, sets: list[str], frames: int, width: int, height: int) -> 
 
     result = {}
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:
-        _episode(renderer, world, _outputs("default"), 2, width, height, 2, Path(tmp))  # warm-up
+        # warm-up: the measured episode itself, so shaders, uploads and caches for everything it shows are
+        # ready before the first set is timed (a shorter one left the first set paying for them)
+        _episode(renderer, world, _outputs("default"), frames, width, height, 1, Path(tmp))
         for name in sets:
             episode = [_episode(renderer, world, _outputs(name), n, width, height, 1, Path(tmp)) for n in (1, frames)]
             result[name] = per_frame(episode[1], episode[0], frames)
