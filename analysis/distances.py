@@ -37,6 +37,9 @@ for town, spatial layout and the hood for viewpoint), and the extractor is
 fixed and deterministic, so distances are comparable across runs. It has no
 learned semantics, so absolute values differ from the paper's; compare the
 ordering of the three cases, not the numbers.
+
+A real folder in Cityscapes layout (``analysis.real``) is one more domain,
+``real``, in pairs such as ``T01_CN_A:real``: its first ``samples`` images.
 """
 
 from __future__ import annotations
@@ -268,7 +271,13 @@ class DistanceReport:
 
 
 def parse_pairs(text: str) -> tuple[tuple[str, str], ...]:
-    """``"T01_CS_A:T01_CS_J,T01_CN_A:T02_CN_A"`` -> pairs of checked scenario codes."""
+    """``"T01_CS_A:T01_CS_J,T01_CN_A:real"`` -> pairs of checked scenario codes (of the catalog in
+    force: declared domains too) or ``real``, the real folder (analysis.real)."""
+    from analysis.real import REAL
+
+    def code(text: str) -> str:
+        return REAL if text == REAL else lookup_scenario(text).code
+
     pairs = []
     for item in (p.strip() for p in text.split(",")):
         if not item:
@@ -276,7 +285,7 @@ def parse_pairs(text: str) -> tuple[tuple[str, str], ...]:
         source, sep, target = item.partition(":")
         if not sep or not source or not target:
             raise ValueError(f"a pair is SOURCE:TARGET such as T01_CS_A:T01_CS_J, got {item!r}")
-        pairs.append((lookup_scenario(source.strip()).code, lookup_scenario(target.strip()).code))
+        pairs.append((code(source.strip()), code(target.strip())))
     return tuple(pairs)
 
 
@@ -344,8 +353,11 @@ class DistanceConfig:
     splits: tuple[str, ...] = ()  # empty: any split
     seed: int = 0  # filter bank seed
     threads: int = 4
+    real: str | None = None  # a folder in Cityscapes layout, the domain "real" (analysis.real)
+    real_splits: tuple[str, ...] = ("val",)  # which of its splits
 
     def validate(self) -> None:
+        from analysis.real import REAL, check_real_pairs
         from manifests.query import Query
 
         if self.samples < 1:
@@ -356,7 +368,9 @@ class DistanceConfig:
             raise ValueError(f"threads must be at least 1, got {self.threads}")
         for pair in self.pairs:
             for code in pair:
-                lookup_scenario(code)
+                if code != REAL:
+                    lookup_scenario(code)
+        check_real_pairs(self.pairs, self.real, must_name=False)
         Query(domains=self.domains, splits=self.splits, seed=self.seed).validate()
 
 
@@ -385,19 +399,30 @@ def domain_features(storage, paths: dict[str, list[str]], bank: FilterBank, thre
 
 
 def domain_distances(config: DistanceConfig) -> DistanceReport:
-    """Sample, extract features, and compare domains of a produced root."""
+    """Sample, extract features, and compare domains of a produced root (and the real folder, if any:
+    with no pair naming it, every sampled domain is paired with it)."""
+    from analysis.real import REAL, RealFolder, real_features
     from manifests.query import Query, filter_frames
     from manifests.reader import read_manifest, require_outputs
     from storage import Storage
 
     config.validate()
+    real = RealFolder(config.real, config.real_splits) if config.real else None
+    if real is not None:
+        real.images()  # a folder not in Cityscapes layout fails before any reading
     storage = Storage.from_uri(config.root)
     table = filter_frames(read_manifest(storage), Query(domains=config.domains, splits=config.splits))
     if len(table) == 0:
         raise ValueError(f"{storage.uri} has no frames for {config.domains!r}")
     require_outputs(table, ("rgb",), storage.uri)
-    features = domain_features(storage, first_frames(table, config.samples), FilterBank(config.seed), config.threads)
-    return compare_domains(features, config.pairs, config.components)
+    bank = FilterBank(config.seed)
+    features = domain_features(storage, first_frames(table, config.samples), bank, config.threads)
+    pairs = config.pairs
+    if real is not None:
+        features[REAL] = real_features(real, bank, config.samples, config.threads)
+        if not any(REAL in pair for pair in pairs):
+            pairs += tuple((code, REAL) for code in sorted(features) if code != REAL)
+    return compare_domains(features, pairs, config.components)
 
 
 # ------------------------------------------------------------ presenting ----
@@ -427,11 +452,11 @@ def format_distance_table(report: DistanceReport) -> str:
     return "\n".join(lines)
 
 
-
-
 def embedding_png(report: DistanceReport, title: str = "Domains: 2-D PCA of the domain mean features") -> bytes:
     """Scatter of the domains' 2-D embedding: colour = town, marker = weather, label = viewpoint."""
     import matplotlib
+
+    from analysis.real import REAL
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -443,13 +468,18 @@ def embedding_png(report: DistanceReport, title: str = "Domains: 2-D PCA of the 
     fig, ax = plt.subplots(figsize=(7.5, 6), dpi=110)
     paper_domains = {d for p in PAPER_PAIRS for d in (p.source, p.target)}
     for code, (x, y) in zip(report.domains, report.embedding):
+        if code == REAL:
+            ax.scatter(x, y, s=160, color="black", marker="*")
+            ax.annotate(REAL, (x, y), textcoords="offset points", xytext=(6, 4), fontsize=9)
+            continue
         town, weather, view = split_code(code)
         ax.scatter(x, y, s=70, color=town_color[town], marker=lookup_weather(weather).marker, edgecolors="black", linewidths=0.5)
         ax.annotate(view, (x, y), textcoords="offset points", xytext=(5, 4), fontsize=8)
         if code in paper_domains:
             ax.scatter(x, y, s=260, facecolors="none", edgecolors="black", linewidths=1.0)
-    towns = sorted({code_axes(d)["town"] for d in report.domains})
-    weathers = sorted({code_axes(d)["weather"] for d in report.domains}, key=[w.code for w in cat.weathers].index)
+    synthetic = [d for d in report.domains if d != REAL]
+    towns = sorted({code_axes(d)["town"] for d in synthetic})
+    weathers = sorted({code_axes(d)["weather"] for d in synthetic}, key=[w.code for w in cat.weathers].index)
     handles = [Line2D([], [], marker="o", ls="", color=town_color[t], label=t) for t in towns]
     handles += [Line2D([], [], marker=lookup_weather(w).marker, ls="", color="grey", label=w) for w in weathers]
     handles += [Line2D([], [], marker="o", ls="", mfc="none", mec="black", ms=12, label="paper's pairs")]

@@ -30,6 +30,11 @@ kept in memory. Training is deterministic for a given config: seeded
 weights, a seeded batch order and flips, a fixed torch thread count and
 torch's deterministic algorithms; on a GPU the same config gives the same
 numbers run after run on that GPU.
+
+``pairs`` adds cases for any pair of domains (no paper values): declared
+scenario codes, or ``real``, a folder in Cityscapes layout (``analysis.real``:
+its cities stand for episodes, its labelIds map onto the 16 classes).
+A domain in none of the paper's cases seeds its network from its name.
 """
 
 from __future__ import annotations
@@ -39,6 +44,7 @@ import logging
 import math
 import os
 import time
+import zlib
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
@@ -59,17 +65,22 @@ INPUT_MULTIPLE = 16  # input sides: multiples of SegNet's total stride (checked 
 
 @dataclass(frozen=True)
 class ShiftCase:
-    pair: PaperPair  # the paper's source / target pair (shared with analysis.distances)
-    paper_source_only: float  # DeepLab V2 trained on the source, mIoU % on the target
-    paper_oracle: float  # DeepLab V2 trained on the target (source = target), mIoU % on the target
+    pair: PaperPair  # source / target: one of the paper's pairs (shared with analysis.distances), or a pair asked for
+    paper_source_only: float | None = None  # DeepLab V2 trained on the source, mIoU % on the target
+    paper_oracle: float | None = None  # DeepLab V2 trained on the target (source = target), mIoU % on the target
 
     @property
     def name(self) -> str:
-        return self.pair.case
+        return self.pair.case or "-"
 
     @property
-    def paper_kept(self) -> float:
-        return self.paper_source_only / self.paper_oracle
+    def paper_kept(self) -> float | None:
+        return None if self.paper_source_only is None else self.paper_source_only / self.paper_oracle
+
+
+def pair_case(source: str, target: str) -> ShiftCase:
+    """A case for any pair of domains (a declared scenario code, or ``real``): no paper values."""
+    return ShiftCase(PaperPair("", source, target, math.nan, math.nan, math.nan))
 
 
 _PAPER_MIOU = {"viewpoint": (62.60, 79.13), "weather": (40.24, 78.31), "city": (21.65, 78.02)}
@@ -81,6 +92,9 @@ CASE_BY_NAME = {c.name: c for c in CASES}
 class ShiftConfig:
     root: str  # output root: local path or s3:// URI
     cases: tuple[str, ...] = tuple(CASE_BY_NAME)  # which of the paper's cases to run
+    pairs: tuple[tuple[str, str], ...] = ()  # more SOURCE, TARGET pairs: scenario codes or "real"
+    real: str | None = None  # a folder in Cityscapes layout, the domain "real" (analysis.real)
+    real_splits: tuple[str, ...] = ("val",)  # which of its splits
     steps: int = 800  # optimiser steps per case
     batch_size: int = 8
     lr: float = 3e-3  # AdamW peak learning rate (linear warm-up, cosine decay)
@@ -92,10 +106,13 @@ class ShiftConfig:
     device: str = "auto"  # auto: cuda when available, else cpu
 
     def validate(self) -> None:
-        if not self.cases:
-            raise ValueError(f"give at least one case; valid cases: {', '.join(CASE_BY_NAME)}")
+        from analysis.real import check_real_pairs
+
+        if not self.cases and not self.pairs:
+            raise ValueError(f"give at least one case or pair; valid cases: {', '.join(CASE_BY_NAME)}")
         for name in self.cases:
             lookup_case(name)
+        check_real_pairs(self.pairs, self.real)
         for label, value in (("steps", self.steps), ("batch size", self.batch_size), ("threads", self.threads)):
             if value < 1:
                 raise ValueError(f"{label} must be at least 1, got {value}")
@@ -112,10 +129,14 @@ class ShiftConfig:
             raise ValueError(f"unknown device {self.device!r}; valid devices: {', '.join(DEVICES)}")
 
     @property
+    def all_cases(self) -> list[ShiftCase]:
+        """The chosen paper cases, then a case per pair asked for."""
+        return [lookup_case(name) for name in self.cases] + [pair_case(s, t) for s, t in dict.fromkeys(self.pairs)]
+
+    @property
     def domains(self) -> list[str]:
         """Every domain the chosen cases need, in case order."""
-        codes = [code for name in self.cases for code in (lookup_case(name).pair.source, lookup_case(name).pair.target)]
-        return list(dict.fromkeys(codes))
+        return list(dict.fromkeys(code for case in self.all_cases for code in (case.pair.source, case.pair.target)))
 
 
 def lookup_case(name: str) -> ShiftCase:
@@ -130,7 +151,7 @@ class CaseResult:
     source_miou: float  # on the source's held-out frames
     target_miou: float  # on all target frames
     kept: float  # target_miou / source_miou
-    paper_kept: float
+    paper_kept: float | None  # None for a pair that is not one of the paper's
     target_held_out_miou: float  # the source network on the target's held-out frames
     oracle_miou: float  # a network trained on the target's training frames, on its held-out frames
     oracle_kept: float  # target_held_out_miou / oracle_miou: the paper's definition
@@ -178,13 +199,14 @@ class Frames:
         return len(self.labels)
 
 
-def _prepare(sample: dict, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+def prepare(rgb: np.ndarray, ids: np.ndarray, lut: np.ndarray, width: int, height: int) -> tuple[np.ndarray, np.ndarray]:
+    """Network input (3 x H x W, normalised) and training indices (``lut`` of the resized class ids)."""
     import cv2
 
-    rgb = cv2.resize(sample["rgb"], (width, height), interpolation=cv2.INTER_AREA)
-    labels = cv2.resize(sample["semantic"], (width, height), interpolation=cv2.INTER_NEAREST)
+    rgb = cv2.resize(rgb, (width, height), interpolation=cv2.INTER_AREA)
+    labels = cv2.resize(ids, (width, height), interpolation=cv2.INTER_NEAREST)
     image = (rgb.astype(np.float32) / np.float32(255.0) - np.float32(RGB_MEAN)) / np.float32(RGB_STD)
-    return np.ascontiguousarray(image.transpose(2, 0, 1)), TRAIN_INDEX_LUT[labels]
+    return np.ascontiguousarray(image.transpose(2, 0, 1)), lut[labels]
 
 
 def load_domain(root, code: str, width: int, height: int, max_frames: int | None = None) -> Frames:
@@ -197,7 +219,7 @@ def load_domain(root, code: str, width: int, height: int, max_frames: int | None
     images, labels, meta = [], [], []
     for i in range(n):
         sample = data[i]
-        image, label = _prepare(sample, width, height)
+        image, label = prepare(sample["rgb"], sample["semantic"], TRAIN_INDEX_LUT, width, height)
         images.append(image)
         labels.append(label)
         meta.append((sample["episode"], sample["frame"], sample["split"]))
@@ -229,8 +251,11 @@ def check_domains(root, codes: list[str]) -> None:
 
     from manifests.reader import as_storage, read_manifest
 
+    from analysis.real import REAL
+
     storage = as_storage(root)
     present = set(pc.unique(read_manifest(storage, columns=["scenario"]).column("scenario")).to_pylist())
+    codes = [c for c in codes if c != REAL]
     missing = [c for c in codes if c not in present]
     if missing:
         raise ValueError(
@@ -343,12 +368,12 @@ def case_seed(run_seed: int, index: int) -> int:
 def model_seed(run_seed: int, code: str) -> int:
     """Torch seed of a domain's network: that of the first case with the domain as source
     (so a source network's seed does not depend on which cases run), else of the first
-    case with it as target, offset past the cases."""
+    case with it as target, offset past the cases; a domain in none of them: from its name."""
     for offset, side in ((0, "source"), (len(CASES), "target")):
         for index, case in enumerate(CASES):
             if getattr(case.pair, side) == code:
                 return case_seed(run_seed, offset + index)
-    raise ValueError(f"{code} is in none of the paper's cases")
+    return int(np.random.default_rng([run_seed, 2 * len(CASES), zlib.crc32(code.encode())]).integers(2**31))
 
 
 @dataclass
@@ -409,8 +434,13 @@ def run_case(torch, case: ShiftCase, domains: dict[str, Frames], models: dict[st
 
 def run_shifts(config: ShiftConfig) -> ShiftReport:
     """Train and score every chosen case on the frames under ``config.root``."""
+    from analysis.real import REAL, RealFolder, load_real
+
     config.validate()
     check_domains(config.root, config.domains)
+    real = RealFolder(config.real, config.real_splits) if config.real else None
+    if real is not None:
+        real.images(labels=True)  # a folder not in Cityscapes layout fails before any training
     start = time.perf_counter()
     with deterministic_torch(config.threads) as torch:
         from analysis.segnet import SegNet, parameter_count
@@ -419,10 +449,11 @@ def run_shifts(config: ShiftConfig) -> ShiftReport:
         domains = {}
         for code in config.domains:
             log.info("reading %s", code)
-            domains[code] = load_domain(config.root, code, config.width, config.height, config.max_frames)
+            domains[code] = (load_real(real, config.width, config.height, config.max_frames) if code == REAL else
+                             load_domain(config.root, code, config.width, config.height, config.max_frames))
         results, models = [], {}
-        for name in config.cases:
-            results.append(run_case(torch, lookup_case(name), domains, models, config, device))
+        for case in config.all_cases:
+            results.append(run_case(torch, case, domains, models, config, device))
         parameters = parameter_count(SegNet(NUM_EVAL))
     return ShiftReport(config=config, device=device, parameters=parameters, results=results,
                        seconds=time.perf_counter() - start)
@@ -437,7 +468,7 @@ def format_shift_table(report: ShiftReport) -> str:
     for r in report.results:
         lines.append(f"{r.case:<10} {r.source:<10} {r.target:<10} {r.source_miou:>11.3f} {r.target_miou:>11.3f} "
                      f"{r.kept:>6.2f} {r.target_held_out_miou:>12.3f} {r.oracle_miou:>11.3f} {r.oracle_kept:>6.2f} "
-                     f"{r.paper_kept:>10.2f}")
+                     f"{'-' if r.paper_kept is None else format(r.paper_kept, '.2f'):>10}")
     cfg = report.config
     rules = sorted({r.held_out_rule for r in report.results})
     lines.append(
@@ -448,9 +479,10 @@ def format_shift_table(report: ShiftReport) -> str:
     )
     lines.append("kept = target / held-out source; * on the target's held-out frames: kept* = target* / oracle "
                  "(a network trained on the target), the paper's definition")
-    if len(report.results) > 1:
-        paper = " > ".join(r.case for r in sorted(report.results, key=lambda r: -r.paper_kept))
+    ours = [r for r in report.results if r.paper_kept is not None]
+    if len(ours) > 1:
+        paper = " > ".join(r.case for r in sorted(ours, key=lambda r: -r.paper_kept))
         for label, key in (("kept", "kept"), ("kept*", "oracle_kept")):
-            order = sorted(report.results, key=lambda r: -getattr(r, key))
+            order = sorted(ours, key=lambda r: -getattr(r, key))
             lines.append(f"{label}: {' > '.join(r.case for r in order)} (paper: {paper})")
     return "\n".join(lines)

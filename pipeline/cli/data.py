@@ -9,7 +9,7 @@ become one line and exit code 2 via ``pipeline.cli.common.user_errors``.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Optional
+from typing import Annotated, Optional
 
 import typer
 
@@ -18,6 +18,11 @@ from pipeline.cli.common import (
     build_query, output_root, user_errors, write_local,
 )
 from pipeline.cli.domains import CatalogFile, root_catalog
+
+Real = Annotated[Optional[Path], typer.Option(
+    "--real", help="A real dataset folder in Cityscapes layout (leftImg8bit/, gtFine/ labelIds for shifts): "
+    "the domain 'real' in --pairs.")]
+RealSplits = Annotated[list[str], typer.Option("--real-split", help="Split of the --real folder to read; repeatable.")]
 
 
 def export(
@@ -90,7 +95,7 @@ def evaluate(
 
 def distances(
     root: str = typer.Argument(..., help=ROOT_HELP),
-    pairs: str = typer.Option("", help="Extra SOURCE:TARGET scenario pairs, comma-separated (the paper's three are always tried)."),
+    pairs: str = typer.Option("", help="Extra SOURCE:TARGET pairs of scenario codes or 'real', comma-separated (the paper's three are always tried)."),
     samples: int = typer.Option(500, help="First N frames per domain (the paper uses 500)."),
     components: int = typer.Option(50, help="PCA components kept (the paper keeps 50)."),
     domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP + " Sampled and embedded."),
@@ -98,11 +103,15 @@ def distances(
     chart: Optional[Path] = typer.Option(None, "--chart", help="Write a 2-D embedding of all sampled domains to this PNG."),
     seed: int = typer.Option(0, help="Seed of the feature extractor's random filters."),
     threads: int = typer.Option(4, help="Images read and featurised in parallel."),
+    real: Real = None,
+    real_split: RealSplits = ["val"],
     catalog: CatalogFile = None,
 ) -> None:
     """Domain distances as in the paper: features of the first N frames per
     domain, PCA to 50 components, Euclidean / cosine distance of the domain
-    means and per-feature Bhattacharyya distance, next to the paper's values."""
+    means and per-feature Bhattacharyya distance, next to the paper's values.
+    With --real, a Cityscapes-layout folder is the domain 'real' (no pair
+    naming it: every sampled domain is compared with it)."""
     from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
     from manifests.catalog import using
 
@@ -111,6 +120,7 @@ def distances(
         config = DistanceConfig(
             root=root, pairs=parse_pairs(pairs), samples=samples, components=components,
             domains=domains, splits=tuple(split), seed=seed, threads=threads,
+            real=str(real) if real else None, real_splits=tuple(real_split),
         )
         report = domain_distances(config)
         typer.echo(format_distance_table(report))
@@ -136,7 +146,10 @@ def card(
 
 def shifts(
     root: str = typer.Argument(..., help=ROOT_HELP),
-    cases: str = typer.Option("viewpoint,weather,city", help="Which of the paper's cases to run, comma-separated."),
+    cases: Optional[str] = typer.Option(None, help="Which of the paper's cases to run, comma-separated (default: all three, none with --pairs)."),
+    pairs: str = typer.Option("", help="More SOURCE:TARGET pairs of scenario codes or 'real', comma-separated."),
+    real: Real = None,
+    real_split: RealSplits = ["val"],
     steps: int = typer.Option(800, help="Training steps per case."),
     batch_size: int = typer.Option(8, help="Frames per training step."),
     width: int = typer.Option(160, help="Network input width (multiple of 16)."),
@@ -146,21 +159,30 @@ def shifts(
     threads: int = typer.Option(2, help="torch CPU threads."),
     device: str = typer.Option("auto", help="auto (a CUDA GPU when torch sees one), cpu or cuda."),
     json_out: Path = typer.Option(Path("shifts.json"), "--json", help="Write the full results (per-class IoU) here."),
+    catalog: CatalogFile = None,
 ) -> None:
     """The paper's domain-shift table: train a small segmentation net from scratch
     on each source domain (T01_CS_A, T01_CS_J, T01_HRN_A), score it on held-out
     source frames and on the target (T01_CS_J, T01_HRN_J, T07_HRN_A), and print the
-    share of mIoU kept next to the paper's. Needs PyTorch: pip install -e '.[analysis]'."""
+    share of mIoU kept next to the paper's. --pairs adds any pair of declared domains, or
+    of one and 'real', a Cityscapes-layout folder (--real) scored on its gtFine labelIds.
+    Needs PyTorch: pip install -e '.[analysis]'."""
     import json
 
-    with user_errors():
-        from analysis.shifts import ShiftConfig, format_shift_table, require_torch, run_shifts
+    from manifests.catalog import using
+
+    with user_errors(), using(root_catalog(root, catalog)):
+        from analysis.distances import parse_pairs
+        from analysis.shifts import CASE_BY_NAME, ShiftConfig, format_shift_table, require_torch, run_shifts
 
         require_torch()  # the analysis extra: say so before reading any data
         output_root(root)
 
+        if cases is None:
+            cases = "" if pairs.strip() else ",".join(CASE_BY_NAME)
         config = ShiftConfig(
-            root=root, cases=tuple(c.strip() for c in cases.split(",") if c.strip()), steps=steps,
+            root=root, cases=tuple(c.strip() for c in cases.split(",") if c.strip()), pairs=parse_pairs(pairs),
+            real=str(real) if real else None, real_splits=tuple(real_split), steps=steps,
             batch_size=batch_size, width=width, height=height, max_frames=max_frames, seed=seed,
             threads=threads, device=device,
         )
