@@ -77,7 +77,7 @@ SURFACES: tuple[Surface, ...] = (
     Surface("hedge bramble", (92, 84, 40), 0.35, 0.7),
     Surface("canopy rust", (156, 88, 40), 0.28, 1.2),
     Surface("canopy straw", (176, 150, 70), 0.25, 1.2),
-    Surface("stubble", (196, 170, 112), 0.20, 4.0, texture="stalks"),
+    Surface("stubble", (196, 170, 112), 0.20, 4.0, texture="crop"),
     Surface("bark", (84, 64, 44), 0.20, 0.5),
     Surface("birch bark", (206, 204, 196), 0.15, 0.5),
     # facades and roofs
