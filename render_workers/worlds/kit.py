@@ -9,8 +9,9 @@ into. Feature modules (``streets``, ``buildings``, ``countryside``, ``freeway``,
 ``town_plan``, never each other.
 
 Surfaces (asphalt, paving, facades, crops...) are named in the town's style
-and looked up in ``manifests.catalog.SURFACES``; the few colours here are for
-the street furniture every town shares (poles, signs, signal heads).
+and looked up in ``render_workers.worlds.styles.SURFACES``; poles, signal heads,
+sign plates, fences and walls take the colours of the style's furniture row
+(``Style.props``); the few colours here are for what every town shares.
 """
 
 from __future__ import annotations
@@ -23,15 +24,13 @@ from render_workers.worlds import meshes as M
 from render_workers.worlds.textures import TEXTURE_MEAN
 from render_workers.worlds.town_plan import CURB_H, FREEWAY_MEDIAN, OUTER_Z, Layout
 
-# Street furniture shared by every style.
+# What every style shares (the style's furniture row has poles, signals, signs, fences, walls).
 PALETTE = {
-    "pole": (112, 114, 118), "wood_pole": (96, 76, 56), "signal": (38, 38, 40),
+    "wood_pole": (96, 76, 56),
     "guard": (175, 176, 180), "ballast": (104, 98, 92), "rail": (90, 86, 84), "sleeper": (92, 72, 52),
     "water": (44, 66, 74), "window": (46, 60, 74), "window_frame": (226, 222, 212), "door": (70, 52, 40),
     "lamp": (255, 240, 200), "ground": (120, 112, 100),
 }
-WALLS = [(160, 152, 140), (140, 128, 116), (176, 170, 160), (120, 100, 84)]
-FENCES = [(92, 96, 100), (120, 92, 62), (70, 84, 70), (150, 150, 150)]
 FLAT_BAND_M = 30.0  # relief starts this far from the streets, freeway, railway and river
 
 
@@ -229,7 +228,7 @@ class Kit:
             hh = 2.6 * r
             bases = np.array([base + np.array([0, 0, h * 0.5 + k * hh * 0.28]) for k in range(tiers)])
             v, f = M.cones(bases, hh * np.array([0.55, 0.5, 0.45]), 0.62 * r * np.array([1.0, 0.78, 0.55]), 8)
-            col = np.array(surface("canopy dark").color, float) * rng.uniform(0.85, 1.15)
+            col = np.array(surface(self.style.conifer).color, float) * rng.uniform(0.85, 1.15)
             self.add("vegetation", v, f, col, amount=0.2, scale=1.0, fine=0.1)
             return
         if kind == "poplar":
@@ -248,25 +247,28 @@ class Kit:
     def bush(self, base, scale: float = 1.0):
         r = scale * self.rng.uniform(0.8, 1.5)
         v, f = M.blobs((base + np.array([0, 0, 0.5 * r]))[None], np.array([[r, r, 0.8 * r]]), int(self.rng.integers(1 << 20)))
-        self.paint("vegetation", v, f, "hedge")
+        self.paint("vegetation", v, f, self.style.hedge)
 
     def pole_with(self, base, height, radius=0.08, wood=False):
         v, f = M.cylinders(np.array([base], float), height, radius, 6)
-        self.add("pole", v, f, PALETTE["wood_pole" if wood else "pole"], "matte" if wood else "metal", 0.1, 1.0)
+        props = self.style.props
+        self.add("pole", v, f, PALETTE["wood_pole"] if wood else props.pole, "matte" if wood else props.pole_look,
+                 0.1, 1.0)
 
     def street_lamp(self, base, yaw):
         """A lamp post with an arm towards the road (yaw points to the road)."""
         self.pole_with(base, 7.5, 0.09)
         d = np.array([np.cos(yaw), np.sin(yaw), 0])
         arm_c = np.asarray(base) + d * 0.9 + np.array([0, 0, 7.4])
-        self.props_box("pole", arm_c - np.array([0, 0, 0.05]), [1.8, 0.12, 0.12], yaw, PALETTE["pole"], "metal")
+        props = self.style.props
+        self.props_box("pole", arm_c - np.array([0, 0, 0.05]), [1.8, 0.12, 0.12], yaw, props.pole, props.pole_look)
         head = np.asarray(base) + d * 1.7 + np.array([0, 0, 7.25])
         self.props_box("pole", head, [0.6, 0.3, 0.15], yaw, PALETTE["lamp"], "emissive")
 
     def traffic_sign(self, base, facing):
         """Pole plus a plate facing ``facing`` (radians, towards approaching cars)."""
         self.pole_with(base, 2.9, 0.05)
-        face = self.pick([(190, 30, 30), (30, 70, 170), (235, 235, 235), (230, 190, 30)])
+        face = self.pick(self.style.props.signs)
         centre = np.asarray(base, float) + np.array([0, 0, 2.2])
         d = np.array([np.cos(facing), np.sin(facing), 0.0])
         v, f = M.boxes(centre[None] + d[None] * 0.06, np.array([[0.05, 0.75, 0.75]]), facing)
@@ -282,11 +284,11 @@ class Kit:
         if arm:
             c = base + left * (arm / 2) + np.array([0, 0, 5.45])
             v, f = M.boxes(c[None], np.array([[arm, 0.16, 0.16]]), facing + np.pi / 2)
-            self.add("pole", v, f, PALETTE["pole"], "metal", 0.1, 1.0)
+            self.add("pole", v, f, self.style.props.pole, self.style.props.pole_look, 0.1, 1.0)
             heads.append(base + left * arm * 0.85 + np.array([0, 0, 4.4]) + d * 0.1)
         for h in heads:
             v, f = M.boxes(h[None], np.array([[0.35, 0.4, 1.05]]), facing)
-            self.add("traffic light", v, f, PALETTE["signal"], "matte", 0.05, 0.3)
+            self.add("traffic light", v, f, self.style.props.signal, "matte", 0.05, 0.3)
             lamps = np.array([h + d * 0.18 + np.array([0, 0, z]) for z in (0.17, 0.5, 0.83)])
             col = self.pick([(255, 40, 30), (40, 255, 90), (255, 190, 30)])
             vv, ff = M.boxes(lamps - np.array([0, 0, 0.11]), np.array([[0.04, 0.22, 0.22]]), facing)
@@ -318,7 +320,7 @@ class Kit:
         for p0, p1, L, yaw in line_pieces(p0, p1):
             mid = (p0 + p1) / 2
             v, f = M.boxes(np.array([[mid[0], mid[1], z]]), np.array([[L, 0.3, h]]), yaw)
-            self.add("wall", v, f, color or self.pick(WALLS), amount=0.15, scale=1.0)
+            self.add("wall", v, f, color or self.pick(self.style.props.walls), amount=0.15, scale=1.0)
 
     def fence_line(self, p0, p1, z, h, metal=False):
         for p0, p1, L, yaw in line_pieces(p0, p1):
@@ -326,7 +328,7 @@ class Kit:
 
     def _fence_piece(self, p0, p1, L, yaw, z, h, metal):
         e = (p1 - p0) / L
-        col = PALETTE["pole"] if metal else self.pick(FENCES)
+        col = self.style.props.pole if metal else self.pick(self.style.props.fences)
         n_posts = int(L / 2.5) + 1
         s = np.linspace(0, L, n_posts)
         posts = np.c_[p0[None] + s[:, None] * e[None], np.full(n_posts, z)]
@@ -345,7 +347,7 @@ class Kit:
             bv, bf = M.boxes(np.array([[0, 0, 0]]), np.array([[L, 1.0, h]]))
             f = np.concatenate([f, bf + len(v)])
             v = M.transform(np.concatenate([v, bv]), [mid[0], mid[1], z], yaw)
-            self.paint("vegetation", v, f, "hedge", fine=0.15)
+            self.paint("vegetation", v, f, self.style.hedge, fine=0.15)
 
     def guard_rail(self, pts: np.ndarray) -> None:
         """Posts and a double-sided beam along a 2D polyline."""

@@ -67,12 +67,17 @@ SURFACES: tuple[Surface, ...] = (
     Surface("hay meadow", (170, 146, 62), 0.25, 8.0, texture="grass"),
     Surface("maize", (136, 142, 60), 0.18, 5.0, texture="stalks"),
     Surface("ripe maize", (196, 166, 80), 0.18, 5.0, texture="stalks"),
+    Surface("dry maize", (168, 136, 78), 0.20, 5.0, texture="stalks"),
     Surface("canopy green", (58, 96, 38), 0.25, 1.2),
     Surface("canopy light", (96, 128, 46), 0.25, 1.2),
     Surface("canopy dark", (34, 62, 36), 0.22, 1.2),
     Surface("canopy autumn", (150, 116, 44), 0.25, 1.2),
     Surface("canopy olive", (88, 96, 42), 0.25, 1.2),
     Surface("hedge", (44, 84, 34), 0.30, 0.7),
+    Surface("hedge bramble", (92, 84, 40), 0.35, 0.7),
+    Surface("canopy rust", (156, 88, 40), 0.28, 1.2),
+    Surface("canopy straw", (176, 150, 70), 0.25, 1.2),
+    Surface("stubble", (196, 170, 112), 0.20, 4.0, texture="crop"),
     Surface("bark", (84, 64, 44), 0.20, 0.5),
     Surface("birch bark", (206, 204, 196), 0.15, 0.5),
     # facades and roofs
@@ -114,6 +119,52 @@ TREE_SPECIES = ("broadleaf", "conifer", "poplar", "birch", "bush")  # render_wor
 FIELD_BOUNDS = ("hedge", "fence", "wall")  # what may line a countryside block (render_workers.worlds.countryside)
 
 
+@dataclass(frozen=True)
+class Furniture:
+    """The street furniture of a town: what its poles, signal heads, sign plates,
+    fences and walls are made of (the same shapes everywhere, so that the city
+    shift is also one of looks: steel and enamel in town, timber and stone out of it)."""
+
+    name: str  # unique key, referenced by styles
+    pole: RGB  # lamp posts, sign and signal poles, mast arms
+    pole_look: str  # renderer material of the poles
+    signal: RGB  # traffic light housings
+    signs: tuple[RGB, ...]  # sign plate faces, one drawn per sign
+    fences: tuple[RGB, ...]  # field and garden fences, one drawn per piece
+    walls: tuple[RGB, ...]  # garden and yard walls, one drawn per piece
+
+    def __post_init__(self) -> None:
+        if not (self.signs and self.fences and self.walls):
+            raise ValueError(f"furniture {self.name!r}: signs, fences and walls must not be empty")
+
+
+FURNITURES: tuple[Furniture, ...] = (
+    Furniture("steel and enamel", (112, 114, 118), "metal", (38, 38, 40),
+              ((190, 30, 30), (30, 70, 170), (235, 235, 235), (230, 190, 30)),
+              ((92, 96, 100), (120, 92, 62), (70, 84, 70), (150, 150, 150)),
+              ((160, 152, 140), (140, 128, 116), (176, 170, 160), (120, 100, 84))),
+    Furniture("anthracite", (54, 58, 64), "metal", (26, 26, 28),
+              ((190, 30, 30), (30, 70, 170), (235, 235, 235), (30, 70, 170)),
+              ((60, 64, 70), (84, 88, 94), (40, 42, 46), (120, 124, 130)),
+              ((128, 128, 126), (96, 96, 96), (150, 150, 146), (78, 80, 82))),
+    Furniture("galvanised", (166, 170, 168), "metal", (84, 88, 84),
+              ((190, 30, 30), (30, 70, 170), (235, 235, 235), (230, 190, 30)),
+              ((170, 172, 170), (150, 152, 150), (120, 124, 120), (190, 190, 186)),
+              ((176, 176, 170), (160, 158, 150), (190, 188, 180), (140, 138, 132))),
+    Furniture("forest green", (52, 82, 64), "metal", (40, 60, 46),
+              ((190, 30, 30), (30, 70, 170), (235, 235, 235), (230, 190, 30)),
+              ((104, 78, 52), (86, 64, 44), (52, 82, 64), (120, 92, 62)),
+              ((150, 142, 128), (120, 112, 100), (170, 164, 152), (104, 96, 86))),
+    # country roads: creosoted timber poles, yellow signal heads, yellow and green plates,
+    # weathered split-rail fences and dry-stone walls
+    Furniture("timber and stone", (74, 56, 40), "matte", (196, 160, 32),
+              ((236, 186, 30), (34, 110, 64), (244, 238, 214), (236, 186, 30)),
+              ((136, 118, 92), (112, 94, 70), (156, 144, 122), (98, 82, 62)),
+              ((152, 140, 118), (128, 116, 98), (172, 158, 132), (108, 98, 84))),
+)
+FURNITURE_BY_NAME = {f.name: f for f in FURNITURES}
+
+
 def _plural(noun: str) -> str:
     if noun.endswith("s"):
         return noun
@@ -152,9 +203,13 @@ class Style:
     tall_crop_share: float = 0.0  # share of the fields sown with tall crops
     # (boundary, share) of countryside block edges: hedgerows, fences, dry-stone walls; the rest stay open
     field_bounds: tuple[tuple[str, float], ...] = (("hedge", 0.3), ("fence", 0.25), ("wall", 0.15))
+    furniture: str = "steel and enamel"  # one of FURNITURES: poles, signals, signs, fences, walls
+    hedge: str = "hedge"  # surface of hedgerows and bushes
+    conifer: str = "canopy dark"  # canopy surface of conifers
 
     def __post_init__(self) -> None:
-        for name in (self.asphalt, self.kerb, self.verge, self.marking, self.ground,
+        lookup(FURNITURE_BY_NAME, self.furniture, "furniture")
+        for name in (self.asphalt, self.kerb, self.verge, self.marking, self.ground, self.hedge, self.conifer,
                      *self.paving, *self.facades, *self.roofs, *self.canopies, *self.crops, *self.tall_crops):
             surface(name)
         for value, valid, what in ((self.road_edge, ROAD_EDGES, "road edge"),
@@ -171,6 +226,11 @@ class Style:
                              "there are tall crops")
         if not (self.paving and self.facades and self.roofs and self.trees and self.canopies):
             raise ValueError(f"style {self.name!r}: paving, facades, roofs, trees and canopies must not be empty")
+
+    @property
+    def props(self) -> Furniture:
+        """The style's street furniture row."""
+        return FURNITURE_BY_NAME[self.furniture]
 
     @property
     def sidewalks(self) -> bool:
@@ -193,28 +253,29 @@ STYLES: tuple[Style, ...] = (
           3.5, "full", 1.0, "marking yellow", "modern",
           ("glass blue", "concrete light", "glass teal", "concrete dark"),
           ("roof flat",), (("broadleaf", 0.7), ("poplar", 0.3)),
-          ("canopy green",), "lawn", (), 0.0, 0.0),
+          ("canopy green",), "lawn", (), 0.0, 0.0, furniture="anthracite"),
     Style("mountain town", "asphalt grey", 0.3, "kerb granite", ("paving grey",), "kerb", "alpine grass",
           3.5, "full", 1.0, "marking white", "alpine",
           ("plaster white", "plaster cream", "timber dark", "stone wall"),
           ("roof slate", "roof green metal"), (("conifer", 0.85), ("broadleaf", 0.15)),
-          ("canopy dark",), "alpine grass", (), 25.0, 160.0),
+          ("canopy dark",), "alpine grass", (), 25.0, 160.0, furniture="forest green"),
     Style("glass city", "asphalt dark", 0.05, "kerb concrete", ("concrete slabs", "paving grey"), "kerb", "lawn",
           3.5, "full", 1.0, "marking yellow", "modern",
           ("glass teal", "glass bronze", "concrete dark", "glass blue"),
           ("roof flat",), (("poplar", 0.5), ("broadleaf", 0.5)),
-          ("canopy dark", "canopy green"), "lawn", (), 0.0, 0.0),
+          ("canopy dark", "canopy green"), "lawn", (), 0.0, 0.0, furniture="anthracite"),
     Style("suburban industrial", "asphalt freeway", 0.2, "kerb concrete", ("concrete slabs",), "kerb", "dry grass",
           3.7, "full", 1.0, "marking yellow", "suburban",
           ("siding beige", "siding grey", "siding blue", "brick brown", "plaster white"),
           ("roof metal", "roof slate", "roof flat"), (("broadleaf", 0.5), ("bush", 0.3), ("conifer", 0.2)),
-          ("canopy light", "canopy autumn"), "dry grass", (), 4.0, 0.0),
+          ("canopy light", "canopy autumn"), "dry grass", (), 4.0, 0.0, furniture="galvanised"),
     Style("farmland", "chip seal", 0.8, "kerb granite", ("paving grey",), "dirt", "dry grass",
           3.0, "none", 0.3, "marking white", "farm",
           ("barn red", "plaster white", "stone wall", "timber dark"),
           ("roof metal", "roof terracotta"), (("poplar", 0.4), ("broadleaf", 0.4), ("bush", 0.2)),
-          ("canopy olive", "canopy autumn"), "hay meadow", ("wheat", "young crop", "soil"), 30.0, 0.0,
-          ("maize", "ripe maize"), 0.9, (("hedge", 0.7), ("fence", 0.1), ("wall", 0.1))),
+          ("canopy autumn", "canopy rust", "canopy straw", "canopy olive"), "hay meadow", ("wheat", "stubble", "soil"),
+          30.0, 0.0, ("ripe maize", "dry maize"), 0.9, (("hedge", 0.7), ("fence", 0.1), ("wall", 0.1)),
+          furniture="timber and stone", hedge="hedge bramble", conifer="canopy olive"),
 )
 STYLE_BY_NAME = {s.name: s for s in STYLES}
 

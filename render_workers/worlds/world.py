@@ -24,10 +24,10 @@ from render_workers.worlds import buildings, countryside, freeway, railway, rive
 from render_workers.worlds.kit import Kit
 from render_workers.worlds.scene import World
 from render_workers.worlds.styles import look
-from render_workers.worlds.textures import town_textures
+from render_workers.worlds.textures import TEXTURE_MEAN, town_textures
 from render_workers.worlds.town_plan import Layout, crosswalks, layout, loops, plan, walk_lanes, walkways
 
-__all__ = ["FEATURES", "build_town", "build_world", "building_footprints", "layout", "plan"]
+__all__ = ["FEATURES", "build_town", "build_world", "building_footprints", "class_albedo", "layout", "plan"]
 
 # In order: later features may sit on earlier ones (furniture on sidewalks).
 FEATURES = (
@@ -79,3 +79,20 @@ def build_town(t: Town, seed: int) -> World:
 def build_world(town_code: str, seed: int) -> World:
     """The catalog town ``town_code``'s world."""
     return build_town(town_row(town_code), seed)
+
+
+def class_albedo(world: World) -> dict[int, np.ndarray]:
+    """Each class's mean albedo (sRGB 0-255) over its static surface, weighted by
+    triangle area, textures counted at their mean: how a town looks class by
+    class, the statistic its style is told apart by (towns that share a class's
+    colours share its look to a segmentation network)."""
+    sums: dict[int, np.ndarray] = {}
+    areas: dict[int, float] = {}
+    for part in world.static:
+        mesh = part.mesh
+        face_rgb = mesh.visual.vertex_colors[:, :3].astype(np.float64)[mesh.faces].mean(axis=1)
+        area = mesh.area_faces
+        rgb = (face_rgb * area[:, None]).sum(axis=0) * (TEXTURE_MEAN if part.texture else 1.0)
+        sums[part.class_id] = sums.get(part.class_id, 0.0) + rgb
+        areas[part.class_id] = areas.get(part.class_id, 0.0) + float(area.sum())
+    return {c: sums[c] / areas[c] for c in sorted(sums) if areas[c] > 0}
