@@ -69,6 +69,9 @@ def _contact_section(result: dict) -> list[str]:
     for path in result["contact_sheets"]:
         name = Path(path).name
         lines += [f"![{name}](images/{name})", ""]
+    lines += ["The weathers beyond the paper's three (FG, NT, SN) and the shifts inside an episode (CNtoNT, CNtoFG, "
+              "CNtoHRN) have their own contact sheet and strip in [weathers.md](weathers.md) "
+              "(`python -m reports.weathers`); this sample keeps the paper's 105 scenarios.", ""]
     return lines
 
 
