@@ -59,8 +59,9 @@ test: $(STAMP_TEST) ## add the test extras to .venv, then run the test suite
 bench: $(STAMP_TEST) ## run the benchmarks; figures go to docs/
 	$(BIN)/python -m benchmarks.run
 
-report: $(STAMP_TEST) ## render a 105-scenario sample and write docs/worlds.md (class shares, distances, contact sheets)
+report: $(STAMP_TEST) ## render a 105-scenario sample and write docs/worlds.md (class shares, distances, contact sheets) and docs/weathers.md's pictures
 	$(BIN)/python -m reports.worlds
+	$(BIN)/python -m reports.weathers
 
 clean: ## remove the .venv and caches (never your output)
 	rm -rf $(VENV) .pytest_cache .hypothesis
