@@ -197,9 +197,24 @@ class ManifestScan:
                 found.update(((scenario, e), s) for e, s in self.current[scenario].items())
             else:
                 unindexed.extend(((scenario, e), item) for e, item in episodes.items())
-        with ThreadPoolExecutor(max_workers=threads) as pool:  # one small read per part: many at once on S3
-            found.update(zip((k for k, _ in unindexed), pool.map(lambda i: read(storage, *i[1]), unindexed)))
+        found.update(zip((k for k, _ in unindexed), _read_all(storage, read, [item for _, item in unindexed], threads)))
         return found
+
+
+def _read_all(storage, read, items: list[tuple[str, int]], threads: int) -> list:
+    """``read(storage, rel, size)`` of every item, in order: in processes where many local
+    footers are read (``manifests.footer_pool``), else in threads on S3 (hiding its
+    latency) and in this thread on local disk (where threads only contend for the GIL)."""
+    from manifests.footer_pool import processes_for, read_in_processes
+
+    processes = processes_for(storage, len(items))
+    done = read_in_processes(storage, read, items, processes) if processes else None
+    if done is not None:
+        return done
+    if storage.is_local:
+        return [read(storage, *item) for item in items]
+    with ThreadPoolExecutor(max_workers=threads) as pool:  # one small read per part: many at once on S3
+        return list(pool.map(lambda item: read(storage, *item), items))
 
 
 def scan(root) -> ManifestScan:
