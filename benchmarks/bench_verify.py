@@ -92,7 +92,7 @@ class _RequestCounter(logging.Handler):
             self.methods[match.group(1)] += 1
 
 
-def _s3_requests(episodes: int = 4, frames: int = 10) -> dict:
+def _s3_requests(episodes: int = 4, frames: int = 40) -> dict:
     from manifests.verify import verify
     from tests.s3_server import local_s3_server
 
@@ -152,8 +152,9 @@ def main(out_dir: str = "docs") -> dict:
         "this process; a unit holds one scenario's rows at a time.",
         "",
         "S3: a listed file missing or of the wrong size costs no request; every other file costs",
-        "pyarrow's HEAD plus one GET (pyarrow's Python API cannot open an object from a listing's",
-        "size, so the HEAD stays), plus the listing's pages.",
+        "one GET (`storage.s3get`: botocore, given the size by the listing; pyarrow's Python API",
+        "cannot open an object from a listing's size, so through pyarrow each file was a HEAD",
+        "plus a GET), plus the listing's pages, run.json and the parts' footers.",
     ]) + "\n")
     return result
 

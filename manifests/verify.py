@@ -289,7 +289,7 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
         if result.first_hash_at is None:
             result.first_hash_at = time.time()
         try:  # (locally, what the listing left out is read too: a folder or a FIFO in a file's place)
-            data = storage.read_bytes(rel)
+            data = storage.read_bytes(rel) if entry is None else storage.read_listed(rel, entry.size)
         except FileNotFoundError:
             return Problem("missing", rel, unit.scenario, episode)
         except (StorageError, OSError) as exc:  # a directory or a FIFO in its place, an I/O error

@@ -428,7 +428,7 @@ def test_s3_footers_cost_one_get_each_and_no_head():
         storage = synthetic_root(server.uri("root"), MANY)
         to_old_names(storage)  # names without row counts: the footers are read
         parts = len(make_plan(MANY).episodes)
-        listing = 1 + 1 + 1 + 2 + 1  # manifest/, town, weather, two viewpoints; _index/
+        listing = 1 + 1 + 1  # manifest/ (delimited), its one town's tree (flat, one page), _index/
         counter.reset()
         assert episode_frames(storage) == expected_frames(MANY)
         scanned = counter.counts()

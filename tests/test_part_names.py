@@ -108,3 +108,41 @@ def test_s3_status_of_a_root_without_indexes_is_its_listing():
     assert status.frames_done == status.frames_total == sum(expected_frames(MANY).values())
     # the listing (manifest/ and _index/), the root marker, run.json and _stats/driver.json
     assert sum(requests.values()) <= LISTING + 1 + 6 < len(make_plan(MANY).episodes), requests
+
+
+def test_verify_on_s3_reads_each_file_in_one_get_and_finds_damage(reference, monkeypatch):
+    """Verify on S3 reads each frame file with one GET (no HEAD before it: the listing gave
+    its size), one request per file fewer than pyarrow's HEAD + GET, and still finds a file
+    changed in place and one deleted."""
+    from manifests.verify import verify
+    from storage import Storage
+    from tests.s3_counter import counting_s3_server
+
+    local = Storage.from_uri(str(reference))
+    files = local.list_sizes()
+    with counting_s3_server() as (server, counter):
+        remote = Storage.from_uri(server.uri("root"))
+        for rel in files:
+            remote.write_bytes(rel, local.read_bytes(rel))
+        counts = []
+        for through_pyarrow in (False, True):
+            with monkeypatch.context() as patch:
+                if through_pyarrow:  # the reads as they were: pyarrow's HEAD then GET
+                    patch.setattr(Storage, "read_listed", lambda self, rel, size: self.read_bytes(rel))
+                counter.reset()
+                report = verify(remote)
+                counts.append((counter.counts(), report.files_checked))
+            assert report.ok, report.problems
+        (ours, checked), (pyarrows, _) = counts
+        assert checked > 100
+        assert pyarrows["HEAD"] - ours.get("HEAD", 0) >= checked  # a HEAD per file saved
+        assert ours["GET"] <= pyarrows["GET"] + 3  # and no GET more (give or take a lease read)
+        assert ours.get("HEAD", 0) + ours["GET"] <= checked * 1.5  # ~1 per file plus a few parts and listings
+        frames = sorted(rel for rel in files if rel.endswith(".png"))
+        damaged, gone = frames[0], frames[1]
+        data = bytearray(local.read_bytes(damaged))
+        data[len(data) // 2] ^= 0xFF
+        remote.write_bytes(damaged, bytes(data))
+        remote.delete(gone)
+        found = {(p.kind, p.path) for p in verify(remote).problems}
+    assert ("corrupt", damaged) in found and ("missing", gone) in found

@@ -412,3 +412,59 @@ def test_remove_stale_temp_only_touches_matching_temp_files(tmp_path):
     assert not os.path.exists(stale) and os.path.exists(other)
     assert storage.read_bytes("S/rgb/0001_000_S.png") == b"kept"
     assert storage.remove_stale_temp("S/missing", "") == 0
+
+
+def test_s3_listing_is_one_delimited_list_then_each_folder_flat(tmp_path):
+    """list_sizes on S3: one delimited LIST of the folder, then one flat listing per
+    folder below it (pages of 1,000 keys), never one LIST per nested folder; the
+    same files and sizes as the same tree on local disk."""
+    from tests.s3_counter import counting_s3_server
+
+    files = {f"top/{a}/{b}/{c}/f{i}.bin": i for a in ("x", "y") for b in ("p", "q") for c in ("1", "2", "3")
+             for i in range(4)}
+    files.update({"top/loose.bin": 7, "top/x/deep/.f.bin." + "0" * 32 + ".tmp": 1})  # a writer's temp file
+    files.update({f"top/z/{i:04d}.bin": 1 for i in range(1001)})  # two pages flat
+    local = Storage.from_uri(str(tmp_path / "root"))
+    with counting_s3_server() as (server, counter):
+        remote = Storage.from_uri(server.uri("root"))
+        for rel, size in files.items():
+            local.write_bytes(rel, b"x" * size)
+            remote.write_bytes(rel, b"x" * size)
+        counter.reset()
+        listed = remote.list_sizes("top/")
+        assert counter.counts() == {"GET": 1 + 1 + 1 + 2}  # top/ delimited; x, y flat; z flat in two pages
+    assert listed == local.list_sizes("top/")
+    assert listed == {rel: size for rel, size in files.items() if not rel.endswith(".tmp")}
+
+
+def test_read_listed_is_one_get_on_s3_and_fails_as_reads_do(monkeypatch):
+    """Storage.read_listed: the same bytes as read_bytes in one GET on S3; a missing object is
+    FileNotFoundError; an unreachable endpoint one StorageError naming the cause; without
+    botocore it reads through pyarrow (HEAD then GET)."""
+    import storage.s3get as s3get
+    from tests.s3_counter import counting_s3_server
+
+    with counting_s3_server() as (server, counter):
+        remote = Storage.from_uri(server.uri("root"))
+        remote.write_bytes("a/b.bin", b"payload" * 1000)
+        counter.reset()
+        assert remote.read_listed("a/b.bin", 7000) == remote.read_bytes("a/b.bin")
+        assert counter.counts() == {"GET": 2, "HEAD": 1}  # read_listed: GET; read_bytes: HEAD and GET
+        with pytest.raises(FileNotFoundError):
+            remote.read_listed("a/gone.bin", 10)
+        monkeypatch.setattr(s3get, "client_for", lambda config: None)
+        counter.reset()
+        assert remote.read_listed("a/b.bin", 7000) == b"payload" * 1000
+        assert counter.counts() == {"GET": 1, "HEAD": 1}
+        monkeypatch.undo()
+    import socket
+
+    with socket.socket() as sock:  # a port nothing listens on
+        sock.bind(("127.0.0.1", 0))
+        dead = sock.getsockname()[1]
+    monkeypatch.setenv("AWS_ENDPOINT_URL_S3", f"http://127.0.0.1:{dead}")
+    monkeypatch.setenv("AWS_ACCESS_KEY_ID", "k")
+    monkeypatch.setenv("AWS_SECRET_ACCESS_KEY", "s")
+    monkeypatch.setenv("AWS_REGION", "us-east-1")
+    with pytest.raises(StorageError, match="cannot read .*cannot reach the S3 endpoint"):
+        Storage.from_uri("s3://idda-test/root").read_listed("a/b.bin", 7000)
