@@ -54,6 +54,7 @@ SURFACES: tuple[Surface, ...] = (
     Surface("concrete slabs", (172, 172, 170), 0.08, 2.0, texture="concrete"),
     Surface("gravel", (146, 136, 118), 0.20, 1.5, texture="gravel"),
     Surface("dirt", (118, 94, 64), 0.22, 2.5, texture="soil"),
+    Surface("farm track", (150, 122, 84), 0.24, 2.0, texture="gravel"),
     # ground and vegetation
     Surface("lawn", (72, 112, 44), 0.25, 3.0, texture="grass"),
     Surface("meadow", (104, 124, 56), 0.28, 8.0, texture="grass"),
@@ -206,10 +207,13 @@ class Style:
     furniture: str = "steel and enamel"  # one of FURNITURES: poles, signals, signs, fences, walls
     hedge: str = "hedge"  # surface of hedgerows and bushes
     conifer: str = "canopy dark"  # canopy surface of conifers
+    track: str = ""  # surface of unpaved farm tracks (with a crown of the verge's grass); "" = every street paved
+    track_share: float = 0.0  # share of the street segments (off bridges) that are such tracks
 
     def __post_init__(self) -> None:
         lookup(FURNITURE_BY_NAME, self.furniture, "furniture")
         for name in (self.asphalt, self.kerb, self.verge, self.marking, self.ground, self.hedge, self.conifer,
+                     *((self.track,) if self.track else ()),
                      *self.paving, *self.facades, *self.roofs, *self.canopies, *self.crops, *self.tall_crops):
             surface(name)
         for value, valid, what in ((self.road_edge, ROAD_EDGES, "road edge"),
@@ -224,6 +228,9 @@ class Style:
         if not 0.0 <= self.tall_crop_share <= 1.0 or (self.tall_crop_share > 0) != bool(self.tall_crops):
             raise ValueError(f"style {self.name!r}: tall_crop_share must be in [0, 1], and above 0 exactly when "
                              "there are tall crops")
+        if not 0.0 <= self.track_share <= 1.0 or (self.track_share > 0) != bool(self.track):
+            raise ValueError(f"style {self.name!r}: track_share must be in [0, 1], and above 0 exactly when "
+                             "there is a track surface")
         if not (self.paving and self.facades and self.roofs and self.trees and self.canopies):
             raise ValueError(f"style {self.name!r}: paving, facades, roofs, trees and canopies must not be empty")
 
@@ -275,7 +282,8 @@ STYLES: tuple[Style, ...] = (
           ("roof metal", "roof terracotta"), (("poplar", 0.4), ("broadleaf", 0.4), ("bush", 0.2)),
           ("canopy autumn", "canopy rust", "canopy straw", "canopy olive"), "hay meadow", ("wheat", "stubble", "soil"),
           30.0, 0.0, ("ripe maize", "dry maize"), 0.9, (("hedge", 0.7), ("fence", 0.1), ("wall", 0.1)),
-          furniture="timber and stone", hedge="hedge bramble", conifer="canopy olive"),
+          furniture="timber and stone", hedge="hedge bramble", conifer="canopy olive", track="farm track",
+          track_share=0.6),
 )
 STYLE_BY_NAME = {s.name: s for s in STYLES}
 
