@@ -82,6 +82,22 @@ def test_every_style_names_a_furniture_row_and_unknown_ones_are_rejected():
         replace(style("farmland"), hedge="kudzu")
 
 
+def test_the_farmland_is_in_late_autumn_no_green_crown_hedge_or_verge_left():
+    """Every tree crown, hedge and verge of the farmland is rust, straw, russet, bare twigs or leaf litter
+    (red well above green), where the old town's are green, and its trunks are pale grey, not brown: a network
+    that learned the old town's plants and verges does not find them there."""
+    from render_workers.worlds.styles import surface
+
+    farm, old = look(town_row("T07")), look(town_row("T01"))
+    for name in (*farm.canopies, farm.hedge, farm.verge):
+        r, g, _ = surface(name).color
+        assert r >= 1.15 * g, name
+    for name in (*old.canopies, old.hedge, old.verge):
+        r, g, _ = surface(name).color
+        assert g > r, name
+    assert distance(surface(farm.bark).color, surface(old.bark).color) > 60.0
+
+
 def _street_world(code: str, **style_change):
     from render_workers.worlds import streets
     from render_workers.worlds.kit import Kit
