@@ -80,3 +80,54 @@ def test_every_style_names_a_furniture_row_and_unknown_ones_are_rejected():
         replace(style("farmland"), furniture="chrome")
     with pytest.raises(ValueError, match="unknown surface 'kudzu'"):
         replace(style("farmland"), hedge="kudzu")
+
+
+def test_the_farmland_is_in_late_autumn_no_green_crown_hedge_or_verge_left():
+    """Every tree crown, hedge and verge of the farmland is rust, straw, russet, bare twigs or leaf litter
+    (red well above green), where the old town's are green, and its trunks are pale grey, not brown: a network
+    that learned the old town's plants and verges does not find them there."""
+    from render_workers.worlds.styles import surface
+
+    farm, old = look(town_row("T07")), look(town_row("T01"))
+    for name in (*farm.canopies, farm.hedge, farm.verge):
+        r, g, _ = surface(name).color
+        assert r >= 1.15 * g, name
+    for name in (*old.canopies, old.hedge, old.verge):
+        r, g, _ = surface(name).color
+        assert g > r, name
+    assert distance(surface(farm.bark).color, surface(old.bark).color) > 60.0
+
+
+def _street_world(code: str, **style_change):
+    from render_workers.worlds import streets
+    from render_workers.worlds.kit import Kit
+    from render_workers.worlds.scene import World
+    from render_workers.worlds.town_plan import plan
+
+    kit = Kit(plan(town_row(code), 0))
+    kit.style = replace(kit.style, **style_change)
+    streets.streets(kit)
+    tracks = streets.track_segments(kit)
+    return tracks, W.class_albedo(World(town=code, seed=0, static=kit.batch.parts(), lanes=(), walkways=(),
+                                        bounds=(0, 0, 1, 1)))
+
+
+def test_the_farmland_has_unpaved_farm_tracks_with_a_grass_crown():
+    """About the style's share of the farmland's street segments are gravel tracks (road) with a grass crown
+    (terrain) and ruts; the kerbed towns' streets are all paved, and so are the farmland's without the share."""
+    from render_workers.worlds.styles import surface
+
+    farm = look(town_row("T07"))
+    tracks, albedo = _street_world("T07")
+    lay = W.layout("T07", 0)
+    segments = len(lay.xs) * (len(lay.ys) - 1) + len(lay.ys) * (len(lay.xs) - 1)
+    assert 0.5 * farm.track_share < len(tracks) / segments < 1.5 * farm.track_share
+    assert class_id("terrain") in albedo  # the crowns
+    paved_tracks, paved = _street_world("T07", track="", track_share=0.0)
+    assert not paved_tracks and class_id("terrain") not in paved
+    road = class_id("road")
+    track = np.array(surface(farm.track).color, float)
+    assert distance(albedo[road], track) < distance(paved[road], track) - 5.0
+    assert not _street_world("T01")[0]
+    with pytest.raises(ValueError, match="track_share must be in"):
+        replace(farm, track="")

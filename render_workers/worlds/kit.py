@@ -220,7 +220,7 @@ class Kit:
             return self.bush(base, scale)
         h = scale * rng.uniform(2.2, 3.8)
         r = scale * rng.uniform(2.4, 3.9)
-        bark = "birch bark" if kind == "birch" else "bark"
+        bark = "birch bark" if kind == "birch" else self.style.bark
         v, f = M.cylinders(base[None], h + (1.6 * r if kind == "poplar" else 1.0), scale * rng.uniform(0.14, 0.24), 6)
         self.paint("vegetation", v, f, bark)
         if kind == "conifer":  # stacked cones, narrowing upwards

@@ -25,6 +25,26 @@ def asphalt(kit: Kit, v, f, tiled: bool = False) -> None:
     kit.add_colored("road", v, f, col, s.look, tiled, s.texture)
 
 
+def track(kit: Kit, start: np.ndarray, d: np.ndarray, length: float) -> None:
+    """An unpaved farm track along one street segment: the style's track surface
+    (road) with darker wheel ruts, and a crown of the verge's grass between them (terrain)."""
+    hw = kit.lay.hw
+    s = surface(kit.style.track)
+    left = np.array([-d[1], d[0], 0.0])
+    p0 = np.array([*start, 0.0]) - hw * left
+    v, f = M.grid(p0, np.array([*(d * length), 0.0]), 2 * hw * left, max(1, int(length / 3.0)), 8)
+    kit._cseed += 1
+    col = M.noisy_colors(v, kit.base_color(s), s.noise, s.scale_m, seed=kit._cseed % 9973, fine=0.08)
+    lateral = np.abs((v - p0) @ left - hw)
+    ruts = np.abs(lateral - 0.75 * hw) < 0.2 * hw
+    col[ruts, :3] = (col[ruts, :3] * 0.7).astype(np.uint8)
+    kit.add_colored("road", v, f, col, s.look, True, s.texture)
+    crown = 0.22 * hw  # half width of the grass strip
+    v, f = M.grid(np.array([*(start + d), 0.03]) - crown * left, np.array([*(d * (length - 2.0)), 0.0]),
+                  2 * crown * left, max(1, int(length / 3.0)), 1)
+    kit.paint("terrain", v, f, kit.style.verge, tiled=True, fine=0.15)
+
+
 def markings(kit, start: np.ndarray, d: np.ndarray, length: float) -> None:
     """Centre, lane and edge lines along one street segment."""
     lay, style = kit.lay, kit.style

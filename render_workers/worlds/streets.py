@@ -12,26 +12,55 @@ import numpy as np
 
 from render_workers.worlds import meshes as M
 from render_workers.worlds.kit import PALETTE, Kit, split_span
-from render_workers.worlds.roadway import asphalt, markings, road_marks
+from render_workers.worlds.roadway import asphalt, markings, road_marks, track
 from render_workers.worlds.styles import is_urban
 from render_workers.worlds.town_plan import CURB_H, MARK_Z, OUTER_Z, ZEBRA_FROM, ZEBRA_LEN, corner_offset
 
 VERGE_LAP = 0.2  # verges reach this far over the road edge
 
 
+def track_segments(kit: Kit) -> frozenset:
+    """Street segments that are unpaved farm tracks (``Style.track_share``), keyed ("x", i, j) for the
+    north-south one from junction (i, j) to (i, j + 1) and ("y", i, j) for the east-west one to (i + 1, j).
+    Drawn from a generator of their own, so the kit's draws stay as they were; segments that cross the
+    river (bridges) stay paved."""
+    lay, share = kit.lay, kit.style.track_share
+    if share <= 0:
+        return frozenset()
+    rng = np.random.default_rng([lay.seed, lay.town.stream, 7])
+    out = set()
+    for i in range(len(lay.xs)):
+        for j in range(len(lay.ys) - 1):
+            bridge = lay.river is not None and lay.ys[j] < lay.river[0] < lay.ys[j + 1]
+            if rng.random() < share and not bridge:
+                out.add(("x", i, j))
+    for j in range(len(lay.ys)):
+        for i in range(len(lay.xs) - 1):
+            if rng.random() < share:
+                out.add(("y", i, j))
+    return frozenset(out)
+
+
 def streets(kit: Kit) -> None:
     lay, hw = kit.lay, kit.lay.hw
     xs, ys = lay.xs, lay.ys
     cell = 3.0
+    tracks = track_segments(kit)
     for i, x in enumerate(xs):  # north-south segments
         for j in range(len(ys) - 1):
             a, b = ys[j] + hw, ys[j + 1] - hw
+            if ("x", i, j) in tracks:
+                track(kit, np.array([x, a]), np.array([0.0, 1.0]), b - a)
+                continue
             v, f = M.grid((x - hw, a, 0), (2 * hw, 0, 0), (0, b - a, 0), int(2 * hw / cell), int((b - a) / cell))
             asphalt(kit, v, f, tiled=True)
             markings(kit, np.array([x, a]), np.array([0.0, 1.0]), b - a)
     for j, y in enumerate(ys):  # east-west segments
         for i in range(len(xs) - 1):
             a, b = xs[i] + hw, xs[i + 1] - hw
+            if ("y", i, j) in tracks:
+                track(kit, np.array([a, y]), np.array([1.0, 0.0]), b - a)
+                continue
             v, f = M.grid((a, y - hw, 0), (b - a, 0, 0), (0, 2 * hw, 0), int((b - a) / cell), int(2 * hw / cell))
             asphalt(kit, v, f, tiled=True)
             markings(kit, np.array([a, y]), np.array([1.0, 0.0]), b - a)

@@ -54,10 +54,12 @@ SURFACES: tuple[Surface, ...] = (
     Surface("concrete slabs", (172, 172, 170), 0.08, 2.0, texture="concrete"),
     Surface("gravel", (146, 136, 118), 0.20, 1.5, texture="gravel"),
     Surface("dirt", (118, 94, 64), 0.22, 2.5, texture="soil"),
+    Surface("farm track", (150, 122, 84), 0.24, 2.0, texture="gravel"),
     # ground and vegetation
     Surface("lawn", (72, 112, 44), 0.25, 3.0, texture="grass"),
     Surface("meadow", (104, 124, 56), 0.28, 8.0, texture="grass"),
     Surface("dry grass", (140, 136, 80), 0.25, 6.0, texture="grass"),
+    Surface("leaf litter", (128, 92, 58), 0.3, 3.0, texture="grass"),  # verges under fallen leaves
     Surface("alpine grass", (78, 106, 58), 0.25, 10.0, texture="grass"),
     Surface("rock", (118, 114, 108), 0.25, 12.0, texture="soil"),
     Surface("snow", (232, 236, 242), 0.05, 10.0),
@@ -74,12 +76,14 @@ SURFACES: tuple[Surface, ...] = (
     Surface("canopy autumn", (150, 116, 44), 0.25, 1.2),
     Surface("canopy olive", (88, 96, 42), 0.25, 1.2),
     Surface("hedge", (44, 84, 34), 0.30, 0.7),
-    Surface("hedge bramble", (92, 84, 40), 0.35, 0.7),
+    Surface("hedge russet", (126, 84, 52), 0.35, 0.7),  # hawthorn and bramble in late autumn
     Surface("canopy rust", (156, 88, 40), 0.28, 1.2),
     Surface("canopy straw", (176, 150, 70), 0.25, 1.2),
+    Surface("canopy bare", (118, 100, 90), 0.3, 1.0),  # leafless crowns of late autumn: bare twigs
     Surface("stubble", (196, 170, 112), 0.20, 4.0, texture="crop"),
     Surface("bark", (84, 64, 44), 0.20, 0.5),
     Surface("birch bark", (206, 204, 196), 0.15, 0.5),
+    Surface("bark grey", (148, 144, 134), 0.18, 0.5),  # the smooth pale bark of poplars, ash and beech
     # facades and roofs
     Surface("brick red", (152, 74, 54), 0.10, 4.0, texture="brick"),
     Surface("brick brown", (118, 70, 54), 0.10, 4.0, texture="brick"),
@@ -206,10 +210,14 @@ class Style:
     furniture: str = "steel and enamel"  # one of FURNITURES: poles, signals, signs, fences, walls
     hedge: str = "hedge"  # surface of hedgerows and bushes
     conifer: str = "canopy dark"  # canopy surface of conifers
+    bark: str = "bark"  # surface of tree trunks (birches keep their own)
+    track: str = ""  # surface of unpaved farm tracks (with a crown of the verge's grass); "" = every street paved
+    track_share: float = 0.0  # share of the street segments (off bridges) that are such tracks
 
     def __post_init__(self) -> None:
         lookup(FURNITURE_BY_NAME, self.furniture, "furniture")
         for name in (self.asphalt, self.kerb, self.verge, self.marking, self.ground, self.hedge, self.conifer,
+                     self.bark, *((self.track,) if self.track else ()),
                      *self.paving, *self.facades, *self.roofs, *self.canopies, *self.crops, *self.tall_crops):
             surface(name)
         for value, valid, what in ((self.road_edge, ROAD_EDGES, "road edge"),
@@ -224,6 +232,9 @@ class Style:
         if not 0.0 <= self.tall_crop_share <= 1.0 or (self.tall_crop_share > 0) != bool(self.tall_crops):
             raise ValueError(f"style {self.name!r}: tall_crop_share must be in [0, 1], and above 0 exactly when "
                              "there are tall crops")
+        if not 0.0 <= self.track_share <= 1.0 or (self.track_share > 0) != bool(self.track):
+            raise ValueError(f"style {self.name!r}: track_share must be in [0, 1], and above 0 exactly when "
+                             "there is a track surface")
         if not (self.paving and self.facades and self.roofs and self.trees and self.canopies):
             raise ValueError(f"style {self.name!r}: paving, facades, roofs, trees and canopies must not be empty")
 
@@ -269,13 +280,14 @@ STYLES: tuple[Style, ...] = (
           ("siding beige", "siding grey", "siding blue", "brick brown", "plaster white"),
           ("roof metal", "roof slate", "roof flat"), (("broadleaf", 0.5), ("bush", 0.3), ("conifer", 0.2)),
           ("canopy light", "canopy autumn"), "dry grass", (), 4.0, 0.0, furniture="galvanised"),
-    Style("farmland", "chip seal", 0.8, "kerb granite", ("paving grey",), "dirt", "dry grass",
+    Style("farmland", "chip seal", 0.8, "kerb granite", ("paving grey",), "dirt", "leaf litter",
           3.0, "none", 0.3, "marking white", "farm",
           ("barn red", "plaster white", "stone wall", "timber dark"),
           ("roof metal", "roof terracotta"), (("poplar", 0.4), ("broadleaf", 0.4), ("bush", 0.2)),
-          ("canopy autumn", "canopy rust", "canopy straw", "canopy olive"), "hay meadow", ("wheat", "stubble", "soil"),
+          ("canopy autumn", "canopy rust", "canopy straw", "canopy bare"), "hay meadow", ("wheat", "stubble", "soil"),
           30.0, 0.0, ("ripe maize", "dry maize"), 0.9, (("hedge", 0.7), ("fence", 0.1), ("wall", 0.1)),
-          furniture="timber and stone", hedge="hedge bramble", conifer="canopy olive"),
+          furniture="timber and stone", hedge="hedge russet", conifer="canopy olive", bark="bark grey",
+          track="farm track", track_share=0.6),
 )
 STYLE_BY_NAME = {s.name: s for s in STYLES}
 
