@@ -210,7 +210,7 @@ class Storage:
         GET where botocore is installed (``storage.s3get``), not pyarrow's HEAD then GET;
         otherwise :meth:`read_bytes`. FileNotFoundError if it is gone since."""
         rel = clean_rel(rel)
-        if self.is_local or size == 0:
+        if self.is_local:
             return self.read_bytes(rel)
         from storage.s3get import client_for, get_object
 

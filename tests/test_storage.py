@@ -433,6 +433,12 @@ def test_s3_listing_is_one_delimited_list_then_each_folder_flat(tmp_path):
         counter.reset()
         listed = remote.list_sizes("top/")
         assert counter.counts() == {"GET": 1 + 1 + 1 + 2}  # top/ delimited; x, y flat; z flat in two pages
+        neighbour = Storage.from_uri(server.uri("root2"))  # a root whose name extends this one's
+        neighbour.write_bytes("top/x2/n.bin", b"n")
+        remote.write_bytes("top/x2/own.bin", b"o")  # a folder whose name extends x's
+        assert remote.list_sizes("top/x/") == {rel: size for rel, size in files.items()
+                                              if rel.startswith("top/x/") and not rel.endswith(".tmp")}
+        assert "top/x2/n.bin" not in remote.list_sizes("") and "top/x2/own.bin" in remote.list_sizes("")
     assert listed == local.list_sizes("top/")
     assert listed == {rel: size for rel, size in files.items() if not rel.endswith(".tmp")}
 
