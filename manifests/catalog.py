@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import re
 import zlib
 from dataclasses import dataclass
 from functools import cached_property
@@ -24,12 +25,15 @@ from typing import Iterable, Iterator
 import numpy as np
 
 from manifests.domainfile import catalog_from_text, with_layer_json
-from manifests.domains import AXES, RGB, Catalog, Town, Viewpoint, Weather  # noqa: F401 (re-exported)
+from manifests.domains import (AXES, CODE_CHARS, CODE_SEPARATOR, RGB, Catalog, Town, Viewpoint,  # noqa: F401
+                               Weather)  # (re-exported)
 
 # AXES (manifests.domains): the axes of a scenario, in the order of its code ``<town>_<weather>_<viewpoint>``
 # (e.g. T01_CS_A) and of the manifest's hive partitions. The code is parsed by
-# split_code and formatted by format_code, and nowhere else.
-CODE_SEPARATOR = "_"
+# split_code and formatted by format_code; the parsers of paths and part names
+# (manifests.layout, manifests.schema, manifests.reader) take their patterns
+# from scenario_pattern. A code part is what a domain file may declare
+# (CODE_CHARS: letters and digits, any case and length: T01, Oslo, FG1, CNtoNT, fg, B2, 7).
 
 
 def lookup(table: dict, key: str, what: str, plural: str | None = None):
@@ -206,14 +210,24 @@ def _weather_seed_place(cat: Catalog, code: str) -> int:
     return order.index(code)
 
 
+def scenario_pattern(name: str = "scenario", axes: bool = True) -> str:
+    """Regular expression text matching any scenario code the catalog allows, as group ``name``;
+    ``axes``: each part as a group named after its axis (``town``, ``weather``, ``viewpoint``)."""
+    parts = (f"(?P<{axis}>{CODE_CHARS})" if axes else CODE_CHARS for axis in AXES)
+    return f"(?P<{name}>{CODE_SEPARATOR.join(parts)})"
+
+
+SCENARIO_RE = re.compile(scenario_pattern())
+
+
 def split_code(code: str) -> tuple[str, ...]:
     """``T01_CS_A`` -> ``("T01", "CS", "A")``, one part per axis; ValueError if malformed."""
-    parts = code.split(CODE_SEPARATOR)
-    if len(parts) != len(AXES) or not all(parts):
+    match = SCENARIO_RE.fullmatch(code) if isinstance(code, str) else None
+    if match is None:
         raise ValueError(
             f"malformed scenario code {code!r}; expected TOWN_WEATHER_VIEWPOINT such as T01_CS_A"
         )
-    return tuple(parts)
+    return tuple(match.group(axis) for axis in AXES)
 
 
 def format_code(*parts: str) -> str:

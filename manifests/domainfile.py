@@ -22,10 +22,10 @@ import typing
 from dataclasses import MISSING, fields
 from functools import lru_cache
 
-from manifests.domains import AXES, ROW_TYPES, Catalog, row_dict
+from manifests.domains import AXES, CODE_CHARS, ROW_TYPES, Catalog, row_dict
 from manifests.shifts import check_shift
 
-CODE_PATTERN = re.compile(r"[A-Za-z0-9]+")  # no "_" (joins a scenario code), no "-" (ranges), no "*" (wildcards)
+CODE_PATTERN = re.compile(CODE_CHARS)  # manifests.domains: the one grammar of codes
 HEADER = """\
 # IDDA domain catalog: towns, weathers and viewpoints (docs/catalog.md).
 # Each [[town]], [[weather]] or [[viewpoint]] entry has a code and its parameters;

@@ -22,6 +22,11 @@ from functools import cached_property
 
 RGB = tuple[int, int, int]
 AXES: tuple[str, ...] = ("town", "weather", "viewpoint")  # the order of a scenario code's parts
+# The grammar of codes (manifests.catalog derives every parser of scenario codes, paths and parts from it):
+# a code is letters and digits, any case, any length; no "_" (joins a scenario code's parts), no "-"
+# (ranges), no "*" (wildcards).
+CODE_CHARS = "[A-Za-z0-9]+"
+CODE_SEPARATOR = "_"
 
 
 def param(meaning: str, unit: str = "", lo: float | None = None, hi: float | None = None, ordered: bool = False,

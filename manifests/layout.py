@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import re
 
+from manifests.catalog import scenario_pattern
 from manifests.outputs import FORMATS, OUTPUT_TABLE, OUTPUTS, extension
 from manifests.schema import frame_stem
 
@@ -63,7 +64,7 @@ for _o in OUTPUT_TABLE:
     for _file in _o.files:
         _BY_EXTENSION.setdefault(FORMATS[_file].extension, []).append(_o.name)
 del _o, _file
-_SCENARIO = r"^(?P<scenario>T\d\d_[A-Z]+_[A-Z])/"
+_SCENARIO = "^" + scenario_pattern(axes=False) + "/"  # any code the catalog allows
 _OUTPUT = (
     "(?=" + "|".join(f"(?:{'|'.join(names)})/[^/]*\\.{ext}$" for ext, names in _BY_EXTENSION.items()) + ")"
     + r"(?P<output>" + "|".join(OUTPUTS) + r")/"

@@ -18,7 +18,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from manifests.catalog import split_code
+from manifests.catalog import scenario_pattern, split_code
 from manifests.schema import (
     INDEX_DIR,
     INDEX_EPISODES_KEY,
@@ -40,7 +40,7 @@ from manifests.schema import (
 from manifests.outputs import OUTPUTS
 from manifests.summary import _SUMMARY_COLUMNS, PartSummary, summary_of_footer, summary_of_table  # noqa: F401 (public here too)
 
-_INDEX_RE = re.compile(r"^" + INDEX_DIR + r"/((T\d\d)_(\w+)_(\w))\.parquet$")
+_INDEX_RE = re.compile("^" + INDEX_DIR + "/" + scenario_pattern() + r"\.parquet$")
 
 log = logging.getLogger(__name__)
 _PARQUET = ds.ParquetFileFormat()
@@ -106,7 +106,7 @@ def index_listing(storage) -> dict[str, tuple[str, int]]:
     for rel, size in storage.list_sizes(INDEX_DIR + "/", suffix=".parquet").items():
         match = _INDEX_RE.match(rel)
         if match:
-            indexes[match.group(1)] = (rel, size)
+            indexes[match.group("scenario")] = (rel, size)
     return indexes
 
 
@@ -455,7 +455,7 @@ def _readable_files(storage, files: list[str]) -> list[str]:
         except (ManifestError, FileNotFoundError) as exc:
             if not rel.startswith(INDEX_DIR + "/"):
                 raise ManifestError(f"{exc}; run `idda verify` and `idda produce --repair`") from None
-            scenario = _INDEX_RE.match(rel).group(1)
+            scenario = _INDEX_RE.match(rel).group("scenario")
             log.warning("ignoring the damaged index %s (%s); reading its parts", storage.join(rel), exc)
             out.extend(parts[scenario][e] for e in sorted(parts.get(scenario, {})))
     return out

@@ -7,7 +7,7 @@ import re
 
 import pyarrow as pa
 
-from manifests.catalog import AXES, INSTANCE_LABELS, LABELS, code_axes
+from manifests.catalog import AXES, CODE_CHARS, CODE_SEPARATOR, INSTANCE_LABELS, LABELS, code_axes
 from manifests.conditions import CONDITIONS
 from manifests.outputs import OUTPUTS
 
@@ -149,10 +149,12 @@ def part_path(scenario: str, episode: int, rows: int | None = None) -> str:
 
 
 # A part's path, old names and counted ones: groups town, weather, viewpoint,
-# scenario, episode and rows (None in an old name).
+# scenario, episode and rows (None in an old name). Any code the catalog allows
+# (manifests.catalog.CODE_CHARS); the name's scenario is the hive path's.
 PART_RE = re.compile(
-    r"^manifest/town=(?P<town>T\d\d)/weather=(?P<weather>\w+)/viewpoint=(?P<viewpoint>\w)/"
-    r"(?P<scenario>T\d\d_\w+_\w)_e(?P<episode>\d{4})(?:_n(?P<rows>[1-9]\d*))?\.parquet$"
+    "^" + MANIFEST_DIR + "/" + "/".join(f"{axis}=(?P<{axis}>{CODE_CHARS})" for axis in AXES) + "/"
+    + "(?P<scenario>" + CODE_SEPARATOR.join(f"(?P={axis})" for axis in AXES) + ")"
+    + r"_e(?P<episode>\d{4})(?:_n(?P<rows>[1-9]\d*))?\.parquet$"
 )
 
 
