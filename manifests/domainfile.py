@@ -93,19 +93,37 @@ def _check_code(code, where: str, known: dict[str, str]) -> str:
 
 
 # Keys a file writes for fields whose names are not TOML-friendly or clear: key -> field (weathers' shifts).
+# A file has one spelling, the key (the field's name is refused there); a run's record (run.json, job
+# specs: Catalog.layer_dict) holds field names.
 KEY_ALIASES = {"from": "shift_from", "to": "shift_to"}
 _FIELD_KEYS = {name: key for key, name in KEY_ALIASES.items()}
 
 
-def resolve_entry(axis: str, entry: dict, base: dict, where: str):
-    """One entry of a file as a row: its ``like`` (or the existing entry of its code) overridden by its keys."""
+def file_key(name: str) -> str:
+    """How a domain file spells the field ``name``."""
+    return _FIELD_KEYS.get(name, name)
+
+
+def _file_entry(entry: dict, where: str) -> dict:
+    """An entry of a file with its keys as field names; a field name that files spell otherwise is refused."""
+    for key in entry:
+        if key in _FIELD_KEYS:
+            raise CatalogError(f"{where}: key {key!r}: write it {_FIELD_KEYS[key]!r} (a domain file's spelling)")
+    return {KEY_ALIASES.get(k, k): v for k, v in entry.items()}
+
+
+def resolve_entry(axis: str, entry: dict, base: dict, where: str, record: bool = False):
+    """One entry of a file as a row: its ``like`` (or the existing entry of its code) overridden by its keys.
+    ``record``: the entry is a run's record, keyed by field names (a file's entry: by its keys, ``file_key``)."""
     cls = ROW_TYPES[axis]
-    if axis == "weather":
-        entry = {KEY_ALIASES.get(k, k): v for k, v in entry.items()}
+    if not record:
+        entry = _file_entry(entry, where)
     hints, by_name = _hints(cls), {f.name: f for f in fields(cls)}
     unknown = [k for k in entry if k not in by_name and k != "like"]
     if unknown:
-        raise CatalogError(f"{where}: key {unknown[0]!r}: unknown key; valid keys: like, {', '.join(by_name)}")
+        shown = (unknown[0] if record else file_key(unknown[0]),
+                 ", ".join(by_name if record else map(file_key, by_name)))
+        raise CatalogError(f"{where}: key {shown[0]!r}: unknown key; valid keys: like, {shown[1]}")
     code = entry["code"]
     start: dict = {}
     if "like" in entry:
@@ -118,15 +136,15 @@ def resolve_entry(axis: str, entry: dict, base: dict, where: str):
         start = row_dict(base[code])
     defaults = {name: f.default for name, f in by_name.items() if f.default is not MISSING}
     values = {**defaults, **start, **{k: v for k, v in entry.items() if k != "like"}}
-    missing = [name for name in by_name if name not in values]
+    missing = [name if record else file_key(name) for name in by_name if name not in values]
     if missing:
         raise CatalogError(f"{where}: key {missing[0]!r}: missing (give every parameter, or like = an existing "
                            f"{axis}); missing: {', '.join(missing)}")
     return cls(**{name: coerce(f, hints[name], values[name], f"{where}: key {name!r}") for name, f in by_name.items()})
 
 
-def rows_from_data(data: dict, base: Catalog, source: str) -> dict[str, list]:
-    """axis -> resolved rows of a parsed file (TOML or the JSON layer of a run record)."""
+def rows_from_data(data: dict, base: Catalog, source: str, record: bool = False) -> dict[str, list]:
+    """axis -> resolved rows of a parsed file (TOML), or of the JSON layer of a run's record (``record``)."""
     if not isinstance(data, dict):
         raise CatalogError(f"{source}: expected tables {', '.join(AXES)}")
     unknown = [k for k in data if k not in AXES]
@@ -149,7 +167,7 @@ def rows_from_data(data: dict, base: Catalog, source: str) -> dict[str, list]:
             where = f"{source}: {axis} {code!r}"
             if code in seen:
                 raise CatalogError(f"{where}: key 'code': duplicate code {code!r} (declared twice in this file)")
-            row = resolve_entry(axis, entry, known, where)
+            row = resolve_entry(axis, entry, known, where, record)
             if axis == "weather" and (why := check_shift(row, known)):
                 raise CatalogError(f"{where}: {why}")
             seen.add(code)
@@ -182,7 +200,7 @@ def with_layer_json(base: Catalog, layer: str, source: str = "the run's catalog"
     """``base`` with a recorded user layer (``Catalog.layer_json``; "" for none)."""
     if not layer:
         return base
-    return base.with_rows(rows_from_data(json.loads(layer), base, source))
+    return base.with_rows(rows_from_data(json.loads(layer), base, source, record=True))
 
 
 # --------------------------------------------------------------------------
@@ -219,6 +237,6 @@ def catalog_toml(catalog: Catalog) -> str:
             out.append(f"[[{axis}]]")
             for f in fields(row):
                 out.append(_comment(f))
-                out.append(f"{_FIELD_KEYS.get(f.name, f.name)} = {_toml_value(getattr(row, f.name))}")
+                out.append(f"{file_key(f.name)} = {_toml_value(getattr(row, f.name))}")
             out.append("")
     return "\n".join(out)

@@ -29,6 +29,9 @@ def check_shift(row: Weather, weathers: dict[str, Weather]) -> str | None:
     if not row.shift_from and not row.shift_to:
         return None
     for key, code in (("from", row.shift_from), ("to", row.shift_to)):
+        if not code:
+            return f"key {key!r}: missing: a shift names the weather it starts in ('from') and the one it ends in ('to')"
+    for key, code in (("from", row.shift_from), ("to", row.shift_to)):
         end = weathers.get(code)
         if end is None:
             return f"key {key!r}: unknown weather {code!r}; valid weathers: {', '.join(weathers)}"

@@ -7,7 +7,7 @@ import cv2
 import pytest
 
 from manifests.catalog import BUILTIN, weather
-from manifests.domainfile import CatalogError, catalog_toml, catalog_from_text, with_file
+from manifests.domainfile import CatalogError, catalog_toml, catalog_from_text, with_file, with_layer_json
 from manifests.shifts import weather_at
 from manifests.spec import EpisodeSpec
 from manifests.synthetic import episode_rows
@@ -34,10 +34,25 @@ def test_shift_entries_blend_their_ends_by_the_easing():
     ('from = "CN"\nto = "XX"\n', "key 'to': unknown weather 'XX'"),
     ('from = "CNtoNT"\nto = "NT"\n', "key 'from': 'CNtoNT' shifts itself"),
     ('from = "CN"\nto = "NT"\neasing = "bounce"\n', "key 'easing': unknown easing 'bounce'"),
+    # issue 32: the key left out is named; one spelling, `from` / `to`, the fields' names refused
+    ('from = "CN"\n', "key 'to': missing: a shift names the weather it starts in"),
+    ('to = "NT"\n', "key 'from': missing"),
+    ('from = "CN"\nto = "FG"\nshift_to = "NT"\n', "key 'shift_to': write it 'to' \\(a domain file's spelling\\)$"),
+    ('shift_from = "CN"\nshift_to = "NT"\n', "key 'shift_from': write it 'from'"),
+    ('from = "CN"\nto = "NT"\ntill = 3\n', "key 'till': unknown key; valid keys: like, code, .*, from, to, easing$"),
 ])
 def test_bad_shifts_give_one_line(entry, words):
     with pytest.raises(CatalogError, match=words):
         with_file(BUILTIN, f'[[weather]]\ncode = "S1"\nlike = "CN"\n{entry}', "s.toml")
+
+
+def test_a_runs_record_keeps_the_fields_names():
+    """run.json and job specs record a user shift by its fields' names (Catalog.layer_json), as roots
+    made before this check hold it: it still loads, while a file must write from / to."""
+    cat = with_file(BUILTIN, '[[weather]]\ncode = "S1"\nlike = "CN"\nfrom = "HRN"\nto = "SN"\n', "s.toml")
+    layer = cat.layer_json()
+    assert '"shift_from":"HRN"' in layer and '"shift_to":"SN"' in layer
+    assert with_layer_json(BUILTIN, layer).by_code("weather")["S1"] == cat.by_code("weather")["S1"]
 
 
 def test_a_user_shift_and_synthetic_rows_carry_each_frames_conditions():
