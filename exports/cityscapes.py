@@ -125,18 +125,20 @@ def cityscapes_camera(K, cam_to_ego) -> dict:
     """Cityscapes' camera JSON of a row's ``K`` and ``cam_to_ego`` (cells or matrices)."""
     K, T = as_matrix(K, 3), as_matrix(cam_to_ego, 4)
     R = T[:3, :3] @ CV_FROM_VEHICLE_AXES  # Rz(yaw) @ Ry(pitch) @ Rx(roll)
-    x, y, z = (float(v) for v in T[:3, 3])
+    x, y, z = T[:3, 3]
     extrinsic = {
         "baseline": 0.0,  # mono camera
-        "pitch": float(-math.asin(max(-1.0, min(1.0, R[2, 0])))),
-        "roll": float(math.atan2(R[2, 1], R[2, 2])),
+        "pitch": -math.asin(max(-1.0, min(1.0, R[2, 0]))),
+        "roll": math.atan2(R[2, 1], R[2, 2]),
         "x": x,
         "y": y,
-        "yaw": float(math.atan2(R[1, 0], R[0, 0])),
+        "yaw": math.atan2(R[1, 0], R[0, 0]),
         "z": z,
     }
-    intrinsic = {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "u0": float(K[0, 2]), "v0": float(K[1, 2])}
-    return {"extrinsic": extrinsic, "intrinsic": intrinsic}
+    intrinsic = {"fx": K[0, 0], "fy": K[1, 1], "u0": K[0, 2], "v0": K[1, 2]}
+    # plain floats, and 0.0 where a sign flip leaves -0.0 (the level camera's pitch): x + 0.0 is 0.0 for -0.0
+    return {name: {key: float(v) + 0.0 for key, v in values.items()}
+            for name, values in (("extrinsic", extrinsic), ("intrinsic", intrinsic))}
 
 
 def _frame(storage, frame: ExportFrame, tmp: str, place) -> dict[str, str]:

@@ -105,6 +105,16 @@ def test_cityscapes_camera_angles_of_a_tilted_camera():
     assert (cam_to_ego[:3, :3] @ [0, 0, 1])[2] < 0
 
 
+def test_a_level_camera_writes_no_negative_zero():
+    """Issue 32: a level, straight-ahead camera's angles are 0.0 in the JSON, never -0.0."""
+    import json
+
+    cam_to_ego = np.eye(4)
+    cam_to_ego[:3, :3] = cs_layout.CV_FROM_VEHICLE_AXES.T
+    text = json.dumps(cs_layout.cityscapes_camera(np.eye(3), cam_to_ego))
+    assert "-0.0" not in text and '"pitch": 0.0' in text and '"yaw": 0.0' in text
+
+
 def test_conventions_bev_writes_a_png(tmp_path):
     """reports.conventions_bev: a tiny episode drawn from above (docs/images/conventions_bev.png at full size)."""
     from PIL import Image
