@@ -7,7 +7,11 @@ all sampled features together and keep the first 50 components, then
 * Euclidean distance between the two domains' mean vectors in PCA space;
 * cosine distance ``1 - <a, b> / (|a| |b|)`` between the same mean vectors
   (PCA space is centred on the pooled mean, so it can exceed 1, as in the
-  paper's 1.26);
+  paper's 1.26). Centred on the mean of the sampled domains, the means of
+  two domains point in opposite directions (the distance is always 2) and
+  those of three close a triangle (the angles follow from the Euclidean
+  distances): with fewer than ``MIN_COSINE_DOMAINS`` domains no cosine
+  distance is given, and the table says why;
 * Bhattacharyya distance per PCA feature, modelling each feature of each
   domain as a 1-D Gaussian with mean ``m`` and variance ``v`` (ddof 0)::
 
@@ -79,6 +83,9 @@ PAPER_PAIRS: tuple[PaperPair, ...] = (
 # ------------------------------------------------------------- the math ----
 def euclidean_distance(a: np.ndarray, b: np.ndarray) -> float:
     return float(np.linalg.norm(np.asarray(a, float) - np.asarray(b, float)))
+
+
+MIN_COSINE_DOMAINS = 4  # below this, centred means fix the cosine distance (see the module's docstring)
 
 
 def cosine_distance(a: np.ndarray, b: np.ndarray) -> float:
@@ -330,7 +337,8 @@ def compare_domains(
         if row.missing:
             continue
         row.euclidean = euclidean_distance(mean_of[row.source], mean_of[row.target])
-        row.cosine = cosine_distance(mean_of[row.source], mean_of[row.target])
+        if len(domains) >= MIN_COSINE_DOMAINS:
+            row.cosine = cosine_distance(mean_of[row.source], mean_of[row.target])
         row.bhattacharyya = bhattacharyya_distance(by_domain[row.source], by_domain[row.target])
     return DistanceReport(
         domains=domains,
@@ -349,7 +357,7 @@ class DistanceConfig:
     pairs: tuple[tuple[str, str], ...] = ()  # compared in addition to the paper's three
     samples: int = 500  # first N frames per domain
     components: int = 50
-    domains: str = "all"  # domains to sample (and embed)
+    domains: str | None = None  # domains to sample (and embed); None: every scenario the root holds
     splits: tuple[str, ...] = ()  # empty: any split
     seed: int = 0  # filter bank seed
     threads: int = 4
@@ -413,7 +421,7 @@ def domain_distances(config: DistanceConfig) -> DistanceReport:
     storage = Storage.from_uri(config.root)
     table = filter_frames(read_manifest(storage), Query(domains=config.domains, splits=config.splits))
     if len(table) == 0:
-        raise ValueError(f"{storage.uri} has no frames for {config.domains!r}")
+        raise ValueError(f"{storage.uri} has no frames" + (f" for {config.domains!r}" if config.domains else ""))
     require_outputs(table, ("rgb",), storage.uri)
     bank = FilterBank(config.seed)
     features = domain_features(storage, first_frames(table, config.samples), bank, config.threads)
@@ -432,12 +440,14 @@ def _fmt(value: float | None, digits: int) -> str:
 
 def format_distance_table(report: DistanceReport) -> str:
     """One line per pair: our three distances next to the paper's."""
-    head = f"{'case':<10} {'source':<10} {'target':<10} {'euclidean':>9} {'paper':>7} {'cosine':>7} {'paper':>7} {'bhattach.':>9} {'paper':>7}"
+    w = max([10, *(len(code) for r in report.pairs for code in (r.source, r.target))])  # declared codes: any length
+    head = (f"{'case':<10} {'source':<{w}} {'target':<{w}} {'euclidean':>9} {'paper':>7} {'cosine':>7} {'paper':>7} "
+            f"{'bhattach.':>9} {'paper':>7}")
     lines = [head, "-" * len(head)]
     for r in report.pairs:
         p = r.paper
         line = (
-            f"{r.case or '-':<10} {r.source:<10} {r.target:<10} {_fmt(r.euclidean, 4):>9} {_fmt(p and p.euclidean, 4):>7} "
+            f"{r.case or '-':<10} {r.source:<{w}} {r.target:<{w}} {_fmt(r.euclidean, 4):>9} {_fmt(p and p.euclidean, 4):>7} "
             f"{_fmt(r.cosine, 4):>7} {_fmt(p and p.cosine, 4):>7} {_fmt(r.bhattacharyya, 4):>9} {_fmt(p and p.bhattacharyya, 4):>7}"
         )
         if r.missing:
@@ -449,6 +459,9 @@ def format_distance_table(report: DistanceReport) -> str:
         f"{len(report.domains)} domains, {span} frames each, PCA to {report.components} components "
         f"({100 * report.explained:.1f}% of the standardised feature variance)"
     )
+    if len(report.domains) < MIN_COSINE_DOMAINS:
+        lines.append(f"cosine: not given: the means of {len(report.domains)} domains, centred on their own mean, fix it "
+                     f"(2 domains: always 2); sample {MIN_COSINE_DOMAINS} or more domains for it to mean anything")
     return "\n".join(lines)
 
 

@@ -462,11 +462,12 @@ def run_shifts(config: ShiftConfig) -> ShiftReport:
 # ------------------------------------------------------------ output --------
 def format_shift_table(report: ShiftReport) -> str:
     """One line per case: held-out source and target mIoU, kept fraction, the paper's."""
-    head = (f"{'case':<10} {'source':<10} {'target':<10} {'source mIoU':>11} {'target mIoU':>11} "
+    w = max([10, *(len(code) for r in report.results for code in (r.source, r.target))])  # declared codes: any length
+    head = (f"{'case':<10} {'source':<{w}} {'target':<{w}} {'source mIoU':>11} {'target mIoU':>11} "
             f"{'kept':>6} {'target* mIoU':>12} {'oracle mIoU':>11} {'kept*':>6} {'paper kept':>10}")
     lines = [head, "-" * len(head)]
     for r in report.results:
-        lines.append(f"{r.case:<10} {r.source:<10} {r.target:<10} {r.source_miou:>11.3f} {r.target_miou:>11.3f} "
+        lines.append(f"{r.case:<10} {r.source:<{w}} {r.target:<{w}} {r.source_miou:>11.3f} {r.target_miou:>11.3f} "
                      f"{r.kept:>6.2f} {r.target_held_out_miou:>12.3f} {r.oracle_miou:>11.3f} {r.oracle_kept:>6.2f} "
                      f"{'-' if r.paper_kept is None else format(r.paper_kept, '.2f'):>10}")
     cfg = report.config

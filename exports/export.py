@@ -109,6 +109,7 @@ class ExportReport:
     target: str
     format: str
     frames: int
+    held: int  # frames the root holds (the query chose ``frames`` of them)
     files: int
     per_split: dict[str, int]
     shortfall: dict[str, int]
@@ -265,6 +266,7 @@ def export(config: ExportConfig) -> ExportReport:
         target=target,
         format=config.format,
         frames=len(frames),
+        held=len(manifest),
         files=files,
         per_split=per_split,
         shortfall=dict(result.shortfall),

@@ -1,6 +1,7 @@
 """Select frames from a manifest and draw seeded, stratified samples.
 
-Filters: domains (the selection grammar), split, episode, class presence,
+Filters: domains (the selection grammar; none given: every scenario the root
+holds, whatever the catalog it was made with), split, episode, class presence,
 minimum class share and the per-frame conditions (``manifests.conditions``:
 a minimum or maximum of e.g. fog_density; rows without conditions, from older
 roots, never pass one). Sampling: N frames per scenario, or N in total spread
@@ -33,7 +34,7 @@ SPLIT_SHARES = (0.8, 0.1, 0.1)  # each scenario tends to these shares of episode
 
 @dataclass(frozen=True)
 class Query:
-    domains: str = "all"  # selection grammar, as for --domains
+    domains: str | None = None  # selection grammar, as for --domains; None: every scenario the root holds
     splits: tuple[str, ...] = ()  # empty: any split
     episodes: tuple[int, ...] = ()  # empty: any episode
     classes: tuple[str, ...] = ()  # each frame must contain all of these
@@ -46,7 +47,8 @@ class Query:
     seed: int = 0
 
     def validate(self) -> None:
-        parse_selection(self.domains)
+        if self.domains is not None:
+            parse_selection(self.domains)
         for split in self.splits:
             if split not in SPLITS:
                 raise ValueError(f"unknown split {split!r}; valid splits: {', '.join(SPLITS)}")
@@ -96,12 +98,13 @@ class QueryResult:
 
 
 def _partition_filter(query: Query) -> ds.Expression:
-    chosen = parse_selection(query.domains)
-    codes = sorted({s.code for s in chosen})
-    expr = ds.field("scenario").isin(codes)
-    for key in AXES:
-        values = sorted({getattr(s, key).code for s in chosen})
-        expr = expr & ds.field(key).isin(values)
+    expr = ds.scalar(True)
+    if query.domains is not None:
+        chosen = parse_selection(query.domains)
+        expr = ds.field("scenario").isin(sorted({s.code for s in chosen}))
+        for key in AXES:
+            values = sorted({getattr(s, key).code for s in chosen})
+            expr = expr & ds.field(key).isin(values)
     if query.splits:
         expr = expr & ds.field("split").isin(list(query.splits))
     if query.episodes:
@@ -182,7 +185,7 @@ def run_query(table_or_dataset, query: Query) -> QueryResult:
     available = dict(zip(codes.tolist(), sizes.tolist()))
     if query.per_scenario is not None:
         # Every selected scenario is a stratum, also those with no frames yet.
-        for s in parse_selection(query.domains):
+        for s in parse_selection(query.domains) if query.domains is not None else ():
             available.setdefault(s.code, 0)
         want = {k: query.per_scenario for k in available}
     else:

@@ -65,10 +65,11 @@ def share_table(table: pa.Table, by_scenario: bool = False) -> pa.Table:
 
 
 def format_share_table(shares: pa.Table) -> str:
-    lines = [f"{'scenario':<10} {'id':>2}  {'class':<14} {'share %':>9} {'paper %':>9} {'in frames %':>11}"]
+    w = max([10, *map(len, shares.column("scenario").to_pylist())])  # a declared code may be longer than T01_HRN_A
+    lines = [f"{'scenario':<{w}} {'id':>2}  {'class':<14} {'share %':>9} {'paper %':>9} {'in frames %':>11}"]
     for row in shares.to_pylist():
         lines.append(
-            f"{row['scenario']:<10} {row['class_id']:>2}  {row['class']:<14} {100 * row['share']:>9.3f} "
+            f"{row['scenario']:<{w}} {row['class_id']:>2}  {row['class']:<14} {100 * row['share']:>9.3f} "
             f"{100 * row['paper_share']:>9.3f} {100 * row['presence']:>11.1f}"
         )
     return "\n".join(lines)

@@ -89,7 +89,7 @@ def test_stats_writes_its_chart_beside_the_command_never_into_the_root(root, tmp
     before = sorted(p.relative_to(root) for p in root.rglob("*"))
     result = runner.invoke(app, ["stats", str(root)])
     assert result.exit_code == 0, result.output
-    assert result.output.splitlines()[-1] == "chart: class_shares.png"
+    assert result.output.splitlines()[-1] == "chart: class_shares.png (12 of the 12 frames the root holds)"
     assert Image.open(here / "class_shares.png").format == "PNG"
     assert sorted(p.relative_to(root) for p in root.rglob("*")) == before  # nothing written into the data
     inside = runner.invoke(app, ["stats", str(root), "--chart", str(root / "shares.png")])

@@ -5,6 +5,10 @@ parts and indexes of such codes are seen by status, query, verify, repair, expor
 
 from __future__ import annotations
 
+import re
+import shutil
+from pathlib import Path
+
 import pytest
 
 from manifests.catalog import SCENARIO_RE, format_code, split_code
@@ -54,3 +58,161 @@ def test_names_that_are_not_ours_stay_unmatched():
     assert match_frame_file(f"{code}/e0000/rgb/0000_000_Oslo_mist_B3.png") is None  # another scenario's name
     assert match_frame_file(f"{code}/e0000/rgb/0001_000_{code}.png") is None  # another episode's name
     assert match_frame_file(f"{code}/e0000/rgb/0000_000_{code}.exr") is None  # not the output's format
+
+
+# -- end to end: declared codes of every shape through produce, status, query, verify, repair, export, resume --
+DECLARED = """
+[[town]]
+code = "Oslo"
+like = "T01"
+name = "Oslo"
+
+[[weather]]
+code = "mist"
+like = "CN"
+name = "Mist"
+fog = 0.5
+
+[[viewpoint]]
+code = "B2"
+like = "B"
+camera_height_m = 2.0
+
+[[viewpoint]]
+code = "7"
+like = "A"
+"""
+# a town not like T01, a lower-case weather and the built-in shift CNtoNT (long, mixed case),
+# a viewpoint of a letter and a digit and one of a digit alone: 4 scenarios, none of the paper's 105
+CODES = ["Oslo_CNtoNT_7", "Oslo_CNtoNT_B2", "Oslo_mist_7", "Oslo_mist_B2"]
+RUN = ["--domains", "towns=Oslo weathers=mist,CNtoNT viewpoints=B2,7", "--frames-per-scenario", "2",
+       "--width", "64", "--height", "36", "--seed", "3", "--world", "test", "--workers", "2"]
+
+
+def _files(root: Path) -> dict[str, bytes]:
+    return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted(root.rglob("*"))
+            if p.is_file() and p.parts[len(root.parts)] in CODES}
+
+
+@pytest.mark.slow
+def test_declared_codes_of_every_shape_end_to_end(tmp_path):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    runner = CliRunner()
+    domains = tmp_path / "codes.toml"
+    domains.write_text(DECLARED)
+    root = tmp_path / "root"
+    result = runner.invoke(app, ["produce", *RUN, "--catalog", str(domains), "--out", str(root)])
+    assert result.exit_code == 0, result.output
+    rendered = _files(root)
+    assert sorted({rel.partition("/")[0] for rel in rendered}) == CODES
+
+    result = runner.invoke(app, ["status", str(root)])
+    assert result.exit_code == 0 and "8 of 8 frames done (100.0%)" in result.output, result.output
+    for code in CODES:
+        assert re.search(rf"^{code} +1/1 +2/2 +done$", result.output, re.M), result.output
+    # no --domains: the scenarios the root holds, not the paper's 105 (none of which it holds)
+    result = runner.invoke(app, ["query", str(root)])
+    assert result.exit_code == 0, result.output
+    assert "8 frames selected of 8 matching the filters (8 of the 8 frames the root holds)" in result.output
+    assert all(re.search(rf"^{code} +2$", result.output, re.M) for code in CODES), result.output
+    # a resume renders nothing (no file needed: run.json records the entries)
+    result = runner.invoke(app, ["produce", *RUN, "--out", str(root)])
+    assert result.exit_code == 0 and "nothing to render" in result.output, result.output
+
+    # planted damage: a missing, a corrupt and an extra file, and the frames of an episode a kill
+    # left without its part (in the shift's and a declared weather's scenarios)
+    missing = "Oslo_mist_B2/e0000/depth_raw/0000_001_Oslo_mist_B2.png"
+    corrupt = "Oslo_CNtoNT_7/e0000/rgb/0000_000_Oslo_CNtoNT_7.png"
+    extra = "Oslo_CNtoNT_B2/e0000/semantic_raw/0000_007_Oslo_CNtoNT_B2.png"
+    killed = ["Oslo_mist_7/e0001/rgb/0001_000_Oslo_mist_7.png", "Oslo_mist_7/e0001/instance/0001_000_Oslo_mist_7.png"]
+    (root / missing).unlink()
+    (root / corrupt).write_bytes(rendered[corrupt][:-4] + b"XXXX")
+    for rel in [extra, *killed]:
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(b"stray")
+    result = runner.invoke(app, ["verify", str(root), "--no-ray"])
+    assert result.exit_code == 1 and "FAILED: 1 corrupt, 3 extra, 1 missing;" in result.output, result.output
+    for kind, rel in [("missing", missing), ("corrupt", corrupt), ("extra", extra)] + [("extra", r) for r in killed]:
+        assert re.search(rf"^{kind} +{re.escape(rel)}", result.output, re.M), result.output
+    result = runner.invoke(app, ["produce", *RUN, "--out", str(root), "--repair"])
+    assert result.exit_code == 0, result.output
+    assert _files(root) == rendered  # the damaged files as they were, the strays gone
+    result = runner.invoke(app, ["verify", str(root), "--no-ray"])
+    assert result.exit_code == 0 and result.output.startswith("OK"), result.output
+
+    target = tmp_path / "export"
+    result = runner.invoke(app, ["export", str(root), "--format", "idda", "--to", str(target)])
+    assert result.exit_code == 0 and "exported 8 of the 8 frames the root holds" in result.output, result.output
+    assert sorted(p.name for p in target.iterdir() if p.is_dir()) == CODES
+    result = runner.invoke(app, ["produce", *RUN, "--out", str(root)])
+    assert result.exit_code == 0 and "nothing to render" in result.output, result.output
+
+
+# -- a command's default selection is the root's scenarios, and it says what it covered of them --------------
+@pytest.fixture(scope="module")
+def held_root(tmp_path_factory):
+    """A root of one frame each of T01_NT_A (built in, beyond the paper's 105) and two declared
+    scenarios with codes longer than the tables' old column, rendered without Ray."""
+    from manifests.catalog import BUILTIN
+    from manifests.domainfile import with_file
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
+
+    layer = with_file(BUILTIN, DECLARED.replace('"mist"', '"mistyMorning2"'), "codes.toml").layer_json()
+    plan = PlanConfig(domains="T01_NT_A,Oslo_mistyMorning2_B2,Oslo_CNtoNT_7", frames_per_scenario=1, width=64,
+                      height=36, seed=1, catalog=layer)
+    root = tmp_path_factory.mktemp("held") / "root"
+    render_root(root, RunConfig(plan=plan, world="test"), compact=True)
+    return root
+
+
+HELD = ["Oslo_CNtoNT_7", "Oslo_mistyMorning2_B2", "T01_NT_A"]
+
+
+def _aligned(lines: list[str], column: int, edge: str) -> bool:
+    """Whether column ``column`` (0: the first) of these table lines has its ``edge`` ("start" or
+    "end") at one place in each: the codes fit the first column."""
+    return len({getattr(list(re.finditer(r"\S+", line))[column], edge)() for line in lines}) == 1
+
+
+def test_commands_default_to_the_scenarios_a_root_holds(held_root, tmp_path):
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    runner = CliRunner()
+    result = runner.invoke(app, ["query", str(held_root)])
+    assert result.exit_code == 0, result.output
+    assert "3 frames selected of 3 matching the filters (3 of the 3 frames the root holds)" in result.output
+    rows = [line for line in result.output.splitlines() if line.split()[0] in HELD]
+    assert sorted(row.split()[0] for row in rows) == HELD and _aligned(rows, 1, "end"), result.output
+    result = runner.invoke(app, ["query", str(held_root), "--domains", "weathers=NT"])
+    assert result.exit_code == 0 and "(1 of the 3 frames the root holds)" in result.output, result.output
+    result = runner.invoke(app, ["query", str(held_root), "--domains", "all"])  # the paper's 105: none held
+    assert result.exit_code == 2 and "(0 of the 3 frames the root holds match the filters)" in result.output
+
+    result = runner.invoke(app, ["export", str(held_root), "--format", "idda", "--to", str(tmp_path / "idda")])
+    assert result.exit_code == 0 and "exported 3 of the 3 frames the root holds" in result.output, result.output
+    assert sorted(p.name for p in (tmp_path / "idda").iterdir() if p.is_dir()) == HELD
+    result = runner.invoke(app, ["export", str(held_root), "--format", "idda", "--to", str(tmp_path / "nt"),
+                                 "--domains", "T01_NT_A"])
+    assert result.exit_code == 0 and "exported 1 of the 3 frames the root holds" in result.output, result.output
+
+    chart = tmp_path / "shares.png"
+    result = runner.invoke(app, ["stats", str(held_root), "--per-scenario", "--chart", str(chart)])
+    assert result.exit_code == 0 and f"chart: {chart} (3 of the 3 frames the root holds)" in result.output
+    rows = [line for line in result.output.splitlines() if line.split()[0] in HELD + ["scenario"]]
+    assert {row.split()[0] for row in rows} == set(HELD) | {"scenario"} and _aligned(rows, 2, "start"), result.output
+
+    result = runner.invoke(app, ["status", str(held_root)])
+    rows = [line for line in result.output.splitlines() if line.split()[0] in HELD]
+    assert result.exit_code == 0 and len(rows) == 3 and _aligned(rows, 1, "end"), result.output
+
+    copy = tmp_path / "card"
+    shutil.copytree(held_root, copy)
+    result = runner.invoke(app, ["card", str(copy)])
+    assert result.exit_code == 0 and "(3 of the 3 frames the root holds)" in result.output, result.output

@@ -4,6 +4,7 @@ independent numpy computation, the feature extractor, and the command."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -95,6 +96,38 @@ def test_missing_domains():
     assert "not produced: T01_HRN_J" in d.format_distance_table(report)
     with pytest.raises(ValueError, match="no frames for T05_CN_B; domains with frames: T01_CS_A, T01_CS_J"):
         d.compare_domains(features, pairs=(("T01_CS_A", "T05_CN_B"),))
+
+
+@pytest.mark.parametrize("n", [2, 3])
+def test_no_cosine_distance_where_centred_means_fix_it(n):
+    """Issue 32: over 2 domains the centred means are opposite (cosine distance always 2), over 3 they
+    close a triangle: the table gives no value and says why in one line; from 4 domains it gives one."""
+    rng = np.random.default_rng(5)
+    codes = ["T01_CS_A", "T01_CS_J", "T01_HRN_J", "T07_HRN_A"]
+    features = {code: rng.normal(i, 1.0, size=(6, 4)) for i, code in enumerate(codes)}
+    few = d.compare_domains({c: features[c] for c in codes[:n]}, components=3)
+    assert [r.cosine for r in few.pairs if not r.missing] == [None] * (n - 1)
+    assert all(r.euclidean is not None for r in few.pairs if not r.missing)
+    table = d.format_distance_table(few)
+    assert table.splitlines()[2].split()[5] == "-" and "2.0000" not in table
+    assert table.splitlines()[-1].startswith(f"cosine: not given: the means of {n} domains")
+    four = d.compare_domains(features, components=3)
+    assert all(r.cosine is not None for r in four.pairs if not r.missing)
+    assert "cosine: not given" not in d.format_distance_table(four)
+
+
+def test_distance_table_aligns_long_codes():
+    rng = np.random.default_rng(6)
+    codes = ["T01_CS_A", "T01_CS_J", "TownWithALongName_CNtoNT_B2", "T07_HRN_A"]
+    features = {code: rng.normal(i, 1.0, size=(5, 4)) for i, code in enumerate(codes)}
+    report = d.compare_domains(features, pairs=((codes[2], codes[0]),), components=3)
+    table = d.format_distance_table(report)
+    lines = table.splitlines()
+    rows = [lines[0]] + lines[2:2 + len(report.pairs)]
+    assert len(rows) == 5 and codes[2] in rows[-1]
+    # where each column starts (case, source, target: left-aligned) or ends (the numbers: right-aligned)
+    edges = [[m.start() if i < 3 else m.end() for i, m in enumerate(re.finditer(r"\S+", row))][:9] for row in rows]
+    assert all(e == edges[0] for e in edges), table
 
 
 def test_parse_pairs():

@@ -284,7 +284,7 @@ def test_cli_export(root, tmp_path):
         app, ["export", str(root), "--format", "cityscapes", "--to", str(target), "--domains", "T01_*_A", "--total", "3", "--copy"]
     )
     assert result.exit_code == 0, result.output
-    assert "exported 3 frames" in result.output
+    assert "exported 3 of the 10 frames the root holds" in result.output
     assert len(list(target.glob("leftImg8bit/*/*/*_leftImg8bit.png"))) == 3
     again = runner.invoke(app, ["export", str(root), "--format", "cityscapes", "--to", str(target)])
     assert again.exit_code == 2 and "not empty; pass --force" in again.output

@@ -18,7 +18,7 @@ from pipeline.cli.progress import (
 )
 from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MaxCondition, MinCondition, MinShare, OneLineUsageErrors, PerScenario,
-    Preset, SampleSeed, Splits, Total, build_query, count, output_root, user_errors, write_local,
+    Preset, SampleSeed, Splits, Total, build_query, count, of_held, output_root, user_errors, write_local,
 )
 from manifests.outputs import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import require_outputs
@@ -192,10 +192,11 @@ def status(root: str = typer.Argument(..., help=ROOT_HELP)) -> None:
 
     with user_errors():
         st = root_status(output_root(root))
-        typer.echo(f"{'scenario':<10} {'episodes':>13} {'frames':>17}")
+        w = max([10, *(len(s.scenario) for s in st.scenarios)])  # a declared code may be longer than T01_HRN_A
+        typer.echo(f"{'scenario':<{w}} {'episodes':>13} {'frames':>17}")
         for s in st.scenarios:
             mark = "done" if s.frames_done == s.frames_total else ""
-            typer.echo(f"{s.scenario:<10} {s.episodes_done:>6}/{s.episodes_total:<6} {s.frames_done:>8}/{s.frames_total:<8} {mark}")
+            typer.echo(f"{s.scenario:<{w}} {s.episodes_done:>6}/{s.episodes_total:<6} {s.frames_done:>8}/{s.frames_total:<8} {mark}")
         pct = 100 * st.frames_done / max(st.frames_total, 1)
         line = f"{st.uri}: {st.frames_done:,} of {st.frames_total:,} frames done ({pct:.1f}%)"
         if st.frames_done < st.frames_total:
@@ -294,15 +295,15 @@ def query(
                                 min_condition, max_condition)
         if paired is not None:
             chosen = tuple(w.strip() for w in paired.split(",") if w.strip())
-            # without --domains, every scenario of the catalog: 'all' would leave out FG, NT and SN
-            the_query = replace(the_query, paired=chosen, domains=the_query.domains if domains else "catalog")
+            the_query = replace(the_query, paired=chosen)
             the_query.validate()
         storage = output_root(root)
-        result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
+        result, held = scan_manifest(storage, lambda dataset: (q.run_query(dataset, the_query), dataset.count_rows()))
         for code, missing in sorted(result.shortfall.items()):
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
         if len(result.table) == 0:
-            raise ValueError(f"no frames in {storage.uri} match the query ({result.matched:,} match the filters)")
+            raise ValueError(f"no frames in {storage.uri} match the query ({of_held(result.matched, held)} "
+                             "match the filters)")
         chosen = parse_outputs(outputs)
         if out is not None:
             fmt = fmt or q.FORMAT_BY_SUFFIX.get(out.suffix)
@@ -315,16 +316,18 @@ def query(
         counts: dict[str, int] = {}
         for code in result.table.column("scenario").to_pylist():
             counts[code] = counts.get(code, 0) + 1
+        w = max([10, *map(len, counts)])  # a declared code may be longer than T01_HRN_A
         for code, n in sorted(counts.items()):
-            typer.echo(f"{code:<10} {n:>8}")
+            typer.echo(f"{code:<{w}} {n:>8}")
         where = f"; wrote {out}" if out is not None else ""
-        typer.echo(f"{len(result.table):,} frames selected of {result.matched:,} matching the filters{where}")
+        typer.echo(f"{len(result.table):,} frames selected of {result.matched:,} matching the filters "
+                   f"({of_held(len(result.table), held)}){where}")
 
 
 @app.command()
 def stats(
     root: str = typer.Argument(..., help=ROOT_HELP),
-    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP),
+    domains: Domains = None,
     per_scenario: bool = typer.Option(False, "--per-scenario", help="One table and one chart panel per scenario instead of overall."),
     chart: Path = typer.Option(Path("class_shares.png"), help="Write the log-scale bar chart PNG here (default: class_shares.png in the current directory; never into the root)."),
     catalog: CatalogFile = None,
@@ -340,13 +343,14 @@ def stats(
         if storage.is_local and chart.resolve().is_relative_to(Path(storage.path()).resolve()):
             raise ValueError(f"the chart {chart} would land inside the output root {storage.uri}; "
                              "pass --chart with a path outside it")
-        table = q.filter_frames(read_manifest(storage), q.Query(domains=domains))
+        manifest = read_manifest(storage)
+        table = q.filter_frames(manifest, q.Query(domains=domains))
         if len(table) == 0:
-            raise ValueError(f"{storage.uri} has no frames for {domains!r} yet")
+            raise ValueError(f"{storage.uri} has no frames" + (f" for {domains!r}" if domains else "") + " yet")
         shares = share_table(table, by_scenario=per_scenario)
         typer.echo(format_share_table(shares))
         write_local(chart, bar_chart_png(shares, title=f"Class pixel shares, {len(table):,} frames"))
-        typer.echo(f"chart: {chart}")
+        typer.echo(f"chart: {chart} ({of_held(len(table), len(manifest))})")
 
 
 @app.command()

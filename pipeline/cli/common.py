@@ -26,10 +26,11 @@ from storage import StorageError
 
 ROOT_HELP = "Output root (path or s3:// URI)."
 DOMAINS_HELP = SELECTION_HELP
+ROOT_DOMAINS_HELP = SELECTION_HELP + " Default: every scenario the root holds."  # commands that read a root
 
 # The query options `idda query` and `idda export` share, declared once.
 Preset = Annotated[Optional[str], typer.Option(help="Ready-made subset: best-case or worst-case (the paper's).")]
-Domains = Annotated[Optional[str], typer.Option("--domains", "-d", help=DOMAINS_HELP)]
+Domains = Annotated[Optional[str], typer.Option("--domains", "-d", help=ROOT_DOMAINS_HELP)]
 Splits = Annotated[list[str], typer.Option("--split", help="Keep frames of this split (train, val, test); repeatable.")]
 HasClass = Annotated[list[str], typer.Option("--has", help="Keep frames containing this class, e.g. --has rider; repeatable.")]
 MinShare = Annotated[list[str], typer.Option(
@@ -105,6 +106,11 @@ def output_root(root: str):
 def count(n: int, noun: str) -> str:
     """'1 frame', '2 frames', '1,000 frames'."""
     return f"{n:,} {noun}" + ("" if n == 1 else "s")
+
+
+def of_held(n: int, held: int) -> str:
+    """'24 of the 96 frames the root holds': what a command covered of a root."""
+    return f"{n:,} of the {count(held, 'frame')} the root holds"
 
 
 def write_local(path: Path, data: bytes) -> None:

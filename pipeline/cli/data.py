@@ -14,8 +14,8 @@ from typing import Annotated, Optional
 import typer
 
 from pipeline.cli.common import (
-    DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
-    build_query, output_root, user_errors, write_local,
+    DOMAINS_HELP, ROOT_DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
+    build_query, of_held, output_root, user_errors, write_local,
 )
 from pipeline.cli.domains import CatalogFile, root_catalog
 
@@ -72,7 +72,7 @@ def export(
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
         splits = ", ".join(f"{n:,} {s}" for s, n in report.per_split.items() if n)
         typer.echo(
-            f"exported {report.frames:,} frames ({splits}) as {report.format} to {report.target}: "
+            f"exported {of_held(report.frames, report.held)} ({splits}) as {report.format} to {report.target}: "
             f"{report.files:,} files in {report.seconds:.1f} s"
         )
 
@@ -98,7 +98,7 @@ def distances(
     pairs: str = typer.Option("", help="Extra SOURCE:TARGET pairs of scenario codes or 'real', comma-separated (the paper's three are always tried)."),
     samples: int = typer.Option(500, help="First N frames per domain (the paper uses 500)."),
     components: int = typer.Option(50, help="PCA components kept (the paper keeps 50)."),
-    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP + " Sampled and embedded."),
+    domains: Optional[str] = typer.Option(None, "--domains", "-d", help=ROOT_DOMAINS_HELP + " Sampled and embedded."),
     split: list[str] = typer.Option([], help="Sample only frames of this split; repeatable."),
     chart: Optional[Path] = typer.Option(None, "--chart", help="Write a 2-D embedding of all sampled domains to this PNG."),
     seed: int = typer.Option(0, help="Seed of the feature extractor's random filters."),
@@ -135,11 +135,12 @@ def card(
 ) -> None:
     """Write a dataset card (README.md and class_shares.png) into the root."""
     from exports.card import CardConfig, write_card
+    from manifests.catalog import using
 
-    with user_errors():
+    with user_errors(), using(root_catalog(root, None)):  # the root's declared domains: its scenarios
         output_root(root)
         result = write_card(CardConfig(root=root, contact_sheet=contact_sheet))
-        typer.echo(f"wrote {result.card} ({result.frames:,} frames) and {result.chart}")
+        typer.echo(f"wrote {result.card} ({of_held(result.frames, result.frames)}) and {result.chart}")
         for rel in result.previews:
             typer.echo(f"linked preview {rel}")
 

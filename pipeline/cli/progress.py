@@ -156,9 +156,10 @@ def format_produce_report(report) -> str:
         lines.append(f"repair: re-rendering {len(report.repaired)} damaged episode(s): {', '.join(report.repaired[:10])}"
                      + (" ..." if len(report.repaired) > 10 else ""))
     if report.per_scenario:
-        lines.append(f"{'scenario':<10} {'episodes':>8} {'frames':>8} {'worker s/frame':>15}")
+        w = max([10, *map(len, report.per_scenario)])  # a declared code may be longer than T01_HRN_A
+        lines.append(f"{'scenario':<{w}} {'episodes':>8} {'frames':>8} {'worker s/frame':>15}")
         for code, row in sorted(report.per_scenario.items()):
-            lines.append(f"{code:<10} {row['episodes']:>8} {row['frames']:>8} {row['seconds'] / max(row['frames'], 1):>15.2f}")
+            lines.append(f"{code:<{w}} {row['episodes']:>8} {row['frames']:>8} {row['seconds'] / max(row['frames'], 1):>15.2f}")
     if not report.rendered_episodes and not report.failed:
         lines.append(f"{report.out}: nothing to render; all {report.planned_episodes:,} planned episodes are done")
         return "\n".join(lines)
