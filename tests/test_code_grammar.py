@@ -216,3 +216,16 @@ def test_commands_default_to_the_scenarios_a_root_holds(held_root, tmp_path):
     shutil.copytree(held_root, copy)
     result = runner.invoke(app, ["card", str(copy)])
     assert result.exit_code == 0 and "(3 of the 3 frames the root holds)" in result.output, result.output
+
+
+def test_produce_report_aligns_long_codes():
+    from pipeline.cli.progress import format_produce_report
+    from pipeline.driver import ProduceReport
+
+    per = {code: {"episodes": 1, "frames": 2, "seconds": 1.5} for code in ["T01_CN_A", *HELD, "TownWithALongName9_x_TR"]}
+    report = ProduceReport("out", 5, 10, 0, rendered_frames=10, rendered_episodes=5, seconds=3.0, per_scenario=per,
+                           workers=2)
+    lines = format_produce_report(report).splitlines()
+    rows = [line for line in lines if line.split()[0] in per]
+    header = next(line for line in lines if line.startswith("scenario"))
+    assert len(rows) == 5 and _aligned(rows, 1, "end") and _aligned([header, rows[0]], 1, "end"), "\n".join(lines)
