@@ -212,6 +212,10 @@ def test_commands_default_to_the_scenarios_a_root_holds(held_root, tmp_path):
     rows = [line for line in result.output.splitlines() if line.split()[0] in HELD]
     assert result.exit_code == 0 and len(rows) == 3 and _aligned(rows, 1, "end"), result.output
 
+    result = runner.invoke(app, ["distances", str(held_root), "--samples", "1", "--components", "2"])
+    assert result.exit_code == 0 and "3 domains, 1 frames each" in result.output, result.output
+    assert "cosine: not given: the means of 3 domains" in result.output
+
     copy = tmp_path / "card"
     shutil.copytree(held_root, copy)
     result = runner.invoke(app, ["card", str(copy)])
