@@ -32,8 +32,8 @@ from manifests.domains import (AXES, CODE_CHARS, CODE_SEPARATOR, RGB, Catalog, T
 # (e.g. T01_CS_A) and of the manifest's hive partitions. The code is parsed by
 # split_code and formatted by format_code; the parsers of paths and part names
 # (manifests.layout, manifests.schema, manifests.reader) take their patterns
-# from scenario_pattern. A code part is what a domain file may declare
-# (CODE_CHARS: letters and digits, any case and length: T01, Oslo, FG1, CNtoNT, fg, B2, 7).
+# from scenario_pattern and CODE_CHARS. A code part is what a domain file may declare
+# (CODE_CHARS: letters and digits, any case and length: T01, Oslo, FG1, CNtoNT, mist, B2, 7).
 
 
 def lookup(table: dict, key: str, what: str, plural: str | None = None):
