@@ -122,19 +122,26 @@ def test_declared_codes_of_every_shape_end_to_end(tmp_path):
     result = runner.invoke(app, ["produce", *RUN, "--out", str(root)])
     assert result.exit_code == 0 and "nothing to render" in result.output, result.output
 
-    # planted damage: a missing, a corrupt and an extra file, and the frames of an episode a kill
-    # left without its part (in the shift's and a declared weather's scenarios)
+    # planted damage: a missing, a corrupt and an extra file, and the frames of episodes a kill left
+    # without their part (in the shift's and a declared weather's scenarios): a later episode's, and
+    # a whole episode's whose part is gone (its 16 files, and its scenario's index covers it no more)
     missing = "Oslo_mist_B2/e0000/depth_raw/0000_001_Oslo_mist_B2.png"
     corrupt = "Oslo_CNtoNT_7/e0000/rgb/0000_000_Oslo_CNtoNT_7.png"
-    extra = "Oslo_CNtoNT_B2/e0000/semantic_raw/0000_007_Oslo_CNtoNT_B2.png"
-    killed = ["Oslo_mist_7/e0001/rgb/0001_000_Oslo_mist_7.png", "Oslo_mist_7/e0001/instance/0001_000_Oslo_mist_7.png"]
+    extra = "Oslo_CNtoNT_7/e0000/semantic_raw/0000_007_Oslo_CNtoNT_7.png"
+    killed = ["Oslo_mist_7/e0001/rgb/0001_000_Oslo_mist_7.png", "Oslo_mist_7/e0001/instance/0001_000_Oslo_mist_7.png",
+              "Oslo_CNtoNT_7/e0001/depth_log/0001_001_Oslo_CNtoNT_7.png"]
     (root / missing).unlink()
     (root / corrupt).write_bytes(rendered[corrupt][:-4] + b"XXXX")
     for rel in [extra, *killed]:
         (root / rel).parent.mkdir(parents=True, exist_ok=True)
         (root / rel).write_bytes(b"stray")
+    for part in (root / "manifest").rglob("Oslo_CNtoNT_B2_e0000*.parquet"):
+        part.unlink()
+    unlisted = [rel for rel in rendered if rel.startswith("Oslo_CNtoNT_B2/")]
+    assert len(unlisted) == 16
     result = runner.invoke(app, ["verify", str(root), "--no-ray"])
-    assert result.exit_code == 1 and "FAILED: 1 corrupt, 3 extra, 1 missing;" in result.output, result.output
+    assert result.exit_code == 1, result.output
+    assert "FAILED: 1 bad-index, 1 corrupt, 20 extra, 1 missing;" in result.output, result.output
     for kind, rel in [("missing", missing), ("corrupt", corrupt), ("extra", extra)] + [("extra", r) for r in killed]:
         assert re.search(rf"^{kind} +{re.escape(rel)}", result.output, re.M), result.output
     result = runner.invoke(app, ["produce", *RUN, "--out", str(root), "--repair"])
