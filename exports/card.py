@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from manifests.catalog import LABELS, scenario
+from manifests.catalog import LABELS, scenario, split_code
 from manifests.layout import NEW_ROOT_LAYOUT, PATTERNS, layout_of_path
 from manifests.outputs import OUTPUTS, file_of_path, markdown_table
 from manifests.schema import PART_SCHEMA, output_columns, part_path
@@ -201,8 +201,10 @@ def _provenance_section(record: dict | None) -> list[str]:
     return lines
 
 
-def _usage_section(uri: str) -> list[str]:
+def _usage_section(uri: str, scenario: str) -> list[str]:
+    """How to read the root; the query example selects the town and weather of ``scenario``, one it holds."""
     where = "this directory" if uri == "." else f"`{uri}`"
+    town, weather = split_code(scenario)[:2]
     return [
         "## Query, export and load",
         "",
@@ -212,7 +214,8 @@ def _usage_section(uri: str) -> list[str]:
         f"idda status {uri}                      # done / pending per scenario",
         f"idda verify {uri}                      # recompute every checksum",
         f"idda query {uri} --preset best-case --out best.txt",
-        f"idda query {uri} --domains 'towns=T01 weathers=CN' --split train --has rider --total 100 --out sample.csv",
+        f"idda query {uri} --domains 'towns={town} weathers={weather}' --split train --has rider --total 100 "
+        "--out sample.csv",
         f"idda export {uri} --format cityscapes --to export/cityscapes --split val",
         f"idda export {uri} --format idda --to export/idda",
         f"idda distances {uri} --chart domains.png",
@@ -262,7 +265,7 @@ def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list
         _preview_section(previews),
         _encoding_section(table),
         _provenance_section(record),
-        _usage_section(uri),
+        _usage_section(uri, min(table.column("scenario").to_pylist())),
         [citation_section()],
     ]
     return header + "\n" + "\n\n".join("\n".join(s) for s in sections) + "\n" + CARD_MARK + "\n"

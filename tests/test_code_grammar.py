@@ -227,6 +227,7 @@ def test_commands_default_to_the_scenarios_a_root_holds(held_root, tmp_path):
     shutil.copytree(held_root, copy)
     result = runner.invoke(app, ["card", str(copy)])
     assert result.exit_code == 0 and "(3 of the 3 frames the root holds)" in result.output, result.output
+    assert "--domains 'towns=Oslo weathers=CNtoNT' --split train" in (copy / "README.md").read_text()  # one it holds
 
 
 def test_produce_report_aligns_long_codes():
