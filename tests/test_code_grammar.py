@@ -86,7 +86,7 @@ like = "A"
 # a viewpoint of a letter and a digit and one of a digit alone: 4 scenarios, none of the paper's 105
 CODES = ["Oslo_CNtoNT_7", "Oslo_CNtoNT_B2", "Oslo_mist_7", "Oslo_mist_B2"]
 RUN = ["--domains", "towns=Oslo weathers=mist,CNtoNT viewpoints=B2,7", "--frames-per-scenario", "2",
-       "--width", "64", "--height", "36", "--seed", "3", "--world", "test", "--workers", "2"]
+       "--width", "64", "--height", "36", "--seed", "3", "--world", "test"]
 
 
 def _files(root: Path) -> dict[str, bytes]:
@@ -94,8 +94,18 @@ def _files(root: Path) -> dict[str, bytes]:
             if p.is_file() and p.parts[len(root.parts)] in CODES}
 
 
+@pytest.fixture(scope="module")
+def ray_local():
+    """One local Ray cluster for the module's produce and repair runs (each would start its own)."""
+    import ray
+
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
 @pytest.mark.slow
-def test_declared_codes_of_every_shape_end_to_end(tmp_path):
+def test_declared_codes_of_every_shape_end_to_end(ray_local, tmp_path):
     from typer.testing import CliRunner
 
     from pipeline.cli import app
