@@ -7,7 +7,7 @@ import re
 
 import pyarrow as pa
 
-from manifests.catalog import AXES, CODE_CHARS, CODE_SEPARATOR, INSTANCE_LABELS, LABELS, code_axes
+from manifests.catalog import AXES, CODE_CHARS, INSTANCE_LABELS, LABELS, code_axes, scenario_pattern
 from manifests.conditions import CONDITIONS
 from manifests.outputs import OUTPUTS
 
@@ -150,11 +150,10 @@ def part_path(scenario: str, episode: int, rows: int | None = None) -> str:
 
 # A part's path, old names and counted ones: groups town, weather, viewpoint,
 # scenario, episode and rows (None in an old name). Any code the catalog allows
-# (manifests.catalog.CODE_CHARS); the name's scenario is the hive path's.
+# (manifests.catalog: CODE_CHARS, scenario_pattern).
 PART_RE = re.compile(
     "^" + MANIFEST_DIR + "/" + "/".join(f"{axis}=(?P<{axis}>{CODE_CHARS})" for axis in AXES) + "/"
-    + "(?P<scenario>" + CODE_SEPARATOR.join(f"(?P={axis})" for axis in AXES) + ")"
-    + r"_e(?P<episode>\d{4})(?:_n(?P<rows>[1-9]\d*))?\.parquet$"
+    + scenario_pattern(axes=False) + r"_e(?P<episode>\d{4})(?:_n(?P<rows>[1-9]\d*))?\.parquet$"
 )
 
 
