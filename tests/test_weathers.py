@@ -98,3 +98,48 @@ def test_labels_are_the_same_under_every_weather_and_rows_carry_conditions(frame
         if code != "FG2":
             assert frame.conditions == frame_conditions(weather(code))
     assert frames["SN"].conditions["snow_cover"] == 0.85 and frames["NT"].conditions["sun_altitude_deg"] < 0
+
+
+ROAD = [class_id("road"), class_id("road line")]
+
+
+def _ground_xy(frame) -> np.ndarray:
+    """HxWx2 world (x, y) of each pixel's surface, from its depth and the frame's calibration."""
+    K, cam_to_world = np.reshape(frame.K, (3, 3)), np.reshape(frame.cam_to_world, (4, 4))
+    depth = frame.buffers["depth"].astype(np.float64)
+    rows, cols = np.indices(depth.shape) + 0.5
+    cam = np.stack([(cols - K[0, 2]) / K[0, 0] * depth, (rows - K[1, 2]) / K[1, 1] * depth, depth], axis=-1)
+    return (cam @ cam_to_world[:3, :3].T + cam_to_world[:3, 3])[..., :2]
+
+
+def _lane_offset(xy: np.ndarray, lanes) -> np.ndarray:
+    """Distance of each point (..., 2) to the nearest lane centre line (closed polylines)."""
+    best = np.full(xy.shape[:-1], np.inf)
+    for lane in lanes:
+        p = lane.points[:, :2]
+        for a, b in zip(p, np.roll(p, -1, axis=0)):
+            t = np.clip(((xy - a) @ (b - a)) / max((b - a) @ (b - a), 1e-12), 0.0, 1.0)
+            best = np.minimum(best, np.linalg.norm(xy - (a + t[..., None] * (b - a)), axis=-1))
+    return best
+
+
+def test_snow_covers_the_road_but_for_darker_wheel_tracks(frames):
+    """Issue 34.3: the road under snow is mostly white (luminance over 200), the lanes' wheel tracks (0.8 m either
+    side of a lane's centre line) are grey slush, darker than the snow between them."""
+    from manifests.catalog import town as town_row
+    from manifests.spec import town_seed
+
+    frame = frames["SN"]
+    lum = _luminance(frame)
+    road = np.isin(frame.buffers["classes"], ROAD)
+    lanes = episode.cached_world("test", "T01", town_seed(0, town_row("T01"))).lanes
+    offset = _lane_offset(_ground_xy(frame), lanes)
+    near = road & (frame.buffers["depth"] < 15.0)
+    in_track, between = near & (np.abs(offset - 0.8) < 0.15), near & (offset < 0.3)
+    bright, dark = np.mean(lum[road] > 200), np.mean(lum[road] < 150)
+    print(f"SN road pixels above 200: {bright:.2f}, below 150: {dark:.2f}; near luminance in the wheel tracks "
+          f"{lum[in_track].mean():.0f} ({in_track.sum()} px), between them {lum[between].mean():.0f} ({between.sum()} px)")
+    assert road.sum() > 500 and in_track.sum() > 20 and between.sum() > 20
+    assert bright > 0.35 and dark > 0.05
+    assert lum[in_track].mean() < lum[between].mean() - 25
+

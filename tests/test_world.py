@@ -40,15 +40,15 @@ def test_layout_is_deterministic_and_seed_dependent():
 
 
 def test_geometry_is_deterministic_and_seed_dependent():
-    a, _ = W._built(town_row("T02"), 5)
-    b, _ = W._built(town_row("T02"), 5)
-    assert len(a) == len(b)
+    a, _, lights_a = W._built(town_row("T02"), 5)
+    b, _, lights_b = W._built(town_row("T02"), 5)
+    assert len(a) == len(b) and np.array_equal(lights_a, lights_b)
     for pa, pb in zip(a, b):
         assert pa.class_id == pb.class_id and pa.material == pb.material
         assert np.array_equal(pa.mesh.vertices, pb.mesh.vertices)
         assert np.array_equal(pa.mesh.faces, pb.mesh.faces)
         assert np.array_equal(pa.mesh.visual.vertex_colors, pb.mesh.visual.vertex_colors)
-    c, _ = W._built(town_row("T02"), 6)
+    c, *_ = W._built(town_row("T02"), 6)
     va = np.concatenate([p.mesh.vertices for p in a])
     vc = np.concatenate([p.mesh.vertices for p in c])
     assert va.shape != vc.shape or not np.array_equal(va, vc)

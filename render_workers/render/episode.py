@@ -183,7 +183,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
         depth=buffers["depth"], classes=buffers["classes"], hood_mask=result.hood_mask, rig=result.rig,
         world_from_camera=result.world_from_camera, weather=result.weather,
         ego_speed_mps=scene.ego.speed_mps, sun_pixel=result.sun_pixel,
-        rng=np.random.default_rng([spec.seed, _FX_STREAM, index]), episode_seed=spec.seed,
+        rng=np.random.default_rng([spec.seed, _FX_STREAM, index]), episode_seed=spec.seed, world=scene.world,
     )
     buffers["rgb"] = postfx.apply(buffers["rgb"], ctx)
     timings["post_fx"] = time.perf_counter() - start

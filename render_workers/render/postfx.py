@@ -23,6 +23,7 @@ import numpy as np
 from manifests.catalog import Weather, class_id
 from render_workers.render import weatherfx
 from render_workers.render.camera import CameraRig
+from render_workers.worlds.scene import World
 
 ROAD_IDS = np.array([class_id("road"), class_id("road line")])
 WET_IDS = np.array([class_id("road"), class_id("road line"), class_id("sidewalk")])
@@ -46,6 +47,7 @@ class FxContext:
     sun_pixel: tuple[float, float] | None
     rng: np.random.Generator  # per-frame randomness (rain streaks)
     episode_seed: int  # world-anchored patterns (puddles) stay put between frames
+    world: World | None = None  # the static world (its street lamps' luminaires, its lanes' wheel tracks)
 
 
 Effect = Callable[[np.ndarray, FxContext], np.ndarray]

@@ -3,26 +3,34 @@
 Each is an effect of ``render_workers.render.postfx`` (same signature, same
 context) and a no-op when its weather parameter is zero, so the paper's three
 weathers render byte for byte as before. They read only the frame's depth,
-classes, camera and weather; labels (classes, depth, instances) are never
-touched, so a frame's labels are the same under every weather (paired scenes).
+classes, camera and weather and the static world (its luminaires and lanes);
+labels (classes, depth, instances) are never touched, so a frame's labels are
+the same under every weather (paired scenes).
 
 * ``night``: below the horizon (``night_level``: 0 with the sun up, 1 from
   ``NIGHT_SUN_DEG`` below) the lit image is scaled down to ``NIGHT_FLOOR`` of
   its daylight value (the colour pass is rendered with the weather's flat
   ambient light, so it holds the albedo), then lit again where lights are:
-  the ego's headlights (a cone on what is ahead and low), street lamps on the
-  tops of poles (a glowing head and a pool of light on the ground around its
-  world position), lit windows (a world-anchored grid on building facades,
-  about a third of them lit) and the head- or tail lights of other cars (two
-  spots low on each car; white on cars left of the image centre, i.e.
-  oncoming on a right-hand road, red on the others).
-* ``snow_cover``: surfaces whose normal (from depth) faces up whiten, on every
-  class but people and the sky; vegetation catches snow on any face; roads
-  keep tyre-darkened snow (half the cover).
+  the ego's headlights (a cone on what is ahead and low), street lamps (the
+  world's luminaires, ``World.lights``: a pool of light on the ground below
+  each near one, and a glowing disc where one is seen), lit windows (a
+  world-anchored grid on building facades, about a third of them lit) and the
+  head- or tail lights of other cars (two spots low on each car; white on cars
+  left of the image centre, i.e. oncoming on a right-hand road, red on the
+  others).
+* ``snow_cover``: snow on surfaces whose normal (from depth) faces up, on every
+  class but people and the sky, in world-anchored patches covering the
+  weather's share of them (more of the road); on the road the lanes' wheel
+  tracks (``track_map``, from the world's lanes) are grey slush; tree crowns
+  carry clumps of snow on what faces up or sideways, over darker, duller
+  foliage.
 * ``snowfall``: flakes (per-frame random dots, bigger near the camera).
 """
 
 from __future__ import annotations
+
+import functools
+from statistics import NormalDist
 
 import numpy as np
 
@@ -35,7 +43,9 @@ HEADLIGHT_GAIN = 2.2
 HEADLIGHT_RANGE_M = 60.0
 LAMP_GAIN = 1.6
 LAMP_POOL_M = 7.0  # radius (1/e) of a street lamp's pool of light on the ground
-MAX_LAMPS = 48  # nearest pole tops that carry a lamp
+MAX_LAMPS = 48  # nearest luminaires that light the frame
+LAMP_RANGE_M = 150.0  # luminaires farther from the camera are left out
+LAMP_GLOW_M = 0.35  # radius of a luminaire's glowing disc
 WINDOW_CELL_M = (3.0, 3.2)  # facade grid: along the wall, up
 WINDOW_LIT_SHARE = 0.35
 LAMP_RGB = (1.0, 0.78, 0.5)
@@ -43,9 +53,14 @@ HEADLIGHT_RGB = (1.0, 0.96, 0.88)
 TAIL_RGB = (1.0, 0.08, 0.04)
 WINDOW_RGB = (1.0, 0.75, 0.42)
 SNOW_RGB = (0.93, 0.95, 1.0)
+SLUSH_RGB = (0.3, 0.3, 0.31)  # added to half the ground's own luminance in wheel tracks
+TRACK_GAUGE_M = 1.6  # between a car's left and right wheel tracks
+TRACK_CELL_M = 0.25  # raster of a world's wheel tracks: each a line of one cell, softened (about 0.45 m wide)
+TRACK_WIDTH_M = 0.45
+TRACK_MEAN = 0.25  # share of a lane the tracks darken, seen from far away
+CROWN_SNOW_SHARE = 0.7  # of a tree crown's upper and side faces under snow (in clumps) at full cover
 
 SKY_ID = class_id("sky")
-POLE_ID = class_id("pole")
 VEHICLE_ID = class_id("vehicle")
 BUILDING_ID = class_id("building")
 VEGETATION_ID = class_id("vegetation")
@@ -61,9 +76,9 @@ def _lut(ids, value=1.0) -> np.ndarray:
 
 
 _GROUND_LUT = _lut(GROUND_IDS).astype(bool)
-_SNOW_LUT = np.ones(256, np.float32)
-_SNOW_LUT[list(NO_SNOW_IDS)] = 0.0
-_SNOW_LUT[list(ROAD_IDS)] = 0.5
+_SNOW_LUT = np.ones(256, bool)
+_SNOW_LUT[list(NO_SNOW_IDS)] = False
+_ROAD_LUT = _lut(ROAD_IDS).astype(bool)
 
 
 def night_level(weather: Weather) -> float:
@@ -94,35 +109,56 @@ def _headlights(ctx, cam: np.ndarray) -> np.ndarray:
     return cone * reach * (height < 2.5) * (z > 1.0)
 
 
-def _lamps(ctx) -> list[tuple[int, int, float]]:
-    """(column, row, depth) of the top of each pole seen, nearest first, at most MAX_LAMPS."""
+def _lamps(ctx) -> np.ndarray:
+    """(N, 3) the world's luminaires near the camera (``World.lights``) in the GL camera frame, nearest
+    first: at most MAX_LAMPS within LAMP_RANGE_M, ahead or no more than two pools behind."""
+    lights = ctx.world.lights if ctx.world is not None else np.zeros((0, 3))
+    if not len(lights):
+        return np.zeros((0, 3), np.float32)
+    m = np.linalg.inv(ctx.world_from_camera)
+    cam = np.asarray(lights, np.float64) @ m[:3, :3].T + m[:3, 3]
+    dist = np.linalg.norm(cam, axis=1)
+    keep = np.nonzero((dist < LAMP_RANGE_M) & (cam[:, 2] < 2.0 * LAMP_POOL_M))[0]
+    keep = keep[np.argsort(dist[keep], kind="stable")][:MAX_LAMPS]
+    return cam[keep].astype(np.float32)
+
+
+def _lamp_pools(ctx, world: np.ndarray, lamps_world: np.ndarray) -> np.ndarray:
+    """HxW gain of street lamps' pools of light on ground classes (world distance to each luminaire), evaluated on
+    every other row and column (the pools are smooth) and interpolated."""
     import cv2
 
-    mask = (ctx.classes == POLE_ID).astype(np.uint8)
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
-    lamps = []
-    for k in range(1, count):
-        x, y, w, h, area = stats[k]
-        if h < 3 or h < 1.5 * w:
-            continue
-        cols = np.nonzero(labels[y] == k)[0]
-        col = int(cols[len(cols) // 2])
-        lamps.append((col, int(y), float(ctx.depth[y, col])))
-    lamps.sort(key=lambda lamp: (lamp[2], lamp[0], lamp[1]))
-    return lamps[:MAX_LAMPS]
-
-
-def _lamp_pools(ctx, world: np.ndarray, lamps) -> np.ndarray:
-    """HxW gain of street lamps' pools of light on ground classes (world distance to each lamp)."""
     ground = _GROUND_LUT[ctx.classes] & ~ctx.hood_mask
-    out = np.zeros(ctx.depth.shape, np.float32)
-    if not lamps or not ground.any():
-        return out
-    heads = np.array([world[r, c, :2] for c, r, _ in lamps], np.float32)
-    xy = world[ground][:, :2]
-    d2 = np.square(xy[:, None, :] - heads[None, :, :]).sum(axis=2)
-    out[ground] = np.exp(-d2 / LAMP_POOL_M**2).sum(axis=1)
-    return out
+    if not len(lamps_world) or not ground.any():
+        return np.zeros(ctx.depth.shape, np.float32)
+    solid = ctx.depth[1::2, 1::2] < 999.0  # not the sky
+    scale, origin = np.float32(1.0 / LAMP_POOL_M), ctx.world_from_camera[:2, 3].astype(np.float32)
+    xy = (world[1::2, 1::2][solid][:, :2] - origin) * scale  # near the camera: small numbers, precise in float32
+    heads = (lamps_world[:, :2].astype(np.float32) - origin) * scale
+    d2 = np.square(xy).sum(axis=1)[:, None] - 2.0 * (xy @ heads.T) + np.square(heads).sum(axis=1)[None, :]
+    small = np.zeros(solid.shape, np.float32)
+    small[solid] = np.exp(-np.maximum(d2, 0.0)).sum(axis=1)
+    h, w = ctx.depth.shape
+    return cv2.resize(small, (w, h), interpolation=cv2.INTER_LINEAR) * ground
+
+
+def _lamp_heads(ctx, emissive: np.ndarray, lamps: np.ndarray, strength: float) -> None:
+    """Draw each luminaire seen (in the image, not hidden behind nearer depth) as a glowing disc into ``emissive``."""
+    import cv2
+
+    rig, f = ctx.rig, ctx.rig.focal_px
+    h, w = ctx.depth.shape
+    colour = tuple(1.3 * strength * c for c in LAMP_RGB)
+    for x, y, z in lamps:
+        ahead = -float(z)
+        if ahead < 1.0:
+            continue
+        col, row = rig.cx + f * x / ahead, rig.cy - f * y / ahead
+        if not (0 <= col < w and 0 <= row < h) or ctx.depth[int(row), int(col)] < 0.97 * ahead - 0.3:
+            continue
+        radius = max(1.0, f * LAMP_GLOW_M / ahead)
+        cv2.circle(emissive, (int(round(col * 16 - 8)), int(round(row * 16 - 8))), int(round(radius * 16)), colour, -1,
+                   cv2.LINE_AA, 4)
 
 
 def _windows(ctx, world: np.ndarray) -> np.ndarray:
@@ -156,8 +192,6 @@ def _car_lights(ctx, emissive: np.ndarray, strength: float) -> None:
 
 def night(img: np.ndarray, ctx) -> np.ndarray:
     """Darken towards moonlight as the sun sets below the horizon; light it again where lights are."""
-    import cv2
-
     weather = ctx.weather
     level = night_level(weather)
     if level <= 0.0:
@@ -176,19 +210,78 @@ def night(img: np.ndarray, ctx) -> np.ndarray:
         _car_lights(ctx, emissive, cars)
     if street > 0:
         lamps = _lamps(ctx)
-        pools = _lamp_pools(ctx, world, lamps) * (LAMP_GAIN * street)
+        pools = _lamp_pools(ctx, world, _world(ctx, lamps)) * (LAMP_GAIN * street)
         lit += pools[..., None] * np.asarray(LAMP_RGB, np.float32)
         emissive[_windows(ctx, world)] = np.asarray(WINDOW_RGB, np.float32) * (0.85 * street)
-        f = ctx.rig.focal_px
-        for col, row, depth in lamps:
-            radius = max(1, int(round(f * 0.35 / max(depth, 1.0))))
-            cv2.circle(emissive, (col, max(0, row - radius)), radius, tuple(1.3 * street * c for c in LAMP_RGB), -1)
+        _lamp_heads(ctx, emissive, lamps, street)
     out = img * (gain[..., None] + lit)
     return np.maximum(out, emissive)
 
 
+def _waves(points: np.ndarray, wavelengths_m: tuple[float, float], seed: int, stream: int, count: int = 6) -> np.ndarray:
+    """Smooth world-anchored noise at ``points`` (N, D) in metres, about standard normal: a sum of ``count`` random
+    plane waves of wavelengths in ``wavelengths_m``."""
+    rng = np.random.default_rng([seed, stream])
+    direction = rng.normal(size=(count, points.shape[1]))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    k = direction * (2.0 * np.pi / rng.uniform(*wavelengths_m, count))[:, None]
+    phase = rng.uniform(0.0, 2.0 * np.pi, count)
+    return (np.sin(points @ k.T.astype(np.float32) + phase.astype(np.float32)).sum(axis=1)
+            * np.float32(1.0 / np.sqrt(count / 2.0)))
+
+
+def _share(noise: np.ndarray, share: float, soft: float) -> np.ndarray:
+    """0-1 weight that is 1 on about ``share`` of the noise's (standard normal) values, with soft edges."""
+    threshold = NormalDist().inv_cdf(min(max(1.0 - share, 1e-6), 1.0 - 1e-6))
+    return np.clip((noise - np.float32(threshold)) / np.float32(soft) + np.float32(0.5), 0.0, 1.0)
+
+
+@functools.lru_cache(maxsize=2)
+def track_map(world) -> tuple[np.ndarray, float, float]:
+    """A world's wheel tracks on a ground raster of TRACK_CELL_M: two lines TRACK_GAUGE_M apart along every lane's
+    centre line, about TRACK_WIDTH_M wide; (uint8 raster, 0-255, row r at y0 + r * cell; x0, y0)."""
+    import cv2
+
+    lanes = [lane for lane in world.lanes if len(lane.points) > 1]
+    if not lanes:
+        return np.zeros((1, 1), np.uint8), 0.0, 0.0
+    corners = np.concatenate([lane.points[:, :2] for lane in lanes])
+    (x0, y0), (x1, y1) = corners.min(axis=0) - 5.0, corners.max(axis=0) + 5.0
+    grid = np.zeros((int((y1 - y0) / TRACK_CELL_M) + 1, int((x1 - x0) / TRACK_CELL_M) + 1), np.uint8)
+    for lane in lanes:
+        p = lane.points[:, :2]
+        ahead = np.diff(np.vstack([p, p[:1]]) if lane.closed else p, axis=0)
+        ahead /= np.maximum(np.linalg.norm(ahead, axis=1, keepdims=True), 1e-9)
+        left = np.stack([-ahead[:, 1], ahead[:, 0]], axis=1)  # per segment
+        before = np.roll(left, 1, axis=0) if lane.closed else np.vstack([left[:1], left])
+        after = left if lane.closed else np.vstack([left, left[-1:]])
+        normal = before + after  # per point: the mean of its segments' normals, mitred to keep the offset at corners
+        normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-9)
+        normal /= np.maximum(np.sum(normal * after, axis=1, keepdims=True), 0.5)
+        for side in (-0.5, 0.5):
+            line = (p + side * TRACK_GAUGE_M * normal - (x0, y0)) / TRACK_CELL_M
+            cv2.polylines(grid, [np.round(line * 16 - 8).astype(np.int32)], lane.closed, 255, 1, cv2.LINE_AA, 4)
+    return cv2.GaussianBlur(grid, (0, 0), 0.5), float(x0), float(y0)
+
+
+def _tracks(ctx, xy: np.ndarray, depth: np.ndarray) -> np.ndarray:
+    """0-1 wheel tracks at ground points ``xy`` (N, 2) seen at planar ``depth`` (N,): the world's track raster,
+    fading to its mean where a pixel is wider than a track (no aliasing far away)."""
+    if ctx.world is None:
+        return np.zeros(len(xy), np.float32)
+    grid, x0, y0 = track_map(ctx.world)
+    col = np.floor((xy[:, 0] - x0) / TRACK_CELL_M).astype(np.int64)
+    row = np.floor((xy[:, 1] - y0) / TRACK_CELL_M).astype(np.int64)
+    inside = (col >= 0) & (col < grid.shape[1]) & (row >= 0) & (row < grid.shape[0])
+    track = np.zeros(len(xy), np.float32)
+    track[inside] = grid[row[inside], col[inside]] * np.float32(1.0 / 255.0)
+    far = np.clip((depth / ctx.rig.focal_px - 0.5 * TRACK_WIDTH_M) / TRACK_WIDTH_M, 0.0, 1.0).astype(np.float32)
+    return track * (1.0 - far) + np.float32(TRACK_MEAN) * far
+
+
 def snow_cover(img: np.ndarray, ctx) -> np.ndarray:
-    """Whiten up-facing surfaces (normals from depth) and vegetation by the weather's snow cover."""
+    """Snow on what faces up (normals from depth) by the weather's snow cover, in world-anchored patches; roads
+    white but for grey slush in the lanes' wheel tracks; clumps of snow on tree crowns, dark foliage between."""
     import cv2
 
     amount = ctx.weather.snow_cover
@@ -197,14 +290,53 @@ def snow_cover(img: np.ndarray, ctx) -> np.ndarray:
     normals = normals_from_depth(ctx.depth, ctx.rig.K)  # OpenCV camera frame
     cv_to_world = (ctx.world_from_camera @ CV_FROM_GL)[:3, :3]
     up = normals @ cv_to_world[2].astype(np.float32)  # world z of each normal
-    facing = np.clip((up - 0.45) / 0.35, 0.0, 1.0)
-    facing = np.maximum(facing, 0.7 * (ctx.classes == VEGETATION_ID))
-    weight = facing * _SNOW_LUT[ctx.classes] * ~ctx.hood_mask * np.float32(amount)
+    classes = ctx.classes
+    veg = (classes == VEGETATION_ID) & ~ctx.hood_mask
+    flat = (up > 0.45) & _SNOW_LUT[classes] & ~ctx.hood_mask & ~veg
+    world = _world(ctx, _camera_points(ctx))
     luminance = cv2.cvtColor(img, cv2.COLOR_RGB2GRAY)
-    shade = np.clip(0.6 + 0.8 * luminance, 0.6, 1.0)
-    snow = shade[..., None] * np.asarray(SNOW_RGB, np.float32)
-    w3 = weight.astype(np.float32)[..., None]
-    return img * (1.0 - w3) + snow * w3
+    shade = _shade(luminance, classes)
+    out = img.copy()
+    snow_w, slush_w = _ground_snow(ctx, world[flat], up[flat], _ROAD_LUT[classes[flat]], ctx.depth[flat], amount)
+    pixels, lum, lit = img[flat], luminance[flat][:, None], shade[flat][:, None]
+    slush = lum * np.float32(0.5) + lit * np.asarray(SLUSH_RGB, np.float32)
+    pixels += (slush - pixels) * slush_w[:, None]
+    out[flat] = pixels + (lit * np.asarray(SNOW_RGB, np.float32) - pixels) * snow_w[:, None]
+    # tree crowns: clumps of snow on what faces up or sideways, the foliage between them darker and duller
+    lean = np.clip((up[veg] + 0.3) / 0.6, 0.0, 1.0)  # 1 on what faces up or sideways, 0 on the undersides
+    clumps = _waves(world[veg], (0.7, 2.6), ctx.episode_seed, 603) + np.float32(1.5) * (lean - np.float32(1.0))
+    snow_w = np.float32(0.95) * _share(clumps, CROWN_SNOW_SHARE * amount, 0.5)
+    grey, lum, lit = np.float32(0.45 * amount), luminance[veg][:, None], shade[veg][:, None]
+    pixels = (img[veg] * (1.0 - grey) + lum * grey) * np.float32(1.0 - 0.3 * amount)
+    out[veg] = pixels + (lit * np.asarray(SNOW_RGB, np.float32) - pixels) * snow_w[:, None]
+    return out
+
+
+def _ground_snow(ctx, points: np.ndarray, up: np.ndarray, road: np.ndarray, depth: np.ndarray,
+                 amount: float) -> tuple[np.ndarray, np.ndarray]:
+    """Shares of snow and of slush on up-facing pixels (world ``points``, normals' ``up``, ``road`` or not):
+    world-anchored patches cover ``amount`` of the ground (more of the road), the lanes' wheel tracks on the road
+    are slush."""
+    facing = np.clip((up - 0.45) / 0.35, 0.0, 1.0)
+    xy = points[:, :2]
+    patches = _waves(xy, (1.5, 9.0), ctx.episode_seed, 601)
+    snow = np.where(road, _share(patches, amount**0.5, 0.6), _share(patches, amount, 0.6)) * facing
+    slush = np.zeros_like(snow)
+    on_road = xy[road]
+    track = _tracks(ctx, on_road, depth[road])
+    track *= np.clip(0.9 + 0.3 * _waves(on_road, (0.8, 4.0), ctx.episode_seed, 602), 0.0, 1.0)
+    snow[road] *= 1.0 - track
+    slush[road] = facing[road] * track
+    return snow * np.float32(amount**0.25), slush  # thinner snow lets a little of the ground show through
+
+
+def _shade(luminance: np.ndarray, classes: np.ndarray) -> np.ndarray:
+    """How lit each pixel is against the mean of its class in the frame (shadows, faces turned from the sun)."""
+    counts = np.bincount(classes.ravel(), minlength=256)
+    sums = np.bincount(classes.ravel(), weights=luminance.ravel(), minlength=256)
+    mean = (sums / np.maximum(counts, 1)).astype(np.float32)
+    ratio = luminance / np.maximum(mean[classes], np.float32(0.02))
+    return np.sqrt(np.clip(ratio, 0.45, 1.1))
 
 
 def snowfall(img: np.ndarray, ctx) -> np.ndarray:

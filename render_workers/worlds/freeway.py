@@ -102,6 +102,7 @@ def tunnel(kit, a: float, b: float) -> None:
         p = np.stack([xs, np.full_like(xs, y + sgn * (FREEWAY_MEDIAN / 2 + cw / 2)), np.full_like(xs, H - 0.2)], 1)
         v, f = M.boxes(p, np.array([[2.0, 0.4, 0.15]]))
         kit.add("other", v, f, PALETTE["lamp"], "emissive", 0.02)
+        kit.lights.extend(p + np.array([0, 0, 0.075]))
 
 
 def connectors(kit) -> None:

@@ -79,6 +79,7 @@ class Kit:
         self.rng = np.random.default_rng([lay.seed, lay.town.stream, 2])
         self.batch = M.MeshBatch()
         self.buildings: list[tuple[float, float, float, float, float]] = []  # cx, cy, sx, sy, yaw
+        self.lights: list[np.ndarray] = []  # luminaires' centres (World.lights)
         self._cseed = 0
         species = self.style.trees
         self._species = [name for name, _ in species]
@@ -264,6 +265,7 @@ class Kit:
         self.props_box("pole", arm_c - np.array([0, 0, 0.05]), [1.8, 0.12, 0.12], yaw, props.pole, props.pole_look)
         head = np.asarray(base) + d * 1.7 + np.array([0, 0, 7.25])
         self.props_box("pole", head, [0.6, 0.3, 0.15], yaw, PALETTE["lamp"], "emissive")
+        self.lights.append(head + np.array([0, 0, 0.075]))  # the box's base is ``head``: its centre is half up
 
     def traffic_sign(self, base, facing):
         """Pole plus a plate facing ``facing`` (radians, towards approaching cars)."""

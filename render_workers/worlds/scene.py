@@ -150,6 +150,7 @@ class World:
     crosswalks: tuple[Crosswalk, ...] = ()  # zebra crossings
     walk_lanes: tuple[tuple[Path, ...], ...] = ()  # per lane: the closed walkways moved k lanes off the road
     textures: dict = field(default_factory=dict)  # texture name -> (px, px, 3) uint8, for Part.texture
+    lights: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (N, 3) street lamps' luminaires (centres)
 
 
 @dataclass(frozen=True, eq=False)

@@ -44,12 +44,12 @@ FEATURES = (
 
 
 def _built(t: Town, seed: int):
-    """The town's merged parts and building footprints (not cached here: ``render_workers.render.episode.cached_world``
-    is the process's one world cache)."""
+    """The town's merged parts, building footprints and luminaires (not cached here:
+    ``render_workers.render.episode.cached_world`` is the process's one world cache)."""
     kit = Kit(plan(t, seed))
     for feature in FEATURES:
         feature(kit)
-    return kit.batch.parts(), tuple(kit.buildings)
+    return kit.batch.parts(), tuple(kit.buildings), np.array(kit.lights, dtype=np.float64).reshape(-1, 3)
 
 
 def building_footprints(town_code: str, seed: int) -> np.ndarray:
@@ -60,7 +60,7 @@ def building_footprints(town_code: str, seed: int) -> np.ndarray:
 def build_town(t: Town, seed: int) -> World:
     """A town row's static geometry, lanes and walkways, deterministic from ``seed``."""
     lay: Layout = plan(t, seed)
-    parts, _ = _built(t, seed)
+    parts, _, lights = _built(t, seed)
     lane_loops = loops(lay)
     return World(
         town=t.code,
@@ -73,6 +73,7 @@ def build_town(t: Town, seed: int) -> World:
         crosswalks=crosswalks(lay),
         walk_lanes=walk_lanes(lay),
         textures=town_textures(look(t), seed, t.stream),
+        lights=lights,
     )
 
 
