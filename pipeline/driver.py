@@ -117,6 +117,7 @@ class ProduceReport:
     seconds: float = 0.0
     per_scenario: dict[str, dict] = field(default_factory=dict)  # frames, episodes, seconds
     workers: int = 0
+    crashed: int = 0  # episodes whose worker died of a native fault on every try
 
     @property
     def ok(self) -> bool:
@@ -169,6 +170,39 @@ PROGRESS_WAIT_S = 5.0  # longest the driver waits for a frame before it looks ag
 
 PROGRESS_ACTOR_OPTIONS = dict(num_cpus=0, max_restarts=-1, max_task_retries=0)
 PROGRESS_RETRY_S = 1.0  # after a failed call to the progress actor, ask again this much later
+
+
+class RendererCrashes(Exception):
+    """Render workers died of a native fault (not a Python error) on the first
+    episodes of the run, none finished: retrying cannot help, the environment
+    does not render (a GL driver setting, a library build). ``report`` says
+    what was done."""
+
+    def __init__(self, report: ProduceReport, crashed: int) -> None:
+        settings = gl_settings()
+        where = (f"GL-related settings in force: {', '.join(settings)}; unset them and run again (Mesa's llvmpipe "
+                 "aborts under some of them)") if settings else (
+                 "no GL-related variable is set; the workers' logs (`ray logs`, or /tmp/ray/session_latest/logs) "
+                 "name the fault")
+        super().__init__(f"render workers crashed (a native fault, not a Python error) on the first {crashed} "
+                         f"episode(s), none finished, so the run stopped: retrying cannot help; {where}")
+        self.report, self.crashed = report, crashed
+
+
+# Variables that change what the GL driver runs; named when every worker crashes.
+_GL_VARIABLES = ("LP_", "MESA_", "GALLIUM_", "EGL_", "LIBGL_", "__GLX_", "PYOPENGL_")
+_GL_DEFAULTS = {"PYOPENGL_PLATFORM": "egl"}  # what compat chooses by itself: not a suspect
+
+
+def gl_settings(environ=None) -> list[str]:
+    """``NAME=value`` of the environment's GL driver settings, the platform default left out."""
+    environ = os.environ if environ is None else environ
+    return sorted(f"{k}={v}" for k, v in environ.items()
+                  if k.startswith(_GL_VARIABLES) and _GL_DEFAULTS.get(k) != v)
+
+
+# After this many crashed episodes with none finished, a run stops (RendererCrashes).
+CRASHES_TO_STOP = 2
 
 
 class _LiveFrames:
@@ -253,6 +287,8 @@ def _collect(ray, ref, in_flight: dict, report: ProduceReport, max_retries: int)
         message = str(exc).strip().splitlines()[-1] if str(exc).strip() else type(exc).__name__
         report.failed.append((spec.key, message))
         log.error("episode %s failed after %d retries: %s", spec.key, max_retries, message)
+        if isinstance(exc, ray.exceptions.WorkerCrashedError):  # the process died: a native fault
+            report.crashed += 1
         return
     if isinstance(result, Fatal):
         for other in in_flight:
@@ -324,6 +360,11 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                 continue
             for ref in ready:
                 _collect(ray, ref, in_flight, report, config.max_retries)
+            if report.crashed and not report.rendered_episodes and (
+                    report.crashed >= CRASHES_TO_STOP or not (queue or in_flight)):
+                for other in in_flight:  # every episode so far died natively: the rest would too
+                    ray.cancel(other, force=True)
+                raise RendererCrashes(report, report.crashed)
             report_progress()
     finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
         if started and ray.is_initialized():

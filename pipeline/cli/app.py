@@ -30,7 +30,8 @@ app = typer.Typer(
     "Domains are selected with one grammar everywhere: 'all'; scenario codes such as "
     "T01_CS_A,T07_HRN_* ; or axis filters such as 'towns=T01-T06 weathers=CN viewpoints=A,M'.\n\n"
     "Exit codes: 0 done; 1 the data has a problem (verify found damage, episodes failed); "
-    "2 a usage error, including a selection that matches no frames; 130 interrupted (Ctrl-C); "
+    "2 a usage error, including a selection that matches no frames, or an environment that cannot render "
+    "(render workers crashing on every episode); 130 interrupted (Ctrl-C); "
     "143 and 129 stopped by SIGTERM and SIGHUP (resume by running the same command again).",
     no_args_is_help=True,
     context_settings={"help_option_names": ["-h", "--help"]},
@@ -138,7 +139,7 @@ def produce(
     and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
     """
     from manifests.lease import ttl_from_env as lease_ttl_from_env
-    from pipeline.driver import ProduceConfig, ProduceInterrupted, StorageOutage, produce as run_produce
+    from pipeline.driver import ProduceConfig, ProduceInterrupted, RendererCrashes, StorageOutage, produce as run_produce
     from pipeline.runmeta import RunConfig
 
     with user_errors():
@@ -174,6 +175,10 @@ def produce(
                 bar.close()
                 typer.echo(format_outage(outage, Storage.from_uri(out).endpoint), err=True)
                 raise typer.Exit(code=1) from None
+            except RendererCrashes as crashes:  # the environment cannot render: no retry helps
+                bar.close()
+                typer.echo(f"error: {crashes}", err=True)
+                raise typer.Exit(code=2) from None
             except KeyboardInterrupt:  # before or after rendering: nothing half done to report
                 bar.close()
                 typer.echo(f"{stopped.get('name', 'interrupted')}: run the same command again to resume", err=True)
