@@ -53,8 +53,14 @@ venv-test: $(STAMP_TEST) ## add the test extras (torch, polars, duckdb, moto, da
 produce: $(STAMP) ## render DOMAINS (default all) into OUT; FRAMES/WIDTH/HEIGHT size the run, SCALE=1 is the full dataset
 	$(BIN)/idda produce --domains '$(DOMAINS)' --out '$(OUT)' $(_SIZE) --seed $(SEED) $(PRODUCE_ARGS)
 
-test: $(STAMP_TEST) ## add the test extras to .venv, then run the test suite
-	$(BIN)/python -m pytest -q
+# Two pytest workers (pytest-xdist), whole files to each: most of the suite's
+# time is Ray clusters starting and stopping and processes being killed and
+# waited for, which overlap well even on 2 cores. TEST_WORKERS=0 runs it in
+# one process.
+TEST_WORKERS ?= 2
+
+test: $(STAMP_TEST) ## add the test extras to .venv, then run the test suite (TEST_WORKERS=2 processes)
+	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
 
 bench: $(STAMP_TEST) ## run the benchmarks; figures go to docs/
 	$(BIN)/python -m benchmarks.run
