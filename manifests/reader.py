@@ -268,6 +268,27 @@ def _listed_rows(storage) -> dict[tuple[str, int], PartSummary | int | None]:
     return found
 
 
+def _kept_beside(parts: dict[str, dict[int, tuple[str, int]]], rel: str) -> tuple[str, int] | None:
+    """The part readers use (path, bytes) where ``rel`` is another name of its episode; None
+    where ``rel`` is not a part (an index older versions left inside manifest/)."""
+    match = PART_RE.match(rel)
+    if match is None:
+        return None
+    return parts.get(match.group("scenario"), {}).get(int(match.group("episode")))
+
+
+def _holds_its_named_rows(storage, rel: str, size: int) -> bool:
+    """Whether the part at ``rel`` is readable and holds the rows its name says (an old name says none)."""
+    rows = rows_read(storage, rel, size)
+    return rows is not None and named_rows(rel) in (None, rows)
+
+
+def rows_read(storage, rel: str, size: int | None = None) -> int | None:
+    """The rows the part at ``rel`` holds, from its footer (not from its name); None if unreadable."""
+    meta = _footer(storage, rel, size)
+    return None if meta is None else meta.num_rows
+
+
 def _part_rows(storage, rel: str, size: int) -> int | None:
     if named_rows(rel) is not None:
         return named_rows(rel)
@@ -425,6 +446,12 @@ def compact(root, scenarios: list[str] | None = None, state: ManifestScan | None
     storage = as_storage(root)
     state = scan(storage) if state is None else state
     for rel in state.legacy:
+        kept = _kept_beside(state.parts, rel)
+        if kept is not None and not _holds_its_named_rows(storage, *kept):
+            log.warning("%s and %s name the same episode, and the one readers use does not hold the rows its name "
+                        "says: both kept; `idda verify` names them, `idda produce --repair` renders the episode again",
+                        storage.join(rel), storage.join(kept[0]))
+            continue
         storage.delete(rel)
     for scenario in set(state.indexes) - set(state.parts):  # every part of it was removed
         storage.delete(state.indexes[scenario])

@@ -211,6 +211,8 @@ class VerifyUnit:
     since: float | None  # stray files older than this are out of scope
     producer_live: bool  # frames without a part belong to a running producer
     layouts: tuple[int, ...] = LAYOUTS  # the root's file layout (both when run.json cannot tell)
+    # (episode, part path): other names of an episode in scope beside the part readers use (``parts``)
+    shadowed: tuple[tuple[int, str], ...] = ()
 
 
 @dataclass
@@ -264,6 +266,11 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
             result.problems.append(problem)
         else:
             good[(unit.scenario, episode)] = table
+    bad = {p.episode: p.path for p in result.problems if p.kind == "bad-part"}
+    for episode, rel in unit.shadowed:  # beside a sound part, a name a killed writer left (compaction drops it)
+        if episode in bad:  # beside a damaged one (a lying copy): both are named, repair drops both
+            result.problems.append(Problem("bad-part", rel, unit.scenario, episode,
+                                           f"a second part of this episode, beside the damaged {bad[episode]}"))
     if unit.index is not None:
         paths = dict(unit.parts)
         problem = _check_index(storage, unit.index, unit.scenario,
@@ -353,9 +360,12 @@ class VerifyProgress:
     elapsed_s: float
 
 
-def _part_listing(storage, report: VerifyReport) -> dict[str, dict[int, tuple[str, float]]]:
-    """Parts per scenario with their modification time; links under manifest/ become problems."""
+def _part_listing(storage, report: VerifyReport) -> tuple[dict[str, dict[int, tuple[str, float]]],
+                                                           dict[str, list[tuple[int, str]]]]:
+    """Parts per scenario with their modification time, and per scenario the other
+    names of an episode beside the part readers use; links under manifest/ become problems."""
     parts: dict[str, dict[int, tuple[str, float]]] = {}
+    shadowed: dict[str, list[tuple[int, str]]] = {}
     for entry in storage.walk(MANIFEST_DIR):
         if entry.link:
             report.problems.append(Problem("link", entry.rel, None, None, LINK_DETAIL))
@@ -364,9 +374,15 @@ def _part_listing(storage, report: VerifyReport) -> dict[str, dict[int, tuple[st
         if match:
             held = parts.setdefault(match.group("scenario"), {})
             episode = int(match.group("episode"))
-            if episode not in held or newer_part(entry.rel, held[episode][0]):  # the part readers use
+            if episode in held:
+                other = entry.rel
+                if newer_part(entry.rel, held[episode][0]):  # the part readers use
+                    other = held[episode][0]
+                    held[episode] = (entry.rel, entry.mtime)
+                shadowed.setdefault(match.group("scenario"), []).append((episode, other))
+            else:
                 held[episode] = (entry.rel, entry.mtime)
-    return parts
+    return parts, shadowed
 
 
 def _producer_live(storage, except_owner: str | None) -> bool:
@@ -381,7 +397,7 @@ def _producer_live(storage, except_owner: str | None) -> bool:
 def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool,
                layouts: tuple[int, ...] = LAYOUTS) -> list[VerifyUnit]:
     """The units of ``scope``: one per scenario that has parts or a folder."""
-    parts = _part_listing(storage, report)
+    parts, shadowed = _part_listing(storage, report)
     indexes = index_files(storage)
     codes = {s.code for s in all_scenarios()}  # of the catalog in force: the root's (verify)
     folders = {name for name in root_entries(storage) if name in codes}
@@ -392,7 +408,8 @@ def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool,
         have = parts.get(scenario, {})
         chosen = tuple((e, rel) for e, (rel, mtime) in sorted(have.items()) if scope.since is None or mtime >= scope.since)
         index = indexes.get(scenario) if len(chosen) == len(have) else None
-        units.append(VerifyUnit(scenario, chosen, frozenset(have), index, scope.since, producer_live, layouts))
+        others = tuple(sorted((e, rel) for e, rel in shadowed.get(scenario, []) if e in dict(chosen)))
+        units.append(VerifyUnit(scenario, chosen, frozenset(have), index, scope.since, producer_live, layouts, others))
     return units
 
 

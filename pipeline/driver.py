@@ -416,7 +416,9 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
     owner = new_owner()
     if config.repair:  # before this run registers: the repair bumps the lease generation it then reads
         check_no_repair_running(storage)
-        pending_episodes(plan, episode_frames(storage))  # refuses a shrink before repair deletes anything
+        # refuses a shrink before repair deletes anything: from the rows the parts hold, never from their
+        # names (a part renamed to say more rows than it holds is damage to repair, not frames to keep)
+        pending_episodes(plan, episode_frames(storage, scan(storage).summaries(storage)))
         report.repaired = repair_alone(storage, config, plan, owner)
     producer = register_producer(storage, owner=owner, ttl_s=config.lease_ttl_s)
     try:

@@ -11,6 +11,7 @@ finished root without indexes: nothing to render, so no Ray either.
 
 from __future__ import annotations
 
+import errno
 import os
 import shutil
 import signal
@@ -51,8 +52,15 @@ def world(tiny, tmp_path) -> dict[str, Path]:
 
 
 def _data(path: Path) -> dict[str, str]:
-    """A root's listing without its leases (a producer's lease comes and goes; it is not data)."""
-    return {rel: d for rel, d in faultkit.listing(path).items() if rel.split("/")[0] != "_lease"}
+    """A root's listing without its leases (a producer's lease comes and goes; it is not data).
+    ``_lease`` is not even walked: a lease refresh's temp file may vanish while it is read."""
+    return {rel: d for rel, d in faultkit.listing(path, skip=("_lease",)).items() if rel != "_lease"}
+
+
+def _written(path: Path) -> dict[Path, tuple[int, int]]:
+    """Every data file's inode and modification time (leases left out, as in ``_data``)."""
+    return {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in path.rglob("*")
+            if p.relative_to(path).parts[0] != "_lease" and p.is_file()}
 
 
 def unchanged(*paths: Path):
@@ -280,6 +288,56 @@ def test_repair_refuses_a_run_json_of_another_run(world):
     check()
 
 
+def _same_data(root: Path, reference: Path) -> None:
+    """``root`` holds the frames and parts of ``reference``, byte for byte."""
+    data = {rel: d for rel, d in faultkit.listing(reference).items() if rel.startswith(("T01_", "T07_", "manifest/"))}
+    after = faultkit.listing(root)
+    assert {rel: after.get(rel) for rel in data} == data
+
+
+def test_repair_mends_a_part_whose_name_lies_about_its_rows(world, tiny):
+    """Issue 33: ``_n2`` renamed ``_n72``. verify flagged it, but the repair it
+    recommends refused ("holds 72 frames... a root never shrinks"): no way out. The
+    name is not a row count to protect: status counts the rows and says so, repair
+    renders the episode again, byte for byte."""
+    root = world["root"]
+    rel = part_of(root, "T01_CN_A", 0)
+    lying = rel.replace("_n2.parquet", "_n72.parquet")
+    os.rename(root / rel, root / lying)
+    check_neighbour = unchanged(world["neighbour"])
+    assert [p.path for p in verify(str(root)).problems if p.kind == "bad-part"] == [lying]
+    status = faultkit.run(["status", str(root)], world["flags"] / "status")
+    assert status.returncode == 0 and f"{lying} (its name says 72 rows, it holds 2)" in status.stderr
+    assert "4 of 4 frames done" in status.stdout
+    result = faultkit.run(_produce(world, "--repair", "--workers", "1"), world["flags"])
+    assert result.returncode == 0, result.stderr
+    assert verify(str(root)).ok and not (root / lying).exists()
+    _same_data(root, tiny)
+    check_neighbour()
+
+
+def test_a_resume_keeps_the_true_part_beside_a_lying_copy(world, tiny):
+    """Issue 33: ``_n2`` copied to ``_n3``. A plain resume deleted the true ``_n2``
+    (as a killed writer's old name) and kept the false ``_n3``; then repair refused.
+    Now the resume deletes neither, verify names both, and repair mends the episode."""
+    root = world["root"]
+    true = part_of(root, "T01_CN_A", 0)
+    copy = true.replace("_n2.parquet", "_n3.parquet")
+    shutil.copyfile(root / true, root / copy)
+    parts = {rel: d for rel, d in faultkit.listing(root).items() if rel.startswith("manifest/")}
+    check_neighbour = unchanged(world["neighbour"])
+    result = faultkit.run(_produce(world), world["flags"])
+    assert result.returncode == 0, result.stderr
+    after = faultkit.listing(root)
+    assert {rel: after.get(rel) for rel in parts} == parts  # no part deleted, none changed
+    assert sorted(p.path for p in verify(str(root)).problems if p.kind == "bad-part") == sorted([true, copy])
+    result = faultkit.run(_produce(world, "--repair", "--workers", "1"), world["flags"] / "repair")
+    assert result.returncode == 0, result.stderr
+    assert verify(str(root)).ok and not (root / copy).exists()
+    _same_data(root, tiny)
+    check_neighbour()
+
+
 def test_repair_killed_before_rendering_then_rerun(world, tiny):
     """Repair deleted a damaged episode's files and was killed before it rendered
     them again: the next repair finishes the job, byte for byte as rendered first."""
@@ -317,7 +375,7 @@ def test_worker_stopped_past_its_lease_never_commits_after_a_repair(world, tiny,
         repair = faultkit.run([*args, "--repair"], world["flags"] / "repair", env=ttl)
         assert repair.returncode == 0, repair.stderr
         repaired = _data(out)
-        written = {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in out.rglob("*") if p.is_file()}
+        written = _written(out)
     finally:
         child.cont()
         os.kill(worker, signal.SIGCONT)
@@ -325,10 +383,31 @@ def test_worker_stopped_past_its_lease_never_commits_after_a_repair(world, tiny,
     assert result.returncode != 0 and "lease" in result.stderr.lower(), result.stderr[-2000:]
     assert "Traceback" not in result.stderr
     assert _data(out) == repaired
-    assert {p: (p.stat().st_ino, p.stat().st_mtime_ns) for p in written} == written  # not even the same bytes again
+    assert _written(out) == written  # not even the same bytes again
     assert verify(str(out)).ok
     reference = {rel: d for rel, d in _data(tiny).items() if rel.startswith(("T01_", "T07_", "manifest/"))}
     assert {rel: repaired.get(rel) for rel in reference} == reference  # the repair's bytes: a plain render's
+
+
+def test_snapshots_never_read_a_lease_writers_temp_files(tmp_path, monkeypatch):
+    """The cell above failed once with FileNotFoundError on ``_lease/.producer-*.tmp``: its
+    producer, stopped mid-refresh, left a lease's temp file that its later rename took away
+    between the snapshot's listing and its read. Snapshots now never walk into ``_lease``."""
+    (tmp_path / "_lease").mkdir()
+    (tmp_path / "_lease" / ".producer-x.json.tmp").write_bytes(b"{}")
+    (tmp_path / "T01_CN_A").mkdir()
+    (tmp_path / "T01_CN_A" / "f.png").write_bytes(b"png")
+    real_read, real_stat = Path.read_bytes, Path.stat
+
+    def vanished(path: Path) -> Path:  # the temp file is gone as soon as it was listed
+        if "_lease" in path.parts and path.name.endswith(".tmp"):
+            raise FileNotFoundError(errno.ENOENT, "No such file or directory", str(path))
+        return path
+
+    monkeypatch.setattr(Path, "read_bytes", lambda path: real_read(vanished(path)))
+    monkeypatch.setattr(Path, "stat", lambda path, **kw: real_stat(vanished(path), **kw))
+    assert list(_data(tmp_path)) == ["T01_CN_A", "T01_CN_A/f.png"]
+    assert list(_written(tmp_path)) == [tmp_path / "T01_CN_A" / "f.png"]
 
 
 # ---------------------------------------------------------------------- extend ----

@@ -192,6 +192,9 @@ def status(root: str = typer.Argument(..., help=ROOT_HELP)) -> None:
 
     with user_errors():
         st = root_status(output_root(root))
+        for part in st.misnamed:
+            typer.echo(f"warning: {part}: counted by its rows; `idda verify` and `idda produce --repair` mend it",
+                       err=True)
         typer.echo(f"{'scenario':<10} {'episodes':>13} {'frames':>17}")
         for s in st.scenarios:
             mark = "done" if s.frames_done == s.frames_total else ""
