@@ -398,6 +398,11 @@ def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool,
                layouts: tuple[int, ...] = LAYOUTS) -> list[VerifyUnit]:
     """The units of ``scope``: one per scenario that has parts or a folder."""
     parts, shadowed = _part_listing(storage, report)
+    for rel in storage.folders(MANIFEST_DIR):  # a folder named as a part: every write of that part fails
+        match = PART_RE.match(rel)
+        if match and (scope.scenarios is None or match.group("scenario") in scope.scenarios):
+            report.problems.append(Problem("bad-part", rel, match.group("scenario"), int(match.group("episode")),
+                                           "a folder where a part file goes"))
     indexes = index_files(storage)
     codes = {s.code for s in all_scenarios()}  # of the catalog in force: the root's (verify)
     folders = {name for name in root_entries(storage) if name in codes}

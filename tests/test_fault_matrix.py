@@ -338,6 +338,41 @@ def test_a_resume_keeps_the_true_part_beside_a_lying_copy(world, tiny):
     check_neighbour()
 
 
+def test_repair_checks_what_it_will_write_before_it_deletes(world):
+    """Issue 33: a frame file replaced by a folder holding a user's file. Repair deleted
+    the episode's part and index, then failed (EISDIR, rc 1, a hint blaming the storage).
+    Now it refuses first, in one line naming the folder; nothing changes, the file stays."""
+    root = world["root"]
+    frame = root / "T01_CN_A" / "e0000" / "rgb" / "0000_001_T01_CN_A.png"
+    frame.unlink()
+    frame.mkdir()
+    (frame / "notes.txt").write_text("mine")
+    check = unchanged(root, world["neighbour"])
+    result = faultkit.run(_produce(world, "--repair"), world["flags"])
+    assert result.returncode == 2, result.stderr
+    line = result.error_line()
+    assert f"{frame} is a folder (1 entry inside)" in line and "repair deleted nothing" in line
+    check()
+
+
+def test_a_folder_in_place_of_a_part_is_named_and_refused(world):
+    """Issue 33: a part replaced by a folder. verify did not name it, and produce failed
+    with EISDIR every time. Now verify names it, and produce and repair say what is in
+    the way, in one line, exit 2, touching nothing."""
+    root = world["root"]
+    rel = part_of(root, "T01_CN_A", 0)
+    (root / rel).unlink()
+    (root / rel).mkdir()
+    check = unchanged(root, world["neighbour"])
+    assert [(p.path, p.detail) for p in verify(str(root)).problems if p.kind == "bad-part"] == [
+        (rel, "a folder where a part file goes")]
+    for extra in ((), ("--repair",)):
+        result = faultkit.run(_produce(world, *extra), world["flags"] / "-".join(("run",) + extra))
+        assert result.returncode == 2, result.stderr
+        assert f"{root / rel} is a folder (0 entries inside), where T01_CN_A/e0000 writes a file" in result.error_line()
+    check()
+
+
 def test_repair_killed_before_rendering_then_rerun(world, tiny):
     """Repair deleted a damaged episode's files and was killed before it rendered
     them again: the next repair finishes the job, byte for byte as rendered first."""
