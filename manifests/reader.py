@@ -66,7 +66,9 @@ def _manifest_listing(storage) -> tuple[dict[str, dict[int, tuple[str, int]]], l
     legacy = []
     for rel, size in storage.list_sizes(MANIFEST_DIR + "/", suffix=".parquet").items():
         match = PART_RE.match(rel)
-        if match:
+        if match and not filed_where_named(rel):
+            log.warning("%s is filed under another scenario's folder: not read (`idda verify` names it)", storage.join(rel))
+        elif match:
             scenario, episode = match.group("scenario"), int(match.group("episode"))
             held = parts[scenario].get(episode)
             if held is None or newer_part(rel, held[0]):
@@ -76,6 +78,13 @@ def _manifest_listing(storage) -> tuple[dict[str, dict[int, tuple[str, int]]], l
         elif rel.endswith("/" + LEGACY_INDEX_NAME):
             legacy.append(rel)
     return parts, sorted(legacy)
+
+
+def filed_where_named(rel: str) -> bool:
+    """Whether the part at ``rel`` lies in the folder its name's scenario files it under
+    (not misfiled into another scenario's folder)."""
+    match = PART_RE.match(rel)
+    return match is not None and rel.rpartition("/")[0] == part_path(match.group("scenario"), 0).rpartition("/")[0]
 
 
 def episode_parts(storage, scenario: str, episode: int) -> list[str]:
@@ -310,6 +319,39 @@ def refuse_misfiled(storage, summaries: dict[tuple[str, int], PartSummary | None
         )
 
 
+def _refuse_misfiled_fragments(storage, part_ds: ds.Dataset, rels: list[str]) -> None:
+    """MisfiledParts naming the parts (of those read without an index) whose rows name another
+    scenario or episode than their names: a swapped or copied part would give another
+    scenario's frames twice. Each footer is read once and kept for the scan that follows."""
+    from manifests.writer import MisfiledParts
+
+    by_path = {storage.path(rel): rel for rel in rels}
+
+    def misfiled(fragment) -> str | None:
+        try:
+            fragment.ensure_complete_metadata()
+            summary = summary_of_footer(fragment.metadata, 0)
+        except (pa.ArrowException, OSError):  # damaged: the scan names it (scan_manifest)
+            return None
+        match = PART_RE.match(by_path[fragment.path])
+        wrong = summary is not None and summary.misfiled(match.group("scenario"), int(match.group("episode")))
+        return by_path[fragment.path] if wrong else None
+
+    fragments = list(part_ds.get_fragments())
+    if storage.is_local:
+        found = map(misfiled, fragments)
+    else:  # one small read per footer: many at once on S3
+        with ThreadPoolExecutor(max_workers=FOOTER_THREADS) as pool:
+            found = list(pool.map(misfiled, fragments))
+    wrong = sorted(rel for rel in found if rel is not None)
+    if wrong:
+        raise MisfiledParts(
+            f"{storage.join(wrong[0])} holds the rows of another scenario or episode ({len(wrong)} such part(s)): "
+            f"not read, the frames would count twice; `idda verify {storage.uri}` lists them, "
+            "`idda produce ... --repair` renders those episodes again"
+        )
+
+
 def manifest_files(root) -> list[str]:
     """The files that hold the manifest now: a scenario's index where it is
     current (built from exactly the parts present), else its parts."""
@@ -343,6 +385,7 @@ def _dataset(storage, files: list[str]) -> ds.Dataset:
         partition_base_dir=storage.path(MANIFEST_DIR),
         **common,
     )
+    _refuse_misfiled_fragments(storage, part_ds, [rel for rel in files if rel.startswith(MANIFEST_DIR + "/")])
     if not indexes:
         return part_ds
     return ds.dataset([part_ds, ds.dataset(indexes, **common)])

@@ -38,7 +38,7 @@ import pyarrow.parquet as pq
 from manifests.catalog import all_scenarios, scenario as lookup_scenario, using
 from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
-from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table
+from manifests.reader import as_storage, filed_where_named, index_bytes, index_episodes, index_files, index_summaries, index_table
 from manifests.layout import LAYOUTS, frame_path, held_layout, match_frame_file, record_layout
 from manifests.root import root_entries
 from manifests.runrecord import RunRecordError, read_record
@@ -371,7 +371,9 @@ def _part_listing(storage, report: VerifyReport) -> tuple[dict[str, dict[int, tu
             report.problems.append(Problem("link", entry.rel, None, None, LINK_DETAIL))
             continue
         match = PART_RE.match(entry.rel)
-        if match:
+        if match and not filed_where_named(entry.rel):  # not the episode's part: a stray file, never read
+            report.problems.append(Problem("extra", entry.rel, None, None, "a part filed under another scenario's folder"))
+        elif match:
             held = parts.setdefault(match.group("scenario"), {})
             episode = int(match.group("episode"))
             if episode in held:

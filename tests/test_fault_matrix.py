@@ -262,6 +262,49 @@ def test_compaction_on_a_full_disk_keeps_the_root(world, tmp_path):
         assert verify(str(root)).ok
 
 
+# --------------------------------------------------------------------- readers ----
+READERS = (["query"], ["stats"], ["export", "--format", "idda", "--to"])
+
+
+def _read(world, args: list[str], name: str):
+    target = {"export": [str(world["base"] / f"export-{name}")],
+              "stats": ["--chart", str(world["base"] / "shares.png")]}.get(args[0], [])
+    return faultkit.run([args[0], str(world["root"]), *args[1:], *target], world["flags"] / name)
+
+
+def test_readers_refuse_parts_swapped_between_scenarios(world):
+    """Issue 33: two scenarios' parts swapped. query gave each scenario's frames under the
+    other's folders, stats counted them, export exited 0. Now each refuses in one line
+    (exit 1, damaged data) naming a part, and nothing changes."""
+    root = world["root"]
+    faultkit.swap(root / part_of(root, "T01_CN_A", 0), root / part_of(root, "T07_HRN_A", 0))
+    check = unchanged(root, world["neighbour"])
+    for args in READERS:
+        result = _read(world, args, args[0])
+        assert result.returncode == 1 and "holds the rows of another scenario or episode" in result.error_line()
+    assert not (world["base"] / "export-export").exists()
+    check()
+
+
+def test_readers_skip_a_part_misfiled_into_another_scenarios_folder(world, tiny):
+    """Issue 33: a part copied into another scenario's folder (its name kept) gave its
+    frames twice. Readers skip it and say so; verify names it; repair removes it alone."""
+    root = world["root"]
+    rel = part_of(root, "T01_CN_A", 0)
+    stray = "manifest/town=T07/weather=HRN/viewpoint=A/" + rel.rpartition("/")[2]
+    shutil.copyfile(root / rel, root / stray)
+    check_neighbour = unchanged(world["neighbour"])
+    result = _read(world, ["query"], "query")
+    assert result.returncode == 0 and "4 frames selected of 4" in result.stdout
+    assert "filed under another scenario's folder: not read" in result.stderr
+    assert [(p.kind, p.path) for p in verify(str(root)).problems] == [("extra", stray)]
+    result = faultkit.run(_produce(world, "--repair"), world["flags"] / "repair")
+    assert result.returncode == 0, result.stderr
+    assert verify(str(root)).ok and not (root / stray).exists()
+    _same_data(root, tiny)
+    check_neighbour()
+
+
 # ---------------------------------------------------------------------- repair ----
 def test_repair_never_follows_a_scenario_symlink_into_a_neighbour(world):
     root = world["root"]
