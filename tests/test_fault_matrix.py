@@ -305,6 +305,31 @@ def test_readers_skip_a_part_misfiled_into_another_scenarios_folder(world, tiny)
     check_neighbour()
 
 
+@pytest.mark.parametrize("mode", [(), ("--copy",), ("--symlink",)])
+def test_export_refuses_damaged_frame_files(world, mode):
+    """Issue 33: a flipped bit in an rgb PNG and a PNG truncated to 0 bytes: export exited 0
+    and copied the damage. Each file is checked against the manifest's sha256 as it is
+    placed: a refusal in one line (exit 1, no target), or with --skip-damaged those
+    frames left out and counted."""
+    root = world["root"]
+    flipped = next(root.glob("T01_CN_A/e0000/rgb/0000_001_*.png"))
+    data = bytearray(flipped.read_bytes())
+    data[len(data) // 2] ^= 0x10
+    flipped.write_bytes(bytes(data))
+    next(root.glob("T07_HRN_A/e0000/semantic_raw/0000_000_*.png")).write_bytes(b"")
+    check = unchanged(root, world["neighbour"])
+    target = world["base"] / "exp"
+    result = faultkit.run(_export(world, target, *mode), world["flags"] / "refused")
+    assert result.returncode == 1 and "is damaged" in result.error_line() and "--skip-damaged" in result.error_line()
+    assert not target.exists() and sorted(os.listdir(world["base"])) == ["flags", "neighbour", "root"]
+    result = faultkit.run(_export(world, target, *mode, "--skip-damaged"), world["flags"] / "skipped")
+    assert result.returncode == 0, result.stderr
+    assert "left out 2 frames with 2 damaged files" in result.stderr and "exported 2 frames" in result.stdout
+    rows = (target / "frames.csv").read_text().splitlines()[1:]
+    assert sorted(row.split(",")[5] for row in rows) == ["0000_000_T01_CN_A", "0000_001_T07_HRN_A"]
+    check()
+
+
 # ---------------------------------------------------------------------- repair ----
 def test_repair_never_follows_a_scenario_symlink_into_a_neighbour(world):
     root = world["root"]

@@ -15,7 +15,7 @@ import typer
 
 from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
-    build_query, output_root, user_errors, write_local,
+    build_query, count, output_root, user_errors, write_local,
 )
 from pipeline.cli.domains import CatalogFile, root_catalog
 
@@ -40,6 +40,7 @@ def export(
     copy: bool = typer.Option(False, "--copy", help="Copy files instead of hard-linking them."),
     symlink: bool = typer.Option(False, "--symlink", help="Symlink files instead of hard-linking them."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty target directory."),
+    skip_damaged: bool = typer.Option(False, "--skip-damaged", help="Leave out frames whose files do not match the manifest's checksums (counted) instead of refusing."),
     threads: int = typer.Option(8, help="Frames converted in parallel."),
     as_split: Optional[str] = typer.Option(None, "--as-split", help="Put every exported frame in this split (train, val or test)."),
     splits: str = typer.Option("scenario", "--splits", help="idda split files: scenario (train/val/test.json) or feddrive (FedDrive's federated splits)."),
@@ -65,9 +66,12 @@ def export(
         config = ExportConfig(
             root=root, to=str(to), format=fmt, query=query,
             files="copy" if copy else "symlink" if symlink else "hardlink", force=force, threads=threads,
-            as_split=as_split, splits=splits, holdout=holdout,
+            as_split=as_split, splits=splits, holdout=holdout, skip_damaged=skip_damaged,
         )
         report = run_export(config)
+        if report.damaged:
+            typer.echo(f"warning: left out {count(report.skipped, 'frame')} with {count(len(report.damaged), 'damaged file')} "
+                       f"(first: {report.damaged[0]}); `idda verify` lists the damage", err=True)
         for code, missing in sorted(report.shortfall.items()):
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
         splits = ", ".join(f"{n:,} {s}" for s, n in report.per_split.items() if n)
