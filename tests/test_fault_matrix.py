@@ -330,6 +330,17 @@ def test_export_refuses_damaged_frame_files(world, mode):
     check()
 
 
+@pytest.mark.parametrize("inside", ["T01_CN_A/e0000/rgb", "T01_CN_A/e0000/rgb/new", "manifest", "manifest/new"])
+def test_produce_refuses_an_out_inside_another_root(world, inside):
+    """Issue 33: ``--out`` inside a frame folder or ``manifest/`` of a root was accepted
+    (exit 0). Refused in one line, as export refuses such a target; nothing is written."""
+    check = unchanged(world["root"], world["neighbour"])
+    args = ["produce", *PRODUCE, "--out", str(world["root"] / inside)]
+    result = faultkit.run(args, world["flags"])
+    assert result.returncode == 2 and f"is inside the output root {world['root']}" in result.error_line()
+    check()
+
+
 # ---------------------------------------------------------------------- repair ----
 def test_repair_never_follows_a_scenario_symlink_into_a_neighbour(world):
     root = world["root"]
