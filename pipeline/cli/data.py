@@ -136,16 +136,25 @@ def distances(
 def card(
     root: str = typer.Argument(..., help=ROOT_HELP),
     contact_sheet: bool = typer.Option(False, "--contact-sheet", help="Render a contact sheet into <root>/preview/ and show it."),
+    check: bool = typer.Option(True, "--verify/--no-verify", help="Verify the root first (every file hashed) and say in the card what verify found."),
 ) -> None:
-    """Write a dataset card (README.md and class_shares.png) into the root."""
+    """Write a dataset card (README.md and class_shares.png) into the root.
+
+    Exits 1 when the root fails verification (the card says so too)."""
     from exports.card import CardConfig, write_card
 
     with user_errors():
         output_root(root)
-        result = write_card(CardConfig(root=root, contact_sheet=contact_sheet))
+        result = write_card(CardConfig(root=root, contact_sheet=contact_sheet, verify=check))
         typer.echo(f"wrote {result.card} ({result.frames:,} frames) and {result.chart}")
+        if result.problems:
+            found = ", ".join(f"{n} {kind}" for kind, n in sorted(result.problems.items()))
+            typer.echo(f"warning: {root} failed verification ({found}), and the card says so; `idda verify {root}` "
+                       "lists the damage", err=True)
         for rel in result.previews:
             typer.echo(f"linked preview {rel}")
+        if result.problems:
+            raise typer.Exit(code=1)  # damaged data, as verify exits
 
 
 def shifts(
