@@ -437,12 +437,12 @@ def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str
     the other parts, read now. The sizes recorded are those of the bytes read,
     so a part rewritten meanwhile leaves the new index stale, never wrong.
     None where a part holds another scenario's or episode's rows (never indexed)."""
-    from manifests.writer import ManifestError, read_part_file
+    from manifests.writer import ManifestError, arrow_reader, read_part_file
 
     kept: dict[int, tuple[pa.Table, int]] = {}
     try:
         data = storage.read_bytes(index) if index is not None else None
-        recorded = _recorded(pq.read_metadata(io.BytesIO(data)).metadata or {}) if data else None
+        recorded = _recorded(pq.read_metadata(arrow_reader(data)).metadata or {}) if data else None
         old = read_part_file(storage, index, MANIFEST_SCHEMA, data=data) if recorded else None
     except (ManifestError, FileNotFoundError, pa.ArrowException, OSError):  # gone or damaged: from the parts alone
         recorded = old = None

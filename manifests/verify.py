@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import datetime as dt
 import functools
-import io
 import logging
 import re
 import time
@@ -45,7 +44,7 @@ from manifests.runrecord import RunRecordError, read_record
 from manifests.schema import (MANIFEST_DIR, PART_RE, PART_SCHEMA, RUN_FILE, frame_id, named_rows, newer_part,
                               output_columns, part_path)
 from manifests.spec import UNPAIRED, episode_seed
-from manifests.writer import ManifestError, part_bytes, read_part_file
+from manifests.writer import ManifestError, arrow_reader, part_bytes, read_part_file
 from storage import StorageError, sha256_bytes
 
 # Problem kinds: missing | corrupt | extra (frame files), bad-part | bad-index | bad-run (the manifest),
@@ -101,7 +100,7 @@ def _episode_of(path: str, layouts: tuple[int, ...]) -> tuple[str | None, int | 
 @functools.cache
 def _this_writer() -> str:
     """``created_by`` of the Parquet files this pyarrow writes."""
-    return pq.read_metadata(io.BytesIO(part_bytes(PART_SCHEMA.empty_table()))).created_by
+    return pq.read_metadata(arrow_reader(part_bytes(PART_SCHEMA.empty_table()))).created_by
 
 
 def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | None,
@@ -157,7 +156,7 @@ def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | N
         first = {name: table.column(name)[0].as_py() for name in ("width", "height", "seed")}
         detail = config_conflict(first["width"], first["height"], first["seed"], scenario, episode, config)
         conflict = detail is not None
-    if detail is None and pq.read_metadata(io.BytesIO(data)).created_by == _this_writer() \
+    if detail is None and pq.read_metadata(arrow_reader(data)).created_by == _this_writer() \
             and part_bytes(table) != data and part_bytes(table, store_schema=True) != data:  # now, or as before
         detail = "its bytes differ from its own rows re-encoded (damaged metadata)"
     if detail is not None:
