@@ -12,6 +12,7 @@ finished root without indexes: nothing to render, so no Ray either.
 from __future__ import annotations
 
 import errno
+import json
 import os
 import shutil
 import signal
@@ -535,6 +536,37 @@ def test_extend_sigterm_says_how_to_resume(world):
     result = child.finish()
     assert result.returncode == 143 and "Traceback" not in result.stderr
     assert "resume" in result.stderr.lower()
+
+
+def test_an_isal_root_extended_keeps_isal(world, tmp_path):
+    """Issue 33: a root made with ISA-L (before libdeflate) run with ``--extend``: run.json's
+    encoder was rewritten to libdeflate and the new frames deflated by it, one root mixing
+    two deflaters. Now the extended root keeps ISA-L for every frame, old and new."""
+    from dataclasses import replace
+
+    from manifests.runrecord import record_bytes
+    from pipeline.episode_job import run_episode
+    from pipeline.planner import PlanConfig, make_plan
+    from pipeline.runmeta import RunConfig, prepare_root
+    from storage import Storage
+    from tests.test_deflaters import ISAL_IDENTITY, _isal_pngs
+
+    root = tmp_path / "isal"
+    storage = Storage.from_uri(str(root))
+    plan = PlanConfig(domains=DOMAINS, frames_per_scenario=2, width=64, height=36, seed=7)
+    record = prepare_root(storage, RunConfig(plan=plan, world="test"))
+    storage.write_bytes("run.json", record_bytes({**record, "encoder": ISAL_IDENTITY}))  # as the ISA-L version wrote it
+    for spec in make_plan(plan).episodes:
+        run_episode(replace(spec, png_deflater="isal"), storage, world="test")
+    check_neighbour = unchanged(world["neighbour"])
+    args = ["produce", "--domains", DOMAINS, "--frames-per-scenario", "3", "--width", "64", "--height", "36",
+            "--seed", "7", "--world", "test", "--out", str(root), "--extend", "--workers", "1"]
+    result = faultkit.run(args, world["flags"])
+    assert result.returncode == 0, result.stderr
+    assert json.loads((root / "run.json").read_text())["encoder"] == ISAL_IDENTITY
+    assert _isal_pngs(root) == (24, 24)  # 6 frames x 4 PNG outputs, every one ISA-L's
+    assert verify(str(root)).ok
+    check_neighbour()
 
 
 def test_extend_killed_then_rerun_grows_the_root(world):
