@@ -42,6 +42,7 @@ def is_our_card(data: bytes) -> bool:
 class CardConfig:
     root: str  # output root: local path or s3:// URI
     contact_sheet: bool = False  # render a contact sheet into <root>/preview/ first
+    verify: bool = True  # verify the root first; the card says what verify found
 
 
 @dataclass
@@ -50,6 +51,7 @@ class CardResult:
     chart: str  # URI of the class-share chart
     previews: list[str]  # root-relative preview images linked from the card
     frames: int
+    problems: dict[str, int] | None = None  # what verify found, by kind ({}: none); None: not verified
 
 
 # -------------------------------------------------------------- sections ----
@@ -236,10 +238,23 @@ def _usage_section(uri: str, scenario: str) -> list[str]:
     ]
 
 
+def _integrity_section(verified) -> list[str]:
+    """What verify found when the card was written (``verified``: a VerifyReport, or None: not run)."""
+    lines = ["## Integrity", ""]
+    if verified is None:
+        return lines + ["Not verified when this card was written (`idda card --no-verify`); `idda verify` checks every file."]
+    if verified.ok:
+        return lines + [f"Verified when this card was written: all {verified.files_checked:,} files match the "
+                        "sizes and sha256 checksums the manifest lists, and every manifest part and index is sound."]
+    found = ", ".join(f"{n} {kind}" for kind, n in sorted(verified.counts().items()))
+    return lines + [f"**This root failed verification when this card was written** ({found}); the numbers "
+                    "below may count damaged frames. `idda verify` lists the damage, `idda produce --repair` mends it."]
+
+
 def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list[str],
-                  parts: dict[str, dict[int, str]] | None = None) -> str:
+                  parts: dict[str, dict[int, str]] | None = None, verified=None) -> str:
     """The card's text for a manifest ``table`` (all frames of the root); ``uri``
-    is how the usage examples name the root."""
+    is how the usage examples name the root; ``verified``: verify's report (None: not verified)."""
     if len(table) == 0:
         raise ValueError(f"{uri} has no frames yet; produce some before writing its card")
     sizes = sorted({(w, h) for w, h in zip(table.column("width").to_pylist(), table.column("height").to_pylist())})
@@ -260,6 +275,7 @@ def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list
     header = card_header(sizes, files, config="manifest")
     sections = [
         intro,
+        _integrity_section(verified),
         _domain_section(table),
         _class_section(table),
         _preview_section(previews),
@@ -320,8 +336,14 @@ def write_card(config: CardConfig) -> CardResult:
     if config.contact_sheet:
         render_contact_sheet(storage, record, sorted(set(table.column("scenario").to_pylist())))
     previews = find_previews(storage)
+    verified = None
+    if config.verify:
+        from manifests.verify import verify
+
+        verified = verify(storage)
     # Local cards say "." (run the commands in the root, which may move); s3 cards the URI.
-    text = card_markdown(table, record, "." if storage.is_local else storage.uri, previews, part_files(storage))
+    text = card_markdown(table, record, "." if storage.is_local else storage.uri, previews, part_files(storage), verified)
     storage.write_bytes(CHART_FILE, bar_chart_png(share_table(table), title=f"Class pixel shares, {len(table):,} frames"))
     storage.write_bytes(CARD_FILE, text.encode())
-    return CardResult(storage.join(CARD_FILE), storage.join(CHART_FILE), previews, len(table))
+    return CardResult(storage.join(CARD_FILE), storage.join(CHART_FILE), previews, len(table),
+                      None if verified is None else verified.counts())

@@ -42,7 +42,7 @@ from manifests.query import SPLITS, Query, run_query
 from manifests.reader import require_outputs
 from manifests.root import EXPORT_MARKER, RootError, check_export_target, export_tree
 from exports.idda import SPLIT_FILES
-from exports.placing import FILE_MODES, Layout, frames_of, index_csv, write
+from exports.placing import FILE_MODES, CheckedSource, DamagedFile, Layout, frames_of, index_csv, write
 
 log = logging.getLogger(__name__)
 
@@ -79,6 +79,7 @@ class ExportConfig:
     as_split: str | None = None  # put every exported frame in this split
     splits: str = "scenario"  # idda layout: a key of exports.idda.SPLIT_FILES
     holdout: str | None = None  # feddrive splits: domains for test_user_diff_domain
+    skip_damaged: bool = False  # leave out frames with a damaged file (counted) instead of refusing
 
     def validate(self) -> None:
         if self.format not in FORMATS:
@@ -114,6 +115,8 @@ class ExportReport:
     per_split: dict[str, int]
     shortfall: dict[str, int]
     seconds: float
+    damaged: list[str] = field(default_factory=list)  # files found damaged (--skip-damaged: their frames left out)
+    skipped: int = 0  # frames left out for them
 
 
 def _target_dir(to: str) -> str:
@@ -233,12 +236,29 @@ def export(config: ExportConfig) -> ExportReport:
     if config.as_split is not None:
         frames = [replace(f, split=config.as_split) for f in frames]
 
+    expected = _listed_files(result.table)
     parent = os.path.dirname(target)
     os.makedirs(parent, exist_ok=True)
     tmp = _temp_dir(target, "tmp")
     os.makedirs(tmp)
+    damaged: set[str] = set()
+    asked = len(frames)
     try:
-        exported, extras = chosen.build(storage, frames, tmp, config)
+        while True:  # each file checked as it is read; --skip-damaged builds again without the frames found damaged
+            source = CheckedSource(storage, expected)
+            try:
+                exported, extras = chosen.build(source, frames, tmp, config)
+            except DamagedFile:
+                if not config.skip_damaged:
+                    raise
+            if not source.damaged:
+                break
+            damaged |= source.damaged
+            frames = [f for f in frames if not damaged & set(f.paths.values())]
+            if not frames:
+                raise DamagedFile(storage.uri, min(damaged), f"as are files of every other frame chosen: {len(damaged)} damaged")
+            shutil.rmtree(tmp)
+            os.makedirs(tmp)
         write(os.path.join(tmp, INDEX), index_csv(frames, exported))
         per_split = {s: sum(f.split == s for f in frames) for s in SPLITS}
         per_scenario: dict[str, int] = {}
@@ -271,7 +291,23 @@ def export(config: ExportConfig) -> ExportReport:
         per_split=per_split,
         shortfall=dict(result.shortfall),
         seconds=time.perf_counter() - start,
+        damaged=sorted(damaged),
+        skipped=asked - len(frames),
     )
+
+
+def _listed_files(table) -> dict[str, tuple[int, str]]:
+    """Every file the manifest rows of ``table`` list: {path: (bytes, sha256)}."""
+    from manifests.outputs import OUTPUTS
+    from manifests.schema import output_columns
+
+    listed = {}
+    for name in OUTPUTS:
+        path, size, sha = output_columns(name)
+        if path in table.column_names:
+            rows = zip(*(table.column(c).to_pylist() for c in (path, size, sha)))
+            listed.update((p, (n, h)) for p, n, h in rows if p is not None)
+    return listed
 
 
 def is_complete(target: str) -> bool:

@@ -11,7 +11,6 @@ import errno
 import io
 import json
 import os
-import shutil
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass
 from typing import Callable, Mapping
@@ -62,21 +61,59 @@ def frames_of(table: pa.Table) -> list[ExportFrame]:
             for i in range(len(table))]
 
 
+# --------------------------------------------------------- checked reads ----
+class DamagedFile(ValueError):
+    """A root file whose bytes are not those its manifest row lists (size or sha256)."""
+
+    exit_code = 1  # damaged data
+
+    def __init__(self, source: str, rel: str, detail: str) -> None:
+        super().__init__(
+            f"{source}: {rel} is damaged ({detail}); exported nothing: `idda verify` lists the damage, "
+            "`idda produce --repair` mends it, or export the rest with --skip-damaged")
+        self.rel = rel
+
+
+class CheckedSource:
+    """The source root as an export reads it: every file read is checked against the
+    size and sha256 its manifest row lists, as it is read (no extra read). A damaged
+    file is recorded in ``damaged`` and raises DamagedFile. Anything else is the storage's own."""
+
+    def __init__(self, storage, expected: Mapping[str, tuple[int, str]]) -> None:
+        self._storage, self._expected = storage, expected
+        self.damaged: set[str] = set()
+
+    def __getattr__(self, name):
+        return getattr(self._storage, name)
+
+    def read_bytes(self, rel: str) -> bytes:
+        from storage import sha256_bytes
+
+        data = self._storage.read_bytes(rel)
+        size, sha = self._expected.get(rel, (None, None))
+        if sha is not None and (len(data) != size or sha256_bytes(data) != sha):
+            detail = f"{len(data)} bytes, the manifest lists {size}" if len(data) != size else "its sha256 differs from the manifest's"
+            self.damaged.add(rel)
+            raise DamagedFile(self._storage.uri, rel, detail)
+        return data
+
+    def check(self, rel: str) -> None:
+        """Read and check ``rel`` (a file placed by a link, which is otherwise never read)."""
+        self.read_bytes(rel)
+
+
 # ------------------------------------------------------------ file modes ----
 _NO_LINK = {errno.EPERM, errno.EXDEV, errno.EMLINK, errno.ENOTSUP, errno.EOPNOTSUPP, errno.EACCES}
 
 
 def _place_copy(storage, rel: str, dest: str) -> None:
-    if storage.is_local:
-        shutil.copyfile(storage.path(rel), dest)
-    else:
-        with open(dest, "wb") as f:
-            f.write(storage.read_bytes(rel))
+    write(dest, storage.read_bytes(rel))  # read once: checked as it is copied (CheckedSource)
 
 
 def _place_hardlink(storage, rel: str, dest: str) -> None:
     if not storage.is_local:
         return _place_copy(storage, rel, dest)
+    storage.check(rel)
     try:
         os.link(storage.path(rel), dest)
     except OSError as exc:
@@ -88,6 +125,7 @@ def _place_hardlink(storage, rel: str, dest: str) -> None:
 def _place_symlink(storage, rel: str, dest: str) -> None:
     if not storage.is_local:
         return _place_copy(storage, rel, dest)
+    storage.check(rel)
     os.symlink(storage.path(rel), dest)
 
 
@@ -161,8 +199,17 @@ def per_frame(frame: Callable, directories: Callable, extras: Callable = no_extr
         for rel in sorted(directories(frames)):
             os.makedirs(os.path.join(tmp, rel), exist_ok=True)
         place = FILE_MODES[config.files]
+
+        def one(f: ExportFrame) -> dict | None:
+            try:
+                return frame(storage, f, tmp, place)
+            except DamagedFile:  # recorded by the source; with --skip-damaged the rest go on
+                if not getattr(config, "skip_damaged", False):
+                    raise
+                return None
+
         with ThreadPoolExecutor(max_workers=config.threads) as pool:
-            exported = list(pool.map(lambda f: frame(storage, f, tmp, place), frames))
+            exported = list(pool.map(one, frames))
         return exported, extras(frames, tmp, config)
 
     return build

@@ -108,3 +108,36 @@ def deflater_named_by(png_identity: str) -> str | None:
         except PackageNotFoundError:  # not installed here: names nothing
             continue
     return None
+
+
+def png_stream(png: bytes) -> bytes:
+    """The zlib stream of a PNG file (its IDAT chunks joined)."""
+    import struct
+
+    out, i = [], 8
+    while i + 8 <= len(png):
+        (n,) = struct.unpack(">I", png[i:i + 4])
+        if png[i + 4:i + 8] == b"IDAT":
+            out.append(png[i + 8:i + 8 + n])
+        i += 12 + n
+    return b"".join(out)
+
+
+def deflater_of_png(png: bytes) -> str | None:
+    """The installed deflater that gives this PNG's zlib stream from its own rows
+    (the default first); None if none does (damaged, or another deflater's)."""
+    import zlib
+
+    stream = png_stream(png)
+    try:
+        rows = zlib.decompress(stream)
+    except zlib.error:
+        return None
+    for name in sorted(DEFLATERS, key=lambda n: n != DEFAULT_DEFLATER):
+        try:
+            if DEFLATERS[name].compress(rows) == stream:
+                return name
+        except ImportError:  # not installed here
+            continue
+    return None
+

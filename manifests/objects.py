@@ -90,8 +90,10 @@ def write_objects(table: pa.Table, name: str = "objects") -> bytes:
 
 
 def read_objects(data: bytes, name: str = "objects") -> pa.Table:
+    from manifests.writer import arrow_reader  # (writer imports this module's neighbours)
+
     try:
-        table = pq.read_table(io.BytesIO(data))
+        table = pq.read_table(arrow_reader(data))
     except (pa.ArrowException, OSError) as exc:
         raise ValueError(f"{name}: not a readable objects table ({exc})") from None
     if table.schema.remove_metadata() != OBJECT_SCHEMA:

@@ -66,7 +66,9 @@ def _manifest_listing(storage) -> tuple[dict[str, dict[int, tuple[str, int]]], l
     legacy = []
     for rel, size in storage.list_sizes(MANIFEST_DIR + "/", suffix=".parquet").items():
         match = PART_RE.match(rel)
-        if match:
+        if match and not filed_where_named(rel):
+            log.warning("%s is filed under another scenario's folder: not read (`idda verify` names it)", storage.join(rel))
+        elif match:
             scenario, episode = match.group("scenario"), int(match.group("episode"))
             held = parts[scenario].get(episode)
             if held is None or newer_part(rel, held[0]):
@@ -76,6 +78,13 @@ def _manifest_listing(storage) -> tuple[dict[str, dict[int, tuple[str, int]]], l
         elif rel.endswith("/" + LEGACY_INDEX_NAME):
             legacy.append(rel)
     return parts, sorted(legacy)
+
+
+def filed_where_named(rel: str) -> bool:
+    """Whether the part at ``rel`` lies in the folder its name's scenario files it under
+    (not misfiled into another scenario's folder)."""
+    match = PART_RE.match(rel)
+    return match is not None and rel.rpartition("/")[0] == part_path(match.group("scenario"), 0).rpartition("/")[0]
 
 
 def episode_parts(storage, scenario: str, episode: int) -> list[str]:
@@ -268,6 +277,27 @@ def _listed_rows(storage) -> dict[tuple[str, int], PartSummary | int | None]:
     return found
 
 
+def _kept_beside(parts: dict[str, dict[int, tuple[str, int]]], rel: str) -> tuple[str, int] | None:
+    """The part readers use (path, bytes) where ``rel`` is another name of its episode; None
+    where ``rel`` is not a part (an index older versions left inside manifest/)."""
+    match = PART_RE.match(rel)
+    if match is None:
+        return None
+    return parts.get(match.group("scenario"), {}).get(int(match.group("episode")))
+
+
+def _holds_its_named_rows(storage, rel: str, size: int) -> bool:
+    """Whether the part at ``rel`` is readable and holds the rows its name says (an old name says none)."""
+    rows = rows_read(storage, rel, size)
+    return rows is not None and named_rows(rel) in (None, rows)
+
+
+def rows_read(storage, rel: str, size: int | None = None) -> int | None:
+    """The rows the part at ``rel`` holds, from its footer (not from its name); None if unreadable."""
+    meta = _footer(storage, rel, size)
+    return None if meta is None else meta.num_rows
+
+
 def _part_rows(storage, rel: str, size: int) -> int | None:
     if named_rows(rel) is not None:
         return named_rows(rel)
@@ -286,6 +316,39 @@ def refuse_misfiled(storage, summaries: dict[tuple[str, int], PartSummary | None
         raise MisfiledParts(
             f"{storage.uri}: {len(wrong)} manifest part(s) hold the rows of another scenario or episode ({names}); "
             f"`idda verify {storage.uri}` lists them, `idda produce ... --repair` renders those episodes again"
+        )
+
+
+def _refuse_misfiled_fragments(storage, part_ds: ds.Dataset, rels: list[str]) -> None:
+    """MisfiledParts naming the parts (of those read without an index) whose rows name another
+    scenario or episode than their names: a swapped or copied part would give another
+    scenario's frames twice. Each footer is read once and kept for the scan that follows."""
+    from manifests.writer import MisfiledParts
+
+    by_path = {storage.path(rel): rel for rel in rels}
+
+    def misfiled(fragment) -> str | None:
+        try:
+            fragment.ensure_complete_metadata()
+            summary = summary_of_footer(fragment.metadata, 0)
+        except (pa.ArrowException, OSError):  # damaged: the scan names it (scan_manifest)
+            return None
+        match = PART_RE.match(by_path[fragment.path])
+        wrong = summary is not None and summary.misfiled(match.group("scenario"), int(match.group("episode")))
+        return by_path[fragment.path] if wrong else None
+
+    fragments = list(part_ds.get_fragments())
+    if storage.is_local:
+        found = map(misfiled, fragments)
+    else:  # one small read per footer: many at once on S3
+        with ThreadPoolExecutor(max_workers=FOOTER_THREADS) as pool:
+            found = list(pool.map(misfiled, fragments))
+    wrong = sorted(rel for rel in found if rel is not None)
+    if wrong:
+        raise MisfiledParts(
+            f"{storage.join(wrong[0])} holds the rows of another scenario or episode ({len(wrong)} such part(s)): "
+            f"not read, the frames would count twice; `idda verify {storage.uri}` lists them, "
+            "`idda produce ... --repair` renders those episodes again"
         )
 
 
@@ -322,6 +385,7 @@ def _dataset(storage, files: list[str]) -> ds.Dataset:
         partition_base_dir=storage.path(MANIFEST_DIR),
         **common,
     )
+    _refuse_misfiled_fragments(storage, part_ds, [rel for rel in files if rel.startswith(MANIFEST_DIR + "/")])
     if not indexes:
         return part_ds
     return ds.dataset([part_ds, ds.dataset(indexes, **common)])
@@ -373,12 +437,12 @@ def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str
     the other parts, read now. The sizes recorded are those of the bytes read,
     so a part rewritten meanwhile leaves the new index stale, never wrong.
     None where a part holds another scenario's or episode's rows (never indexed)."""
-    from manifests.writer import ManifestError, read_part_file
+    from manifests.writer import ManifestError, arrow_reader, read_part_file
 
     kept: dict[int, tuple[pa.Table, int]] = {}
     try:
         data = storage.read_bytes(index) if index is not None else None
-        recorded = _recorded(pq.read_metadata(io.BytesIO(data)).metadata or {}) if data else None
+        recorded = _recorded(pq.read_metadata(arrow_reader(data)).metadata or {}) if data else None
         old = read_part_file(storage, index, MANIFEST_SCHEMA, data=data) if recorded else None
     except (ManifestError, FileNotFoundError, pa.ArrowException, OSError):  # gone or damaged: from the parts alone
         recorded = old = None
@@ -425,6 +489,12 @@ def compact(root, scenarios: list[str] | None = None, state: ManifestScan | None
     storage = as_storage(root)
     state = scan(storage) if state is None else state
     for rel in state.legacy:
+        kept = _kept_beside(state.parts, rel)
+        if kept is not None and not _holds_its_named_rows(storage, *kept):
+            log.warning("%s and %s name the same episode, and the one readers use does not hold the rows its name "
+                        "says: both kept; `idda verify` names them, `idda produce --repair` renders the episode again",
+                        storage.join(rel), storage.join(kept[0]))
+            continue
         storage.delete(rel)
     for scenario in set(state.indexes) - set(state.parts):  # every part of it was removed
         storage.delete(state.indexes[scenario])

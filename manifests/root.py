@@ -73,6 +73,10 @@ def claim_root(storage) -> None:
     An empty (or absent) root, or one of ours, is fine; anything else raises
     RootError and nothing is written. StorageError if it is not writable.
     """
+    if storage.is_local:
+        outer = enclosing_root(storage.path())
+        if outer is not None:
+            raise RootError(f"{storage.uri} is inside the output root {outer}; use a directory outside any output root as --out")
     if storage.exists(ROOT_MARKER):
         storage.ensure_writable()
         return
@@ -95,6 +99,16 @@ def _is_root_dir(path: str) -> bool:
     return os.path.isfile(os.path.join(path, ROOT_MARKER)) or (
         os.path.isfile(os.path.join(path, RUN_FILE)) and os.path.isdir(os.path.join(path, MANIFEST_DIR))
     )
+
+
+def enclosing_root(path: str) -> str | None:
+    """The nearest output root that holds the local ``path`` (its real path) below it, or None."""
+    ancestor = os.path.realpath(path)
+    while os.path.dirname(ancestor) != ancestor:
+        ancestor = os.path.dirname(ancestor)
+        if _is_root_dir(ancestor):
+            return ancestor
+    return None
 
 
 def export_tree(path: str) -> dict:
@@ -158,11 +172,9 @@ def check_export_target(target: str, force: bool) -> None:
         raise ValueError(f"export target {target} exists and is not a directory")
     if _is_root_dir(real):
         raise RootError(f"export target {target} is an output root; export outside any output root")
-    ancestor = real
-    while os.path.dirname(ancestor) != ancestor:
-        ancestor = os.path.dirname(ancestor)
-        if _is_root_dir(ancestor):
-            raise RootError(f"export target {target} is inside the output root {ancestor}; export outside any output root")
+    outer = enclosing_root(real)
+    if outer is not None:
+        raise RootError(f"export target {target} is inside the output root {outer}; export outside any output root")
     if not os.path.isdir(real) or not os.listdir(real):
         return
     held = _held_root(real)

@@ -24,7 +24,6 @@ from __future__ import annotations
 
 import datetime as dt
 import functools
-import io
 import logging
 import re
 import time
@@ -38,14 +37,14 @@ import pyarrow.parquet as pq
 from manifests.catalog import all_scenarios, scenario as lookup_scenario, using
 from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
-from manifests.reader import as_storage, index_bytes, index_episodes, index_files, index_summaries, index_table
+from manifests.reader import as_storage, filed_where_named, index_bytes, index_episodes, index_files, index_summaries, index_table
 from manifests.layout import LAYOUTS, frame_path, held_layout, match_frame_file, record_layout
 from manifests.root import root_entries
 from manifests.runrecord import RunRecordError, read_record
 from manifests.schema import (MANIFEST_DIR, PART_RE, PART_SCHEMA, RUN_FILE, frame_id, named_rows, newer_part,
                               output_columns, part_path)
 from manifests.spec import UNPAIRED, episode_seed
-from manifests.writer import ManifestError, part_bytes, read_part_file
+from manifests.writer import ManifestError, arrow_reader, part_bytes, read_part_file
 from storage import StorageError, sha256_bytes
 
 # Problem kinds: missing | corrupt | extra (frame files), bad-part | bad-index | bad-run (the manifest),
@@ -101,7 +100,7 @@ def _episode_of(path: str, layouts: tuple[int, ...]) -> tuple[str | None, int | 
 @functools.cache
 def _this_writer() -> str:
     """``created_by`` of the Parquet files this pyarrow writes."""
-    return pq.read_metadata(io.BytesIO(part_bytes(PART_SCHEMA.empty_table()))).created_by
+    return pq.read_metadata(arrow_reader(part_bytes(PART_SCHEMA.empty_table()))).created_by
 
 
 def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | None,
@@ -157,7 +156,7 @@ def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | N
         first = {name: table.column(name)[0].as_py() for name in ("width", "height", "seed")}
         detail = config_conflict(first["width"], first["height"], first["seed"], scenario, episode, config)
         conflict = detail is not None
-    if detail is None and pq.read_metadata(io.BytesIO(data)).created_by == _this_writer() \
+    if detail is None and pq.read_metadata(arrow_reader(data)).created_by == _this_writer() \
             and part_bytes(table) != data and part_bytes(table, store_schema=True) != data:  # now, or as before
         detail = "its bytes differ from its own rows re-encoded (damaged metadata)"
     if detail is not None:
@@ -211,6 +210,8 @@ class VerifyUnit:
     since: float | None  # stray files older than this are out of scope
     producer_live: bool  # frames without a part belong to a running producer
     layouts: tuple[int, ...] = LAYOUTS  # the root's file layout (both when run.json cannot tell)
+    # (episode, part path): other names of an episode in scope beside the part readers use (``parts``)
+    shadowed: tuple[tuple[int, str], ...] = ()
 
 
 @dataclass
@@ -264,6 +265,11 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
             result.problems.append(problem)
         else:
             good[(unit.scenario, episode)] = table
+    bad = {p.episode: p.path for p in result.problems if p.kind == "bad-part"}
+    for episode, rel in unit.shadowed:  # beside a sound part, a name a killed writer left (compaction drops it)
+        if episode in bad:  # beside a damaged one (a lying copy): both are named, repair drops both
+            result.problems.append(Problem("bad-part", rel, unit.scenario, episode,
+                                           f"a second part of this episode, beside the damaged {bad[episode]}"))
     if unit.index is not None:
         paths = dict(unit.parts)
         problem = _check_index(storage, unit.index, unit.scenario,
@@ -353,20 +359,31 @@ class VerifyProgress:
     elapsed_s: float
 
 
-def _part_listing(storage, report: VerifyReport) -> dict[str, dict[int, tuple[str, float]]]:
-    """Parts per scenario with their modification time; links under manifest/ become problems."""
+def _part_listing(storage, report: VerifyReport) -> tuple[dict[str, dict[int, tuple[str, float]]],
+                                                           dict[str, list[tuple[int, str]]]]:
+    """Parts per scenario with their modification time, and per scenario the other
+    names of an episode beside the part readers use; links under manifest/ become problems."""
     parts: dict[str, dict[int, tuple[str, float]]] = {}
+    shadowed: dict[str, list[tuple[int, str]]] = {}
     for entry in storage.walk(MANIFEST_DIR):
         if entry.link:
             report.problems.append(Problem("link", entry.rel, None, None, LINK_DETAIL))
             continue
         match = PART_RE.match(entry.rel)
-        if match:
+        if match and not filed_where_named(entry.rel):  # not the episode's part: a stray file, never read
+            report.problems.append(Problem("extra", entry.rel, None, None, "a part filed under another scenario's folder"))
+        elif match:
             held = parts.setdefault(match.group("scenario"), {})
             episode = int(match.group("episode"))
-            if episode not in held or newer_part(entry.rel, held[episode][0]):  # the part readers use
+            if episode in held:
+                other = entry.rel
+                if newer_part(entry.rel, held[episode][0]):  # the part readers use
+                    other = held[episode][0]
+                    held[episode] = (entry.rel, entry.mtime)
+                shadowed.setdefault(match.group("scenario"), []).append((episode, other))
+            else:
                 held[episode] = (entry.rel, entry.mtime)
-    return parts
+    return parts, shadowed
 
 
 def _producer_live(storage, except_owner: str | None) -> bool:
@@ -381,7 +398,12 @@ def _producer_live(storage, except_owner: str | None) -> bool:
 def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool,
                layouts: tuple[int, ...] = LAYOUTS) -> list[VerifyUnit]:
     """The units of ``scope``: one per scenario that has parts or a folder."""
-    parts = _part_listing(storage, report)
+    parts, shadowed = _part_listing(storage, report)
+    for rel in storage.folders(MANIFEST_DIR):  # a folder named as a part: every write of that part fails
+        match = PART_RE.match(rel)
+        if match and (scope.scenarios is None or match.group("scenario") in scope.scenarios):
+            report.problems.append(Problem("bad-part", rel, match.group("scenario"), int(match.group("episode")),
+                                           "a folder where a part file goes"))
     indexes = index_files(storage)
     codes = {s.code for s in all_scenarios()}  # of the catalog in force: the root's (verify)
     folders = {name for name in root_entries(storage) if name in codes}
@@ -392,7 +414,8 @@ def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool,
         have = parts.get(scenario, {})
         chosen = tuple((e, rel) for e, (rel, mtime) in sorted(have.items()) if scope.since is None or mtime >= scope.since)
         index = indexes.get(scenario) if len(chosen) == len(have) else None
-        units.append(VerifyUnit(scenario, chosen, frozenset(have), index, scope.since, producer_live, layouts))
+        others = tuple(sorted((e, rel) for e, rel in shadowed.get(scenario, []) if e in dict(chosen)))
+        units.append(VerifyUnit(scenario, chosen, frozenset(have), index, scope.since, producer_live, layouts, others))
     return units
 
 

@@ -117,6 +117,18 @@ def read_part(storage, scenario: str, episode: int) -> pa.Table:
     return read_part_file(storage, listed[0] if listed else part_path(scenario, episode), PART_SCHEMA)
 
 
+def arrow_reader(data: bytes) -> pa.BufferReader:
+    """A reader of ``data`` for pyarrow over a copy Arrow owns. Given Python bytes (or a
+    Python file), Arrow keeps a reference to a Python object in what it reads, and a
+    scan may drop its last reference from one of Arrow's own threads, which then takes
+    the GIL: during the interpreter's exit that thread is made to exit, and the unwind
+    through Arrow's C++ ends in ``std::terminate`` (issue 33: ``idda verify`` aborted,
+    exit 134, "terminate called without an active exception"). A copy holds no Python object."""
+    buffer = pa.allocate_buffer(len(data))
+    memoryview(buffer).cast("B")[:] = data
+    return pa.BufferReader(buffer)
+
+
 def read_part_file(storage, rel: str, schema: pa.Schema | None = None, data: bytes | None = None) -> pa.Table:
     """Read a whole manifest file (a part or an index; ``data`` if already read),
     page checksums verified; ManifestError naming the file if it is damaged."""
@@ -127,6 +139,6 @@ def read_part_file(storage, rel: str, schema: pa.Schema | None = None, data: byt
     except Exception as exc:  # a directory, a FIFO, an I/O error
         raise ManifestError(f"manifest file {storage.join(rel)} is unreadable: {exc}") from exc
     try:
-        return pq.read_table(io.BytesIO(data), schema=schema, page_checksum_verification=True)
+        return pq.read_table(arrow_reader(data), schema=schema, page_checksum_verification=True)
     except Exception as exc:  # pyarrow raises several types for a damaged file
         raise ManifestError(f"manifest file {storage.join(rel)} is unreadable: {exc}") from exc

@@ -26,7 +26,7 @@ from manifests.schema import STATS_DIR
 from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
 from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
-from pipeline.repair import check_no_repair_running, repair_alone
+from pipeline.repair import check_no_repair_running, refuse_in_the_way, repair_alone
 from pipeline.runmeta import RunConfig, RunConfigError, prepare_root, read_run, root_deflater
 
 log = logging.getLogger(__name__)
@@ -457,7 +457,9 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
     owner = new_owner()
     if config.repair:  # before this run registers: the repair bumps the lease generation it then reads
         check_no_repair_running(storage)
-        pending_episodes(plan, episode_frames(storage))  # refuses a shrink before repair deletes anything
+        # refuses a shrink before repair deletes anything: from the rows the parts hold, never from their
+        # names (a part renamed to say more rows than it holds is damage to repair, not frames to keep)
+        pending_episodes(plan, episode_frames(storage, scan(storage).summaries(storage)))
         report.repaired = repair_alone(storage, config, plan, owner)
     producer = register_producer(storage, owner=owner, ttl_s=config.lease_ttl_s)
     try:
@@ -472,6 +474,9 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
             record = read_run(storage)  # repair_alone prepared it
         # the root's layout and PNG deflater, old or new
         todo = [replace(spec, layout=record_layout(record), png_deflater=root_deflater(record)) for spec in todo]
+        # a folder where a part goes fails every write of it: said before any rendering (frame files in the
+        # way stop the run at their first write, in one line too)
+        refuse_in_the_way(storage, todo, record_layout(record), "nothing rendered", parts_only=True)
         del summaries
         state = None if todo else state  # nothing to render: the final fold needs no second scan
         report.skipped_episodes = len(plan.episodes) - len(todo)

@@ -8,7 +8,8 @@ import logging
 from typing import TYPE_CHECKING
 
 from manifests.reader import episode_parts
-from manifests.schema import index_path, part_path
+from manifests.layout import frame_path
+from manifests.schema import frame_id, index_path, part_path
 from pipeline.cluster import cluster_address
 from pipeline.runmeta import RunConfigError, prepare_root
 
@@ -50,6 +51,8 @@ def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
             "or move such parts out of the root"
         )
     planned = {(e.scenario, e.episode) for e in plan.episodes}
+    refuse_in_the_way(storage, [e for e in plan.episodes if (e.scenario, e.episode) in report.affected_episodes()],
+                      _root_layout(storage), "repair deleted nothing")
     touched = []
     for scenario, episode in sorted(report.affected_episodes()):
         for rel in episode_parts(storage, scenario, episode) or [part_path(scenario, episode)]:
@@ -66,6 +69,41 @@ def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
         elif problem.kind == "bad-run":
             touched.append(problem.path)
     return touched
+
+
+def episode_files(spec, layout: int) -> list[str]:
+    """Every file rendering ``spec`` writes into a root of ``layout``: its frame files, then its part."""
+    fids = [frame_id(spec.episode, i) for i in range(spec.frames)]
+    return [frame_path(spec.scenario, name, fid, spec.rgb_format, layout) for name in spec.outputs for fid in fids] + [
+        part_path(spec.scenario, spec.episode, spec.frames)]
+
+
+def refuse_in_the_way(storage, specs, layout: int, nothing_done: str, parts_only: bool = False) -> None:
+    """RootError in one line naming the first thing (a folder, a link, a special file) that
+    stands where rendering ``specs`` would write a file (``parts_only``: only their parts).
+    Nothing of it is ever deleted: it may be a user's."""
+    from manifests.root import RootError
+
+    for spec in specs:
+        for rel in episode_files(spec, layout)[-1 if parts_only else 0:]:
+            blocker = storage.in_the_way(rel)
+            if blocker is not None:
+                where, what = blocker
+                target = "a file" if where == rel else storage.join(rel)
+                raise RootError(f"{storage.join(where)} is {what}, where {spec.key} writes {target}; "
+                                f"{nothing_done}: move it out of the root and run again")
+
+
+def _root_layout(storage) -> int:
+    """The root's file layout: run.json's, else that of the frames its parts list."""
+    from manifests.layout import NEW_ROOT_LAYOUT, held_layout, record_layout
+    from manifests.runrecord import RunRecordError, read_record
+
+    try:
+        record = read_record(storage)
+    except RunRecordError:
+        record = None
+    return record_layout(record) if record else held_layout(storage) or NEW_ROOT_LAYOUT
 
 
 def verify_runner(config: ProduceConfig):

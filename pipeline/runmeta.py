@@ -139,7 +139,9 @@ def _with_outputs(config: dict) -> dict:
             **RECORDED_DEFAULTS, **config}
 
 
-def _fresh_record(new: dict, history: list[dict] | None = None, layout: int = NEW_ROOT_LAYOUT) -> dict:
+def _fresh_record(new: dict, history: list[dict] | None = None, layout: int = NEW_ROOT_LAYOUT,
+                  encoder: str | None = None) -> dict:
+    """A run record of ``new``; ``encoder``: the root's own (an older root keeps its deflater), else this one's."""
     from manifests.encoding import encoder_identity
 
     return {
@@ -147,9 +149,32 @@ def _fresh_record(new: dict, history: list[dict] | None = None, layout: int = NE
         "history": (history or []) + [new],
         "versions": package_versions(),
         "git_revision": git_revision(),
-        "encoder": encoder_identity(new["rgb_format"]),
+        "encoder": encoder or encoder_identity(new["rgb_format"]),
         LAYOUT_KEY: layout,
     }
+
+
+def _encoder_held(storage, rgb_format: str) -> str:
+    """The encoder for a record written afresh (run.json lost or damaged): with the
+    deflater of the PNG files the manifest lists (an ISA-L root keeps ISA-L), else a new root's."""
+    from manifests.deflaters import DEFAULT_DEFLATER, deflater_of_png
+    from manifests.encoding import encoder_identity
+    from manifests.outputs import OUTPUTS
+    from manifests.schema import MANIFEST_DIR, PART_SCHEMA, output_columns
+    from manifests.writer import ManifestError, read_part_file
+    from storage import StorageError
+
+    for rel in storage.list_files(MANIFEST_DIR + "/", suffix=".parquet")[:8]:
+        try:
+            table = read_part_file(storage, rel, PART_SCHEMA)
+            paths = [p for name in OUTPUTS for p in table.column(output_columns(name)[0]).to_pylist()[:1]
+                     if p is not None and p.endswith(".png")]
+            found = {deflater_of_png(storage.read_bytes(p)) for p in paths[:3]} - {None}
+        except (ManifestError, StorageError, OSError, ValueError):
+            continue
+        if len(found) == 1:
+            return encoder_identity(rgb_format, found.pop())
+    return encoder_identity(rgb_format, DEFAULT_DEFLATER)
 
 
 def _layout_held(storage) -> int:
@@ -281,11 +306,13 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
             raise RunConfigError(f"{exc}; move it away, then run again") from None
         log.warning("rewriting the damaged %s from this run's options", storage.join(RUN_FILE))
         check_rows(storage, config, summaries)
-        storage.write_bytes(RUN_FILE, record_bytes(_fresh_record(new, layout=_layout_held(storage))))
+        storage.write_bytes(RUN_FILE, record_bytes(_fresh_record(new, layout=_layout_held(storage),
+                                                                 encoder=_encoder_held(storage, new["rgb_format"]))))
         return read_record(storage)
     if record is None:
         check_rows(storage, config, summaries)
-        if storage.create_exclusive(RUN_FILE, record_bytes(_fresh_record(new, layout=_layout_held(storage)))):
+        fresh = _fresh_record(new, layout=_layout_held(storage), encoder=_encoder_held(storage, new["rgb_format"]))
+        if storage.create_exclusive(RUN_FILE, record_bytes(fresh)):
             return read_record(storage)
         record = read_run(storage)  # another driver was first: compare with its record
         if record is None:
@@ -297,7 +324,8 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
         return record
     _refuse_differences(storage, old, new, extend)
     check_rows(storage, config, summaries)
-    record = _fresh_record(new, record.get("history", [old]), record_layout(record))  # a root keeps its layout
+    # a root keeps its layout and its encoder (an ISA-L root stays ISA-L when extended)
+    record = _fresh_record(new, record.get("history", [old]), record_layout(record), record.get("encoder"))
     storage.write_bytes(RUN_FILE, record_bytes(record))
     return record
 

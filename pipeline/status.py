@@ -30,6 +30,7 @@ class RootStatus:
     scenarios: list[ScenarioStatus] = field(default_factory=list)
     frames_per_s: float | None = None  # rate of the last produce run
     extra_episodes: int = 0  # done episodes outside the recorded plan (from --extend history)
+    misnamed: list[str] = field(default_factory=list)  # parts whose names say other rows than they hold
 
     @property
     def frames_done(self) -> int:
@@ -53,8 +54,9 @@ def root_status(storage) -> RootStatus:
         raise ValueError(f"{storage.uri} has no run.json, so its plan is unknown; {REPAIR_HINT}")
     config = recorded_config(record)
     plan = make_plan(config.plan)
-    held = episode_frames(storage)  # frames each part holds: done only if all the plan asks
+    held = episode_frames(storage)  # frames each part's name says it holds: done only if all the plan asks
     status = RootStatus(uri=storage.uri, config=record["config"])
+    _check_names(storage, plan, held, status)
     planned = set()
     for code, episodes in plan.by_scenario().items():
         have = [min(held.get((e.scenario, e.episode), 0), e.frames) for e in episodes]
@@ -76,6 +78,23 @@ def root_status(storage) -> RootStatus:
         except (ValueError, AttributeError, OSError, StorageError):  # a damaged or odd driver.json: no rate
             status.frames_per_s = None
     return status
+
+
+def _check_names(storage, plan, held: dict[tuple[str, int], int], status: RootStatus) -> None:
+    """A part whose name says more rows than the plan asks cannot be one this run wrote
+    (a root never shrinks): its footer is read, ``held`` takes the rows it really
+    holds, and ``status.misnamed`` names it. Only such parts are read."""
+    from manifests.reader import part_files, rows_read
+
+    frames = {(e.scenario, e.episode): e.frames for e in plan.episodes}
+    over = sorted(key for key, rows in held.items() if key in frames and rows > frames[key])
+    paths = part_files(storage) if over else {}
+    for key in over:
+        rel = paths[key[0]][key[1]]
+        rows = rows_read(storage, rel) or 0
+        if rows != held[key]:
+            status.misnamed.append(f"{rel} (its name says {held[key]} rows, it holds {rows})")
+            held[key] = rows
 
 
 def format_duration(seconds: float) -> str:

@@ -18,14 +18,14 @@ _ERRNO_CAUSES = {
     errno.EPERM: "operation not permitted",
     errno.EROFS: "read-only file system",
     errno.ENOTDIR: "a path component is not a directory",
-    errno.EISDIR: "the path is a directory",
+    errno.EISDIR: "a folder is in the way (EISDIR); move it out of the root",
     errno.ENOENT: "no such file or directory",
     errno.EEXIST: "the path already exists",
 }
 if hasattr(errno, "EDQUOT"):  # not on every platform
     _ERRNO_CAUSES[errno.EDQUOT] = "disk quota exceeded"
 # Not transient: retrying cannot help, so a run stops at the first one.
-FATAL_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM} | (
+FATAL_ERRNOS = {errno.ENOSPC, errno.EROFS, errno.EACCES, errno.EPERM, errno.EISDIR, errno.ENOTDIR} | (
     {errno.EDQUOT} if hasattr(errno, "EDQUOT") else set()
 )
 
@@ -73,7 +73,8 @@ def describe(exc: BaseException) -> str:
     """A short, single-line, redacted cause for ``exc``."""
     code = getattr(exc, "errno", None)
     if code in _ERRNO_CAUSES:
-        return f"{_ERRNO_CAUSES[code]} ({errno.errorcode[code]})"
+        cause = _ERRNO_CAUSES[code]
+        return cause if errno.errorcode[code] in cause else f"{cause} ({errno.errorcode[code]})"
     text = str(exc)
     for needle, cause in _S3_CAUSES.items():
         if needle in text:

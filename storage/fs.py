@@ -322,6 +322,49 @@ class Storage:
         infos = self._guard("list", rel, lambda: self.filesystem.get_file_info(selector))
         return sorted(info.base_name for info in infos)
 
+    def folders(self, directory: str = "") -> list[str]:
+        """Every folder below ``directory`` (sorted; links never followed). S3 has no
+        folders of its own (a key is never in another's way): [] there."""
+        if not self.is_local:
+            return []
+        found, stack = [], [clean_rel(directory, allow_empty=True)]
+        while stack:
+            folder = stack.pop()
+            try:
+                with os.scandir(self.path(folder)) as scan:
+                    subs = [f"{folder}/{e.name}" if folder else e.name for e in scan if e.is_dir(follow_symlinks=False)]
+            except (FileNotFoundError, NotADirectoryError):
+                continue
+            found += subs
+            stack += subs
+        return sorted(found)
+
+    def in_the_way(self, rel: str) -> tuple[str, str] | None:
+        """What stands where a file ``rel`` would be written, as (its relative path, what it
+        is): a folder, a link or a special file at ``rel``, or something other than a folder
+        where one of its folders goes; None when a write can go ahead. Local roots only
+        (on S3 a key is never in another's way)."""
+        if not self.is_local:
+            return None
+        names = clean_rel(rel).split("/")
+        for i in range(1, len(names) + 1):
+            here = "/".join(names[:i])
+            try:
+                mode = os.lstat(self.path(here)).st_mode
+            except (FileNotFoundError, NotADirectoryError):
+                return None
+            if stat.S_ISLNK(mode):
+                return here, "a symbolic link"
+            if i < len(names) and not stat.S_ISDIR(mode):
+                return here, "a file where a folder goes"
+            if i == len(names) and stat.S_ISDIR(mode):
+                with os.scandir(self.path(here)) as scan:
+                    entries = sum(1 for _ in scan)
+                return here, f"a folder ({entries} entr{'y' if entries == 1 else 'ies'} inside)"
+            if i == len(names) and not stat.S_ISREG(mode):
+                return here, "a special file"
+        return None
+
     def _walk_local(self, directory: str) -> dict[str, int]:
         found: dict[str, int] = {}
         stack = [directory]

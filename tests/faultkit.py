@@ -46,13 +46,18 @@ ENOSPC_ENV = {"IDDA_FAULT_INJECT": "enospc-after:0"}  # the workers' hook: the f
 WAIT_S = 240.0
 
 
-def listing(root: Path) -> dict[str, str]:
-    """Relative path -> sha256 of the bytes (files), "-> target" (symlinks, not followed) or "dir"."""
+def listing(root: Path, skip: tuple[str, ...] = ()) -> dict[str, str]:
+    """Relative path -> sha256 of the bytes (files), "-> target" (symlinks, not followed) or "dir".
+
+    ``skip``: top-level folders left out, never walked into (``_lease``, whose
+    writers come and go with temp files that may vanish between listing and reading)."""
     out = {}
     root = Path(root)
     if not root.exists():
         return out
     for folder, dirs, files in os.walk(root, followlinks=False):
+        if Path(folder) == root:
+            dirs[:] = [d for d in dirs if d not in skip]
         for name in sorted(dirs + files):
             path = Path(folder) / name
             rel = path.relative_to(root).as_posix()

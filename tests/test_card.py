@@ -147,6 +147,23 @@ def test_card_links_and_renders_previews(root, monkeypatch):
     assert "(preview/contact_sheet_HRN.png)" in (root / "README.md").read_text()
 
 
+def test_card_of_a_damaged_root_says_it_failed_verification(root):
+    """Issue 33: ``idda card`` on a damaged root exited 0 with no warning. It verifies
+    first: the card says the root failed, and the command warns and exits 1."""
+    result = CliRunner().invoke(cli_app(), ["card", str(root)])
+    assert result.exit_code == 0, result.output
+    assert "Verified when this card was written: all" in (root / "README.md").read_text()
+    victim = next(root.glob("T01_*/**/rgb/*.png"))
+    victim.write_bytes(victim.read_bytes()[:-4] + b"bad!")
+    result = CliRunner().invoke(cli_app(), ["card", str(root)])
+    assert result.exit_code == 1
+    assert f"warning: {root} failed verification (1 corrupt), and the card says so" in result.output
+    text = (root / "README.md").read_text()
+    assert "**This root failed verification when this card was written** (1 corrupt)" in text
+    result = CliRunner().invoke(cli_app(), ["card", str(root), "--no-verify"])
+    assert result.exit_code == 0 and "Not verified when this card was written" in (root / "README.md").read_text()
+
+
 def test_card_command_errors(tmp_path):
     result = CliRunner().invoke(cli_app(), ["card", str(tmp_path)])
     assert result.exit_code == 2

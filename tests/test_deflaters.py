@@ -105,3 +105,39 @@ def test_a_root_of_an_unknown_deflater_is_still_refused(tmp_path):
     with pytest.raises(RunConfigError, match="another encoder"):
         check_encoder(storage, {**record, "encoder": "png-sub-isal level 1, isal 0.0.1"})
     assert check_encoder(storage, record)["encoder"] == ISAL_IDENTITY  # its own: kept
+
+
+def _isal_pngs(root: Path) -> tuple[int, int]:
+    """(PNG files the manifest lists, those deflated by ISA-L)."""
+    table = read_manifest(str(root))
+    pngs = [p for col in ("rgb_path", "semantic_color_path", "depth_raw_path", "instance_path")
+            for p in table.column(col).to_pylist()]
+    return len(pngs), sum("isal" in deflated_by((root / p).read_bytes()) for p in pngs)
+
+
+def test_an_isal_root_extended_keeps_isal(tmp_path):
+    """Issue 33: ``--extend`` rewrote run.json's encoder to libdeflate, so the new
+    episodes were deflated by libdeflate beside the ISA-L ones: one root, two deflaters."""
+    from pipeline.episode_job import run_episode
+
+    storage = _old_root(tmp_path / "old")
+    more = RunConfig(plan=replace(PLAN, domains="T01_CN_A,T01_HRN_A,T07_CN_A"), world="test")
+    record = prepare_root(storage, more, extend=True)
+    assert record["encoder"] == ISAL_IDENTITY == json.loads((tmp_path / "old" / "run.json").read_text())["encoder"]
+    assert root_deflater(record) == "isal"
+    for spec in make_plan(more.plan).episodes[1:]:  # what produce's workers are handed
+        run_episode(replace(spec, png_deflater=root_deflater(record)), storage, world="test")
+    assert _isal_pngs(tmp_path / "old") == (24, 24)
+
+
+def test_an_isal_root_repaired_with_a_damaged_run_json_keeps_isal(tmp_path):
+    """A damaged (or lost) run.json is written afresh by repair: with the deflater of the
+    root's own PNG files, not the default one (which would mix two deflaters)."""
+    storage = _old_root(tmp_path / "old")
+    run = tmp_path / "old" / "run.json"
+    run.write_bytes(run.read_bytes()[:-9])  # torn
+    record = prepare_root(storage, RunConfig(plan=PLAN, world="test"), repair=True)
+    assert record["encoder"] == ISAL_IDENTITY and root_deflater(record) == "isal"
+    run.unlink()  # lost: the same
+    assert prepare_root(storage, RunConfig(plan=PLAN, world="test"))["encoder"] == ISAL_IDENTITY
+

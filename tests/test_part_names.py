@@ -86,6 +86,48 @@ def test_verify_names_a_part_whose_name_disagrees_with_its_rows(tmp_path):
     assert [(p.path, p.episode) for p in bad] == [(wrong, spec.episode)] and "name says" in bad[0].detail
 
 
+def _rename(storage, rel: str, to: str, keep: bool = False) -> None:
+    storage.write_bytes(to, storage.read_bytes(rel))
+    if not keep:
+        storage.delete(rel)
+
+
+def test_status_and_query_count_a_lying_part_by_its_rows(tmp_path):
+    """Issue 33: ``_n<rows>`` renamed to say more rows than the part holds (and than
+    the plan asks): status took it as done from its name, silently; now it reads
+    that part's footer, counts its rows and says the name disagrees. Query reads rows."""
+    storage = synthetic_root(str(tmp_path / "root"))
+    spec = make_plan(PLAN).episodes[0]
+    rel = part_of(tmp_path / "root", spec.scenario, spec.episode)
+    lying = part_path(spec.scenario, spec.episode, 200)
+    _rename(storage, rel, lying)
+    storage.write_bytes(lying, part_bytes(episode_table(spec).slice(0, 4)))  # 4 rows under a name saying 200
+    status = root_status(storage)
+    assert status.frames_done == status.frames_total - (spec.frames - 4)
+    assert status.misnamed == [f"{lying} (its name says 200 rows, it holds 4)"]
+    table = read_manifest(storage)
+    assert ((table.column("scenario").to_numpy(zero_copy_only=False) == spec.scenario)
+            & (table.column("episode").to_numpy() == spec.episode)).sum() == 4
+
+
+def test_a_lying_copy_never_costs_the_true_part(tmp_path):
+    """Issue 33: a part copied to a name saying one row more (``_n4`` to ``_n5``). Readers
+    use the higher name; compaction removed the other as a killed writer's leftover, so a
+    plain resume deleted the true part and kept the false one. Now compaction keeps
+    both (the one read does not hold the rows its name says) and verify names both."""
+    storage = synthetic_root(str(tmp_path / "root"))
+    spec = make_plan(PLAN).episodes[0]
+    true = part_of(tmp_path / "root", spec.scenario, spec.episode)
+    copy = part_path(spec.scenario, spec.episode, spec.frames + 1)
+    _rename(storage, true, copy, keep=True)
+    compact(storage)
+    assert episode_parts(storage, spec.scenario, spec.episode) == [copy, true]
+    bad = sorted((p.path, p.detail) for p in verify(storage).problems if p.kind == "bad-part")
+    assert [path for path, _ in bad] == sorted([copy, true])
+    assert dict(bad)[copy] == f"its name says {spec.frames + 1} rows, it holds {spec.frames}"
+    assert dict(bad)[true] == f"a second part of this episode, beside the damaged {copy}"
+
+
 def test_part_names_parse():
     match = PART_RE.match("manifest/town=T01/weather=CN/viewpoint=A/T01_CN_A_e0012_n72.parquet")
     assert (match.group("scenario"), match.group("episode"), match.group("rows")) == ("T01_CN_A", "0012", "72")

@@ -197,6 +197,9 @@ def status(root: str = typer.Argument(..., help=ROOT_HELP)) -> None:
 
     with user_errors():
         st = root_status(output_root(root))
+        for part in st.misnamed:
+            typer.echo(f"warning: {part}: counted by its rows; `idda verify` and `idda produce --repair` mend it",
+                       err=True)
         w = max([10, *(len(s.scenario) for s in st.scenarios)])  # a declared code may be longer than T01_HRN_A
         typer.echo(f"{'scenario':<{w}} {'episodes':>13} {'frames':>17}")
         for s in st.scenarios:

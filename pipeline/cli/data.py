@@ -15,7 +15,7 @@ import typer
 
 from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
-    build_query, of_held, output_root, user_errors, write_local,
+    build_query, count, of_held, output_root, user_errors, write_local,
 )
 from pipeline.cli.domains import CatalogFile, root_catalog
 
@@ -40,6 +40,7 @@ def export(
     copy: bool = typer.Option(False, "--copy", help="Copy files instead of hard-linking them."),
     symlink: bool = typer.Option(False, "--symlink", help="Symlink files instead of hard-linking them."),
     force: bool = typer.Option(False, "--force", help="Replace a non-empty target directory."),
+    skip_damaged: bool = typer.Option(False, "--skip-damaged", help="Leave out frames whose files do not match the manifest's checksums (counted) instead of refusing."),
     threads: int = typer.Option(8, help="Frames converted in parallel."),
     as_split: Optional[str] = typer.Option(None, "--as-split", help="Put every exported frame in this split (train, val or test)."),
     splits: str = typer.Option("scenario", "--splits", help="idda split files: scenario (train/val/test.json) or feddrive (FedDrive's federated splits)."),
@@ -65,9 +66,12 @@ def export(
         config = ExportConfig(
             root=root, to=str(to), format=fmt, query=query,
             files="copy" if copy else "symlink" if symlink else "hardlink", force=force, threads=threads,
-            as_split=as_split, splits=splits, holdout=holdout,
+            as_split=as_split, splits=splits, holdout=holdout, skip_damaged=skip_damaged,
         )
         report = run_export(config)
+        if report.damaged:
+            typer.echo(f"warning: left out {count(report.skipped, 'frame')} with {count(len(report.damaged), 'damaged file')} "
+                       f"(first: {report.damaged[0]}); `idda verify` lists the damage", err=True)
         for code, missing in sorted(report.shortfall.items()):
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
         splits = ", ".join(f"{n:,} {s}" for s, n in report.per_split.items() if n)
@@ -132,17 +136,26 @@ def distances(
 def card(
     root: str = typer.Argument(..., help=ROOT_HELP),
     contact_sheet: bool = typer.Option(False, "--contact-sheet", help="Render a contact sheet into <root>/preview/ and show it."),
+    check: bool = typer.Option(True, "--verify/--no-verify", help="Verify the root first (every file hashed) and say in the card what verify found."),
 ) -> None:
-    """Write a dataset card (README.md and class_shares.png) into the root."""
+    """Write a dataset card (README.md and class_shares.png) into the root.
+
+    Exits 1 when the root fails verification (the card says so too)."""
     from exports.card import CardConfig, write_card
     from manifests.catalog import using
 
     with user_errors(), using(root_catalog(root, None)):  # the root's declared domains: its scenarios
         output_root(root)
-        result = write_card(CardConfig(root=root, contact_sheet=contact_sheet))
+        result = write_card(CardConfig(root=root, contact_sheet=contact_sheet, verify=check))
         typer.echo(f"wrote {result.card} ({of_held(result.frames, result.frames)}) and {result.chart}")
+        if result.problems:
+            found = ", ".join(f"{n} {kind}" for kind, n in sorted(result.problems.items()))
+            typer.echo(f"warning: {root} failed verification ({found}), and the card says so; `idda verify {root}` "
+                       "lists the damage", err=True)
         for rel in result.previews:
             typer.echo(f"linked preview {rel}")
+        if result.problems:
+            raise typer.Exit(code=1)  # damaged data, as verify exits
 
 
 def shifts(
