@@ -16,10 +16,9 @@ import threading
 import time
 from collections import deque
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable
 
-from manifests.layout import record_layout
 from manifests.lease import TTL_S
 from manifests.reader import compact, episode_frames, refuse_misfiled, scan
 from manifests.schema import STATS_DIR
@@ -27,7 +26,7 @@ from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
 from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
 from pipeline.repair import check_no_repair_running, repair_alone
-from pipeline.runmeta import RunConfig, RunConfigError, prepare_root, read_run, root_deflater
+from pipeline.runmeta import RunConfig, RunConfigError, for_root, prepare_root, read_run
 
 log = logging.getLogger(__name__)
 
@@ -429,8 +428,7 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
             record = prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
         else:
             record = read_run(storage)  # repair_alone prepared it
-        # the root's layout and PNG deflater, old or new
-        todo = [replace(spec, layout=record_layout(record), png_deflater=root_deflater(record)) for spec in todo]
+        todo = for_root(todo, record)  # the root's layout, PNG deflater and scenes' splits
         del summaries
         state = None if todo else state  # nothing to render: the final fold needs no second scan
         report.skipped_episodes = len(plan.episodes) - len(todo)

@@ -131,7 +131,7 @@ def test_feddrive_reads_the_idda_export(root, manifest, tmp_path):
     train = feddrive_read_dir(target / "feddrive" / "train")
     test = feddrive_read_dir(target / "feddrive" / "test")
     # One client per scenario with train frames; T07 is the unseen domain. The three one-episode
-    # scenarios take train, val and test in table order (docs/layout.md, "Splits"): T01_CN_A
+    # scenarios (three scenes) take train, val and test in table order (docs/layout.md, "Splits"): T01_CN_A
     # trains, T01_HRN_J is val, and T07_CS_B (test) is held out, so no same-domain test frames.
     assert sorted(train) == ["T01_CN_A"]
     assert sorted(test) == ["test_user_diff_domain"]  # LEAF lists no user without frames
@@ -181,7 +181,7 @@ def test_cityscapes_export_has_every_split_and_reads_like_cityscapes(root, manif
     target = tmp_path / "cs"
     result = CliRunner().invoke(app(), ["export", str(root), "--format", "cityscapes", "--to", str(target)])
     assert result.exit_code == 0, result.output
-    # Three one-episode scenarios: one episode in each split (docs/layout.md, "Splits").
+    # Three one-episode scenarios of three scenes: one episode in each split (docs/layout.md, "Splits").
     assert f"{len(manifest)} frames (4 train, 4 val, 4 test)" in result.output
     for split in ("train", "val", "test"):
         for kind in ("semantic", "color", "instance"):

@@ -16,7 +16,7 @@ from manifests import catalog
 from manifests.catalog import ALL_SCENARIOS, BUILTIN, TOWNS, VIEWPOINTS, WEATHERS, scenario, using
 from manifests.domainfile import CatalogError, catalog_from_text, catalog_toml, with_file
 from manifests.selection import parse_selection
-from manifests.spec import PAIRED, UNPAIRED, episode_seed, town_seed
+from manifests.spec import OLD_RULES, PAIRED, UNPAIRED, episode_seed, town_seed
 from pipeline.cli import app
 from pipeline.planner import PlanConfig, make_plan
 
@@ -53,7 +53,8 @@ VIEWPOINTS_REF = (
 )
 # sha256 of make_plan's episodes (scenario, episode, seed, frames, split) for `all` at full scale (seed 0)
 # and at 130 frames per scenario (seed 7), and of the town seeds; computed with the Python tables.
-# Unpaired, as roots made before pairing keep (a paired plan leaves the weather out of the seeds).
+# Unpaired and of the old rules, as roots made before pairing keep (a paired plan leaves the weather out of
+# the seeds, and NEW_RULES draw splits per scene).
 PLAN_DIGEST = "da7ebfe1539a68dd"
 
 FOG = """
@@ -86,8 +87,8 @@ def test_builtin_file_gives_the_python_tables_bit_for_bit():
 
 def test_plan_and_seeds_are_those_of_the_python_tables():
     digest = hashlib.sha256()
-    for cfg in (PlanConfig(domains="all", scale=1.0, seed=0, pairing=UNPAIRED),
-                PlanConfig(domains="all", frames_per_scenario=130, seed=7, pairing=UNPAIRED)):
+    for cfg in (PlanConfig(domains="all", scale=1.0, seed=0, pairing=UNPAIRED, rules=OLD_RULES),
+                PlanConfig(domains="all", frames_per_scenario=130, seed=7, pairing=UNPAIRED, rules=OLD_RULES)):
         for e in make_plan(cfg).episodes:
             digest.update(repr((e.scenario, e.episode, e.seed, e.frames, e.split)).encode())
     digest.update(repr([town_seed(3, t) for t in TOWNS]).encode())

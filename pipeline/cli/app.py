@@ -11,7 +11,7 @@ from typing import Optional
 import typer
 
 from pipeline.cli import data as cli_data, domains as cli_domains
-from pipeline.cli.domains import CatalogFile, domain_file, root_catalog, root_pairing
+from pipeline.cli.domains import CatalogFile, domain_file, root_catalog, root_pairing, root_rules
 from pipeline.cli.progress import (
     ProgressDisplay, VerifyDisplay, format_interrupted, format_outage, format_produce_report, stop_signals,
     verify_advice,
@@ -148,7 +148,8 @@ def produce(
         layer = root_catalog(out, catalog).layer_json()
         plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
                               height=height, seed=seed, outputs=parse_outputs(outputs), rgb_format=rgb_format,
-                              catalog=layer, frame_interval_s=frame_interval, pairing=root_pairing(out))
+                              catalog=layer, frame_interval_s=frame_interval, pairing=root_pairing(out),
+                              rules=root_rules(out))
         config = ProduceConfig(
             run=RunConfig(plan=plan_cfg, world=world),
             out=out,
@@ -301,6 +302,9 @@ def query(
         result = scan_manifest(storage, lambda dataset: q.run_query(dataset, the_query))
         for code, missing in sorted(result.shortfall.items()):
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
+        if result.split_apart:
+            typer.echo(f"warning: left out {result.split_apart:,} frame(s) whose weathers lie in different splits "
+                       "(a root made before splits were drawn per scene)", err=True)
         if len(result.table) == 0:
             raise ValueError(f"no frames in {storage.uri} match the query ({result.matched:,} match the filters)")
         chosen = parse_outputs(outputs)
