@@ -2,7 +2,7 @@
 
 Filters: domains (the selection grammar), split, episode, class presence,
 minimum class share and the per-frame conditions (``manifests.conditions``:
-a minimum or maximum of e.g. fog_density; rows without conditions, from older
+a minimum or maximum of e.g. visibility_m; rows without conditions, from older
 roots, never pass one). Sampling: N frames per scenario, or N in total spread
 over scenarios in proportion to what each has. Presets give the paper's
 "best case" and "worst case" subsets.
@@ -22,7 +22,7 @@ import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
 from manifests.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario, weather
-from manifests.conditions import check_condition
+from manifests.conditions import check_condition, with_visibility
 from manifests.outputs import OUTPUTS
 from manifests.schema import output_columns
 from manifests.selection import parse_selection
@@ -128,6 +128,7 @@ def filter_frames(table_or_dataset, query: Query) -> pa.Table:
             mask = pc.and_(mask, pc.greater_equal(frac, share))
         table = table.filter(mask)
     if query.min_condition or query.max_condition:
+        table = with_visibility(table)  # roots made before rules: from their fog_density
         mask = pa.array(np.ones(len(table), dtype=bool))
         for bounds, compare in ((query.min_condition, pc.greater_equal), (query.max_condition, pc.less_equal)):
             for name, value in bounds:
@@ -228,7 +229,7 @@ def _csv(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
     import pyarrow.csv as pcsv
 
     for i, field in enumerate(table.schema):
-        if pa.types.is_list(field.type):
+        if pa.types.is_list(field.type) or pa.types.is_fixed_size_list(field.type):
             text = [None if v is None else json.dumps(v) for v in table.column(i).to_pylist()]
             table = table.set_column(i, field.name, pa.array(text, pa.string()))
     sink = io.BytesIO()

@@ -34,6 +34,8 @@ PAIRINGS = (UNPAIRED, PAIRED)
 #           paired scene has one split; OLD_RULES: per scenario, from its place in the selection
 #   flow:   a motion the 16-bit encoding cannot hold is invalid (manifests.encoding.encode_flow);
 #           OLD_RULES: clamped to +-512 px and kept valid (manifests.outputs.OLD_RULE_ENCODERS)
+#   fog:    recorded as visibility_m (float64) and blended by shifts in the contrast it leaves
+#           (manifests.fog); OLD_RULES: fog_density (float32 share per km), blended linearly
 OLD_RULES, NEW_RULES = 0, 1
 RULES = (OLD_RULES, NEW_RULES)
 

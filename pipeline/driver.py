@@ -113,6 +113,7 @@ class ProduceReport:
     rendered_episodes: int = 0
     failed: list[tuple[str, str]] = field(default_factory=list)  # (episode key, error)
     repaired: list[str] = field(default_factory=list)
+    reshifted: list[str] = field(default_factory=list)  # shifting episodes made longer: rendered again whole
     seconds: float = 0.0
     per_scenario: dict[str, dict] = field(default_factory=dict)  # frames, episodes, seconds
     workers: int = 0
@@ -349,6 +350,15 @@ def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
     return todo
 
 
+def reshifted_episodes(todo, frames: dict[tuple[str, int], int]) -> list[str]:
+    """The keys of the episodes in ``todo`` that hold frames already and whose weather shifts: an
+    --extend renders them again whole, and as the shift runs over the episode's length
+    (manifests.shifts) their earlier frames change (docs/weathers.md)."""
+    from manifests.catalog import weather
+
+    return [spec.key for spec in todo if frames.get((spec.scenario, spec.episode)) and weather(spec.weather).shift_from]
+
+
 def _fold_indexes(storage, producer, state=None) -> None:
     """Fold finished parts into their scenarios' indexes (no lock needed: an
     index records the parts it was built from, see ``manifests.reader.compact``);
@@ -423,7 +433,9 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
         state = scan(storage)
         summaries = state.summaries(storage)  # O(parts): footers, or the indexes where current
         refuse_misfiled(storage, summaries)  # a swapped part is damage, never "done"
-        todo = pending_episodes(plan, episode_frames(storage, summaries))
+        held = episode_frames(storage, summaries)
+        todo = pending_episodes(plan, held)
+        report.reshifted = reshifted_episodes(todo, held)
         if not config.repair:
             record = prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
         else:

@@ -134,7 +134,11 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
 def _with_outputs(config: dict) -> dict:
     """A recorded config; roots from before ``--outputs`` hold the six seed outputs, roots
     from before ``--rgb-format`` PNG rgb files, roots from before ``--frame-interval`` one frame every 3 s,
-    roots from before pairing per-weather episode seeds, roots from before rules the old ones (manifests.spec)."""
+    roots from before pairing per-weather episode seeds, roots from before rules the old ones (manifests.spec);
+    user weathers recorded with a fog share in today's keys (manifests.domainfile.current_layer)."""
+    from manifests.domainfile import current_layer
+
+    config = {**config, "catalog": current_layer(config["catalog"])} if "catalog" in config else config
     return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", "frame_interval_s": FRAME_PERIOD_S,
             **RECORDED_DEFAULTS, **config}
 

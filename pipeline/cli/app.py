@@ -125,7 +125,7 @@ def produce(
     workers: Optional[int] = typer.Option(None, help="CPUs for a local Ray cluster (default: all cores)."),
     gpus_per_task: float = typer.Option(0.0, help="GPU share per render task, e.g. 0.25 to run four per GPU."),
     max_retries: int = typer.Option(3, help="Retries per episode after a worker, node or renderer failure."),
-    extend: bool = typer.Option(False, "--extend", help="Allow a different selection or size than the root was made with."),
+    extend: bool = typer.Option(False, "--extend", help="Allow a different selection or size than the root was made with. Episodes made longer are rendered again whole; in a shifting weather (e.g. CNtoNT) their earlier frames change, since a shift runs over its episode's length."),
     repair: bool = typer.Option(False, "--repair", help="Verify first and re-render exactly the damaged episodes."),
     outputs: str = typer.Option(",".join(DEFAULT_OUTPUTS), "--outputs", help=f"Outputs to write, comma-separated: any of {', '.join(OUTPUTS)}. A root keeps the outputs it was made with."),
     rgb_format: str = typer.Option("png", "--rgb-format", help="File format of the rgb output: png (lossless, the default) or jpg (quality 95, the released IDDA format; about a quarter of the bytes). A root keeps its format."),
