@@ -181,7 +181,7 @@ def for_root(specs, record: dict) -> list:
     asked for keeps its place, so its weathers and longer episodes keep its split)."""
     from dataclasses import replace
 
-    from manifests.catalog import scenario as lookup_scenario
+    from manifests.catalog import scenario as lookup_scenario, using
     from manifests.layout import record_layout
     from manifests.spec import NEW_RULES, OLD_RULES
     from pipeline.planner import scene_places, scene_split
@@ -190,8 +190,9 @@ def for_root(specs, record: dict) -> list:
     specs = [replace(spec, layout=layout, png_deflater=deflater) for spec in specs]
     if record["config"].get("rules", OLD_RULES) < NEW_RULES:
         return specs
-    places = scene_places([h["domains"] for h in record.get("history", [])] + [record["config"]["domains"]])
-    return [replace(spec, split=scene_split(places, lookup_scenario(spec.scenario), spec.episode)) for spec in specs]
+    with using(record["config"].get("catalog")):  # the root's domain entries, whoever calls
+        places = scene_places([h["domains"] for h in record.get("history", [])] + [record["config"]["domains"]])
+        return [replace(spec, split=scene_split(places, lookup_scenario(spec.scenario), spec.episode)) for spec in specs]
 
 
 def _same_encoder(theirs: str, rgb_format: str) -> bool:
