@@ -23,6 +23,7 @@ from dataclasses import MISSING, fields
 from functools import lru_cache
 
 from manifests.domains import AXES, CODE_CHARS, ROW_TYPES, Catalog, row_dict
+from manifests.fog import visibility_of_share
 from manifests.shifts import check_shift
 
 CODE_PATTERN = re.compile(CODE_CHARS)  # manifests.domains: the one grammar of codes
@@ -41,7 +42,7 @@ def _hints(cls) -> dict:
     return typing.get_type_hints(cls)
 
 
-def _scalar(kind, value, where: str):
+def _scalar(kind, value, where: str, unbounded: bool = False):
     if kind is bool:
         if not isinstance(value, bool):
             raise CatalogError(f"{where}: expected true or false, got {value!r}")
@@ -56,7 +57,7 @@ def _scalar(kind, value, where: str):
         if not isinstance(value, int):
             raise CatalogError(f"{where}: expected a whole number, got {value!r}")
         return value
-    if not math.isfinite(value):
+    if not math.isfinite(value) and not (value == math.inf and unbounded):
         raise CatalogError(f"{where}: expected a finite number, got {value!r}")
     return float(value)
 
@@ -74,7 +75,7 @@ def coerce(f, kind, value, where: str):
         if f.metadata["ordered"] and out[0] > out[1]:
             raise CatalogError(f"{where}: the first value (min) exceeds the second (max): {list(out)}")
     else:
-        out = _scalar(kind, value, where)
+        out = _scalar(kind, value, where, unbounded=hi == math.inf)  # e.g. visibility: inf is no fog
     if lo is not None:
         for v in out if isinstance(out, tuple) else (out,):
             if not lo <= v <= hi:
@@ -119,6 +120,11 @@ def resolve_entry(axis: str, entry: dict, base: dict, where: str, record: bool =
     if not record:
         entry = _file_entry(entry, where)
     hints, by_name = _hints(cls), {f.name: f for f in fields(cls)}
+    if axis == "weather" and "fog" in entry:  # the key of catalogs before fog was a visibility (manifests.fog)
+        fog = entry["fog"]
+        hint = f" = {visibility_of_share(fog):.6g}" if isinstance(fog, (int, float)) and 0 <= fog <= 1 else ""
+        raise CatalogError(f"{where}: key 'fog': fog is declared as visibility_m now (metres at which 5 % of "
+                           f"contrast is left): fog = {fog!r} per km is visibility_m{hint}")
     unknown = [k for k in entry if k not in by_name and k != "like"]
     if unknown:
         shown = (unknown[0] if record else file_key(unknown[0]),
@@ -200,7 +206,18 @@ def with_layer_json(base: Catalog, layer: str, source: str = "the run's catalog"
     """``base`` with a recorded user layer (``Catalog.layer_json``; "" for none)."""
     if not layer:
         return base
-    return base.with_rows(rows_from_data(json.loads(layer), base, source, record=True))
+    return base.with_rows(rows_from_data(current_layer(json.loads(layer)), base, source, record=True))
+
+
+def current_layer(layer):
+    """A recorded user layer (run.json's "catalog", a dict) in today's keys: a weather's ``fog`` share per
+    km, as runs recorded it before fog was a visibility, becomes its ``visibility_m`` (manifests.fog)."""
+    if not isinstance(layer, dict) or not isinstance(layer.get("weather"), list):
+        return layer
+    weathers = [{("visibility_m" if k == "fog" else k): (visibility_of_share(v) if k == "fog" else v)
+                 for k, v in entry.items()} if isinstance(entry, dict) and "fog" in entry else entry
+                for entry in layer["weather"]]
+    return {**layer, "weather": weathers}
 
 
 # --------------------------------------------------------------------------

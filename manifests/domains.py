@@ -16,6 +16,7 @@ place of the entry it replaces.
 from __future__ import annotations
 
 import json
+import math
 import zlib
 from dataclasses import MISSING, astuple, dataclass, field, fields
 from functools import cached_property
@@ -77,7 +78,9 @@ class Weather:
     rain: float = param("rain streak intensity", "share", 0.0, 1.0)
     wetness: float = param("darkening and specular sheen of the road", "share", 0.0, 1.0)
     puddles: float = param("share of road covered by reflective puddles", "share", 0.0, 1.0)
-    fog: float = param("contrast loss per 1000 m", "share per km", 0.0, 1.0)
+    # Fog as meteorological visibility (manifests.fog): the distance at which 5 % of contrast is left.
+    visibility_m: float = param("meteorological visibility: the distance at which fog leaves 5 % of a dark object's "
+                                "contrast against the horizon (inf: no fog)", "m", 1.0, math.inf)
     grading: tuple[float, float, float] = param("per-channel colour grading gain", "gain", 0.0, 2.0)
     marker: str = param("matplotlib marker of the weather in plots")
     # Added with fog, night and snow (issue 25); the defaults leave the paper's three weathers as they were.

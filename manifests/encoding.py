@@ -260,13 +260,34 @@ def decode_normals(image: np.ndarray) -> np.ndarray:
     return n
 
 
+FLOW_SCALE = 64.0  # KITTI's: 1/64 px steps around 2**15, so u and v in [-512, 511.984375] px
+
+
+def _flow_steps(flow: np.ndarray) -> np.ndarray:
+    return np.rint(flow[..., :2].astype(np.float64) * FLOW_SCALE + 2**15)
+
+
 def encode_flow(flow: np.ndarray) -> np.ndarray:
     """KITTI's flow encoding of an HxWx3 float (u, v, valid) buffer: ``R = u * 64 + 2**15``,
-    ``G = v * 64 + 2**15`` (clamped to 16 bits), ``B = 1`` where valid; invalid pixels are (0, 0, 0)."""
+    ``G = v * 64 + 2**15``, ``B = 1`` where valid; invalid pixels are (0, 0, 0). A motion the 16 bits
+    cannot hold (u or v beyond [-512, 511.984375] px, e.g. near the image's sides at full HD and
+    3 s between frames) is invalid too: never clamped and kept."""
+    _check("flow", flow, np.float32, 3)
+    steps = _flow_steps(flow)
+    valid = (flow[..., 2] > 0) & ((steps >= 0) & (steps <= 65535)).all(axis=-1)
+    out = np.zeros(flow.shape, np.uint16)
+    out[valid, :2] = steps[valid]
+    out[..., 2] = valid
+    return out
+
+
+def encode_flow_clamped(flow: np.ndarray) -> np.ndarray:
+    """``encode_flow`` as roots made before rules (manifests.spec.OLD_RULES) keep it: a motion beyond
+    the 16-bit range is clamped to +-512 px and stays valid."""
     _check("flow", flow, np.float32, 3)
     valid = flow[..., 2] > 0
     out = np.zeros(flow.shape, np.uint16)
-    out[..., :2] = np.clip(np.rint(flow[..., :2].astype(np.float64) * 64.0 + 2**15), 0, 65535)
+    out[..., :2] = np.clip(_flow_steps(flow), 0, 65535)
     out[..., 2] = valid
     out[~valid] = 0
     return out
@@ -274,7 +295,7 @@ def encode_flow(flow: np.ndarray) -> np.ndarray:
 
 def decode_flow(image: np.ndarray) -> np.ndarray:
     """HxWx3 float32 (u, v, valid) from a ``flow`` file's uint16 RGB image (KITTI's encoding)."""
-    out = (image.astype(np.float32) - np.float32(2**15)) / np.float32(64.0)
+    out = (image.astype(np.float32) - np.float32(2**15)) / np.float32(FLOW_SCALE)
     out[..., 2] = image[..., 2] > 0
     out[image[..., 2] == 0, :2] = 0.0
     return out

@@ -42,6 +42,7 @@ from manifests.encoding import (
     encode_png16rgb,
     encode_normals,
     encode_flow,
+    encode_flow_clamped,
     encode_rgb,
     encode_semantic_color,
     encode_semantic_raw,
@@ -151,9 +152,12 @@ OUTPUT_TABLE: tuple[Output, ...] = (
            "camera, `n = RGB / 65535 * 2 - 1`; (0, 0, 0) = no surface (sky)"),
     Output("flow", "flow", encode_flow, "png16rgb", decode_flow, "flow", "float32", 3,
            "16-bit RGB, KITTI's flow encoding: forward flow to the episode's next frame from geometry and object "
-           "motion, `u = (R - 2**15) / 64`, `v = (G - 2**15) / 64`, B = 1 where valid (0 for the last frame, the sky "
-           "and points whose next position is out of view)"),
+           "motion, `u = (R - 2**15) / 64`, `v = (G - 2**15) / 64`, B = 1 where valid (0 for the last frame, the sky, "
+           "points whose next position is out of view and motion beyond the encoding's +-512 px)"),
 )
+# The encoders of roots made before rules (manifests.spec.OLD_RULES) where they differ, so such a root
+# keeps writing what it holds: docs/layout.md, "Rules of a root".
+OLD_RULE_ENCODERS: dict[str, Callable] = {"flow": encode_flow_clamped}
 OUTPUT_BY_NAME: dict[str, Output] = {o.name: o for o in OUTPUT_TABLE}
 OUTPUTS: tuple[str, ...] = tuple(OUTPUT_BY_NAME)
 SEED_OUTPUTS: tuple[str, ...] = OUTPUTS[:6]  # the six images of the IDDA paper
@@ -190,8 +194,10 @@ def parse_outputs(text: str) -> tuple[str, ...]:
     return check_outputs(n.strip() for n in text.split(",") if n.strip())
 
 
-def encode_outputs(buffers: dict[str, Any], names: tuple[str, ...] = DEFAULT_OUTPUTS) -> dict[str, Any]:
-    """The requested outputs' file contents from the renderer's named buffers."""
+def encode_outputs(buffers: dict[str, Any], names: tuple[str, ...] = DEFAULT_OUTPUTS,
+                   old_rules: bool = False) -> dict[str, Any]:
+    """The requested outputs' file contents from the renderer's named buffers; ``old_rules``: as a root
+    made before rules writes them (OLD_RULE_ENCODERS)."""
     shapes = {k: v.shape[:2] for k, v in buffers.items() if isinstance(v, np.ndarray)}
     if len(set(shapes.values())) > 1:
         raise ValueError(f"buffers disagree in size: {shapes}")
@@ -200,7 +206,8 @@ def encode_outputs(buffers: dict[str, Any], names: tuple[str, ...] = DEFAULT_OUT
         row = output(name)
         if row.source not in buffers:
             raise ValueError(f"output {name!r} needs the {row.source!r} buffer, which this frame lacks")
-        out[name] = row.encode(buffers[row.source])
+        encode = OLD_RULE_ENCODERS.get(name, row.encode) if old_rules else row.encode
+        out[name] = encode(buffers[row.source])
     return out
 
 

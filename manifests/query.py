@@ -3,7 +3,7 @@
 Filters: domains (the selection grammar; none given: every scenario the root
 holds, whatever the catalog it was made with), split, episode, class presence,
 minimum class share and the per-frame conditions (``manifests.conditions``:
-a minimum or maximum of e.g. fog_density; rows without conditions, from older
+a minimum or maximum of e.g. visibility_m; rows without conditions, from older
 roots, never pass one). Sampling: N frames per scenario, or N in total spread
 over scenarios in proportion to what each has. Presets give the paper's
 "best case" and "worst case" subsets.
@@ -23,7 +23,7 @@ import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
 from manifests.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario, weather
-from manifests.conditions import check_condition
+from manifests.conditions import check_condition, with_visibility
 from manifests.outputs import OUTPUTS
 from manifests.schema import output_columns
 from manifests.selection import parse_selection
@@ -95,6 +95,7 @@ class QueryResult:
     table: pa.Table  # the chosen frames, sorted by scenario, episode, frame
     matched: int  # frames that passed the filters, before sampling
     shortfall: dict[str, int] = field(default_factory=dict)  # scenario -> frames missing from the sample
+    split_apart: int = 0  # paired queries: frames left out whose weathers lie in different splits
 
 
 def _partition_filter(query: Query) -> ds.Expression:
@@ -130,6 +131,7 @@ def filter_frames(table_or_dataset, query: Query) -> pa.Table:
             mask = pc.and_(mask, pc.greater_equal(frac, share))
         table = table.filter(mask)
     if query.min_condition or query.max_condition:
+        table = with_visibility(table)  # roots made before rules: from their fog_density
         mask = pa.array(np.ones(len(table), dtype=bool))
         for bounds, compare in ((query.min_condition, pc.greater_equal), (query.max_condition, pc.less_equal)):
             for name, value in bounds:
@@ -155,28 +157,34 @@ def _allocate(total: int, available: dict[str, int]) -> dict[str, int]:
 PAIR_KEY = ("town", "viewpoint", "episode", "frame")  # what a frame's paired frames share
 
 
-def paired_frames(table: pa.Table, weathers: tuple[str, ...]) -> pa.Table:
+def paired_frames(table: pa.Table, weathers: tuple[str, ...]) -> tuple[pa.Table, int]:
     """The rows of ``table`` (manifest rows) whose frame is present under every one of ``weathers``
-    with the same episode seed (the same scene: a paired root, manifests.spec), sorted so each
-    group of len(weathers) rows is one frame under the weathers in the order given."""
+    with the same episode seed (the same scene: a paired root, manifests.spec) and in the same split,
+    sorted so each group of len(weathers) rows is one frame under the weathers in the order given;
+    and how many frames present under every weather were left out because their weathers lie in
+    different splits (a paired root made before splits were drawn per scene: pipeline.planner)."""
     table = table.filter(pc.is_in(table.column("weather"), pa.array(list(weathers))))
     if len(table) == 0:
-        return table
-    keys = list(zip(*(table.column(k).to_pylist() for k in (*PAIR_KEY, "seed"))))
+        return table, 0
+    scenes = list(zip(*(table.column(k).to_pylist() for k in (*PAIR_KEY, "seed"))))
+    keys = [(*scene, split) for scene, split in zip(scenes, table.column("split").to_pylist())]
     present = Counter(keys)  # one row per weather: (town, viewpoint, episode, frame) is unique per scenario
+    whole = Counter(scenes)
+    apart = sum(1 for scene, n in whole.items() if n == len(weathers)) - sum(
+        1 for n in present.values() if n == len(weathers))
     table = table.filter(pa.array([present[k] == len(weathers) for k in keys], pa.bool_()))
     rank = pa.array([weathers.index(w) for w in table.column("weather").to_pylist()], pa.int32())
     table = table.append_column("_rank", rank)
     order = [(k, "ascending") for k in PAIR_KEY] + [("_rank", "ascending")]
-    return table.sort_by(order).drop_columns(["_rank"])
+    return table.sort_by(order).drop_columns(["_rank"]), apart
 
 
 def run_query(table_or_dataset, query: Query) -> QueryResult:
     """Filter, then draw the seeded stratified sample the query asks for (or keep the pairs asked for)."""
     table = filter_frames(table_or_dataset, query)
     if query.paired:
-        table = paired_frames(table, query.paired)
-        return QueryResult(table, len(table))
+        table, apart = paired_frames(table, query.paired)
+        return QueryResult(table, len(table), split_apart=apart)
     matched = len(table)
     if query.per_scenario is None and query.total is None:
         return QueryResult(table, matched)
@@ -224,7 +232,7 @@ def _csv(table: pa.Table, outputs: tuple[str, ...]) -> bytes:
     import pyarrow.csv as pcsv
 
     for i, field in enumerate(table.schema):
-        if pa.types.is_list(field.type):
+        if pa.types.is_list(field.type) or pa.types.is_fixed_size_list(field.type):
             text = [None if v is None else json.dumps(v) for v in table.column(i).to_pylist()]
             table = table.set_column(i, field.name, pa.array(text, pa.string()))
     sink = io.BytesIO()

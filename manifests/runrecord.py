@@ -30,9 +30,10 @@ CONFIG_TYPES: dict[str, tuple[type, ...]] = {
     "catalog": (dict,),  # the user domain entries in force (docs/catalog.md); absent: the built-in catalog only
     "frame_interval_s": (float, int),  # absent in roots from before --frame-interval: 3.0
     "pairing": (int,),  # 1: episode seeds leave the weather out (manifests.spec); absent in roots from before: 0
+    "rules": (int,),  # 1: the rules of manifests.spec (splits per scene, ...); absent in roots from before: 0
 }
 # keys older records (and built-in runs, for the catalog) lack
-OPTIONAL_CONFIG = ("world", "outputs", "rgb_format", "catalog", "frame_interval_s", "pairing")
+OPTIONAL_CONFIG = ("world", "outputs", "rgb_format", "catalog", "frame_interval_s", "pairing", "rules")
 
 
 REPAIR_HINT = "`idda produce --repair` with the run's options rewrites it"  # said with every RunRecordError

@@ -8,7 +8,7 @@ import re
 import pyarrow as pa
 
 from manifests.catalog import AXES, CODE_CHARS, INSTANCE_LABELS, LABELS, code_axes, scenario_pattern
-from manifests.conditions import CONDITIONS
+from manifests.conditions import PART_CONDITIONS, VISIBILITY
 from manifests.outputs import OUTPUTS
 
 # ---------------------------------------------------------------- plan ----
@@ -40,6 +40,7 @@ def output_columns(output: str) -> tuple[str, str, str]:
     return (f"{output}_path", f"{output}_bytes", f"{output}_sha256")
 
 
+MATRIX3, MATRIX4 = pa.list_(pa.float64(), 9), pa.list_(pa.float64(), 16)  # row-major 3x3 and 4x4
 # (column, type, where frame_row takes it from: the episode spec, the rendered
 # frame, or derived from both)
 _FRAME_FIELDS = [
@@ -58,17 +59,20 @@ _FRAME_FIELDS = [
     ("ego_speed_mps", pa.float32(), "frame"),
     ("width", pa.int32(), "spec"),
     ("height", pa.int32(), "spec"),
-    # Calibration and poses, row-major (manifests.geometry: OpenCV camera axes, world z up, metres).
-    # Null in roots written before they existed.
-    ("K", pa.list_(pa.float64()), "frame"),  # 3x3 intrinsics in pixels, pixel centres at integers
-    ("cam_to_world", pa.list_(pa.float64()), "frame"),  # 4x4
-    ("ego_to_world", pa.list_(pa.float64()), "frame"),  # 4x4, the ego's reference point on the road
-    ("cam_to_ego", pa.list_(pa.float64()), "frame"),  # 4x4, fixed per viewpoint
+    # Calibration and poses, row-major (manifests.geometry: OpenCV camera axes, world z up, metres), as
+    # fixed-size lists: Parquet stores them as the plain lists they were (a part's bytes are the same), and
+    # readers given this schema get arrays of known shape. Null in roots written before they existed.
+    ("K", MATRIX3, "frame"),  # 3x3 intrinsics in pixels, pixel centres at integers
+    ("cam_to_world", MATRIX4, "frame"),  # 4x4
+    ("ego_to_world", MATRIX4, "frame"),  # 4x4, the ego's reference point on the road
+    ("cam_to_ego", MATRIX4, "frame"),  # 4x4, fixed per viewpoint
     # The weather the frame was rendered under (manifests.conditions: units there and in docs/weathers.md).
-    # Null in roots written before they existed.
-    *((c.column, pa.float32(), "condition") for c in CONDITIONS),
+    # Null in roots written before they existed; fog_density null in roots of rules (visibility_m instead).
+    *((c.column, pa.float32(), "condition") for c in PART_CONDITIONS),
 ]
-FIELD_SOURCE = {name: source for name, _, source in _FRAME_FIELDS}
+# Added with rules (manifests.spec.NEW_RULES) after every other column, so no column of older parts moves.
+_RULE_FIELDS = [(VISIBILITY.column, pa.float64(), "condition")]
+FIELD_SOURCE = {name: source for name, _, source in _FRAME_FIELDS + _RULE_FIELDS}
 # An output a run did not ask for has null path, size and checksum.
 _OUTPUT_FIELDS = [
     field
@@ -79,8 +83,19 @@ PIXEL_FIELDS = [(label.column, pa.int64()) for label in LABELS]
 OBJECT_FIELDS = [(label.object_column, pa.int32()) for label in INSTANCE_LABELS]  # visible objects per class
 
 # Schema of a part file (one episode); the full manifest adds PARTITION_KEYS.
-PART_SCHEMA = pa.schema([(n, t) for n, t, _ in _FRAME_FIELDS] + _OUTPUT_FIELDS + PIXEL_FIELDS + OBJECT_FIELDS)
+OLD_PART_SCHEMA = pa.schema([(n, t) for n, t, _ in _FRAME_FIELDS] + _OUTPUT_FIELDS + PIXEL_FIELDS + OBJECT_FIELDS)
+PART_SCHEMA = pa.schema(list(OLD_PART_SCHEMA) + [(n, t) for n, t, _ in _RULE_FIELDS])  # what readers read
+# a part of a root made before rules (manifests.spec.OLD_RULES) has the columns of OLD_PART_SCHEMA only
 MANIFEST_SCHEMA = pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA))
+
+
+def as_plain_lists(table: pa.Table) -> pa.Table:
+    """``table`` with its fixed-size lists as the plain lists of files written before they were fixed-size
+    (the Arrow schema older indexes and parts store), so verify can re-encode such a file as it was."""
+    schema = pa.schema([pa.field(f.name, pa.list_(f.type.value_type)) if pa.types.is_fixed_size_list(f.type) else f
+                        for f in table.schema], metadata=table.schema.metadata)
+    return table.cast(schema)
+
 
 MANIFEST_DIR = "manifest"  # <root>/manifest/town=../weather=../viewpoint=../<scenario>_eNNNN_n<rows>.parquet
 RUN_FILE = "run.json"  # <root>/run.json: config, versions, git revision

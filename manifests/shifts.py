@@ -3,7 +3,8 @@
 A weather entry with ``from`` and ``to`` (fields ``shift_from``, ``shift_to``)
 and an ``easing`` renders frame ``i`` of ``n`` under the parameters of
 ``from`` blended towards ``to`` by ``easing(i / (n - 1))``: numbers and colours
-linearly (sRGB colours rounded), so the sun sets, the sky darkens, fog thickens.
+linearly (sRGB colours rounded), so the sun sets and the sky darkens; fog thickens
+evenly in the contrast it leaves (manifests.fog.blend_visibility).
 Its own code, name and marker stay. Built in: CNtoNT, CNtoFG, CNtoHRN. The
 renderer takes each frame's weather (light, sky, post effects), and the
 frame's condition columns carry its values (``manifests.conditions``).
@@ -15,6 +16,7 @@ import typing
 from dataclasses import fields, replace
 
 from manifests.domains import Weather
+from manifests.fog import blend_share, blend_visibility
 
 EASINGS: dict[str, typing.Callable[[float], float]] = {
     "linear": lambda x: x,
@@ -49,16 +51,21 @@ def _blend(a, b, s: float, kind):
     return int(round(value)) if kind is int else float(value)
 
 
-def blend(row: Weather, start: Weather, end: Weather, s: float) -> Weather:
-    """``row`` with every parameter (but its own code, name, marker and shift) at ``s`` from start to end."""
+def blend(row: Weather, start: Weather, end: Weather, s: float, old_rules: bool = False) -> Weather:
+    """``row`` with every parameter (but its own code, name, marker and shift) at ``s`` from start to end:
+    visibility in the contrast it leaves (manifests.fog.blend_visibility); ``old_rules`` (a root made
+    before rules) as its fog share per km, linearly (blend_share)."""
     changes = {f.name: _blend(getattr(start, f.name), getattr(end, f.name), s, _HINTS[f.name])
                for f in fields(Weather) if f.name not in _KEPT}
+    changes["visibility_m"] = (blend_share if old_rules else blend_visibility)(start.visibility_m, end.visibility_m, s)
     return replace(row, **changes)
 
 
-def weather_at(row: Weather, index: int, frames: int, lookup: typing.Callable[[str], Weather]) -> Weather:
-    """The weather frame ``index`` of ``frames`` is rendered under: ``row`` itself unless it shifts."""
+def weather_at(row: Weather, index: int, frames: int, lookup: typing.Callable[[str], Weather],
+               old_rules: bool = False) -> Weather:
+    """The weather frame ``index`` of ``frames`` is rendered under: ``row`` itself unless it shifts;
+    ``old_rules``: as a root made before rules blends fog (``blend``)."""
     if not row.shift_from:
         return row
     s = EASINGS[row.easing](index / max(1, frames - 1))
-    return blend(row, lookup(row.shift_from), lookup(row.shift_to), s)
+    return blend(row, lookup(row.shift_from), lookup(row.shift_to), s, old_rules)

@@ -27,6 +27,17 @@ _PAIRED_STREAM = 5
 # old per-weather seeds (UNPAIRED) for its life.
 UNPAIRED, PAIRED = 0, 1
 PAIRINGS = (UNPAIRED, PAIRED)
+# The root's rules for what its rows and files say (issue 32; docs/layout.md, "Rules of a root"). A new
+# root records "rules": 1 in run.json's config; a root made before, without the key, keeps OLD_RULES
+# for its life (resume, --extend, --repair and verify read it from run.json):
+#   splits: per scene (town, viewpoint, episode: pipeline.planner.scene_places), so every weather of a
+#           paired scene has one split; OLD_RULES: per scenario, from its place in the selection
+#   flow:   a motion the 16-bit encoding cannot hold is invalid (manifests.encoding.encode_flow);
+#           OLD_RULES: clamped to +-512 px and kept valid (manifests.outputs.OLD_RULE_ENCODERS)
+#   fog:    recorded as visibility_m (float64) and blended by shifts in the contrast it leaves
+#           (manifests.fog); OLD_RULES: fog_density (float32 share per km), blended linearly
+OLD_RULES, NEW_RULES = 0, 1
+RULES = (OLD_RULES, NEW_RULES)
 
 
 def check_frame_interval(seconds: float) -> float:
@@ -61,6 +72,12 @@ def check_pairing(pairing) -> int:
     return pairing
 
 
+def check_rules(rules) -> int:
+    if isinstance(rules, bool) or rules not in RULES:
+        raise ValueError(f"unknown rules {rules!r} (known: {', '.join(map(str, RULES))})")
+    return rules
+
+
 @dataclass(frozen=True)
 class EpisodeSpec:
     """A small, serialisable job: everything a worker needs to render an episode."""
@@ -79,6 +96,7 @@ class EpisodeSpec:
     catalog: str = ""  # the run's user domain entries (manifests.domains.Catalog.layer_json); "" = built-in only
     frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (--frame-interval)
     png_deflater: str = DEFAULT_DEFLATER  # the root's PNG deflater (manifests.deflaters): an older root keeps its own
+    rules: int = NEW_RULES  # the root's rules (OLD_RULES in roots made before them: run.json without "rules")
 
     def frame_time(self, index: int) -> float:
         """Simulated time of frame ``index`` in seconds (frame 0 at 0)."""
@@ -107,6 +125,7 @@ class EpisodeSpec:
         check_rgb_format(self.rgb_format)
         check_layout(self.layout)
         check_frame_interval(self.frame_interval_s)
+        check_rules(self.rules)
 
     @property
     def key(self) -> str:

@@ -12,12 +12,13 @@ import numpy as np
 import pyarrow as pa
 
 from manifests.catalog import INSTANCE_LABELS, LABELS, using, viewpoint, weather
-from manifests.conditions import frame_conditions
+from manifests.conditions import FOG_DENSITY, VISIBILITY, frame_conditions
 from manifests.shifts import weather_at
 from manifests.geometry import HFOV_DEG, flat, intrinsics
 from manifests.outputs import OUTPUTS
 from manifests.layout import frame_path
-from manifests.schema import PART_SCHEMA, frame_id, output_columns
+from manifests.schema import OLD_PART_SCHEMA, PART_SCHEMA, frame_id, output_columns
+from manifests.spec import NEW_RULES
 from manifests.stats import PAPER_SHARES
 
 _SHARES = np.array([PAPER_SHARES[label.name] for label in LABELS])
@@ -31,7 +32,7 @@ def episode_table(spec) -> pa.Table:
     with using(spec.catalog):
         view = viewpoint(spec.viewpoint)
         row = weather(spec.weather)
-        conditions = [frame_conditions(weather_at(row, i, n, weather)) for i in range(n)]
+        conditions = [frame_conditions(weather_at(row, i, n, weather, spec.rules < NEW_RULES)) for i in range(n)]
     counts = np.floor(rng.dirichlet(_SHARES * 200 + 1e-3, size=n) * pixels).astype(np.int64)
     counts[:, 20] += pixels - counts.sum(axis=1)  # remainder to sky
     fids = [frame_id(spec.episode, i) for i in range(n)]
@@ -54,6 +55,11 @@ def episode_table(spec) -> pa.Table:
     }
     columns.update(_poses(spec, view.camera_height_m, spec.frame_interval_s * np.arange(n)))
     columns.update({name: np.array([c[name] for c in conditions], np.float32) for name in conditions[0]})
+    if spec.rules < NEW_RULES:  # a root made before rules: no visibility_m (manifests.writer.frame_row)
+        del columns[VISIBILITY.column]
+    else:
+        columns[VISIBILITY.column] = np.array([c[VISIBILITY.column] for c in conditions], np.float64)
+        columns[FOG_DENSITY.column] = pa.nulls(n, pa.float32())
     for output in OUTPUTS:
         path_col, bytes_col, sha_col = output_columns(output)
         columns[path_col] = [frame_path(spec.scenario, output, f, spec.rgb_format, spec.layout) for f in fids]
@@ -63,7 +69,7 @@ def episode_table(spec) -> pa.Table:
         columns[label.column] = counts[:, label.id]
     for label in INSTANCE_LABELS:
         columns[label.object_column] = rng.integers(0, 20, n, dtype=np.int32)
-    return pa.table(columns, schema=PART_SCHEMA)
+    return pa.table(columns, schema=PART_SCHEMA if spec.rules >= NEW_RULES else OLD_PART_SCHEMA)
 
 
 def _poses(spec, camera_height_m: float, times: np.ndarray) -> dict[str, list]:

@@ -15,7 +15,10 @@ import numpy as np
 
 from manifests.catalog import LABELS
 from manifests.layout import frame_path
-from manifests.schema import FIELD_SOURCE, OBJECT_FIELDS, PART_SCHEMA, frame_id, frame_uid, output_columns, part_path
+from manifests.conditions import FOG_DENSITY, VISIBILITY
+from manifests.schema import (FIELD_SOURCE, OBJECT_FIELDS, OLD_PART_SCHEMA, PART_SCHEMA, frame_id, frame_uid,
+                              output_columns, part_path)
+from manifests.spec import NEW_RULES
 from manifests.outputs import OUTPUTS
 from storage import sha256_bytes
 
@@ -66,6 +69,10 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
         row[label.column] = int(counts[label.id])
     for name, _ in OBJECT_FIELDS:
         row[name] = int(frame.object_counts[name])
+    if spec.rules < NEW_RULES:  # a root made before rules: its parts' columns, fog as its share per km
+        del row[VISIBILITY.column]
+    else:
+        row[FOG_DENSITY.column] = None
     return row
 
 
@@ -73,11 +80,12 @@ def part_table(rows: list[dict]) -> pa.Table:
     """Build a part table from frame rows; every schema column must be present."""
     if not rows:
         raise ManifestError("an episode part needs at least one frame row")
-    missing = [name for name in PART_SCHEMA.names if name not in rows[0]]
+    schema = PART_SCHEMA if VISIBILITY.column in rows[0] else OLD_PART_SCHEMA  # OLD_RULES: without visibility_m
+    missing = [name for name in schema.names if name not in rows[0]]
     if missing:
         raise ManifestError(f"frame row lacks manifest columns: {', '.join(missing)}")
-    columns = {name: [row[name] for row in rows] for name in PART_SCHEMA.names}
-    return pa.table(columns, schema=PART_SCHEMA)
+    columns = {name: [row[name] for row in rows] for name in schema.names}
+    return pa.table(columns, schema=schema)
 
 
 def part_bytes(table: pa.Table, store_schema: bool = False) -> bytes:
@@ -95,13 +103,14 @@ def part_bytes(table: pa.Table, store_schema: bool = False) -> bytes:
 
 
 def write_part(storage, scenario: str, episode: int, rows: list[dict] | pa.Table) -> str:
-    """Write an episode's part (rows or a PART_SCHEMA table) atomically; returns its path.
+    """Write an episode's part (rows or a PART_SCHEMA table; OLD_PART_SCHEMA in a root made before rules)
+    atomically; returns its path.
 
     Its name carries its row count (``schema.part_path``). Once it is written,
     the episode's part under the old name (an old root's episode rendered again)
     is removed: until then readers prefer the new name (``schema.newer_part``)."""
     table = rows if isinstance(rows, pa.Table) else part_table(rows)
-    if table.schema != PART_SCHEMA:
+    if table.schema not in (PART_SCHEMA, OLD_PART_SCHEMA):
         raise ManifestError(f"part for {scenario} episode {episode} does not have the manifest schema")
     rel = part_path(scenario, episode, len(table))
     storage.write_bytes(rel, part_bytes(table))

@@ -16,7 +16,7 @@ import threading
 import time
 from collections import deque
 from contextlib import contextmanager
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from typing import Callable
 
 from manifests.layout import record_layout
@@ -27,7 +27,7 @@ from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
 from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
 from pipeline.repair import check_no_repair_running, refuse_in_the_way, repair_alone
-from pipeline.runmeta import RunConfig, RunConfigError, prepare_root, read_run, root_deflater
+from pipeline.runmeta import RunConfig, RunConfigError, for_root, prepare_root, read_run
 
 log = logging.getLogger(__name__)
 
@@ -114,6 +114,7 @@ class ProduceReport:
     rendered_episodes: int = 0
     failed: list[tuple[str, str]] = field(default_factory=list)  # (episode key, error)
     repaired: list[str] = field(default_factory=list)
+    reshifted: list[str] = field(default_factory=list)  # shifting episodes made longer: rendered again whole
     seconds: float = 0.0
     per_scenario: dict[str, dict] = field(default_factory=dict)  # frames, episodes, seconds
     workers: int = 0
@@ -391,6 +392,15 @@ def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
     return todo
 
 
+def reshifted_episodes(todo, frames: dict[tuple[str, int], int]) -> list[str]:
+    """The keys of the episodes in ``todo`` that hold frames already and whose weather shifts: an
+    --extend renders them again whole, and as the shift runs over the episode's length
+    (manifests.shifts) their earlier frames change (docs/weathers.md)."""
+    from manifests.catalog import weather
+
+    return [spec.key for spec in todo if frames.get((spec.scenario, spec.episode)) and weather(spec.weather).shift_from]
+
+
 def _fold_indexes(storage, producer, state=None) -> None:
     """Fold finished parts into their scenarios' indexes (no lock needed: an
     index records the parts it was built from, see ``manifests.reader.compact``);
@@ -467,13 +477,14 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
         state = scan(storage)
         summaries = state.summaries(storage)  # O(parts): footers, or the indexes where current
         refuse_misfiled(storage, summaries)  # a swapped part is damage, never "done"
-        todo = pending_episodes(plan, episode_frames(storage, summaries))
+        held = episode_frames(storage, summaries)
+        todo = pending_episodes(plan, held)
+        report.reshifted = reshifted_episodes(todo, held)
         if not config.repair:
             record = prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
         else:
             record = read_run(storage)  # repair_alone prepared it
-        # the root's layout and PNG deflater, old or new
-        todo = [replace(spec, layout=record_layout(record), png_deflater=root_deflater(record)) for spec in todo]
+        todo = for_root(todo, record)  # the root's layout, PNG deflater and scenes' splits
         # a folder where a part goes fails every write of it: said before any rendering (frame files in the
         # way stop the run at their first write, in one line too)
         refuse_in_the_way(storage, todo, record_layout(record), "nothing rendered", parts_only=True)

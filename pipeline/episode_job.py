@@ -22,7 +22,7 @@ from manifests.deflaters import deflating_with
 from manifests.outputs import OUTPUTS, encode_outputs, file_bytes
 from manifests.layout import frame_path, output_dir
 from manifests.schema import STATS_DIR, frame_id, part_path, part_stem
-from manifests.spec import EpisodeSpec
+from manifests.spec import NEW_RULES, EpisodeSpec
 from manifests.writer import frame_row, write_part
 from storage.errors import storage_error
 
@@ -86,7 +86,7 @@ def _fault_after() -> int | None:
 
 def frame_outputs(spec: EpisodeSpec, frame) -> dict:
     """The spec's outputs of a rendered frame, encoded from its named buffers (arrays, or a table)."""
-    return encode_outputs(frame.buffers, spec.outputs)
+    return encode_outputs(frame.buffers, spec.outputs, old_rules=spec.rules < NEW_RULES)
 
 
 def frame_files(spec: EpisodeSpec, frame) -> dict[str, bytes]:
@@ -164,20 +164,16 @@ def commit_part(storage, spec: EpisodeSpec, rows: list[dict], fence=None) -> Non
         raise
 
 
-def render_plan(storage, config) -> None:
+def render_plan(storage, config, extend: bool = False) -> None:
     """Claim ``storage`` as a root, prepare it for ``config`` (a RunConfig) and
     render every planned episode into it here, one after another, with no Ray:
-    the same files produce's workers write (tests, reports)."""
-    from dataclasses import replace
-
-    from manifests.layout import record_layout
+    the same files produce's workers write (tests, reports). ``extend``: as --extend."""
     from manifests.root import claim_root
     from pipeline.planner import make_plan
-    from pipeline.runmeta import prepare_root, root_deflater
+    from pipeline.runmeta import for_root, prepare_root
 
     storage.ensure_writable()
     claim_root(storage)  # as produce does: the root marker first
-    record = prepare_root(storage, config)
-    layout, deflater = record_layout(record), root_deflater(record)  # a new root's, or an old root's own
-    for spec in make_plan(config.plan).episodes:
-        run_episode(replace(spec, layout=layout, png_deflater=deflater), storage, world=config.world)
+    record = prepare_root(storage, config, extend=extend)
+    for spec in for_root(make_plan(config.plan).episodes, record):  # a new root's layout, or an old root's own
+        run_episode(spec, storage, world=config.world)

@@ -20,7 +20,8 @@ from manifests.catalog import TOWN_BY_CODE, TOWNS, WEATHERS, VIEWPOINTS, Town, c
 from manifests.encoding import check_rgb_format
 from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
 from manifests.selection import parse_selection
-from manifests.spec import FRAME_PERIOD_S, PAIRED, UNPAIRED, EpisodeSpec, check_frame_interval, check_pairing, episode_seed
+from manifests.spec import (FRAME_PERIOD_S, NEW_RULES, OLD_RULES, PAIRED, UNPAIRED, EpisodeSpec, check_frame_interval,
+                            check_pairing, check_rules, episode_seed)
 
 PAPER_TOTAL_FRAMES = 1_006_800
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
@@ -74,7 +75,7 @@ def split_episodes(frames: int, target: int) -> list[int]:
 
 
 # What a recorded config (run.json, a plan file) that lacks a key meant when it was written.
-RECORDED_DEFAULTS = {"pairing": UNPAIRED}
+RECORDED_DEFAULTS = {"pairing": UNPAIRED, "rules": OLD_RULES}
 
 
 @dataclass(frozen=True)
@@ -94,6 +95,9 @@ class PlanConfig:
     # manifests.spec.PAIRED (new roots): episode seeds leave the weather out; UNPAIRED is what a config
     # recorded before pairing means (run.json or a plan file without the key: RECORDED_DEFAULTS)
     pairing: int = PAIRED
+    # manifests.spec.NEW_RULES (new roots): splits per scene, ...; OLD_RULES is what a config recorded
+    # before them means (RECORDED_DEFAULTS)
+    rules: int = NEW_RULES
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
@@ -128,6 +132,7 @@ class PlanConfig:
         check_rgb_format(self.rgb_format)
         check_frame_interval(self.frame_interval_s)
         check_pairing(self.pairing)
+        check_rules(self.rules)
 
     def to_dict(self) -> dict:
         """As JSON holds it (run.json, plan files); the catalog only where user entries are in force."""
@@ -174,12 +179,34 @@ def scenario_frames(config: PlanConfig, town: Town) -> int:
 # 8 train, 1 val and 1 test, so every scenario tends to 80/10/10 % (the shares
 # of SPLIT_SHARES). An episode's split depends only on (e, r): adding frames or
 # episodes to a run never changes the split of an episode it had.
+#
+# That is the rule of roots made before rules (OLD_RULES). A root of NEW_RULES draws the split per
+# scene (town, viewpoint, episode): r is the scene's place among the root's scenes (scene_places:
+# the (town, viewpoint) pairs of its selections in table order, a later --extend's new pairs after
+# the earlier ones), never the weather's, so every weather of a scene has the same split, a paired
+# root never puts one scene on both sides, and extending a root to other domains never moves a scene.
 SPLIT_PATTERN = ("train", "val", "test", "test", "val") + ("train",) * 15
 
 
 def episode_split(place: int, episode: int) -> str:
-    """The split of episode ``episode`` of the scenario at ``place`` in the selection."""
+    """The split of episode ``episode`` of the scenario (or scene) at ``place``."""
     return SPLIT_PATTERN[(2 * episode + place) % len(SPLIT_PATTERN)]
+
+
+def scene_places(selections) -> dict[tuple[str, str], int]:
+    """(town, viewpoint) -> the scene's place in the split rule of NEW_RULES roots: the scenes of
+    ``selections`` (a root's selections in the order it was asked for them: run.json's history, then
+    this run's) in order of first appearance, each selection's in table order."""
+    places: dict[tuple[str, str], int] = {}
+    for selection in selections:
+        for s in parse_selection(selection):
+            places.setdefault((s.town.code, s.viewpoint.code), len(places))
+    return places
+
+
+def scene_split(places: dict[tuple[str, str], int], scenario, episode: int) -> str:
+    """The split of ``episode`` of ``scenario`` (a Scenario) under NEW_RULES, ``places`` from scene_places."""
+    return episode_split(places[scenario.town.code, scenario.viewpoint.code], episode)
 
 
 def make_plan(config: PlanConfig) -> Plan:
@@ -191,6 +218,7 @@ def make_plan(config: PlanConfig) -> Plan:
 
 def _plan(config: PlanConfig) -> Plan:
     episodes: list[EpisodeSpec] = []
+    scenes = scene_places([config.domains]) if config.rules >= NEW_RULES else None  # a new root's
     for place, scenario in enumerate(parse_selection(config.domains)):
         lengths = split_episodes(scenario_frames(config, scenario.town), episode_target(scenario.town))
         for index, frames in enumerate(lengths):
@@ -202,12 +230,13 @@ def _plan(config: PlanConfig) -> Plan:
                     frames=frames,
                     width=config.width,
                     height=config.height,
-                    split=episode_split(place, index),
+                    split=episode_split(place, index) if scenes is None else scene_split(scenes, scenario, index),
                     run_seed=config.seed,
                     outputs=config.outputs,
                     rgb_format=config.rgb_format,
                     catalog=config.catalog,
                     frame_interval_s=float(config.frame_interval_s),
+                    rules=config.rules,
                 )
             )
     return Plan(config=config, episodes=tuple(episodes))

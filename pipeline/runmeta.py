@@ -30,7 +30,7 @@ from manifests.spec import FRAME_PERIOD_S
 from pipeline.planner import RECORDED_DEFAULTS, PlanConfig
 
 # Changing these would make new frames inconsistent with the ones on disk.
-FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s", "pairing")
+FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s", "pairing", "rules")
 _PACKAGES = ("idda-pipeline", "numpy", "pyrender", "PyOpenGL", "trimesh", "ray", "pyarrow", "opencv-python-headless")
 
 
@@ -134,7 +134,11 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
 def _with_outputs(config: dict) -> dict:
     """A recorded config; roots from before ``--outputs`` hold the six seed outputs, roots
     from before ``--rgb-format`` PNG rgb files, roots from before ``--frame-interval`` one frame every 3 s,
-    roots from before pairing per-weather episode seeds."""
+    roots from before pairing per-weather episode seeds, roots from before rules the old ones (manifests.spec);
+    user weathers recorded with a fog share in today's keys (manifests.domainfile.current_layer)."""
+    from manifests.domainfile import current_layer
+
+    config = {**config, "catalog": current_layer(config["catalog"])} if "catalog" in config else config
     return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", "frame_interval_s": FRAME_PERIOD_S,
             **RECORDED_DEFAULTS, **config}
 
@@ -193,6 +197,27 @@ def root_deflater(record: dict | None) -> str:
 
     encoder = (record or {}).get("encoder", "")
     return deflater_named_by(encoder.split("; rgb ", 1)[0]) or DEFAULT_DEFLATER
+
+
+def for_root(specs, record: dict) -> list:
+    """``specs`` as the root of ``record`` renders them: in its layout and with its PNG deflater (an
+    older root keeps its own), and in a root of NEW_RULES with each scene's split among the scenes
+    of every selection its run.json records (pipeline.planner.scene_places: a scene an earlier run
+    asked for keeps its place, so its weathers and longer episodes keep its split)."""
+    from dataclasses import replace
+
+    from manifests.catalog import scenario as lookup_scenario, using
+    from manifests.layout import record_layout
+    from manifests.spec import NEW_RULES, OLD_RULES
+    from pipeline.planner import scene_places, scene_split
+
+    layout, deflater = record_layout(record), root_deflater(record)
+    specs = [replace(spec, layout=layout, png_deflater=deflater) for spec in specs]
+    if record["config"].get("rules", OLD_RULES) < NEW_RULES:
+        return specs
+    with using(record["config"].get("catalog")):  # the root's domain entries, whoever calls
+        places = scene_places([h["domains"] for h in record.get("history", [])] + [record["config"]["domains"]])
+        return [replace(spec, split=scene_split(places, lookup_scenario(spec.scenario), spec.episode)) for spec in specs]
 
 
 def _same_encoder(theirs: str, rgb_format: str) -> bool:

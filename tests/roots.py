@@ -5,16 +5,16 @@ from __future__ import annotations
 from pathlib import Path
 
 
-def render_root(root: Path, config, compact: bool = False):
+def render_root(root: Path, config, compact: bool = False, extend: bool = False):
     """Prepare ``root`` for ``config`` (a RunConfig) and render every planned episode
     into it (``pipeline.episode_job.render_plan``); ``compact`` also writes the
-    indexes, as produce does at the end. Returns the Storage."""
+    indexes, as produce does at the end; ``extend`` as --extend. Returns the Storage."""
     from manifests.reader import compact as write_indexes
     from pipeline.episode_job import render_plan
     from storage import Storage
 
     storage = Storage.from_uri(str(root))
-    render_plan(storage, config)
+    render_plan(storage, config, extend=extend)
     if compact:
         write_indexes(storage)
     return storage
@@ -44,3 +44,15 @@ def to_old_names(storage) -> int:
                 storage.delete(rel)
                 renamed += 1
     return renamed
+
+
+def as_made_before(storage, key: str) -> None:
+    """Drop the config ``key`` from ``storage``'s run.json (its config and history), as a root made
+    before that key existed records it (e.g. "pairing", "rules")."""
+    from manifests.runrecord import read_record, record_bytes
+    from manifests.schema import RUN_FILE
+
+    record = read_record(storage)
+    for config in (record["config"], *record.get("history", [])):
+        config.pop(key, None)
+    storage.write_bytes(RUN_FILE, record_bytes(record))

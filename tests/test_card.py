@@ -74,8 +74,9 @@ def test_card_numbers_match_the_manifest(root):
     run = json.loads((root / "run.json").read_text())
     assert run["git_revision"] in text and json.dumps(run["config"], indent=2, sort_keys=True) in text
     assert "No preview in this root yet" in text
-    # Five one-episode scenarios: the planner's rule gives every split (docs/layout.md, "Splits").
-    assert [int(c.replace(",", "")) for c in rows[-1][4:7]] == [2, 4, 4]  # train/val/test frames (2 per episode)
+    # Five one-episode scenarios of three scenes: the planner's rule gives every split, the weathers of a
+    # scene share its split (docs/layout.md, "Splits"): T01 A train, T01 J val, T07 A test.
+    assert [int(c.replace(",", "")) for c in rows[-1][4:7]] == [4, 4, 2]  # train/val/test frames (2 per episode)
     assert "Any run of three or more episodes has all three splits" in text
     # What the root holds, by name: this root has all eight outputs, not "six images".
     assert "each with 8 output file(s): rgb, depth_raw, depth_gray, depth_log, semantic_raw, " \

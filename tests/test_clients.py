@@ -98,6 +98,51 @@ def test_every_reader_counts_one_row_per_frame_and_agrees(root, manifest, tmp_pa
     assert (hrn_hf.num_rows, sum(hrn_hf["px_vehicle"])) == want
 
 
+def test_calibration_columns_are_arrays_of_known_shape(root, manifest, tmp_path):
+    """Issue 32: K and the poses are fixed_size_list<double>[9] and [16] where the Arrow schema is known:
+    the project's reader (DuckDB and Polars over its table: DOUBLE[9], Array(Float64, (9,))) and the
+    indexes, which store it. Parts keep Parquet's plain lists (bytes as before; DuckDB and Polars over
+    the parts see lists of 9 and 16 and cast them as docs/querying.md shows), and an index written
+    with plain lists (a root from before) still reads as arrays and verifies."""
+    import duckdb
+    import polars as pl
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from manifests.reader import index_bytes
+    from manifests.schema import INDEX_DIR, MANIFEST_SCHEMA, as_plain_lists
+
+    shapes = {"K": 9, "cam_to_world": 16, "ego_to_world": 16, "cam_to_ego": 16}
+    for name, size in shapes.items():
+        assert manifest.schema.field(name).type == pa.list_(pa.float64(), size) == MANIFEST_SCHEMA.field(name).type
+    assert np.asarray(manifest.column("K").combine_chunks().flatten()).reshape(-1, 3, 3).shape == (len(manifest), 3, 3)
+    con = duckdb.connect()
+    types = dict(con.execute("select column_name, column_type from (describe select K, cam_to_world from manifest)")
+                 .fetchall())
+    assert types == {"K": "DOUBLE[9]", "cam_to_world": "DOUBLE[16]"}
+    frame = pl.from_arrow(manifest)
+    assert frame.schema["K"] == pl.Array(pl.Float64, 9) and frame["cam_to_ego"].to_numpy().shape == (len(manifest), 16)
+    indexes = sorted(glob.glob(f"{root}/{INDEX_DIR}/*.parquet"))
+    assert pl.read_parquet(indexes).schema["ego_to_world"] == pl.Array(pl.Float64, 16)
+    parts = f"{root}/manifest/**/*.parquet"
+    cast = con.execute(f"select K::DOUBLE[9] as K from read_parquet('{parts}') limit 1").fetchall()[0][0]
+    assert list(cast) == manifest.column("K")[0].as_py()  # K is the same in every frame at one resolution
+    listed = pl.scan_parquet(parts).select(pl.col("K").list.to_array(9)).collect()
+    assert listed.schema["K"] == pl.Array(pl.Float64, 9) and len(listed) == len(manifest)
+    # an index as roots made before wrote it: plain lists in its stored schema
+    copy = tmp_path / "old-index"
+    shutil.copytree(root, copy)
+    rel = os.path.relpath(indexes[0], root)
+    old = as_plain_lists(pq.read_table(copy / rel, schema=MANIFEST_SCHEMA).replace_schema_metadata(
+        pq.read_schema(copy / rel).metadata))
+    (copy / rel).write_bytes(index_bytes(old))
+    assert pq.read_schema(copy / rel).field("K").type == pa.list_(pa.float64())
+    again = read_manifest(str(copy))
+    assert again.schema.field("K").type == pa.list_(pa.float64(), 9) and again.equals(manifest)
+    result = CliRunner().invoke(app(), ["verify", str(copy), "--no-ray"])
+    assert result.exit_code == 0 and result.output.startswith("OK"), result.output
+
+
 # --------------------------------------------------------------- FedDrive ----
 # Facts from FedDrive (github.com/Erosinho13/FedDrive), src/dataset/idda.py and
 # src/utils/client_utils.py: every *.json in a split directory is read and its
@@ -131,7 +176,7 @@ def test_feddrive_reads_the_idda_export(root, manifest, tmp_path):
     train = feddrive_read_dir(target / "feddrive" / "train")
     test = feddrive_read_dir(target / "feddrive" / "test")
     # One client per scenario with train frames; T07 is the unseen domain. The three one-episode
-    # scenarios take train, val and test in table order (docs/layout.md, "Splits"): T01_CN_A
+    # scenarios (three scenes) take train, val and test in table order (docs/layout.md, "Splits"): T01_CN_A
     # trains, T01_HRN_J is val, and T07_CS_B (test) is held out, so no same-domain test frames.
     assert sorted(train) == ["T01_CN_A"]
     assert sorted(test) == ["test_user_diff_domain"]  # LEAF lists no user without frames
@@ -181,7 +226,7 @@ def test_cityscapes_export_has_every_split_and_reads_like_cityscapes(root, manif
     target = tmp_path / "cs"
     result = CliRunner().invoke(app(), ["export", str(root), "--format", "cityscapes", "--to", str(target)])
     assert result.exit_code == 0, result.output
-    # Three one-episode scenarios: one episode in each split (docs/layout.md, "Splits").
+    # Three one-episode scenarios of three scenes: one episode in each split (docs/layout.md, "Splits").
     assert f"{len(manifest)} frames (4 train, 4 val, 4 test)" in result.output
     for split in ("train", "val", "test"):
         for kind in ("semantic", "color", "instance"):

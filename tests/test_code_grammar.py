@@ -70,7 +70,7 @@ name = "Oslo"
 code = "mist"
 like = "CN"
 name = "Mist"
-fog = 0.5
+visibility_m = 4321.93
 
 [[viewpoint]]
 code = "B2"

@@ -1,6 +1,7 @@
 """Per-frame condition columns (manifests.conditions): in every manifest row, null in older
 parts, and filtered on by `idda query --min-condition / --max-condition`."""
 
+import pyarrow as pa
 import pytest
 from typer.testing import CliRunner
 
@@ -27,14 +28,16 @@ def root(tmp_path_factory):
 
 
 def test_every_row_carries_the_six_conditions_of_its_weather(root):
-    assert CONDITION_COLUMNS == ("sun_altitude_deg", "cloudiness", "precipitation", "fog_density", "road_wetness",
+    assert CONDITION_COLUMNS == ("sun_altitude_deg", "cloudiness", "precipitation", "visibility_m", "road_wetness",
                                  "snow_cover")
     assert all(c.unit and c.meaning for c in CONDITIONS)
     table = read_manifest(root)
     assert set(CONDITION_COLUMNS) <= set(MANIFEST_SCHEMA.names)
+    assert MANIFEST_SCHEMA.field("visibility_m").type == pa.float64() and table.column("fog_density").null_count == 12
     for row in table.to_pylist():
         expected = frame_conditions(weather(row["weather"]))
-        assert {k: row[k] for k in CONDITION_COLUMNS} == pytest.approx(expected)
+        assert {k: row[k] for k in CONDITION_COLUMNS} == pytest.approx({k: expected[k] for k in CONDITION_COLUMNS})
+        assert row["visibility_m"] == weather(row["weather"]).visibility_m  # float64: as declared
     hrn = frame_conditions(weather("HRN"))
     assert hrn["precipitation"] == 0.6 and hrn["road_wetness"] == 0.6 and hrn["snow_cover"] == 0.0
 
@@ -45,10 +48,12 @@ def test_query_filters_on_conditions(root):
     assert set(wet.column("weather").to_pylist()) == {"HRN"} and len(wet) == 4
     low_sun = q.filter_frames(table, q.Query(max_condition=(("sun_altitude_deg", 20.0),)))
     assert set(low_sun.column("weather").to_pylist()) == {"CS"}
-    band = q.filter_frames(table, q.Query(min_condition=(("fog_density", 0.03),), max_condition=(("fog_density", 0.05),)))
+    band = q.filter_frames(table, q.Query(min_condition=(("visibility_m", 50_000),), max_condition=(("visibility_m", 1e5),)))
     assert set(band.column("weather").to_pylist()) == {"CS"}
     with pytest.raises(ValueError, match="unknown condition 'fog'; valid conditions: sun_altitude_deg"):
         q.filter_frames(table, q.Query(min_condition=(("fog", 0.5),)))
+    with pytest.raises(ValueError, match="fog is recorded as visibility_m"):
+        q.filter_frames(table, q.Query(min_condition=(("fog_density", 0.5),)))
 
 
 def test_cli_query_condition_options(root, tmp_path):
@@ -57,7 +62,7 @@ def test_cli_query_condition_options(root, tmp_path):
     result = runner.invoke(app, ["query", root.path(), "--min-condition", "precipitation=0.5", "--out", str(out)])
     assert result.exit_code == 0, result.output
     assert "T01_HRN_A" in result.output and "T01_CN_A" not in result.output
-    assert "fog_density" in out.read_text().splitlines()[0]
+    assert "visibility_m" in out.read_text().splitlines()[0]
     for bad, words in ((["--max-condition", "fog=1"], "unknown condition 'fog'"),
                        (["--min-condition", "fog_density"], "--min-condition takes NAME=VALUE"),
                        (["--min-condition", "fog_density=thick"], "VALUE a number")):
@@ -71,10 +76,31 @@ def test_parts_written_before_the_condition_columns_read_null_and_never_pass_a_b
     storage = Storage.from_uri(str(tmp_path))
     [spec] = make_plan(PlanConfig(domains="T01_HRN_A", frames_per_scenario=2, width=64, height=36)).episodes
     rows = part_table(episode_rows(spec))
-    kept = [name for name in rows.column_names if name not in CONDITION_COLUMNS]
+    kept = [name for name in rows.column_names if name not in (*CONDITION_COLUMNS, "fog_density")]
     storage.write_bytes(part_path(spec.scenario, spec.episode), part_bytes(rows.select(kept)))
     table = read_manifest(storage)
     assert table.schema.names == MANIFEST_SCHEMA.names
     assert [table.column(name).null_count for name in CONDITION_COLUMNS] == [2] * len(CONDITION_COLUMNS)
     assert len(q.filter_frames(table, q.Query())) == 2
     assert len(q.filter_frames(table, q.Query(min_condition=(("precipitation", 0.0),)))) == 0
+
+
+def test_a_root_made_before_rules_keeps_fog_density_and_queries_read_its_visibility(tmp_path):
+    """Issue 32: a root of OLD_RULES writes parts as it did (fog_density float32, no visibility_m
+    column); a query on visibility_m reads it from fog_density."""
+    import pyarrow.parquet as pq
+
+    from manifests.schema import OLD_PART_SCHEMA
+    from manifests.spec import OLD_RULES
+
+    storage = Storage.from_uri(str(tmp_path))
+    plan = make_plan(PlanConfig(domains="towns=T01 weathers=CN,FG viewpoints=A", frames_per_scenario=2, width=64,
+                                height=36, rules=OLD_RULES))
+    for spec in plan.episodes:
+        rel = write_part(storage, spec.scenario, spec.episode, episode_rows(spec))
+        assert pq.read_schema(storage.path(rel)).names == OLD_PART_SCHEMA.names  # no visibility_m
+    table = read_manifest(storage)
+    fog = dict(zip(table.column("weather").to_pylist(), table.column("fog_density").to_pylist()))
+    assert fog == {"CN": pytest.approx(0.02), "FG": pytest.approx(0.99999)} and table.column("visibility_m").null_count == 4
+    dense = q.filter_frames(table, q.Query(domains="catalog", max_condition=(("visibility_m", 1000.0),)))
+    assert set(dense.column("weather").to_pylist()) == {"FG"} and len(dense) == 2

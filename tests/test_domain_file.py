@@ -16,7 +16,8 @@ from manifests import catalog
 from manifests.catalog import ALL_SCENARIOS, BUILTIN, TOWNS, VIEWPOINTS, WEATHERS, scenario, using
 from manifests.domainfile import CatalogError, catalog_from_text, catalog_toml, with_file
 from manifests.selection import parse_selection
-from manifests.spec import PAIRED, UNPAIRED, episode_seed, town_seed
+from manifests.fog import visibility_of_share
+from manifests.spec import OLD_RULES, PAIRED, UNPAIRED, episode_seed, town_seed
 from pipeline.cli import app
 from pipeline.planner import PlanConfig, make_plan
 
@@ -36,13 +37,14 @@ TOWNS_REF = (
 # Parameters added with fog, night, snow and shifts (snowfall, snow_cover, street_lights, car_lights,
 # shift_from, shift_to, easing): their defaults, which the paper's three weathers keep.
 NEW_WEATHER_DEFAULTS = (0.0, 0.0, 0.0, 0.0, "", "", "linear")
+_V = visibility_of_share  # fog, a share per km in those tables, is the visibility of that share (issue 32)
 WEATHERS_REF = (
     ('CN', 'ClearNoon', 65.0, 40.0, (1.0, 0.98, 0.94), 4.0, 0.45, (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0,
-     0.02, (1.0, 1.0, 1.0), 'o', *NEW_WEATHER_DEFAULTS),
+     _V(0.02), (1.0, 1.0, 1.0), 'o', *NEW_WEATHER_DEFAULTS),
     ('CS', 'ClearSunset', 15.0, 200.0, (1.0, 0.86, 0.72), 3.6, 0.5, (78, 104, 170), (240, 182, 148), 0.15, 0.0, 0.0,
-     0.0, 0.04, (1.03, 0.99, 0.95), 's', *NEW_WEATHER_DEFAULTS),
+     0.0, _V(0.04), (1.03, 0.99, 0.95), 's', *NEW_WEATHER_DEFAULTS),
     ('HRN', 'HardRainNoon', 75.0, 40.0, (0.88, 0.9, 0.94), 2.8, 1.0, (128, 133, 140), (170, 173, 178), 0.9, 0.6, 0.6,
-     0.2, 0.08, (0.96, 0.98, 1.0), '^', *NEW_WEATHER_DEFAULTS),
+     0.2, _V(0.08), (0.96, 0.98, 1.0), '^', *NEW_WEATHER_DEFAULTS),
 )
 VIEWPOINTS_REF = (
     ('A', 'Audi TT', 1.2, 0.1399, (196, 24, 28), 0.1, 0.45, (4.8, 2.0), (10.0, 14.0)),
@@ -53,7 +55,8 @@ VIEWPOINTS_REF = (
 )
 # sha256 of make_plan's episodes (scenario, episode, seed, frames, split) for `all` at full scale (seed 0)
 # and at 130 frames per scenario (seed 7), and of the town seeds; computed with the Python tables.
-# Unpaired, as roots made before pairing keep (a paired plan leaves the weather out of the seeds).
+# Unpaired and of the old rules, as roots made before pairing keep (a paired plan leaves the weather out of
+# the seeds, and NEW_RULES draw splits per scene).
 PLAN_DIGEST = "da7ebfe1539a68dd"
 
 FOG = """
@@ -62,7 +65,7 @@ code = "FG1"
 like = "CN"
 name = "FoggyNoon"
 sun_elevation_deg = 35.0
-fog = 0.6
+visibility_m = 3000.0
 """
 
 
@@ -86,8 +89,8 @@ def test_builtin_file_gives_the_python_tables_bit_for_bit():
 
 def test_plan_and_seeds_are_those_of_the_python_tables():
     digest = hashlib.sha256()
-    for cfg in (PlanConfig(domains="all", scale=1.0, seed=0, pairing=UNPAIRED),
-                PlanConfig(domains="all", frames_per_scenario=130, seed=7, pairing=UNPAIRED)):
+    for cfg in (PlanConfig(domains="all", scale=1.0, seed=0, pairing=UNPAIRED, rules=OLD_RULES),
+                PlanConfig(domains="all", frames_per_scenario=130, seed=7, pairing=UNPAIRED, rules=OLD_RULES)):
         for e in make_plan(cfg).episodes:
             digest.update(repr((e.scenario, e.episode, e.seed, e.frames, e.split)).encode())
     digest.update(repr([town_seed(3, t) for t in TOWNS]).encode())
@@ -104,7 +107,7 @@ def test_like_derives_and_user_entries_come_after_the_builtin_ones():
     cat = with_file(BUILTIN, FOG + '[[viewpoint]]\ncode = "A"\ncamera_height_m = 1.3\n', "fog.toml")
     fg = cat.by_code("weather")["FG1"]
     cn = BUILTIN.by_code("weather")["CN"]
-    assert (fg.sun_elevation_deg, fg.fog, fg.name) == (35.0, 0.6, "FoggyNoon")
+    assert (fg.sun_elevation_deg, fg.visibility_m, fg.name) == (35.0, 3000.0, "FoggyNoon")
     assert (fg.sky_zenith, fg.light_intensity, fg.marker) == (cn.sky_zenith, cn.light_intensity, cn.marker)
     assert [w.code for w in cat.weathers] == ["CN", "CS", "HRN", "FG", "NT", "SN", "CNtoNT", "CNtoFG", "CNtoHRN", "FG1"]
     assert cat.by_code("viewpoint")["A"].camera_height_m == 1.3 and cat.place("viewpoint", "A") == 0
@@ -122,13 +125,14 @@ def test_like_derives_and_user_entries_come_after_the_builtin_ones():
 
 BAD = {
     "unknown key": ('[[weather]]\ncode = "FG1"\nlike = "CN"\nfogg = 0.5\n', "weather 'FG1': key 'fogg': unknown key"),
-    "out of range": ('[[weather]]\ncode = "FG1"\nlike = "CN"\nfog = 1.5\n', "weather 'FG1': key 'fog': 1.5 is out of range [0.0, 1.0]"),
+    "out of range": ('[[weather]]\ncode = "FG1"\nlike = "CN"\nvisibility_m = 0.5\n',
+                     "weather 'FG1': key 'visibility_m': 0.5 is out of range [1.0, inf]"),
     "wrong type": ('[[town]]\ncode = "T09"\nlike = "T01"\nlanes = 1.5\n', "town 'T09': key 'lanes': expected a whole number"),
     "unknown like": ('[[weather]]\ncode = "FG1"\nlike = "XX"\n', "weather 'FG1': key 'like': unknown weather 'XX'"),
     "duplicate code": ('[[viewpoint]]\ncode = "Z"\nlike = "A"\n[[viewpoint]]\ncode = "Z"\nlike = "B"\n',
                        "viewpoint 'Z': key 'code': duplicate code 'Z'"),
     "separator": ('[[weather]]\ncode = "FG_1"\nlike = "CN"\n', "weather #1: key 'code': 'FG_1' is not a code"),
-    "missing": ('[[weather]]\ncode = "FG1"\nfog = 0.5\n', "weather 'FG1': key 'name': missing"),
+    "missing": ('[[weather]]\ncode = "FG1"\nvisibility_m = 500.0\n', "weather 'FG1': key 'name': missing"),
     "min above max": ('[[town]]\ncode = "T09"\nlike = "T01"\nbuilding_height_m = [20.0, 10.0]\n',
                       "town 'T09': key 'building_height_m': the first value (min) exceeds the second"),
     "table": ('[[weathers]]\ncode = "FG1"\n', "key 'weathers': unknown table"),
@@ -175,7 +179,7 @@ def test_plan_takes_a_catalog(tmp_path):
     from pipeline.planio import read_plan
 
     plan = read_plan(tmp_path / "plan.parquet")  # the plan file carries the entries: read back without the file
-    assert plan.scenarios()[0] == "T01_FG1_A" and '"fog":0.6' in plan.config.catalog
+    assert plan.scenarios()[0] == "T01_FG1_A" and '"visibility_m":3000.0' in plan.config.catalog
     result = runner.invoke(app, ["plan", "--domains", "weathers=FG1"])
     assert result.exit_code == 2 and "unknown weather 'FG1'" in result.output
 

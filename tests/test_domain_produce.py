@@ -17,7 +17,7 @@ from pipeline.cli import app
 pytestmark = pytest.mark.slow
 runner = CliRunner()
 
-FOG = '[[weather]]\ncode = "FG1"\nlike = "CN"\nname = "FoggyNoon"\nsun_elevation_deg = 35.0\nfog = {fog}\n'
+FOG = '[[weather]]\ncode = "FG1"\nlike = "CN"\nname = "FoggyNoon"\nsun_elevation_deg = 35.0\nvisibility_m = {fog}\n'
 ARGS = ["--frames-per-scenario", "2", "--width", "64", "--height", "36", "--seed", "7", "--world", "test"]
 
 
@@ -37,7 +37,7 @@ def _digests(root: Path, scenario: str) -> dict[str, str]:
 
 def test_user_weather_end_to_end(ray_local, tmp_path):
     fog = tmp_path / "fog.toml"
-    fog.write_text(FOG.format(fog=0.6))
+    fog.write_text(FOG.format(fog=3000.0))
     root = tmp_path / "root"
     domains = ["--domains", "towns=T01 weathers=CN,FG1 viewpoints=A"]
     result = runner.invoke(app, ["produce", *domains, *ARGS, "--catalog", str(fog), "--out", str(root)])
@@ -45,7 +45,7 @@ def test_user_weather_end_to_end(ray_local, tmp_path):
     table = read_manifest(str(root))
     assert sorted(table.column("scenario").to_pylist()) == ["T01_CN_A"] * 2 + ["T01_FG1_A"] * 2
     recorded = json.loads((root / "run.json").read_text())["config"]["catalog"]
-    assert [row["code"] for row in recorded["weather"]] == ["FG1"] and recorded["weather"][0]["fog"] == 0.6
+    assert [row["code"] for row in recorded["weather"]] == ["FG1"] and recorded["weather"][0]["visibility_m"] == 3000.0
     assert recorded["weather"][0]["sky_zenith"] == [38, 98, 190]  # resolved: CN's, not a reference to it
 
     # the built-in scenario keeps its bytes: the same frames as a run without the file
@@ -70,9 +70,9 @@ def test_user_weather_end_to_end(ray_local, tmp_path):
     assert result.exit_code == 0 and "T01_FG1_A" in result.output and "2 frames selected" in result.output, result.output
 
     # a changed entry is refused, like any frame-defining change; an added one needs --extend
-    fog.write_text(FOG.format(fog=0.7))
+    fog.write_text(FOG.format(fog=2000.0))
     result = runner.invoke(app, ["produce", *domains, *ARGS, "--catalog", str(fog), "--out", str(root), "--extend"])
     assert result.exit_code == 2 and "other parameters for the domain weather 'FG1'" in result.output, result.output
-    fog.write_text(FOG.format(fog=0.6) + FOG.format(fog=0.9).replace("FG1", "FG2"))
+    fog.write_text(FOG.format(fog=3000.0) + FOG.format(fog=1000.0).replace("FG1", "FG2"))
     result = runner.invoke(app, ["produce", *domains, *ARGS, "--catalog", str(fog), "--out", str(root)])
     assert result.exit_code == 2 and "pass --extend" in result.output, result.output

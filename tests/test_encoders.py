@@ -197,6 +197,25 @@ def test_flow_uses_kittis_encoding():
     assert image.dtype == np.uint16
     assert image[0, 0].tolist() == [2**15 + 96, 2**15 - 144, 1] and image[0, 1].tolist() == [0, 0, 0]
     back = out_table.output("flow").decode(out_table.read_output("flow", out_table.file_bytes("flow", image)))
-    assert back[0, 2, 0] == -512.0  # KITTI's range: +-512 px, clamped
-    flow[0, 2, 0] = -512.0
+    assert back[0, 2].tolist() == [0.0, 0.0, 0.0]  # beyond KITTI's +-512 px: invalid, not clamped
+    old = out_table.encode_outputs({"flow": flow}, ("flow",), old_rules=True)["flow"]  # roots made before rules
+    assert old[0, 2].tolist() == [0, 2**15 + 1, 1] and np.array_equal(old[0, :2], image[0, :2])
+    flow[0, 2] = 0.0
     assert np.allclose(back, flow)
+
+
+def test_flow_beyond_the_encodings_range_is_invalid_at_full_hd_motion():
+    """Issue 32: at 1920x1080 and 3 s between frames static pixels near the sides move 512-900 px;
+    such a flow is stored invalid, while every motion the 16 bits hold keeps its value to 1/128 px."""
+    rng = np.random.default_rng(0)
+    flow = np.zeros((90, 160, 3), np.float32)
+    flow[..., 0] = rng.uniform(-900, 900, (90, 160))
+    flow[..., 1] = rng.uniform(-300, 300, (90, 160))
+    flow[..., 2] = rng.random((90, 160)) < 0.9
+    flow[::7, ::5, 0] = [[511.984375, -512.0] * 16] * 13  # the range's ends are held
+    back = out_table.output("flow").decode(out_table.read_output("flow", out_table.file_bytes(
+        "flow", out_table.encode_outputs({"flow": flow}, ("flow",))["flow"])))
+    holdable = (flow[..., 2] > 0) & (flow[..., 0] >= -512) & (flow[..., 0] <= 511.984375)
+    assert (back[..., 2] > 0).tolist() == holdable.tolist() and 0 < holdable.sum() < (flow[..., 2] > 0).sum()
+    assert np.abs(back[holdable, :2] - flow[holdable, :2]).max() <= 1 / 128
+    assert not back[~holdable].any()

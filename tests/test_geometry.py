@@ -201,3 +201,35 @@ def test_flow_is_the_reprojection_on_static_pixels_and_follows_moving_objects(tm
     followed = np.mean(ids_next[tv, tu] == ids_now[mv, mu])
     still = np.mean(ids_next[mv, mu] == ids_now[mv, mu])
     assert movers.sum() > 20 and followed > still and followed > 0.9, (followed, still)
+
+
+def test_flow_beyond_the_encodings_range_is_invalid_in_a_full_hd_wide_render(tmp_path):
+    """Issue 32: 1920 px wide and 3 s between frames, static pixels near the sides move beyond KITTI's
+    +-512 px: they are stored invalid (a root made before rules clamps them, and keeps doing so); every
+    other pixel is stored as before, and what is valid is the reprojection."""
+    from dataclasses import replace
+
+    from manifests.outputs import output, read_output
+    from manifests.spec import OLD_RULES
+    from pipeline.episode_job import run_episode
+    from storage import Storage
+
+    spec = EpisodeSpec("T01_CN_V", 0, 11, 2, 1920, 36, "train", 0, outputs=("depth_raw", "flow"))
+    flows = {}
+    for rules in (spec.rules, OLD_RULES):
+        storage = Storage.from_uri(str(tmp_path / f"rules{rules}"))
+        run_episode(replace(spec, rules=rules), storage, world="test")
+        rows = read_part(storage, spec.scenario, spec.episode).to_pylist()
+        flows[rules] = read_output("flow", storage.read_bytes(rows[0]["flow_path"]))
+    new, old = flows[spec.rules], flows[OLD_RULES]
+    clamped = (old[..., 2] > 0) & ((old[..., :2] == 0) | (old[..., :2] == 65535)).any(axis=-1)
+    assert clamped.sum() > 20  # the scene has motion beyond the range
+    assert not (new[clamped]).any() and np.array_equal(new[~clamped], old[~clamped])
+    depth = output("depth_raw").decode(read_output("depth_raw", storage.read_bytes(rows[0]["depth_raw_path"])))
+    v, u = np.nonzero(depth < 999.0)
+    cam = world_to_camera(depth_to_world(depth, rows[0]["K"], rows[0]["cam_to_world"]), rows[1]["cam_to_world"])
+    expected = project(cam, rows[0]["K"]) - np.stack([u, v], axis=1)
+    flow = output("flow").decode(new)
+    valid = flow[v, u, 2] > 0
+    assert np.median(np.linalg.norm(flow[v, u, :2][valid] - expected[valid], axis=1)) <= 0.5
+    assert (np.abs(expected[clamped[v, u]]).max(axis=1) > 511).all()

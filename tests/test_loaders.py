@@ -19,7 +19,7 @@ from manifests.reader import read_manifest
 from tests.s3_server import s3_server  # noqa: F401  (fixture)
 from tests.test_export import make_tiny_root, upload_root
 
-QUERY = Query(domains="towns=T01 weathers=HRN", splits=("test",))  # both one-episode scenarios are test episodes
+QUERY = Query(domains="towns=T01 weathers=HRN", splits=("train", "val"))  # the two one-episode scenarios: A train, J val
 
 
 @pytest.fixture(scope="module")

@@ -5,6 +5,7 @@ made before pairing keep their seeds; `idda query --paired` returns the aligned 
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pyarrow.csv as pv
@@ -14,14 +15,13 @@ from typer.testing import CliRunner
 from manifests.catalog import scenario
 from manifests.outputs import read_output
 from manifests.reader import read_manifest
-from manifests.runrecord import read_record, record_bytes
-from manifests.schema import RUN_FILE, part_path
-from manifests.spec import PAIRED, UNPAIRED, episode_seed
+from manifests.schema import part_path
+from manifests.spec import NEW_RULES, OLD_RULES, PAIRED, UNPAIRED, episode_seed
 from pipeline.cli import app
-from pipeline.cli.domains import root_pairing
+from pipeline.cli.domains import root_pairing, root_rules
 from pipeline.planner import PlanConfig
 from pipeline.runmeta import RunConfig
-from tests.roots import render_root
+from tests.roots import as_made_before, render_root
 
 runner = CliRunner()
 DOMAINS = "T01_CN_A,T01_HRN_A,T01_SN_A"
@@ -91,9 +91,7 @@ def test_a_root_from_before_pairing_keeps_its_seeds_and_bytes(tmp_path):
     re-rendering a lost episode gives the old bytes."""
     root = tmp_path / "old"
     storage = render_root(root, _config(UNPAIRED))
-    record = read_record(storage)
-    del record["config"]["pairing"], record["history"][0]["pairing"]  # as run.json was written before pairing
-    storage.write_bytes(RUN_FILE, record_bytes(record))
+    as_made_before(storage, "pairing")
     assert root_pairing(str(root)) == UNPAIRED
     table = read_manifest(str(root))
     seeds = {r["scenario"]: r["seed"] for r in table.to_pylist()}
@@ -106,4 +104,52 @@ def test_a_root_from_before_pairing_keeps_its_seeds_and_bytes(tmp_path):
     assert result.exit_code == 0 and result.output.startswith("OK"), result.output
     # a paired run into it is refused: its frames would not match
     with pytest.raises(Exception, match="pairing"):
+        render_root(root, _config(PAIRED))
+
+
+def test_every_weather_of_a_scene_shares_its_split(paired_root, tmp_path):
+    """Issue 32: a new root (run.json "rules": 1) draws the split per scene, so the three weathers of
+    T01 A episode 0 are in one split (the old rule put them in train, val and test); an --extend to
+    another weather and a viewpoint that comes first in table order keeps every scene's split."""
+    assert json.loads((paired_root / "run.json").read_text())["config"]["rules"] == NEW_RULES
+    assert root_rules(str(paired_root)) == NEW_RULES
+    assert set(read_manifest(str(paired_root)).column("split").to_pylist()) == {"train"}
+    root = tmp_path / "grown"
+    small = RunConfig(plan=PlanConfig(domains="T01_CN_M,T01_CN_J", frames_per_scenario=1, width=32, height=32,
+                                      seed=4, outputs=("semantic_raw",)), world="test")
+    render_root(root, small)
+    before = {r["scenario"]: r["split"] for r in read_manifest(str(root)).to_pylist()}
+    assert before == {"T01_CN_M": "train", "T01_CN_J": "val"}
+    grown = RunConfig(plan=replace(small.plan, domains="towns=T01 weathers=CN,FG viewpoints=A,M,J"), world="test")
+    render_root(root, grown, extend=True)
+    after = {r["scenario"]: r["split"] for r in read_manifest(str(root)).to_pylist()}
+    assert {s: after[s] for s in before} == before and after["T01_FG_M"] == "train" and after["T01_FG_J"] == "val"
+    assert after["T01_CN_A"] == after["T01_FG_A"] == "test"  # a new scene comes after the root's own
+    result = runner.invoke(app, ["verify", str(root), "--no-ray"])
+    assert result.exit_code == 0 and result.output.startswith("OK"), result.output
+
+
+def test_a_root_from_before_scene_splits_keeps_its_splits_and_bytes(tmp_path):
+    """A paired root whose run.json has no "rules" keeps splits per scenario place for its life:
+    re-rendering a lost episode gives its old bytes and split, verify passes, and `query --paired`
+    leaves out (and says so) the frames whose weathers straddle splits."""
+    root = tmp_path / "old-splits"
+    storage = render_root(root, RunConfig(plan=replace(_config(PAIRED).plan, rules=OLD_RULES), world="test"))
+    as_made_before(storage, "rules")
+    assert root_rules(str(root)) == OLD_RULES
+    table = read_manifest(str(root))
+    splits = {r["scenario"]: r["split"] for r in table.to_pylist()}
+    assert splits == {"T01_CN_A": "train", "T01_HRN_A": "val", "T01_SN_A": "test"}
+    files = [p for column in ("rgb_path", "semantic_raw_path") for p in table.column(column).to_pylist()]
+    before = {p: (root / p).read_bytes() for p in files}
+    storage.delete(part_path("T01_SN_A", 0))
+    render_root(root, RunConfig(plan=replace(_config(root_pairing(str(root))).plan, rules=root_rules(str(root))),
+                                world="test"))
+    assert {p: (root / p).read_bytes() for p in before} == before
+    assert {r["scenario"]: r["split"] for r in read_manifest(str(root)).to_pylist()} == splits
+    result = runner.invoke(app, ["verify", str(root), "--no-ray"])
+    assert result.exit_code == 0 and result.output.startswith("OK"), result.output
+    result = runner.invoke(app, ["query", str(root), "--paired", "CN,SN"])
+    assert result.exit_code == 2 and "left out 2 frame(s) whose weathers lie in different splits" in result.output
+    with pytest.raises(Exception, match="rules"):  # a run of the new rules into it is refused
         render_root(root, _config(PAIRED))

@@ -6,12 +6,14 @@ from hypothesis import strategies as st
 
 from manifests.catalog import ALL_SCENARIOS, TOWNS
 from manifests.selection import parse_selection
+from manifests.spec import NEW_RULES, OLD_RULES, RULES
 from pipeline.planner import (
     PAPER_TOTAL_FRAMES,
     PlanConfig,
     episode_target,
     full_scale_frames,
     make_plan,
+    scene_places,
 )
 
 
@@ -92,11 +94,15 @@ def test_make_produce_default_has_every_split():
     codes=st.lists(st.sampled_from([s.code for s in ALL_SCENARIOS]), min_size=1, max_size=6, unique=True),
     frames=st.integers(1, 700),
     scaled=st.booleans(),
+    rules=st.sampled_from(RULES),
 )
-def test_every_run_of_three_or_more_episodes_has_every_split(codes, frames, scaled):
+def test_every_run_of_three_or_more_episodes_has_every_split(codes, frames, scaled, rules):
+    """Of three or more episodes (OLD_RULES), or of three or more scenes' episodes (NEW_RULES: the
+    weathers of one scene share its split)."""
     size = {"scale": frames / 20_000} if scaled else {"frames_per_scenario": frames}  # scale: towns differ
-    plan = make_plan(PlanConfig(domains=",".join(codes), **size))
-    if len(plan.episodes) >= 3:
+    plan = make_plan(PlanConfig(domains=",".join(codes), rules=rules, **size))
+    units = {(e.scenario, e.episode) if rules == OLD_RULES else (e.town, e.viewpoint, e.episode) for e in plan.episodes}
+    if len(units) >= 3:
         assert {e.split for e in plan.episodes} == {"train", "val", "test"}, _splits(plan)
 
 
@@ -105,11 +111,12 @@ def test_every_run_of_three_or_more_episodes_has_every_split(codes, frames, scal
     codes=st.lists(st.sampled_from([s.code for s in ALL_SCENARIOS]), min_size=1, max_size=4, unique=True),
     small=st.integers(1, 400),
     more=st.integers(0, 2000),
+    rules=st.sampled_from(RULES),
 )
-def test_extending_a_run_never_changes_an_episode_split(codes, small, more):
+def test_extending_a_run_never_changes_an_episode_split(codes, small, more, rules):
     domains = ",".join(codes)
-    before = _splits(make_plan(PlanConfig(domains=domains, frames_per_scenario=small)))
-    after = _splits(make_plan(PlanConfig(domains=domains, frames_per_scenario=small + more)))
+    before = _splits(make_plan(PlanConfig(domains=domains, frames_per_scenario=small, rules=rules)))
+    after = _splits(make_plan(PlanConfig(domains=domains, frames_per_scenario=small + more, rules=rules)))
     assert before.items() <= after.items()
 
 
@@ -153,3 +160,30 @@ def test_plan_holds_episodes_not_frames(full_plan):
 def test_bad_configs_raise_clear_errors(kwargs, message):
     with pytest.raises(ValueError, match=message):
         make_plan(PlanConfig(**kwargs))
+
+
+def test_every_weather_of_a_scene_shares_its_split_and_old_rules_stay():
+    """Issue 32: under NEW_RULES the split is drawn per scene (town, viewpoint, episode), so a paired
+    root never has one scene on both sides of a split, whatever weathers it holds or adds later; a
+    root of OLD_RULES keeps its splits per scenario place (the same scene was train, val and test)."""
+    domains = "towns=T01,T02 weathers=CN,FG,NT,HRN viewpoints=A,M"
+    new = make_plan(PlanConfig(domains=domains, frames_per_scenario=400))
+    by_scene: dict = {}
+    for e in new.episodes:
+        by_scene.setdefault((e.town, e.viewpoint, e.episode), set()).add(e.split)
+    assert all(len(splits) == 1 for splits in by_scene.values()) and len(by_scene) >= 4 * 5
+    assert Counter(next(iter(s)) for s in by_scene.values()).keys() == {"train", "val", "test"}
+    old = make_plan(PlanConfig(domains="T01_CN_A,T01_FG_A,T01_NT_A", frames_per_scenario=2, rules=OLD_RULES))
+    assert [e.split for e in old.episodes] == ["train", "val", "test"]  # the old rule, unchanged
+    assert PlanConfig().rules == NEW_RULES and PlanConfig().to_dict()["rules"] == 1
+    # a root's later selections keep the places of the scenes it had (pipeline.runmeta.for_root)
+    first = scene_places(["T02_CN_M"])
+    later = scene_places(["T02_CN_M", "towns=T01,T02 weathers=FG viewpoints=A,M"])
+    assert later[("T02", "M")] == first[("T02", "M")] == 0 and set(later.values()) == {0, 1, 2, 3}
+
+
+def test_make_produce_default_splits_under_both_rules():
+    """105 one-episode scenarios: 35 scenes of 3 weathers give 27/4/4 scenes, the same 81/12/12 episodes."""
+    for rules in RULES:
+        plan = make_plan(PlanConfig(domains="all", frames_per_scenario=2, rules=rules))
+        assert Counter(e.split for e in plan.episodes) == {"train": 81, "val": 12, "test": 12}

@@ -8,6 +8,7 @@ import pytest
 
 from manifests.catalog import BUILTIN, weather
 from manifests.domainfile import CatalogError, catalog_toml, catalog_from_text, with_file, with_layer_json
+from manifests.fog import contrast_at
 from manifests.shifts import weather_at
 from manifests.spec import EpisodeSpec
 from manifests.synthetic import episode_rows
@@ -23,8 +24,10 @@ def test_shift_entries_blend_their_ends_by_the_easing():
     suns = [w.sun_elevation_deg for w in frames]
     assert all(a > b for a, b in zip(suns, suns[1:]))
     assert suns[1] > 65.0 - 90.0 / 4  # smoothstep starts slowly
-    fog = [weather_at(weather("CNtoFG"), i, 3, weather).fog for i in range(3)]
-    assert fog == pytest.approx([0.02, (0.02 + 0.99999) / 2, 0.99999])
+    fog = [weather_at(weather("CNtoFG"), i, 3, weather).visibility_m for i in range(3)]
+    # half way, the contrast left at FG's visibility is half way between CN's and FG's 5 % (tests/test_fog.py)
+    assert fog[0] == weather("CN").visibility_m and fog[2] == weather("FG").visibility_m
+    assert contrast_at(fog[1], fog[2]) == pytest.approx((contrast_at(fog[0], fog[2]) + 0.05) / 2)
     # the built-in file round-trips with its shifts written as from / to
     text = catalog_toml(BUILTIN)
     assert 'from = "CN"' in text and 'to = "NT"' in text and catalog_from_text(text, "shown") == BUILTIN
@@ -73,3 +76,32 @@ def test_a_shifting_episode_moves_monotonically():
     assert all(a > b for a, b in zip(suns, suns[1:])) and suns[0] == 65.0 and suns[-1] == -25.0
     assert all(a > b for a, b in zip(luminance, luminance[1:]))
     assert luminance[-1] < 0.4 * luminance[0]
+
+
+def test_extending_a_shifting_episode_renders_it_again_whole_and_says_so(tmp_path):
+    """Issue 32: a shift runs over its episode's length, so an --extend from 2 to 3 frames renders a
+    CNtoNT episode again whole and its frame 1 changes (a fixed weather's frames stay byte for byte);
+    produce's report names such episodes."""
+    from dataclasses import replace
+
+    from manifests.reader import read_manifest
+    from pipeline.cli.progress import format_produce_report
+    from pipeline.driver import ProduceReport, pending_episodes, reshifted_episodes
+    from pipeline.planner import PlanConfig, make_plan
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
+
+    small = RunConfig(plan=PlanConfig(domains="T01_CNtoNT_A,T01_CN_A", frames_per_scenario=2, width=32, height=32,
+                                      outputs=("rgb",)), world="test")
+    root = tmp_path / "root"
+    render_root(root, small)
+    before = {(r["scenario"], r["frame"]): (root / r["rgb_path"]).read_bytes() for r in read_manifest(str(root)).to_pylist()}
+    longer = RunConfig(plan=replace(small.plan, frames_per_scenario=3), world="test")
+    held = {("T01_CNtoNT_A", 0): 2, ("T01_CN_A", 0): 2}
+    assert reshifted_episodes(pending_episodes(make_plan(longer.plan), held), held) == ["T01_CNtoNT_A/e0000"]
+    render_root(root, longer, extend=True)
+    after = {(r["scenario"], r["frame"]): (root / r["rgb_path"]).read_bytes() for r in read_manifest(str(root)).to_pylist()}
+    assert after["T01_CN_A", 0] == before["T01_CN_A", 0] and after["T01_CN_A", 1] == before["T01_CN_A", 1]
+    assert after["T01_CNtoNT_A", 0] == before["T01_CNtoNT_A", 0] and after["T01_CNtoNT_A", 1] != before["T01_CNtoNT_A", 1]
+    text = format_produce_report(ProduceReport(str(root), 2, 6, 0, reshifted=["T01_CNtoNT_A/e0000"]))
+    assert "1 episode of a shifting weather made longer (T01_CNtoNT_A/e0000) rendered again whole" in text

@@ -21,7 +21,7 @@ DENSER = """
 [[weather]]
 code = "FG2"
 like = "FG"
-fog = 0.999999999
+visibility_m = 100.0
 """
 
 

@@ -11,7 +11,7 @@ from typing import Optional
 import typer
 
 from pipeline.cli import data as cli_data, domains as cli_domains
-from pipeline.cli.domains import CatalogFile, domain_file, root_catalog, root_pairing
+from pipeline.cli.domains import CatalogFile, domain_file, root_catalog, root_pairing, root_rules
 from pipeline.cli.progress import (
     ProgressDisplay, VerifyDisplay, format_interrupted, format_outage, format_produce_report, stop_signals,
     verify_advice,
@@ -126,7 +126,7 @@ def produce(
     workers: Optional[int] = typer.Option(None, help="CPUs for a local Ray cluster (default: all cores)."),
     gpus_per_task: float = typer.Option(0.0, help="GPU share per render task, e.g. 0.25 to run four per GPU."),
     max_retries: int = typer.Option(3, help="Retries per episode after a worker, node or renderer failure."),
-    extend: bool = typer.Option(False, "--extend", help="Allow a different selection or size than the root was made with."),
+    extend: bool = typer.Option(False, "--extend", help="Allow a different selection or size than the root was made with. Episodes made longer are rendered again whole; in a shifting weather (e.g. CNtoNT) their earlier frames change, since a shift runs over its episode's length."),
     repair: bool = typer.Option(False, "--repair", help="Verify first and re-render exactly the damaged episodes."),
     outputs: str = typer.Option(",".join(DEFAULT_OUTPUTS), "--outputs", help=f"Outputs to write, comma-separated: any of {', '.join(OUTPUTS)}. A root keeps the outputs it was made with."),
     rgb_format: str = typer.Option("png", "--rgb-format", help="File format of the rgb output: png (lossless, the default) or jpg (quality 95, the released IDDA format; about a quarter of the bytes). A root keeps its format."),
@@ -149,7 +149,8 @@ def produce(
         layer = root_catalog(out, catalog).layer_json()
         plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
                               height=height, seed=seed, outputs=parse_outputs(outputs), rgb_format=rgb_format,
-                              catalog=layer, frame_interval_s=frame_interval, pairing=root_pairing(out))
+                              catalog=layer, frame_interval_s=frame_interval, pairing=root_pairing(out),
+                              rules=root_rules(out))
         config = ProduceConfig(
             run=RunConfig(plan=plan_cfg, world=world),
             out=out,
@@ -309,6 +310,9 @@ def query(
         result, held = scan_manifest(storage, lambda dataset: (q.run_query(dataset, the_query), dataset.count_rows()))
         for code, missing in sorted(result.shortfall.items()):
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
+        if result.split_apart:
+            typer.echo(f"warning: left out {result.split_apart:,} frame(s) whose weathers lie in different splits "
+                       "(a root made before splits were drawn per scene)", err=True)
         if len(result.table) == 0:
             raise ValueError(f"no frames in {storage.uri} match the query ({of_held(result.matched, held)} "
                              "match the filters)")

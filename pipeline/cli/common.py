@@ -36,8 +36,8 @@ HasClass = Annotated[list[str], typer.Option("--has", help="Keep frames containi
 MinShare = Annotated[list[str], typer.Option(
     "--min-share", help="CLASS=SHARE: keep frames where the class covers at least SHARE (0-1); repeatable.")]
 MinCondition = Annotated[list[str], typer.Option(
-    "--min-condition", help="NAME=VALUE: keep frames whose condition NAME is at least VALUE, e.g. fog_density=0.5 "
-    "(sun_altitude_deg, cloudiness, precipitation, fog_density, road_wetness, snow_cover); repeatable.")]
+    "--min-condition", help="NAME=VALUE: keep frames whose condition NAME is at least VALUE, e.g. precipitation=0.5 "
+    "(sun_altitude_deg, cloudiness, precipitation, visibility_m, road_wetness, snow_cover); repeatable.")]
 MaxCondition = Annotated[list[str], typer.Option(
     "--max-condition", help="NAME=VALUE: keep frames whose condition NAME is at most VALUE, e.g. "
     "sun_altitude_deg=0 for night; repeatable.")]

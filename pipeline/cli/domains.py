@@ -57,19 +57,30 @@ def recorded_layer(root: str) -> dict | None:
     return (record or {}).get("config", {}).get("catalog")
 
 
-def root_pairing(root: str) -> int:
-    """The pairing of a root's episode seeds (manifests.spec): what its run.json records (absent: a root
-    from before pairing, UNPAIRED); PAIRED for a new root (or one whose record cannot be read: the
-    command then reports what is wrong with it)."""
+def root_recorded(root: str, key: str):
+    """A root's recorded ``key`` of those RECORDED_DEFAULTS lists ("pairing", "rules": manifests.spec): what its
+    run.json records (absent: a root from before the key, its RECORDED_DEFAULTS value); a new root's
+    (PlanConfig's default) where it has no record, or one that cannot be read (the command then reports
+    what is wrong with it)."""
     from manifests.runrecord import RunRecordError, read_record
-    from manifests.spec import PAIRED, UNPAIRED
+    from pipeline.planner import RECORDED_DEFAULTS, PlanConfig
     from storage import Storage, StorageError
 
     try:
         record = read_record(Storage.from_uri(root))
     except (RunRecordError, StorageError, OSError, ValueError):
-        return PAIRED
-    return PAIRED if record is None else record["config"].get("pairing", UNPAIRED)
+        record = None
+    return getattr(PlanConfig(), key) if record is None else record["config"].get(key, RECORDED_DEFAULTS[key])
+
+
+def root_pairing(root: str) -> int:
+    """The pairing of a root's episode seeds (manifests.spec): UNPAIRED in a root from before pairing."""
+    return root_recorded(root, "pairing")
+
+
+def root_rules(root: str) -> int:
+    """The rules of a root (manifests.spec): OLD_RULES in a root from before them."""
+    return root_recorded(root, "rules")
 
 
 def root_catalog(root: str | None, path: Path | None):

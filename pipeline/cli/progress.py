@@ -155,6 +155,10 @@ def format_produce_report(report) -> str:
     if report.repaired:
         lines.append(f"repair: re-rendering {len(report.repaired)} damaged episode(s): {', '.join(report.repaired[:10])}"
                      + (" ..." if len(report.repaired) > 10 else ""))
+    if report.reshifted:
+        lines.append(f"extend: {count(len(report.reshifted), 'episode')} of a shifting weather made longer "
+                     f"({', '.join(report.reshifted[:5])}{' ...' if len(report.reshifted) > 5 else ''}) rendered "
+                     "again whole: a shift runs over its episode's length, so their earlier frames changed too")
     if report.per_scenario:
         w = max([10, *map(len, report.per_scenario)])  # a declared code may be longer than T01_HRN_A
         lines.append(f"{'scenario':<{w}} {'episodes':>8} {'frames':>8} {'worker s/frame':>15}")

@@ -35,7 +35,7 @@ from manifests.shifts import weather_at
 from manifests.conditions import frame_conditions
 from manifests.geometry import CV_FROM_GL, normals_from_depth, pose_cells
 from manifests.objects import object_counts
-from manifests.spec import EpisodeSpec
+from manifests.spec import NEW_RULES, EpisodeSpec
 from manifests.spec import town_seed
 from render_workers.render import postfx
 from render_workers.worlds import worldcache
@@ -158,7 +158,7 @@ def frame_weathers(spec: EpisodeSpec) -> list:
     """The weather each frame of ``spec`` is rendered under: its scenario's, or a shift's at that frame."""
     with using(spec.catalog):
         row = lookup_scenario(spec.scenario).weather
-        return [weather_at(row, i, spec.frames, lookup_weather) for i in range(spec.frames)]
+        return [weather_at(row, i, spec.frames, lookup_weather, spec.rules < NEW_RULES) for i in range(spec.frames)]
 
 
 def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, index: int) -> tuple[Frame, dict]:

@@ -21,6 +21,7 @@ from typing import Callable
 import numpy as np
 
 from manifests.catalog import Weather, class_id
+from manifests.fog import extinction
 from render_workers.render import weatherfx
 from render_workers.render.camera import CameraRig
 from render_workers.worlds.scene import World
@@ -170,14 +171,14 @@ def wet_road(img: np.ndarray, ctx: FxContext) -> np.ndarray:
 
 
 def fog(img: np.ndarray, ctx: FxContext) -> np.ndarray:
-    """Blend towards the horizon colour with transmittance (1 - fog) ** (depth / 1000 m)."""
-    density = ctx.weather.fog
-    if density <= 0:
+    """Blend towards the horizon colour with transmittance exp(-beta * depth), beta = ln(20) / visibility
+    (manifests.fog; a weather declared as a share per km before renders as it did)."""
+    beta = extinction(ctx.weather.visibility_m)
+    if beta <= 0:
         return img
     import cv2
 
-    # dense fog (FG: 1 - 1e-5 per km) needs densities this close to 1; below 0.999 as it always was
-    transmittance = cv2.exp(ctx.depth * np.float32(math.log(1.0 - min(density, 1.0 - 1e-12)) / 1000.0))
+    transmittance = cv2.exp(ctx.depth * np.float32(-beta))
     return _lerp(_flat(img.shape, np.asarray(ctx.weather.sky_horizon, np.float32) / 255.0), img, transmittance)
 
 
