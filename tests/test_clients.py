@@ -227,7 +227,7 @@ def test_cityscapes_export_has_every_split_and_reads_like_cityscapes(root, manif
     result = CliRunner().invoke(app(), ["export", str(root), "--format", "cityscapes", "--to", str(target)])
     assert result.exit_code == 0, result.output
     # Three one-episode scenarios of three scenes: one episode in each split (docs/layout.md, "Splits").
-    assert f"{len(manifest)} frames (4 train, 4 val, 4 test)" in result.output
+    assert f"{len(manifest)} of the {len(manifest)} frames the root holds (4 train, 4 val, 4 test)" in result.output
     for split in ("train", "val", "test"):
         for kind in ("semantic", "color", "instance"):
             pairs = torchvision_cityscapes(target, split, kind)

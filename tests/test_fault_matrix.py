@@ -325,7 +325,7 @@ def test_export_refuses_damaged_frame_files(world, mode):
     assert not target.exists() and sorted(os.listdir(world["base"])) == ["flags", "neighbour", "root"]
     result = faultkit.run(_export(world, target, *mode, "--skip-damaged"), world["flags"] / "skipped")
     assert result.returncode == 0, result.stderr
-    assert "left out 2 frames with 2 damaged files" in result.stderr and "exported 2 frames" in result.stdout
+    assert "left out 2 frames with 2 damaged files" in result.stderr and "exported 2 of the 4 frames the root holds" in result.stdout
     rows = (target / "frames.csv").read_text().splitlines()[1:]
     assert sorted(row.split(",")[5] for row in rows) == ["0000_000_T01_CN_A", "0000_001_T07_HRN_A"]
     check()
