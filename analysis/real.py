@@ -1,4 +1,4 @@
-"""A real dataset folder in Cityscapes layout as one more domain for `idda distances` and `idda shifts`.
+"""A real dataset folder in Cityscapes or CamVid layout as one more domain for `idda distances` and `idda shifts`.
 
 The paper's other experiment trains on IDDA and tests on real data. A folder
 in Cityscapes' layout takes part in a pair under the name ``real``
@@ -6,6 +6,11 @@ in Cityscapes' layout takes part in a pair under the name ``real``
 
     leftImg8bit/<split>/<city>/<name>_leftImg8bit.png     the images (distances, shifts)
     gtFine/<split>/<city>/<name>_gtFine_labelIds.png      Cityscapes label ids (shifts)
+
+A folder in CamVid's layout (``<split>/*.png``, labels in ``<split>annot/``,
+:mod:`analysis.camvid`) serves ``idda distances`` as well, its sequences standing
+for cities. Its labels hold CamVid's 11 classes, not our 16: it is scored by
+``idda shifts --camvid`` (:mod:`analysis.camvid`), not in a shift pair.
 
 Only the chosen splits are read (default ``val``); frames are in (split,
 city, name) order. Distances use the images only; shifts also need the
@@ -79,13 +84,25 @@ class RealFolder:
     path: str
     splits: tuple[str, ...] = ("val",)
 
+    @property
+    def camvid(self) -> bool:
+        """Whether the folder is in CamVid's layout rather than Cityscapes'."""
+        from analysis.camvid import is_camvid
+
+        return not os.path.isdir(os.path.join(self.path, IMAGES)) and is_camvid(self.path)
+
     def images(self, labels: bool = False) -> list[RealImage]:
         """The chosen splits' images in (split, city, name) order; ValueError saying what is
-        missing when the folder is not in Cityscapes layout (with ``labels``: or lacks labelIds)."""
+        missing when the folder is in neither layout (with ``labels``: or lacks labels)."""
         if not self.splits:
             raise ValueError("give at least one split of the real folder")
         if not os.path.isdir(self.path):
             raise ValueError(f"real data folder {self.path} does not exist")
+        if self.camvid:
+            from analysis.camvid import camvid_pairs, sequence
+
+            return [RealImage(split, sequence(image), image, label)
+                    for split in self.splits for image, label in camvid_pairs(self.path, split, labels)]
         top = os.path.join(self.path, IMAGES)
         if not os.path.isdir(top):
             raise ValueError(f"{self.path} is not in Cityscapes layout: it has no {IMAGES}/ (expected {LAYOUT})")
@@ -154,11 +171,19 @@ def real_features(folder: RealFolder, bank, samples: int, threads: int = 4) -> n
         return np.stack(list(pool.map(lambda p: bank(read_rgb(p)), paths)))
 
 
+def scored_images(folder: RealFolder) -> list[RealImage]:
+    """The images and labelIds a shift pair scores on; ValueError for a CamVid folder (11 classes, not our 16)."""
+    if folder.camvid:
+        raise ValueError(f"{folder.path} is in CamVid layout, whose 11 classes are not our 16: "
+                         "measure it with idda shifts --camvid FOLDER, not in a pair")
+    return folder.images(labels=True)
+
+
 def load_real(folder: RealFolder, width: int, height: int, max_frames: int | None = None):
     """The folder's frames for ``analysis.shifts`` (``Frames``): cities as episodes, labels as training indices."""
     from analysis.shifts import Frames, prepare
 
-    images = folder.images(labels=True)
+    images = scored_images(folder)
     images = images if max_frames is None else images[:max_frames]
     cities = {key: i for i, key in enumerate(dict.fromkeys((im.split, im.city) for im in images))}
     arrays, labels, episodes, frames = [], [], [], []

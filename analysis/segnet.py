@@ -4,8 +4,9 @@ Four encoder stages (stride 2 each, two 3x3 conv + batch norm + ReLU per
 stage) and a U-Net style decoder that upsamples, concatenates the matching
 encoder stage and mixes with one 3x3 conv; a 1x1 head predicts the classes
 at half resolution and bilinear upsampling brings them to the input size.
-With the default widths it has about 0.5M parameters and needs the input's
-height and width to be multiples of 16 (160x96 by default).
+With the default widths it has about 0.5M parameters. Input sides that are
+multiples of 16 halve exactly at every stage (160x96, idda shifts); others
+work too, each decoder stage resizing to its skip (160x120, --camvid).
 """
 
 from __future__ import annotations

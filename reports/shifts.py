@@ -89,25 +89,31 @@ def markdown(result: dict) -> list[str]:
     return lines
 
 
-def update_docs(result: dict, docs: str = "docs") -> None:
-    """Put the section into an existing docs/worlds.md (and worlds.json) without re-running the whole report."""
+def put_section(docs: str, title: str, lines: list[str], key: str, result: dict, anchor: str) -> None:
+    """Replace the section ``title`` of docs/worlds.md with ``lines`` (else insert it before the section
+    starting with ``anchor``, else append it), and ``key`` of docs/worlds.json with ``result``."""
     import json
     from pathlib import Path
 
     md, js = Path(docs, "worlds.md"), Path(docs, "worlds.json")
     text = md.read_text() if md.exists() else ""
-    section = "\n".join(markdown(result)).strip("\n") + "\n\n"
-    if SECTION_TITLE in text:
-        head, _, rest = text.partition(SECTION_TITLE)
+    section = "\n".join(lines).strip("\n") + "\n\n"
+    if title in text:
+        head, _, rest = text.partition(title)
         nxt = rest.find("\n## ")
         text = head.rstrip("\n") + "\n\n" + section + (rest[nxt + 1:] if nxt >= 0 else "")
-    else:  # before the timings section, where the full report puts it
-        at = text.find("\n## Scene building")
+    else:
+        at = text.find("\n" + anchor)
         text = text + "\n" + section if at < 0 else text[:at].rstrip("\n") + "\n\n" + section + text[at + 1:]
     md.write_text(text)
     data = json.loads(js.read_text()) if js.exists() else {}
-    data["shifts"] = result
+    data[key] = result
     js.write_text(json.dumps(data, indent=1, default=float) + "\n")
+
+
+def update_docs(result: dict, docs: str = "docs") -> None:
+    """Put the section into an existing docs/worlds.md (and worlds.json) without re-running the whole report."""
+    put_section(docs, SECTION_TITLE, markdown(result), "shifts", result, "## Scene building")  # before the timings
 
 
 if __name__ == "__main__":

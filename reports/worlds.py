@@ -13,6 +13,8 @@ episode per scenario at reduced resolution, frames 3 s apart), then writes
   embedding of all domains;
 * the paper's domain-shift table (``reports.shifts``: ``idda shifts``
   on its five domains, 150 frames each);
+* synthetic to real on CamVid at two seeds (``reports.camvid``: ``idda shifts
+  --camvid``; the folder from ``$IDDA_CAMVID``, else the section says it was skipped);
 * one contact sheet per weather (7 towns x 5 viewpoints): frame 0 of episode 0
   of every scenario, i.e. exactly what ``render_workers.render.preview.write_preview``
   renders for the same seed and size;
@@ -30,6 +32,7 @@ from pathlib import Path
 import numpy as np
 
 from manifests.catalog import split_code
+from reports.camvid import measure as measure_camvid
 from reports.shifts import measure as measure_shifts
 from reports.charts import CELL_WIDTH, MAX_PNG_BYTES, contact_sheets, presence_png, town_share_png, town_sheet
 from reports.sample import FRAMES, HEIGHT, LARGE, RARE, SAMPLE_ROOT, SEED, WIDTH, WORKERS, episode_stats, produce_sample, urban_towns
@@ -195,7 +198,7 @@ def _bench_summary(bench: dict | None) -> str | None:
 
 
 def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height: int = HEIGHT,
-         root: str = SAMPLE_ROOT, workers: int = WORKERS, domains: str = "all") -> dict:
+         root: str = SAMPLE_ROOT, workers: int = WORKERS, domains: str = "all", camvid: str | None = None) -> dict:
     from manifests.reader import read_manifest
     from manifests.stats import bar_chart_png, share_table
 
@@ -228,6 +231,9 @@ def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height
     log.info("domain shift table")
     shifts = measure_shifts(workers=workers)
 
+    log.info("synthetic to real on CamVid")
+    camvid = measure_camvid(camvid, docs=str(docs), workers=workers)
+
     log.info("build_world / populate timings")
     timings = world_timings(episode_stats(root))
 
@@ -237,6 +243,7 @@ def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height
         "checks": checks(stats),
         "distances": dist,
         "shifts": shifts,
+        "camvid": camvid,
         "timings": timings,
         "contact_sheets": [str(Path(p).relative_to(docs)) for p in sheets],
         "town_sheet": str(Path(towns).relative_to(docs)),

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from reports.camvid import markdown as camvid_markdown
 from reports.shifts import markdown as shifts_markdown
 from reports.sample import LARGE, SEED, span, urban_towns
 
@@ -165,7 +166,10 @@ def _distance_section(result: dict) -> list[str]:
 
 
 def _shift_section(result: dict) -> list[str]:
-    return shifts_markdown(result["shifts"])
+    lines = shifts_markdown(result["shifts"])
+    if "camvid" in result:  # reports written before issue 34 have none
+        lines += camvid_markdown(result["camvid"])
+    return lines
 
 
 def _timing_section(result: dict) -> list[str]:

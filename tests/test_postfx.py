@@ -103,3 +103,64 @@ def test_chain_is_deterministic_and_registry_checked():
     assert a.dtype == np.uint8 and np.array_equal(a, b) and not np.array_equal(a, c)
     with pytest.raises(ValueError, match="antialias"):
         postfx.apply(frame, context(), order=("sparkles",))
+
+
+def _saturation(img):
+    return float((img.max(axis=2) - img.min(axis=2)).mean())
+
+
+def camera(seed, share=1.0):
+    """A context whose weather asks for a real camera's look (``camera``, opt-in)."""
+    from dataclasses import replace
+
+    ctx = context(seed=seed)
+    return replace(ctx, weather=replace(ctx.weather, camera=share))
+
+
+def test_camera_look_is_opt_in_and_blends_by_its_share():
+    img = image()
+    for effect in (postfx.tone, postfx.sensor):
+        ctx = context(seed=1)
+        assert effect(img, ctx) is img  # built-in weathers: the frame as before
+        assert np.array_equal(ctx.rng.random(3), np.random.default_rng(1).random(3))  # no draw taken either
+        full, half = effect(img, camera(1)), effect(img, camera(1, 0.5))
+        assert np.allclose(half, 0.5 * img + 0.5 * full, atol=1e-5)
+
+
+def test_tone_mutes_colour_and_compresses_highlights_like_a_camera():
+    vivid = np.zeros((H, W, 3), np.float32)
+    vivid[..., 0], vivid[..., 1] = 0.9, 0.2  # saturated orange
+    vivid[:4] = 1.0  # a white sky row
+    out = postfx.tone(vivid, camera(1))
+    assert _saturation(out[4:]) < 0.6 * _saturation(vivid[4:])  # muted colour
+    assert out.min() >= 0.0 and out.max() <= 1.0
+    again = postfx.tone(vivid, camera(1))
+    other = postfx.tone(vivid, camera(2))
+    assert np.array_equal(out, again) and not np.array_equal(out, other)  # exposure and white balance per episode
+
+
+def test_sensor_darkens_corners_adds_grain_and_keeps_the_middle():
+    flat = np.full((H, W, 3), 0.5, np.float32)
+    out = postfx.sensor(flat, camera(1))
+    assert out[:4, :4].mean() < out[H // 2 - 2: H // 2 + 2, W // 2 - 2: W // 2 + 2].mean()  # vignetting
+    assert out[H // 3: 2 * H // 3, W // 3: 2 * W // 3].std() > 0.003  # noise survives the JPEG round trip
+    assert abs(out[H // 3: 2 * H // 3, W // 3: 2 * W // 3].mean() - 0.5) < 0.03  # no shift in the middle
+    assert np.array_equal(out, postfx.sensor(flat, camera(1)))
+
+
+def test_randomize_is_opt_in_and_recolours_each_class_once_per_episode():
+    from dataclasses import replace
+
+    img = np.full((H, W, 3), 0.5, np.float32)
+    assert np.array_equal(postfx.randomize(img, context()), img)  # the built-in weathers leave it off
+
+    def recoloured(seed):
+        ctx = context(seed=seed)
+        return postfx.randomize(img, replace(ctx, weather=replace(ctx.weather, randomize=1.0))), ctx.classes
+
+    out, classes = recoloured(seed=3)
+    for cls in np.unique(classes):  # one colour per class: the structure stays
+        assert np.ptp(out[classes == cls], axis=0).max() == 0.0
+    sky, road = out[classes == SKY][0], out[classes == ROAD][0]
+    assert not np.allclose(sky, road) and not np.allclose(sky, 0.5)
+    assert np.array_equal(recoloured(seed=3)[0], out) and not np.array_equal(recoloured(seed=4)[0], out)

@@ -21,7 +21,7 @@ from pipeline.cli.domains import CatalogFile, root_catalog
 
 Real = Annotated[Optional[Path], typer.Option(
     "--real", help="A real dataset folder in Cityscapes layout (leftImg8bit/, gtFine/ labelIds for shifts): "
-    "the domain 'real' in --pairs.")]
+    "the domain 'real' in --pairs; for distances also CamVid's layout (train/, val/...).")]
 RealSplits = Annotated[list[str], typer.Option("--real-split", help="Split of the --real folder to read; repeatable.")]
 
 
@@ -164,11 +164,14 @@ def shifts(
     pairs: str = typer.Option("", help="More SOURCE:TARGET pairs of scenario codes or 'real', comma-separated."),
     real: Real = None,
     real_split: RealSplits = ["val"],
-    steps: int = typer.Option(800, help="Training steps per case."),
+    camvid: Optional[Path] = typer.Option(None, "--camvid", help="Instead of the cases: a folder in CamVid's layout (train/, val/ and their *annot/). Trains on --domains of the root and on CamVid train, scores both on CamVid val (11 classes) and prints the share of the real-trained mIoU kept."),
+    domains: str = typer.Option("all", "--domains", "-d", help=DOMAINS_HELP + " With --camvid: the frames to train on."),
+    picture: Optional[Path] = typer.Option(None, "--picture", help="With --camvid: write both networks' confusion matrices on CamVid val to this PNG."),
+    steps: Optional[int] = typer.Option(None, help="Training steps per network (default 800; 600 with --camvid)."),
     batch_size: int = typer.Option(8, help="Frames per training step."),
-    width: int = typer.Option(160, help="Network input width (multiple of 16)."),
-    height: int = typer.Option(96, help="Network input height (multiple of 16)."),
-    max_frames: Optional[int] = typer.Option(None, help="Use only the first N frames of each domain."),
+    width: int = typer.Option(160, help="Network input width (multiple of 16; of 8 with --camvid)."),
+    height: Optional[int] = typer.Option(None, help="Network input height (multiple of 16, default 96; with --camvid a multiple of 8, default 120)."),
+    max_frames: Optional[int] = typer.Option(None, help="Use only the first N frames of each domain (with --camvid: of the selection and of each CamVid split)."),
     seed: int = typer.Option(0, help="Seed of the weights, batch order and flips."),
     threads: int = typer.Option(2, help="torch CPU threads."),
     device: str = typer.Option("auto", help="auto (a CUDA GPU when torch sees one), cpu or cuda."),
@@ -180,6 +183,7 @@ def shifts(
     source frames and on the target (T01_CS_J, T01_HRN_J, T07_HRN_A), and print the
     share of mIoU kept next to the paper's. --pairs adds any pair of declared domains, or
     of one and 'real', a Cityscapes-layout folder (--real) scored on its gtFine labelIds.
+    --camvid measures synthetic to real instead (docs/realism.md).
     Needs PyTorch: pip install -e '.[analysis]'."""
     import json
 
@@ -191,17 +195,34 @@ def shifts(
 
         require_torch()  # the analysis extra: say so before reading any data
         output_root(root)
+        for path in (json_out, picture):  # fail before minutes of training, not after
+            if path is not None and not path.parent.is_dir():
+                raise ValueError(f"cannot write {path}: directory {path.parent} does not exist")
+        if camvid is not None:
+            if cases or pairs.strip() or real:
+                raise ValueError("--camvid measures on its own: leave out --cases, --pairs and --real")
+            from analysis.camvid import TransferConfig, confusion_picture, format_transfer, run_transfer
 
+            transfer = run_transfer(TransferConfig(
+                root=root, camvid=str(camvid), domains=domains, steps=steps or 600, batch_size=batch_size,
+                width=width, height=height or 120, max_frames=max_frames, seed=seed, threads=threads, device=device))
+            typer.echo(format_transfer(transfer))
+            write_local(json_out, (json.dumps(transfer.to_json(), indent=1) + "\n").encode())
+            typer.echo(f"wrote {json_out}")
+            if picture is not None:
+                confusion_picture(transfer, picture)
+                typer.echo(f"confusion picture: {picture}")
+            return
+        if picture is not None or domains != "all":
+            raise ValueError("--picture and --domains go with --camvid")
         if cases is None:
             cases = "" if pairs.strip() else ",".join(CASE_BY_NAME)
         config = ShiftConfig(
             root=root, cases=tuple(c.strip() for c in cases.split(",") if c.strip()), pairs=parse_pairs(pairs),
-            real=str(real) if real else None, real_splits=tuple(real_split), steps=steps,
-            batch_size=batch_size, width=width, height=height, max_frames=max_frames, seed=seed,
+            real=str(real) if real else None, real_splits=tuple(real_split), steps=steps or 800,
+            batch_size=batch_size, width=width, height=height or 96, max_frames=max_frames, seed=seed,
             threads=threads, device=device,
         )
-        if not json_out.parent.is_dir():  # fail before minutes of training, not after
-            raise ValueError(f"cannot write {json_out}: directory {json_out.parent} does not exist")
         report = run_shifts(config)
         typer.echo(format_shift_table(report))
         write_local(json_out, (json.dumps(report.to_json(), indent=1) + "\n").encode())

@@ -4,7 +4,10 @@ Each effect takes a float32 HxWx3 image in [0, 1] (sRGB) and an :class:`FxContex
 (the frame's depth, classes, camera, weather, ego speed and rng) and returns a
 new image. :data:`ORDER` applies them scene first (puddles, wet road, fog), then
 atmosphere (rain), then lens and camera (bloom, flare, motion blur), then the
-weather's colour grading. An effect whose weather strength is zero is a no-op. Snow cover,
+weather's colour grading, the opt-in per-episode class colours (``randomize``),
+and last a real camera's look (issue 34): ``tone`` (exposure and white balance
+per episode, a filmic curve, muted colour) and ``sensor`` (vignetting, lens
+blur, chromatic aberration, noise, JPEG-like compression). An effect whose weather strength is zero is a no-op. Snow cover,
 night lights and snowfall live in ``render_workers.render.weatherfx``.
 
 Randomness comes only from ``FxContext.rng`` (per frame) and
@@ -317,6 +320,109 @@ def antialias(img: np.ndarray, ctx: FxContext) -> np.ndarray:
     return cv2.copyTo(cv2.blur(img, (3, 3)), edge, img.copy())
 
 
+# A camera's look (issue 34): what a real street camera does to a scene that the renderer draws
+# clean, saturated and noiseless. Strengths are for the whole frame; blur and chromatic
+# aberration scale with the width (pixels at CAMERA_REF_WIDTH).
+CAMERA_REF_WIDTH = 320
+CAMERA_SATURATION = 0.4  # colour kept around each pixel's grey (real street footage is muted)
+CAMERA_CONTRAST = 1.15  # gain about mid-grey after the curve (deep shadows, blown skies)
+CAMERA_EXPOSURE = (0.7, 1.15)  # exposure range (one per episode), linear light
+CAMERA_WHITE_BALANCE = 0.06  # channel gains (one set per episode) within 1 +- this
+CAMERA_STREAM = 34  # the episode's camera settings: np.random.default_rng([episode_seed, CAMERA_STREAM])
+CAMERA_VIGNETTE = 0.3  # light lost at the corners
+CAMERA_BLUR_PX = 0.5  # lens blur sigma
+CAMERA_ABERRATION_PX = 0.5  # red and blue shifted apart by this at the frame's edge
+CAMERA_NOISE = (0.008, 0.02)  # sensor noise sigma: floor and signal-proportional part
+CAMERA_JPEG_QUALITY = 75
+
+
+def _filmic(x: np.ndarray) -> np.ndarray:
+    """ACES-like filmic tone curve (Narkowicz's fit) of linear light, into [0, 1]."""
+    f = np.float32
+    return np.clip(x * (f(2.51) * x + f(0.03)) / (x * (f(2.43) * x + f(0.59)) + f(0.14)), f(0.0), f(1.0))
+
+
+RANDOMIZE_GAIN = 0.45  # at full strength each class's channel gains lie within 1 +- this ...
+RANDOMIZE_LEVEL = 0.3  # ... times one brightness gain within 1 +- this
+RANDOMIZE_STREAM = 35  # the episode's colours: np.random.default_rng([episode_seed, RANDOMIZE_STREAM])
+
+
+def randomize(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Structured domain randomization (the weather's ``randomize`` strength, opt-in): every class's
+    colour scaled per channel by gains drawn once per episode, so the scene keeps its structure."""
+    strength = ctx.weather.randomize
+    if strength <= 0.0:
+        return img
+    rng = np.random.default_rng([ctx.episode_seed, RANDOMIZE_STREAM])
+    gains = 1.0 + strength * RANDOMIZE_GAIN * rng.uniform(-1.0, 1.0, (256, 3))
+    gains *= 1.0 + strength * RANDOMIZE_LEVEL * rng.uniform(-1.0, 1.0, (256, 1))
+    return np.clip(img * gains.astype(np.float32)[ctx.classes], np.float32(0.0), np.float32(1.0))
+
+
+def _camera_look(effect: Effect) -> Effect:
+    """``effect`` as the weather's ``camera`` share asks: a no-op at 0 (no draw from the frame's rng, so
+    frames without the look keep their bytes), the effect itself at 1, a blend between them."""
+
+    def blended(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+        share = ctx.weather.camera
+        if share <= 0.0:
+            return img
+        out = effect(img, ctx)
+        if share >= 1.0:
+            return out
+        import cv2
+
+        return cv2.addWeighted(img, 1.0 - share, out, share, 0.0)
+
+    blended.__name__, blended.__doc__ = effect.__name__, effect.__doc__
+    return blended
+
+
+@_camera_look
+def tone(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Exposure and white balance (per episode), a filmic curve in linear light, then muted colour and contrast."""
+    import cv2
+
+    camera = np.random.default_rng([ctx.episode_seed, CAMERA_STREAM])  # one camera setting per episode
+    exposure = camera.uniform(*CAMERA_EXPOSURE)
+    gains = exposure * (1.0 + camera.uniform(-CAMERA_WHITE_BALANCE, CAMERA_WHITE_BALANCE, 3))
+    linear = cv2.multiply(cv2.pow(np.maximum(img, np.float32(0.0)), 2.2), (*map(float, gains), 0.0))
+    out = cv2.pow(_filmic(linear), 1 / 2.2)
+    grey = cv2.cvtColor(out, cv2.COLOR_RGB2GRAY)
+    out = cv2.addWeighted(out, CAMERA_SATURATION, cv2.merge([grey] * 3), 1.0 - CAMERA_SATURATION, 0.0)
+    f = np.float32
+    return np.clip((out - f(0.5)) * f(CAMERA_CONTRAST) + f(0.5), f(0.0), f(1.0))
+
+
+def vignette(height: int, width: int) -> np.ndarray:
+    """The share of light the lens lets through at each pixel (1 at the centre, 1 - CAMERA_VIGNETTE at the corners)."""
+    ys, xs = np.ogrid[-1.0:1.0:height * 1j, -1.0:1.0:width * 1j]
+    return (1.0 - CAMERA_VIGNETTE * 0.5 * (xs * xs + ys * ys)).astype(np.float32)
+
+
+@_camera_look
+def sensor(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Vignetting, lens blur, chromatic aberration, sensor noise and JPEG-like compression."""
+    import cv2
+
+    h, w = img.shape[:2]
+    scale = w / CAMERA_REF_WIDTH
+    out = cv2.multiply(img, cv2.merge([vignette(h, w)] * 3))
+    out = cv2.GaussianBlur(out, (0, 0), CAMERA_BLUR_PX * scale)
+    shift = CAMERA_ABERRATION_PX * scale
+    if shift > 0.05:  # red magnified, blue shrunk about the centre
+        r, g, b = cv2.split(out)
+        for i, k in ((0, 1.0 + 2 * shift / w), (2, 1.0 - 2 * shift / w)):
+            m = np.float32([[k, 0, (1 - k) * (w - 1) / 2], [0, k, (1 - k) * (h - 1) / 2]])
+            (r, g, b)[i][...] = cv2.warpAffine((r, g, b)[i], m, (w, h), borderMode=cv2.BORDER_REFLECT)
+        out = cv2.merge([r, g, b])
+    sigma = np.float32(CAMERA_NOISE[0]) + np.float32(CAMERA_NOISE[1]) * np.sqrt(np.maximum(out, np.float32(0.0)))
+    out = out + ctx.rng.standard_normal(out.shape, dtype=np.float32) * sigma
+    q = cv2.multiply(out, (255.0, 255.0, 255.0, 0.0), dtype=cv2.CV_8U)
+    ok, data = cv2.imencode(".jpg", q, [cv2.IMWRITE_JPEG_QUALITY, CAMERA_JPEG_QUALITY])
+    return np.multiply(cv2.imdecode(data, cv2.IMREAD_UNCHANGED), np.float32(1.0 / 255.0), dtype=np.float32)
+
+
 EFFECTS: dict[str, Effect] = {
     "antialias": antialias,
     "puddles": puddles,
@@ -330,6 +436,9 @@ EFFECTS: dict[str, Effect] = {
     "lens_flare": lens_flare,
     "motion_blur": motion_blur,
     "grading": grading,
+    "randomize": randomize,
+    "tone": tone,
+    "sensor": sensor,
 }
 ORDER: tuple[str, ...] = tuple(EFFECTS)
 

