@@ -92,7 +92,9 @@ def _config(module: str) -> str:
         # a fork server that has collected the tests but run none: a test's threads (pools,
         # lease refreshers) are never forked half-held, which hangs a forked child
         'process_isolation = "forkserver"',
-        "timeout_multiplier = 1.5",  # wall limit: 1.5 x the covering tests' time (+1 s)
+        # wall limit 2 x (the covering tests' time + 20 s): a loaded machine must not pass for a hang
+        "timeout_multiplier = 2.0",
+        "timeout_constant = 20.0",
     ]) + "\n"
 
 

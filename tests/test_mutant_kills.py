@@ -72,3 +72,131 @@ def test_written_files_get_the_usual_mode_never_executable(tmp_path, how):
     finally:
         os.umask(old)
     assert (tmp_path / "f.png").stat().st_mode & 0o777 == 0o644
+
+
+# ---------------------------------------------------------------- manifests/lease ----
+
+
+def test_lease_ttl_from_the_environment():
+    from manifests.lease import TTL_ENV, TTL_S, ttl_from_env
+
+    assert ttl_from_env({}) == TTL_S
+    assert ttl_from_env({TTL_ENV: "2.5"}) == 2.5
+    for bad in ("0", "-3", "soon", "nan", ""):
+        with pytest.raises(ValueError, match=f"^{TTL_ENV} must be a positive number of seconds, got '{bad}'$"):
+            ttl_from_env({TTL_ENV: bad})
+
+
+def test_a_lease_is_described_by_purpose_owner_and_time_left():
+    import time
+
+    from manifests.lease import describe
+
+    line = describe({"purpose": "repair", "owner": "host-7-ab12", "expires": time.time() + 3600})
+    assert line in {f"repair by host-7-ab12 (lease expires in {s} s unless renewed)" for s in (3598, 3599, 3600)}
+    assert describe({"expires": time.time() - 50}) == "? by ? (lease expires in 0 s unless renewed)"
+
+
+def _this_host_lease(pid) -> dict:
+    import socket
+    import time
+
+    from manifests.lease import _pid_namespace
+
+    return {"owner": "o", "host": socket.gethostname(), "pidns": _pid_namespace(), "pid": pid,
+            "purpose": "produce", "expires": time.time() + 60}
+
+
+@pytest.mark.parametrize("pid", [0, -1, "1234", None])
+def test_a_lease_whose_pid_is_odd_is_judged_by_its_expiry_alone(pid):
+    """Only a real pid that is gone makes a live lease dead: an odd one proves nothing."""
+    from manifests.lease import is_live
+
+    assert is_live(_this_host_lease(pid))
+
+
+def test_a_lease_of_another_users_process_on_this_host_is_live(monkeypatch):
+    """os.kill(pid, 0) refused (EPERM): the process exists, so its lease is live."""
+    from manifests import lease
+
+    def refused(pid, sig):
+        raise PermissionError(errno.EPERM, "not yours")
+
+    monkeypatch.setattr(lease.os, "kill", refused)
+    assert lease.is_live(_this_host_lease(4321))
+
+    def gone(pid, sig):
+        raise ProcessLookupError(errno.ESRCH, "no such process")
+
+    monkeypatch.setattr(lease.os, "kill", gone)
+    assert not lease.is_live(_this_host_lease(4321))
+
+
+# ------------------------------------------------------------ manifests/runrecord ----
+
+
+def _record(**config_changes) -> dict:
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+
+    config = RunConfig(plan=PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36),
+                       world="test").to_dict()
+    for key, value in config_changes.items():
+        if value is _DROP:
+            config.pop(key, None)
+        else:
+            config[key] = value
+    return {"config": config}
+
+
+_DROP = object()
+
+
+@pytest.mark.parametrize("record, says", [
+    ([], "is not a run record"),
+    ({"config": []}, "is not a run record"),
+    (_record(width=_DROP), "its config lacks 'width'"),
+    (_record(seed=_DROP), "its config lacks 'seed'"),
+    (_record(domains=_DROP), "its config lacks 'domains'"),
+    (_record(width="64"), "config 'width' is '64'"),
+    (_record(seed=True), "config 'seed' is True"),
+    (_record(scale="1"), "config 'scale' is '1'"),
+    (_record(pairing=1.0), "config 'pairing' is 1.0"),
+    (_record(colour="red"), "unknown config keys colour"),
+    ({**_record(), "history": {}}, "'history' must be a list of configs"),
+    ({**_record(), "history": [{}, 3]}, "'history' must be a list of configs"),
+    ({**_record(), "layout": "nested"}, "unknown file layout 'nested'"),
+    ({**_record(), "layout": True}, "unknown file layout True"),
+])
+def test_a_run_record_of_the_wrong_shape_is_refused_naming_what(record, says):
+    from manifests.runrecord import RunRecordError, check_record
+
+    with pytest.raises(RunRecordError) as raised:
+        check_record(record, "root/run.json")
+    assert str(raised.value).startswith("root/run.json ") and says in str(raised.value)
+
+
+def test_a_run_record_without_optional_keys_or_checksum_reads_as_an_old_root():
+    from manifests.runrecord import OPTIONAL_CONFIG, check_record
+
+    old = _record(**{key: _DROP for key in OPTIONAL_CONFIG}, scale=_DROP, frames_per_scenario=_DROP)
+    assert check_record(old, "root/run.json") is old
+    with_history = {**_record(), "history": [{"seed": 1}], "layout": 2}
+    assert check_record(with_history, "root/run.json") is with_history
+
+
+def test_run_json_that_is_not_a_file_or_not_json_is_damaged(tmp_path):
+    from manifests.runrecord import RunRecordError, read_record
+    from manifests.schema import RUN_FILE
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    assert read_record(storage) is None
+    (tmp_path / RUN_FILE).mkdir()
+    with pytest.raises(RunRecordError, match=r"run\.json is not a regular file$"):
+        read_record(storage)
+    (tmp_path / RUN_FILE).rmdir()
+    for damaged in (b"{not json", b"\xff\xfe"):
+        (tmp_path / RUN_FILE).write_bytes(damaged)
+        with pytest.raises(RunRecordError, match=r"run\.json is not valid JSON: "):
+            read_record(storage)
