@@ -200,3 +200,146 @@ def test_run_json_that_is_not_a_file_or_not_json_is_damaged(tmp_path):
         (tmp_path / RUN_FILE).write_bytes(damaged)
         with pytest.raises(RunRecordError, match=r"run\.json is not valid JSON: "):
             read_record(storage)
+
+
+# --------------------------------------------------------------- pipeline/repair ----
+
+REPAIR_PLAN = dict(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36, seed=5)
+
+
+@pytest.fixture(scope="module")
+def tiny_root(tmp_path_factory):
+    """One 3-frame episode at 64x36, rendered without Ray, its index written: copied by each test."""
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
+
+    root = tmp_path_factory.mktemp("tiny") / "root"
+    render_root(root, RunConfig(plan=PlanConfig(**REPAIR_PLAN), world="test"), compact=True)
+    return root
+
+
+def _copy_of(tiny_root, tmp_path):
+    import shutil
+
+    from storage import Storage
+
+    shutil.copytree(tiny_root, tmp_path / "root", symlinks=True)
+    return tmp_path / "root", Storage.from_uri(str(tmp_path / "root"))
+
+
+def _produce_config(root, **plan_changes):
+    from pipeline.driver import ProduceConfig
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+
+    return ProduceConfig(run=RunConfig(plan=PlanConfig(**{**REPAIR_PLAN, **plan_changes}), world="test"),
+                         out=str(root), workers=1)
+
+
+def test_repair_drops_the_damaged_episode_strays_and_a_bad_index_and_rewrites_run_json(tiny_root, tmp_path, caplog):
+    import logging
+
+    from manifests.reader import done_episodes, episode_parts
+    from manifests.runrecord import read_record
+    from manifests.schema import RUN_FILE, index_path
+    from pipeline.planner import make_plan
+    from pipeline.repair import repair_alone
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    frame = sorted((root / "T01_CN_A").rglob("*.png"))[0]
+    frame.write_bytes(frame.read_bytes()[:-4] + b"XXXX")
+    stray = root / "T01_CN_A" / "e0009" / "rgb" / "0009_000_T01_CN_A.png"  # ours by name, listed by no part
+    stray.parent.mkdir(parents=True)
+    stray.write_bytes(b"stray")
+    (root / RUN_FILE).write_bytes(b"{damaged")
+    config = _produce_config(root)
+    plan = make_plan(config.run.plan)
+    from dataclasses import replace
+
+    unplanned = type(plan)(plan.config, (replace(plan.episodes[0], episode=1),))  # its scenario, another episode
+    with caplog.at_level(logging.WARNING, logger="pipeline.repair"):
+        touched = repair_alone(storage, config, unplanned, owner="me")
+    assert "T01_CN_A_e0000 is damaged but not in the current plan; it stays pending" in caplog.text
+    assert sorted(touched) == sorted(["T01_CN_A/e0000", RUN_FILE])
+    assert episode_parts(storage, "T01_CN_A", 0) == [] and done_episodes(storage) == set()
+    assert not storage.exists(index_path("T01_CN_A")) and not stray.exists()
+    assert read_record(storage)["config"]["seed"] == 5  # rewritten from the run's options
+    assert not (root / "_lease" / "exclusive.json").exists()
+
+
+def test_repair_drops_a_bad_index_alone_and_names_it(tiny_root, tmp_path):
+    from manifests.reader import done_episodes
+    from manifests.schema import index_path
+    from pipeline.planner import make_plan
+    from pipeline.repair import repair_alone
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    storage.write_bytes(index_path("T01_CN_A"), b"not parquet")
+    config = _produce_config(root)
+    assert repair_alone(storage, config, make_plan(config.run.plan), owner="me") == [index_path("T01_CN_A")]
+    assert not storage.exists(index_path("T01_CN_A")) and done_episodes(storage) == {("T01_CN_A", 0)}
+
+
+def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_root, tmp_path):
+    from manifests.reader import episode_parts
+    from manifests.root import RootError
+    from manifests.writer import read_part_file, write_part
+    from pipeline.planner import make_plan
+    from pipeline.repair import _repair
+    from pipeline.runmeta import RunConfigError
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    config = _produce_config(root)
+    plan = make_plan(config.run.plan)
+    frame = sorted((root / "T01_CN_A").rglob("*.png"))[0]
+    frame.write_bytes(b"damaged")
+    before = _files(root)
+    (frame.parent / "elsewhere").symlink_to(tmp_path)
+    with pytest.raises(RootError, match="elsewhere is a symbolic link; repair never follows a link"):
+        _repair(storage, config, plan, owner="me")
+    (frame.parent / "elsewhere").unlink()
+    assert _files(root) == before
+    (rel,) = episode_parts(storage, "T01_CN_A", 0)
+    table = read_part_file(storage, rel)
+    write_part(storage, "T01_CN_A", 0, table.set_column(table.schema.get_field_index("seed"), "seed",
+                                                        [[7] * len(table)]).cast(table.schema))
+    before = _files(root)
+    with pytest.raises(RunConfigError, match=r"holds frames of another run .*1 part\(s\) in all\); repair deleted nothing"):
+        _repair(storage, config, plan, owner="me")
+    assert _files(root) == before
+
+
+def _files(root) -> dict[str, bytes]:
+    """Every file under ``root`` but the leases, with its content (links not followed)."""
+    out = {}
+    for folder, _, files in os.walk(root):
+        for name in files:
+            path = os.path.join(folder, name)
+            rel = os.path.relpath(path, root)
+            if not rel.startswith("_lease"):
+                with open(path, "rb") as f:
+                    out[rel] = f.read()
+    return out
+
+
+def test_repair_waits_for_other_producers_and_nobody_starts_beside_a_repair(tiny_root, tmp_path):
+    from manifests.lease import LeaseError, acquire_exclusive, register_producer
+    from pipeline.planner import make_plan
+    from pipeline.repair import check_no_repair_running, repair_alone
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    config = _produce_config(root)
+    other = register_producer(storage, owner="other")
+    try:
+        with pytest.raises(LeaseError, match="is being written by another producer \\(produce by other"):
+            repair_alone(storage, config, make_plan(config.run.plan), owner="me")
+    finally:
+        other.release()
+    assert not (root / "_lease" / "exclusive.json").exists()
+    check_no_repair_running(storage)
+    with acquire_exclusive(storage, "compact"):
+        check_no_repair_running(storage)  # compaction does not delete frames
+    with acquire_exclusive(storage, "repair"):
+        with pytest.raises(LeaseError, match="is being repaired \\(repair by "):
+            check_no_repair_running(storage)
