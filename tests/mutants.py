@@ -8,7 +8,11 @@ are left out (mutmut forks a process per mutant; neither survives a fork). The s
 goes to stdout and ``.mutants/scores.json``; docs/mutants.md keeps the last
 one and says why each survivor lives.
 
-    python -m tests.mutants [--max-children N] [module ...]   (e.g. storage/atomic.py)
+    python -m tests.mutants [--max-children N] [--before] [--survivors] [module ...]
+
+``--before`` leaves out the tests written against survivors (the score
+before them); ``--survivors`` reruns only the last run's survivors and
+unfinished mutants with today's tests (mutmut's runs take minutes each).
 
 Also a pytest plugin (``-p tests.mutants``, which mutmut is told to load):
 it deselects those tests.
@@ -41,9 +45,8 @@ ALWAYS = ("tests/test_caught_bugs.py", "tests/test_mutant_kills.py")
 MODULES: dict[str, tuple[str, ...]] = {
     "storage/atomic.py": ("tests/test_storage.py",),
     "manifests/lease.py": ("tests/test_control_plane.py",),
-    "manifests/runrecord.py": ("tests/test_pairing.py", "tests/test_layout.py", "tests/test_deflaters.py"),
-    "pipeline/runmeta.py": ("tests/test_pairing.py", "tests/test_layout.py", "tests/test_deflaters.py",
-                            "tests/test_control_plane.py"),
+    "manifests/runrecord.py": ("tests/test_layout.py",),
+    "pipeline/runmeta.py": ("tests/test_layout.py", "tests/test_pairing.py"),
     "pipeline/repair.py": (),
     "exports/export.py": ("tests/test_export.py",),
     "pipeline/episode_job.py": ("tests/test_episode.py", "tests/test_control_plane.py"),
@@ -79,10 +82,9 @@ def _name(module: str) -> str:
     return module.removesuffix(".py").replace("/", ".")
 
 
-def _config(module: str) -> str:
+def _config(module: str, tests: list[str]) -> str:
     """pyproject.toml for one module's run: the project's own, plus mutmut's section."""
     text = (REPO / "pyproject.toml").read_text()
-    tests = [*MODULES[module], *ALWAYS]
     return text + "\n[tool.mutmut]\n" + "\n".join([
         f"source_paths = {json.dumps(list(PACKAGES))}",
         f"only_mutate = {json.dumps([module])}",
@@ -98,55 +100,74 @@ def _config(module: str) -> str:
     ]) + "\n"
 
 
-def score(folder: Path, module: str) -> dict:
-    """Per status, the mutants of ``module`` (from mutmut's own record of the run)."""
+def statuses(folder: Path, module: str) -> dict[str, str]:
+    """Each mutant of ``module`` and its status, from mutmut's own record of the run."""
     meta = folder / "mutants" / (module + ".meta")
     codes = json.loads(meta.read_text())["exit_code_by_key"] if meta.exists() else {}
-    by_status: dict[str, list[str]] = {}
-    for key, code in sorted(codes.items()):
-        by_status.setdefault(STATUS.get(code, "suspicious"), []).append(key)
-    return {"module": module, "killed": len(by_status.get("killed", [])), "timeout": by_status.get("timeout", []),
-            "total": len(codes), "survived": by_status.get("survived", []),
-            "other": {k: v for k, v in by_status.items() if k not in ("killed", "timeout", "survived")}}
+    return {key: STATUS.get(code, "suspicious") for key, code in sorted(codes.items())}
 
 
-def run_module(module: str, max_children: int, fresh: bool) -> dict:
+def summary(status: dict[str, str]) -> dict:
+    """Caught (killed, or hung past its time limit) out of all; the rest by status."""
+    caught = sum(s in ("killed", "timeout") for s in status.values())
+    rest: dict[str, list[str]] = {}
+    for key, s in status.items():
+        if s not in ("killed", "timeout"):
+            rest.setdefault(s, []).append(key)
+    return {"caught": caught, "timeout": sum(s == "timeout" for s in status.values()), "total": len(status), **rest}
+
+
+def run_module(module: str, max_children: int, tests: list[str], only: list[str] | None = None) -> dict[str, str]:
+    """Mutate ``module`` against ``tests``; ``only``: rerun just these mutants of the last run (kept)."""
     folder = WORK / _name(module)
-    if fresh and folder.exists():
+    if only is None and folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True, exist_ok=True)
     for name in (*PACKAGES, "tests"):
         link = folder / name
         if not link.is_symlink():
             link.symlink_to(REPO / name)
-    (folder / "pyproject.toml").write_text(_config(module))
+    (folder / "pyproject.toml").write_text(_config(module, tests))
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     mutmut = Path(sys.executable).parent / "mutmut"
-    subprocess.run([str(mutmut), "run", "--max-children", str(max_children)], cwd=folder, env=env, check=False)
-    return score(folder, module)
+    subprocess.run([str(mutmut), "run", "--max-children", str(max_children), *(only or [])], cwd=folder, env=env,
+                   check=False)
+    found = statuses(folder, module)
+    return found if only is None else {key: found[key] for key in only}
 
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m tests.mutants", description=__doc__.split("\n\n")[0])
     parser.add_argument("modules", nargs="*", help=f"modules to mutate (default: all, in order: {', '.join(MODULES)})")
     parser.add_argument("--max-children", type=int, default=max(1, (os.cpu_count() or 2) // 2))
-    parser.add_argument("--keep", action="store_true", help="reuse the last run's results (mutmut reruns only what changed)")
+    parser.add_argument("--before", action="store_true",
+                        help=f"leave {ALWAYS[-1]} out: the score before the tests written against survivors")
+    parser.add_argument("--survivors", action="store_true",
+                        help="rerun only the last run's survivors and unfinished mutants, with today's tests")
     args = parser.parse_args(argv)
     unknown = [m for m in args.modules if m not in MODULES]
     if unknown:
         parser.error(f"unknown modules {unknown}; known: {', '.join(MODULES)}")
-    scores_file = WORK / "scores.json"
+    scores_file = WORK / ("scores-before.json" if args.before else "scores.json")
     scores = json.loads(scores_file.read_text()) if scores_file.exists() else {}
     for module in args.modules or list(MODULES):
-        result = run_module(module, args.max_children, fresh=not args.keep)
-        scores[module] = result
+        tests = [*MODULES[module], *(ALWAYS[:-1] if args.before else ALWAYS)]
+        last = scores.get(module, {})
+        if args.survivors:
+            if not last:
+                last = json.loads((WORK / "scores-before.json").read_text()).get(module, {})
+            again = [key for key, s in last.items() if s not in ("killed", "timeout")]
+            scores[module] = {**last, **(run_module(module, args.max_children, tests, again) if again else {})}
+        else:
+            scores[module] = run_module(module, args.max_children, tests)
         WORK.mkdir(exist_ok=True)
         scores_file.write_text(json.dumps(scores, indent=2) + "\n")
-    for module, result in scores.items():  # a mutant that hangs its tests (timeout) is caught too
-        caught = result["killed"] + len(result["timeout"])
-        share = caught / result["total"] if result["total"] else 0.0
-        print(f"{module:26} {caught:4d} / {result['total']:4d} caught ({share:.0%}; {len(result['timeout'])} by timeout); "
-              f"survived: {' '.join(result['survived']) or '-'}; other: {result['other'] or '-'}")
+    for module, status in scores.items():
+        row = summary(status)
+        share = row["caught"] / row["total"] if row["total"] else 0.0
+        rest = "; ".join(f"{s}: {' '.join(k)}" for s, k in row.items() if isinstance(k, list))
+        print(f"{module:24} {row['caught']:4d} / {row['total']:4d} caught ({share:.0%}; {row['timeout']} by timeout)"
+              f"{'; ' + rest if rest else ''}")
     return 0
 
 
