@@ -11,8 +11,8 @@ one and says why each survivor lives.
     python -m tests.mutants [--max-children N] [--before] [--survivors] [module ...]
 
 ``--before`` leaves out the tests written against survivors (the score
-before them); ``--survivors`` reruns only the last run's survivors and
-unfinished mutants with today's tests (mutmut's runs take minutes each).
+before them); ``--survivors`` reruns only the last run's survivors, timeouts
+and unfinished mutants with today's tests (mutmut's runs take minutes each).
 
 Also a pytest plugin (``-p tests.mutants``, which mutmut is told to load):
 it deselects those tests.
@@ -90,13 +90,13 @@ def _config(module: str, tests: list[str]) -> str:
         f"only_mutate = {json.dumps([module])}",
         f"pytest_add_cli_args_test_selection = {json.dumps(tests)}",
         'pytest_add_cli_args = ["-p", "tests.mutants", "-p", "no:cacheprovider", "-x", "-q"]',
-                "use_git_change_detection = false",
+        "use_git_change_detection = false",
         # a fork server that has collected the tests but run none: a test's threads (pools,
         # lease refreshers) are never forked half-held, which hangs a forked child
         'process_isolation = "forkserver"',
-        # wall limit 2 x (the covering tests' time + 20 s): a loaded machine must not pass for a hang
-        "timeout_multiplier = 2.0",
-        "timeout_constant = 20.0",
+        # wall limit 3 x (the covering tests' time + 60 s): a loaded machine must not pass for a hang
+        "timeout_multiplier = 3.0",
+        "timeout_constant = 60.0",
     ]) + "\n"
 
 
@@ -143,7 +143,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--before", action="store_true",
                         help=f"leave {ALWAYS[-1]} out: the score before the tests written against survivors")
     parser.add_argument("--survivors", action="store_true",
-                        help="rerun only the last run's survivors and unfinished mutants, with today's tests")
+                        help="rerun only the last run's survivors, timeouts and unfinished mutants, with today's tests")
     args = parser.parse_args(argv)
     unknown = [m for m in args.modules if m not in MODULES]
     if unknown:
@@ -156,7 +156,7 @@ def main(argv: list[str] | None = None) -> int:
         if args.survivors:
             if not last:
                 last = json.loads((WORK / "scores-before.json").read_text()).get(module, {})
-            again = [key for key, s in last.items() if s not in ("killed", "timeout")]
+            again = [key for key, s in last.items() if s != "killed"]  # a timeout is checked again: load can fake one
             scores[module] = {**last, **(run_module(module, args.max_children, tests, again) if again else {})}
         else:
             scores[module] = run_module(module, args.max_children, tests)
