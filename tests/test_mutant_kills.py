@@ -343,3 +343,42 @@ def test_repair_waits_for_other_producers_and_nobody_starts_beside_a_repair(tiny
     with acquire_exclusive(storage, "repair"):
         with pytest.raises(LeaseError, match="is being repaired \\(repair by "):
             check_no_repair_running(storage)
+
+
+# A run.json as this version writes it, kept byte for byte: a root made today must keep
+# reading (and its checksum matching) whatever later changes how records are written.
+KEPT_RUN_JSON = b"""{
+  "checksum": "c24905eefd18621ac007f1b79f1f78256936814a6e891b966a0f878d620b0a56",
+  "config": {
+    "domains": "T01_CN_A",
+    "frames_per_scenario": 3,
+    "height": 36,
+    "scale": null,
+    "seed": 0,
+    "width": 64
+  },
+  "layout": 2
+}
+"""
+
+
+def test_a_kept_run_json_still_reads_and_is_written_again_byte_for_byte(tmp_path):
+    import json
+
+    from manifests.runrecord import RunRecordError, read_record, record_bytes
+    from manifests.schema import RUN_FILE
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    (tmp_path / RUN_FILE).write_bytes(KEPT_RUN_JSON)
+    record = read_record(storage)
+    assert record["config"]["seed"] == 0 and record["layout"] == 2
+    assert record_bytes(record) == KEPT_RUN_JSON  # same record, same bytes
+    edited = KEPT_RUN_JSON.replace(b'"seed": 0', b'"seed": 1')
+    (tmp_path / RUN_FILE).write_bytes(edited)
+    with pytest.raises(RunRecordError, match="checksum does not match"):
+        read_record(storage)
+    unsealed = json.loads(KEPT_RUN_JSON)
+    del unsealed["checksum"]  # a record from before checksums
+    (tmp_path / RUN_FILE).write_text(json.dumps(unsealed))
+    assert read_record(storage) == unsealed
