@@ -382,3 +382,24 @@ def test_a_kept_run_json_still_reads_and_is_written_again_byte_for_byte(tmp_path
     del unsealed["checksum"]  # a record from before checksums
     (tmp_path / RUN_FILE).write_text(json.dumps(unsealed))
     assert read_record(storage) == unsealed
+
+
+def test_repair_needs_extend_for_another_config_and_verifies_only_its_plans_scenarios(tiny_root, tmp_path):
+    """A repair with another (not frame-defining) config must say --extend; with
+    it, it verifies and touches only the scenarios of its own plan."""
+    from manifests.reader import done_episodes
+    from pipeline.planner import make_plan
+    from pipeline.repair import _repair
+    from pipeline.runmeta import RunConfigError
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    frame = sorted((root / "T01_CN_A").rglob("*.png"))[0]
+    frame.write_bytes(b"damaged")
+    config = _produce_config(root, domains="T01_HRN_A")
+    with pytest.raises(RunConfigError, match="pass --extend to add to it"):
+        _repair(storage, config, make_plan(config.run.plan), owner="me")
+    from dataclasses import replace
+
+    extend = replace(config, extend=True)
+    assert _repair(storage, extend, make_plan(extend.run.plan), owner="me") == []
+    assert done_episodes(storage) == {("T01_CN_A", 0)} and frame.read_bytes() == b"damaged"  # out of its scope
