@@ -258,8 +258,14 @@ def test_repair_drops_the_damaged_episode_strays_and_a_bad_index_and_rewrites_ru
     from dataclasses import replace
 
     unplanned = type(plan)(plan.config, (replace(plan.episodes[0], episode=1),))  # its scenario, another episode
-    with caplog.at_level(logging.WARNING, logger="pipeline.repair"):
-        touched = repair_alone(storage, config, unplanned, owner="me")
+    from manifests.lease import register_producer
+
+    me = register_producer(storage, owner="me")  # produce --repair: our own producer lease is live
+    try:
+        with caplog.at_level(logging.WARNING, logger="pipeline.repair"):
+            touched = repair_alone(storage, config, unplanned, owner="me")
+    finally:
+        me.release()
     assert "T01_CN_A_e0000 is damaged but not in the current plan; it stays pending" in caplog.text
     assert sorted(touched) == sorted(["T01_CN_A/e0000", RUN_FILE])
     assert episode_parts(storage, "T01_CN_A", 0) == [] and done_episodes(storage) == set()
