@@ -302,7 +302,9 @@ def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_roo
     frame.write_bytes(b"damaged")
     before = _files(root)
     (frame.parent / "elsewhere").symlink_to(tmp_path)
-    with pytest.raises(RootError, match="elsewhere is a symbolic link; repair never follows a link"):
+    with pytest.raises(RootError, match=r"/T01_CN_A/.*/elsewhere is a symbolic link; repair never follows a link out of "
+                       "the root and deletes nothing: replace the link with the files it points to, or remove it, "
+                       "and run again$"):
         _repair(storage, config, plan, owner="me")
     (frame.parent / "elsewhere").unlink()
     assert _files(root) == before
@@ -311,7 +313,8 @@ def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_roo
     write_part(storage, "T01_CN_A", 0, table.set_column(table.schema.get_field_index("seed"), "seed",
                                                         [[7] * len(table)]).cast(table.schema))
     before = _files(root)
-    with pytest.raises(RunConfigError, match=r"holds frames of another run .*1 part\(s\) in all\); repair deleted nothing"):
+    with pytest.raises(RunConfigError, match=r"_n3\.parquet holds frames of another run \(.*seed.*; 1 part\(s\) in all\); "
+                       r"repair deleted nothing: check --seed/--width/--height, or move such parts out of the root$"):
         _repair(storage, config, plan, owner="me")
     assert _files(root) == before
 
