@@ -161,6 +161,8 @@ def main(argv: list[str] | None = None) -> int:
         else:
             scores[module] = run_module(module, args.max_children, tests)
         WORK.mkdir(exist_ok=True)
+        now = json.loads(scores_file.read_text()) if scores_file.exists() else {}  # another module's run may have ended
+        scores = {**now, module: scores[module]}
         scores_file.write_text(json.dumps(scores, indent=2) + "\n")
     for module, status in scores.items():
         row = summary(status)

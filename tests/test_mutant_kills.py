@@ -412,3 +412,18 @@ def test_repair_needs_extend_for_another_config_and_verifies_only_its_plans_scen
     extend = replace(config, extend=True)
     assert _repair(storage, extend, make_plan(extend.run.plan), owner="me") == []
     assert done_episodes(storage) == {("T01_CN_A", 0)} and frame.read_bytes() == b"damaged"  # out of its scope
+
+
+def test_repairs_verify_goes_to_the_cluster_and_workers_produce_was_given(monkeypatch, tmp_path):
+    """`produce --repair --address A --workers N` verifies on A with N workers (not a private cluster)."""
+    from dataclasses import replace
+
+    from pipeline import verify_ray
+    from pipeline.repair import verify_runner
+
+    asked = []
+    monkeypatch.setattr(verify_ray, "choose_runner", lambda **kwargs: asked.append(kwargs) or "runner")
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    config = replace(_produce_config(tmp_path), address="10.0.0.7:6379", workers=3)
+    assert verify_runner(config) == "runner"
+    assert asked == [{"address": "10.0.0.7:6379", "workers": 3}]
