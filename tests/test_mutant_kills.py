@@ -427,3 +427,26 @@ def test_repairs_verify_goes_to_the_cluster_and_workers_produce_was_given(monkey
     config = replace(_produce_config(tmp_path), address="10.0.0.7:6379", workers=3)
     assert verify_runner(config) == "runner"
     assert asked == [{"address": "10.0.0.7:6379", "workers": 3}]
+
+
+def test_repair_holds_the_exclusive_lease_as_a_repair_under_its_own_name(monkeypatch, tiny_root, tmp_path):
+    """While it deletes, repair's lease says "repair" by its owner: producers starting meanwhile
+    refuse (check_no_repair_running), and the lease is the one its owner releases."""
+    from manifests.lease import LeaseError, exclusive_holder
+    from pipeline import repair
+    from pipeline.planner import make_plan
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    held = []
+
+    def look(storage, config, plan, owner):
+        held.append(exclusive_holder(storage))
+        with pytest.raises(LeaseError, match="is being repaired"):
+            repair.check_no_repair_running(storage)
+        return []
+
+    monkeypatch.setattr(repair, "_repair", look)
+    config = _produce_config(root)
+    assert repair.repair_alone(storage, config, make_plan(config.run.plan), owner="me-1") == []
+    assert [(h["purpose"], h["owner"]) for h in held] == [("repair", "me-1")]
+    assert exclusive_holder(storage) is None
