@@ -162,7 +162,7 @@ _DROP = object()
     (_record(seed=True), "config 'seed' is True"),
     (_record(scale="1"), "config 'scale' is '1'"),
     (_record(pairing=1.0), "config 'pairing' is 1.0"),
-    (_record(colour="red"), "unknown config keys colour"),
+    (_record(colour="red", size=3), "unknown config keys colour, size"),
     ({**_record(), "history": {}}, "'history' must be a list of configs"),
     ({**_record(), "history": [{}, 3]}, "'history' must be a list of configs"),
     ({**_record(), "layout": "nested"}, "unknown file layout 'nested'"),
@@ -312,6 +312,7 @@ def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_roo
     table = read_part_file(storage, rel)
     write_part(storage, "T01_CN_A", 0, table.set_column(table.schema.get_field_index("seed"), "seed",
                                                         [[7] * len(table)]).cast(table.schema))
+    (root / "run.json").unlink()  # without run.json, the rows are checked against the command's own options
     before = _files(root)
     with pytest.raises(RunConfigError, match=r"_n3\.parquet holds frames of another run \(.*seed.*; 1 part\(s\) in all\); "
                        r"repair deleted nothing: check --seed/--width/--height, or move such parts out of the root$"):
@@ -450,3 +451,19 @@ def test_repair_holds_the_exclusive_lease_as_a_repair_under_its_own_name(monkeyp
     assert repair.repair_alone(storage, config, make_plan(config.run.plan), owner="me-1") == []
     assert [(h["purpose"], h["owner"]) for h in held] == [("repair", "me-1")]
     assert exclusive_holder(storage) is None
+
+
+def test_repair_with_extend_records_the_extended_config(monkeypatch, tiny_root, tmp_path):
+    from manifests.runrecord import read_record
+    from pipeline import repair
+    from pipeline.planner import make_plan
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    monkeypatch.setattr(repair, "_repair", lambda *args: [])  # nothing to drop: the record is what is checked
+    config = _produce_config(root, domains="T01_CN_A,T01_HRN_A")
+    from dataclasses import replace
+
+    config = replace(config, extend=True)
+    repair.repair_alone(storage, config, make_plan(config.run.plan), owner="me")
+    record = read_record(storage)
+    assert record["config"]["domains"] == "T01_CN_A,T01_HRN_A" and record["history"][0]["domains"] == "T01_CN_A"
