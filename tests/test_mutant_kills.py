@@ -200,6 +200,9 @@ def test_run_json_that_is_not_a_file_or_not_json_is_damaged(tmp_path):
         (tmp_path / RUN_FILE).write_bytes(damaged)
         with pytest.raises(RunRecordError, match=r"run\.json is not valid JSON: "):
             read_record(storage)
+    (tmp_path / RUN_FILE).write_bytes(b"[]")
+    with pytest.raises(RunRecordError, match=f"^{tmp_path}/run\\.json is not a run record"):
+        read_record(storage)
 
 
 # --------------------------------------------------------------- pipeline/repair ----
