@@ -7,6 +7,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed-produce
 STAMP_TEST := $(VENV)/.installed-test
+STAMP_MUTANTS := $(VENV)/.installed-mutants
 
 # make produce: the main job (see README). Override any of these.
 # The default is a small run (FRAMES per scenario at 480x270). SCALE=1, or
@@ -26,7 +27,7 @@ _given   = $(findstring $(1),$(PRODUCE_ARGS))
 _SIZE    = $(if $(SCALE),--scale $(SCALE),$(if $(_FULL)$(call _given,--frames-per-scenario),,--frames-per-scenario $(FRAMES))) \
 	$(if $(call _given,--width),,--width $(WIDTH)) $(if $(call _given,--height),,--height $(HEIGHT))
 
-.PHONY: help venv venv-test produce test bench report clean
+.PHONY: help venv venv-test produce test mutants bench report clean
 
 help: ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  make %-9s %s\n", $$1, $$2}'
@@ -61,6 +62,15 @@ TEST_WORKERS ?= 2
 
 test: $(STAMP_TEST) ## add the test extras to .venv, then run the test suite (TEST_WORKERS=2 processes)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile
+
+$(STAMP_MUTANTS): $(STAMP_TEST) pyproject.toml
+	$(BIN)/pip install --quiet -e '.[test,mutants]'
+	@touch $(STAMP_MUTANTS)
+
+# MUTANTS: modules to mutate (default: all of tests/mutants.py's list, in order), e.g. MUTANTS=storage/atomic.py
+MUTANTS ?=
+mutants: $(STAMP_MUTANTS) ## mutation testing (mutmut) of the data-protecting modules against their fast tests; score per module (docs/mutants.md). Not part of `make test`; CPU-heavy
+	nice $(BIN)/python -m tests.mutants $(MUTANTS)
 
 bench: $(STAMP_TEST) ## run the benchmarks; figures go to docs/
 	$(BIN)/python -m benchmarks.run

@@ -58,6 +58,24 @@ def test_make_produce_installs_the_base_and_make_test_adds_the_extras(tmp_path):
     assert "pip install" not in _make_dry_run("produce", venv)
 
 
+@pytest.mark.skipif(shutil.which("make") is None, reason="needs make")
+def test_make_mutants_installs_its_extra_and_make_test_never_runs_it(tmp_path):
+    from tests.mutants import ALWAYS, DATA_PROTECTING, MODULES
+
+    venv = tmp_path / "venv"
+    venv.mkdir()
+    (venv / ".installed-produce").touch()
+    (venv / ".installed-test").touch()
+    test = _make_dry_run("test", venv)
+    assert "mutmut" not in test and "tests.mutants" not in test and "mutants]" not in test
+    mutants = _make_dry_run("mutants", venv)
+    assert "pip install --quiet -e '.[test,mutants]'" in mutants and "python -m tests.mutants" in mutants
+    assert [_name(r) for r in _project()["optional-dependencies"]["mutants"]] == ["mutmut"]
+    assert set(MODULES) == set(DATA_PROTECTING)  # every data-protecting module has its fast tests
+    for module, tests in MODULES.items():
+        assert (REPO / module).is_file() and all((REPO / t).is_file() for t in (*tests, *ALWAYS)), module
+
+
 # ------------------------------------------------------------------ docs ----
 _LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 

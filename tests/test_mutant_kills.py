@@ -1,0 +1,473 @@
+"""Tests written for what `make mutants` found the fast tests let through
+(docs/mutants.md lists each survivor and the test here that now kills it).
+
+Small and fast, no Ray: each names the promise the mutant broke.
+"""
+
+from __future__ import annotations
+
+import errno
+import os
+
+import pytest
+
+from storage import atomic
+
+# ----------------------------------------------------------------- storage/atomic ----
+
+
+def test_exclusive_write_without_hard_links_creates_the_file_once(monkeypatch, tmp_path):
+    """Where hard links are unsupported (EPERM on some network file systems),
+    exclusive_write falls back to O_EXCL on the name itself: still exclusive,
+    the whole content written, no temp file left; another errno is an error."""
+    def no_link(src, dst):
+        raise OSError(errno.EPERM, "links not supported")
+
+    monkeypatch.setattr(os, "link", no_link)
+    target = tmp_path / "d" / "lease.json"
+    assert atomic.exclusive_write(str(target), b"first") is True
+    assert target.read_bytes() == b"first"
+    assert atomic.exclusive_write(str(target), b"second") is False
+    assert target.read_bytes() == b"first"
+    assert os.listdir(target.parent) == ["lease.json"]
+
+    def broken_link(src, dst):
+        raise OSError(errno.EIO, "disk error")
+
+    monkeypatch.setattr(os, "link", broken_link)
+    with pytest.raises(OSError) as raised:
+        atomic.exclusive_write(str(tmp_path / "d" / "other.json"), b"x")
+    assert raised.value.errno == errno.EIO
+    assert os.listdir(target.parent) == ["lease.json"]  # nor a temp file, nor a partial one
+
+
+def test_a_failed_rename_leaves_no_temp_file_and_raises_its_own_error(monkeypatch, tmp_path):
+    """atomic_write removes its temp file when the rename fails (a folder in
+    the way), and when the temp file is already gone (a cleaner raced it) the
+    rename's own error reaches the caller, not one from the clean-up."""
+    blocked = tmp_path / "part.parquet"
+    (blocked / "inside").mkdir(parents=True)
+    with pytest.raises(OSError):
+        atomic.atomic_write(str(blocked), b"rows")
+    assert sorted(os.listdir(tmp_path)) == ["part.parquet"]
+
+    def replace_after_a_cleaner(src, dst):
+        os.unlink(src)
+        raise OSError(errno.EIO, "disk error")
+
+    monkeypatch.setattr(os, "replace", replace_after_a_cleaner)
+    with pytest.raises(OSError) as raised:
+        atomic.atomic_write(str(tmp_path / "run.json"), b"{}")
+    assert raised.value.errno == errno.EIO
+    assert sorted(os.listdir(tmp_path)) == ["part.parquet"]
+
+
+@pytest.mark.parametrize("how", ["atomic_write", "exclusive_write"])
+def test_written_files_get_the_usual_mode_never_executable(tmp_path, how):
+    """Frames, parts and run.json are created 0o666 less the umask (0o644 here),
+    as any file a user makes: not executable, not writable by others."""
+    old = os.umask(0o022)
+    try:
+        getattr(atomic, how)(str(tmp_path / "f.png"), b"png")
+    finally:
+        os.umask(old)
+    assert (tmp_path / "f.png").stat().st_mode & 0o777 == 0o644
+
+
+# ---------------------------------------------------------------- manifests/lease ----
+
+
+def test_lease_ttl_from_the_environment():
+    from manifests.lease import TTL_ENV, TTL_S, ttl_from_env
+
+    assert ttl_from_env({}) == TTL_S
+    assert ttl_from_env({TTL_ENV: "2.5"}) == 2.5
+    for bad in ("0", "-3", "soon", "nan", ""):
+        with pytest.raises(ValueError, match=f"^{TTL_ENV} must be a positive number of seconds, got '{bad}'$"):
+            ttl_from_env({TTL_ENV: bad})
+
+
+def test_a_lease_is_described_by_purpose_owner_and_time_left():
+    import time
+
+    from manifests.lease import describe
+
+    line = describe({"purpose": "repair", "owner": "host-7-ab12", "expires": time.time() + 3600})
+    assert line in {f"repair by host-7-ab12 (lease expires in {s} s unless renewed)" for s in (3598, 3599, 3600)}
+    assert describe({"expires": time.time() - 50}) == "? by ? (lease expires in 0 s unless renewed)"
+
+
+def _this_host_lease(pid) -> dict:
+    import socket
+    import time
+
+    from manifests.lease import _pid_namespace
+
+    return {"owner": "o", "host": socket.gethostname(), "pidns": _pid_namespace(), "pid": pid,
+            "purpose": "produce", "expires": time.time() + 60}
+
+
+@pytest.mark.parametrize("pid", [0, -1, "1234", None])
+def test_a_lease_whose_pid_is_odd_is_judged_by_its_expiry_alone(pid):
+    """Only a real pid that is gone makes a live lease dead: an odd one proves nothing."""
+    from manifests.lease import is_live
+
+    assert is_live(_this_host_lease(pid))
+
+
+def test_a_lease_of_another_users_process_on_this_host_is_live(monkeypatch):
+    """os.kill(pid, 0) refused (EPERM): the process exists, so its lease is live."""
+    from manifests import lease
+
+    def refused(pid, sig):
+        raise PermissionError(errno.EPERM, "not yours")
+
+    monkeypatch.setattr(lease.os, "kill", refused)
+    assert lease.is_live(_this_host_lease(4321))
+
+    def gone(pid, sig):
+        raise ProcessLookupError(errno.ESRCH, "no such process")
+
+    monkeypatch.setattr(lease.os, "kill", gone)
+    assert not lease.is_live(_this_host_lease(4321))
+
+
+# ------------------------------------------------------------ manifests/runrecord ----
+
+
+def _record(**config_changes) -> dict:
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+
+    config = RunConfig(plan=PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36),
+                       world="test").to_dict()
+    for key, value in config_changes.items():
+        if value is _DROP:
+            config.pop(key, None)
+        else:
+            config[key] = value
+    return {"config": config}
+
+
+_DROP = object()
+
+
+@pytest.mark.parametrize("record, says", [
+    ([], "is not a run record"),
+    ({"config": []}, "is not a run record"),
+    (_record(width=_DROP), "its config lacks 'width'"),
+    (_record(seed=_DROP), "its config lacks 'seed'"),
+    (_record(domains=_DROP), "its config lacks 'domains'"),
+    (_record(width="64"), "config 'width' is '64'"),
+    (_record(seed=True), "config 'seed' is True"),
+    (_record(scale="1"), "config 'scale' is '1'"),
+    (_record(pairing=1.0), "config 'pairing' is 1.0"),
+    (_record(colour="red", size=3), "unknown config keys colour, size"),
+    ({**_record(), "history": {}}, "'history' must be a list of configs"),
+    ({**_record(), "history": [{}, 3]}, "'history' must be a list of configs"),
+    ({**_record(), "layout": "nested"}, "unknown file layout 'nested'"),
+    ({**_record(), "layout": True}, "unknown file layout True"),
+])
+def test_a_run_record_of_the_wrong_shape_is_refused_naming_what(record, says):
+    from manifests.runrecord import RunRecordError, check_record
+
+    with pytest.raises(RunRecordError) as raised:
+        check_record(record, "root/run.json")
+    assert str(raised.value).startswith("root/run.json ") and says in str(raised.value)
+
+
+def test_a_run_record_without_optional_keys_or_checksum_reads_as_an_old_root():
+    from manifests.runrecord import OPTIONAL_CONFIG, check_record
+
+    old = _record(**{key: _DROP for key in OPTIONAL_CONFIG}, scale=_DROP, frames_per_scenario=_DROP)
+    assert check_record(old, "root/run.json") is old
+    with_history = {**_record(), "history": [{"seed": 1}], "layout": 2}
+    assert check_record(with_history, "root/run.json") is with_history
+
+
+def test_run_json_that_is_not_a_file_or_not_json_is_damaged(tmp_path):
+    from manifests.runrecord import RunRecordError, read_record
+    from manifests.schema import RUN_FILE
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    assert read_record(storage) is None
+    (tmp_path / RUN_FILE).mkdir()
+    with pytest.raises(RunRecordError, match=r"run\.json is not a regular file$"):
+        read_record(storage)
+    (tmp_path / RUN_FILE).rmdir()
+    for damaged in (b"{not json", b"\xff\xfe"):
+        (tmp_path / RUN_FILE).write_bytes(damaged)
+        with pytest.raises(RunRecordError, match=r"run\.json is not valid JSON: "):
+            read_record(storage)
+    (tmp_path / RUN_FILE).write_bytes(b"[]")
+    with pytest.raises(RunRecordError, match=f"^{tmp_path}/run\\.json is not a run record"):
+        read_record(storage)
+
+
+# --------------------------------------------------------------- pipeline/repair ----
+
+REPAIR_PLAN = dict(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36, seed=5)
+
+
+@pytest.fixture(scope="module")
+def tiny_root(tmp_path_factory):
+    """One 3-frame episode at 64x36, rendered without Ray, its index written: copied by each test."""
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+    from tests.roots import render_root
+
+    root = tmp_path_factory.mktemp("tiny") / "root"
+    render_root(root, RunConfig(plan=PlanConfig(**REPAIR_PLAN), world="test"), compact=True)
+    return root
+
+
+def _copy_of(tiny_root, tmp_path):
+    import shutil
+
+    from storage import Storage
+
+    shutil.copytree(tiny_root, tmp_path / "root", symlinks=True)
+    return tmp_path / "root", Storage.from_uri(str(tmp_path / "root"))
+
+
+def _produce_config(root, **plan_changes):
+    from pipeline.driver import ProduceConfig
+    from pipeline.planner import PlanConfig
+    from pipeline.runmeta import RunConfig
+
+    return ProduceConfig(run=RunConfig(plan=PlanConfig(**{**REPAIR_PLAN, **plan_changes}), world="test"),
+                         out=str(root), workers=1)
+
+
+def test_repair_drops_the_damaged_episode_strays_and_a_bad_index_and_rewrites_run_json(tiny_root, tmp_path, caplog):
+    import logging
+
+    from manifests.reader import done_episodes, episode_parts
+    from manifests.runrecord import read_record
+    from manifests.schema import RUN_FILE, index_path
+    from pipeline.planner import make_plan
+    from pipeline.repair import repair_alone
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    frame = sorted((root / "T01_CN_A").rglob("*.png"))[0]
+    frame.write_bytes(frame.read_bytes()[:-4] + b"XXXX")
+    stray = root / "T01_CN_A" / "e0009" / "rgb" / "0009_000_T01_CN_A.png"  # ours by name, listed by no part
+    stray.parent.mkdir(parents=True)
+    stray.write_bytes(b"stray")
+    (root / RUN_FILE).write_bytes(b"{damaged")
+    config = _produce_config(root)
+    plan = make_plan(config.run.plan)
+    from dataclasses import replace
+
+    unplanned = type(plan)(plan.config, (replace(plan.episodes[0], episode=1),))  # its scenario, another episode
+    from manifests.lease import register_producer
+
+    me = register_producer(storage, owner="me")  # produce --repair: our own producer lease is live
+    try:
+        with caplog.at_level(logging.WARNING, logger="pipeline.repair"):
+            touched = repair_alone(storage, config, unplanned, owner="me")
+    finally:
+        me.release()
+    assert "T01_CN_A_e0000 is damaged but not in the current plan; it stays pending" in [
+        r.getMessage() for r in caplog.records if r.name == "pipeline.repair"]
+    assert sorted(touched) == sorted(["T01_CN_A/e0000", RUN_FILE])
+    assert episode_parts(storage, "T01_CN_A", 0) == [] and done_episodes(storage) == set()
+    assert not storage.exists(index_path("T01_CN_A")) and not stray.exists()
+    assert read_record(storage)["config"]["seed"] == 5  # rewritten from the run's options
+    assert not (root / "_lease" / "exclusive.json").exists()
+
+
+def test_repair_drops_a_bad_index_alone_and_names_it(tiny_root, tmp_path):
+    from manifests.reader import done_episodes
+    from manifests.schema import index_path
+    from pipeline.planner import make_plan
+    from pipeline.repair import repair_alone
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    storage.write_bytes(index_path("T01_CN_A"), b"not parquet")
+    config = _produce_config(root)
+    assert repair_alone(storage, config, make_plan(config.run.plan), owner="me") == [index_path("T01_CN_A")]
+    assert not storage.exists(index_path("T01_CN_A")) and done_episodes(storage) == {("T01_CN_A", 0)}
+
+
+def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_root, tmp_path):
+    from manifests.reader import episode_parts
+    from manifests.root import RootError
+    from manifests.writer import read_part_file, write_part
+    from pipeline.planner import make_plan
+    from pipeline.repair import _repair
+    from pipeline.runmeta import RunConfigError
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    config = _produce_config(root)
+    plan = make_plan(config.run.plan)
+    frame = sorted((root / "T01_CN_A").rglob("*.png"))[0]
+    frame.write_bytes(b"damaged")
+    before = _files(root)
+    (frame.parent / "elsewhere").symlink_to(tmp_path)
+    with pytest.raises(RootError, match=r"/T01_CN_A/.*/elsewhere is a symbolic link; repair never follows a link out of "
+                       "the root and deletes nothing: replace the link with the files it points to, or remove it, "
+                       "and run again$"):
+        _repair(storage, config, plan, owner="me")
+    (frame.parent / "elsewhere").unlink()
+    assert _files(root) == before
+    (rel,) = episode_parts(storage, "T01_CN_A", 0)
+    table = read_part_file(storage, rel)
+    write_part(storage, "T01_CN_A", 0, table.set_column(table.schema.get_field_index("seed"), "seed",
+                                                        [[7] * len(table)]).cast(table.schema))
+    (root / "run.json").unlink()  # without run.json, the rows are checked against the command's own options
+    before = _files(root)
+    with pytest.raises(RunConfigError, match=r"_n3\.parquet holds frames of another run \(.*seed.*; 1 part\(s\) in all\); "
+                       r"repair deleted nothing: check --seed/--width/--height, or move such parts out of the root$"):
+        _repair(storage, config, plan, owner="me")
+    assert _files(root) == before
+
+
+def _files(root) -> dict[str, bytes]:
+    """Every file under ``root`` but the leases, with its content (links not followed)."""
+    out = {}
+    for folder, _, files in os.walk(root):
+        for name in files:
+            path = os.path.join(folder, name)
+            rel = os.path.relpath(path, root)
+            if not rel.startswith("_lease"):
+                with open(path, "rb") as f:
+                    out[rel] = f.read()
+    return out
+
+
+def test_repair_waits_for_other_producers_and_nobody_starts_beside_a_repair(tiny_root, tmp_path):
+    from manifests.lease import LeaseError, acquire_exclusive, register_producer
+    from pipeline.planner import make_plan
+    from pipeline.repair import check_no_repair_running, repair_alone
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    config = _produce_config(root)
+    other = register_producer(storage, owner="other")
+    try:
+        with pytest.raises(LeaseError, match="is being written by another producer \\(produce by other"):
+            repair_alone(storage, config, make_plan(config.run.plan), owner="me")
+    finally:
+        other.release()
+    assert not (root / "_lease" / "exclusive.json").exists()
+    check_no_repair_running(storage)
+    with acquire_exclusive(storage, "compact"):
+        check_no_repair_running(storage)  # compaction does not delete frames
+    with acquire_exclusive(storage, "repair"):
+        with pytest.raises(LeaseError, match="is being repaired \\(repair by "):
+            check_no_repair_running(storage)
+
+
+# A run.json as this version writes it, kept byte for byte: a root made today must keep
+# reading (and its checksum matching) whatever later changes how records are written.
+KEPT_RUN_JSON = b"""{
+  "checksum": "c24905eefd18621ac007f1b79f1f78256936814a6e891b966a0f878d620b0a56",
+  "config": {
+    "domains": "T01_CN_A",
+    "frames_per_scenario": 3,
+    "height": 36,
+    "scale": null,
+    "seed": 0,
+    "width": 64
+  },
+  "layout": 2
+}
+"""
+
+
+def test_a_kept_run_json_still_reads_and_is_written_again_byte_for_byte(tmp_path):
+    import json
+
+    from manifests.runrecord import RunRecordError, read_record, record_bytes
+    from manifests.schema import RUN_FILE
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    (tmp_path / RUN_FILE).write_bytes(KEPT_RUN_JSON)
+    record = read_record(storage)
+    assert record["config"]["seed"] == 0 and record["layout"] == 2
+    assert record_bytes(record) == KEPT_RUN_JSON  # same record, same bytes
+    edited = KEPT_RUN_JSON.replace(b'"seed": 0', b'"seed": 1')
+    (tmp_path / RUN_FILE).write_bytes(edited)
+    with pytest.raises(RunRecordError, match="checksum does not match"):
+        read_record(storage)
+    unsealed = json.loads(KEPT_RUN_JSON)
+    del unsealed["checksum"]  # a record from before checksums
+    (tmp_path / RUN_FILE).write_text(json.dumps(unsealed))
+    assert read_record(storage) == unsealed
+
+
+def test_repair_needs_extend_for_another_config_and_verifies_only_its_plans_scenarios(tiny_root, tmp_path):
+    """A repair with another (not frame-defining) config must say --extend; with
+    it, it verifies and touches only the scenarios of its own plan."""
+    from manifests.reader import done_episodes
+    from pipeline.planner import make_plan
+    from pipeline.repair import _repair
+    from pipeline.runmeta import RunConfigError
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    frame = sorted((root / "T01_CN_A").rglob("*.png"))[0]
+    frame.write_bytes(b"damaged")
+    config = _produce_config(root, domains="T01_HRN_A")
+    with pytest.raises(RunConfigError, match="pass --extend to add to it"):
+        _repair(storage, config, make_plan(config.run.plan), owner="me")
+    from dataclasses import replace
+
+    extend = replace(config, extend=True)
+    assert _repair(storage, extend, make_plan(extend.run.plan), owner="me") == []
+    assert done_episodes(storage) == {("T01_CN_A", 0)} and frame.read_bytes() == b"damaged"  # out of its scope
+
+
+def test_repairs_verify_goes_to_the_cluster_and_workers_produce_was_given(monkeypatch, tmp_path):
+    """`produce --repair --address A --workers N` verifies on A with N workers (not a private cluster)."""
+    from dataclasses import replace
+
+    from pipeline import verify_ray
+    from pipeline.repair import verify_runner
+
+    asked = []
+    monkeypatch.setattr(verify_ray, "choose_runner", lambda **kwargs: asked.append(kwargs) or "runner")
+    monkeypatch.delenv("RAY_ADDRESS", raising=False)
+    config = replace(_produce_config(tmp_path), address="10.0.0.7:6379", workers=3)
+    assert verify_runner(config) == "runner"
+    assert asked == [{"address": "10.0.0.7:6379", "workers": 3}]
+
+
+def test_repair_holds_the_exclusive_lease_as_a_repair_under_its_own_name(monkeypatch, tiny_root, tmp_path):
+    """While it deletes, repair's lease says "repair" by its owner: producers starting meanwhile
+    refuse (check_no_repair_running), and the lease is the one its owner releases."""
+    from manifests.lease import LeaseError, exclusive_holder
+    from pipeline import repair
+    from pipeline.planner import make_plan
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    held = []
+
+    def look(storage, config, plan, owner):
+        held.append(exclusive_holder(storage))
+        with pytest.raises(LeaseError, match="is being repaired"):
+            repair.check_no_repair_running(storage)
+        return []
+
+    monkeypatch.setattr(repair, "_repair", look)
+    config = _produce_config(root)
+    assert repair.repair_alone(storage, config, make_plan(config.run.plan), owner="me-1") == []
+    assert [(h["purpose"], h["owner"]) for h in held] == [("repair", "me-1")]
+    assert exclusive_holder(storage) is None
+
+
+def test_repair_with_extend_records_the_extended_config(monkeypatch, tiny_root, tmp_path):
+    from manifests.runrecord import read_record
+    from pipeline import repair
+    from pipeline.planner import make_plan
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    monkeypatch.setattr(repair, "_repair", lambda *args: [])  # nothing to drop: the record is what is checked
+    config = _produce_config(root, domains="T01_CN_A,T01_HRN_A")
+    from dataclasses import replace
+
+    config = replace(config, extend=True)
+    repair.repair_alone(storage, config, make_plan(config.run.plan), owner="me")
+    record = read_record(storage)
+    assert record["config"]["domains"] == "T01_CN_A,T01_HRN_A" and record["history"][0]["domains"] == "T01_CN_A"
