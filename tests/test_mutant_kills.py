@@ -294,6 +294,7 @@ def test_repair_drops_a_bad_index_alone_and_names_it(tiny_root, tmp_path):
 def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_root, tmp_path):
     from manifests.reader import episode_parts
     from manifests.root import RootError
+    from manifests.schema import PART_SCHEMA
     from manifests.writer import read_part_file, write_part
     from pipeline.planner import make_plan
     from pipeline.repair import _repair
@@ -313,7 +314,7 @@ def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_roo
     (frame.parent / "elsewhere").unlink()
     assert _files(root) == before
     (rel,) = episode_parts(storage, "T01_CN_A", 0)
-    table = read_part_file(storage, rel)
+    table = read_part_file(storage, rel, PART_SCHEMA)
     write_part(storage, "T01_CN_A", 0, table.set_column(table.schema.get_field_index("seed"), "seed",
                                                         [[7] * len(table)]).cast(table.schema))
     (root / "run.json").unlink()  # without run.json, the rows are checked against the command's own options
