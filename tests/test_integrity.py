@@ -25,6 +25,7 @@ from pipeline.driver import produce
 from pipeline.planner import PlanConfig
 from pipeline.runmeta import RunConfigError
 from storage import Storage, StorageError
+from tests import faultkit
 from tests.roots import part_of
 from tests.test_produce import ARGS, DOMAINS, _descendants, config, ray_local, tree_digest  # noqa: F401 (fixtures)
 
@@ -293,20 +294,17 @@ def test_directory_and_fifo_in_place_of_frames(copy):
 
 
 def test_sigint_exits_130_and_says_how_to_resume(tmp_path):
+    # Ctrl-C while the driver takes in its first finished episode (paused there: the run cannot end first)
     out = tmp_path / "interrupted"
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    cmd = [sys.executable, "-m", "pipeline.cli", "produce", *ARGS, "--out", str(out), "--workers", "1"]
-    proc = subprocess.Popen(cmd, env=env, start_new_session=True, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    storage = Storage.from_uri(str(out))
-    deadline = time.time() + 240
-    while time.time() < deadline and proc.poll() is None and not done_episodes(storage):
-        time.sleep(0.2)
-    victims = _descendants(proc.pid)
-    proc.send_signal(signal.SIGINT)
-    _, stderr = proc.communicate(timeout=120)
-    assert proc.returncode == 130, stderr[-2000:]
-    assert "interrupted:" in stderr and "run the same command again to resume" in stderr
-    assert "Traceback" not in stderr
+    child = faultkit.start(["produce", *ARGS, "--out", str(out), "--workers", "1"], tmp_path / "flags",
+                           pause_at="pipeline.driver:_collect:1")
+    child.wait_paused()
+    victims = _descendants(child.proc.pid)
+    child.signal(signal.SIGINT)
+    result = child.finish()
+    assert result.returncode == 130, result.stderr[-2000:]
+    assert "interrupted:" in result.stderr and "run the same command again to resume" in result.stderr
+    assert "Traceback" not in result.stderr
     deadline = time.time() + 15
     while time.time() < deadline and any(_alive(p) for p in victims):
         time.sleep(0.5)
