@@ -193,7 +193,12 @@ def run(args: list[str], flags: Path, env: dict[str, str] | None = None) -> Resu
 
 
 def _child() -> None:
-    """The child's entry point: install the pause point, then run the CLI with the rest of argv."""
+    """The child's entry point: install the pause point, then run the CLI with the rest of argv.
+
+    SIGINT is handled as a terminal's foreground job gets it (Python's KeyboardInterrupt): a shell that
+    runs the suite in the background (`make test &`, no job control) starts it with SIGINT ignored,
+    every child inherits that, and a test's Ctrl-C did nothing (the command ran on, or stayed paused)."""
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     spec = os.environ.get(PAUSE_ENV)
     if spec:
         module_name, name, nth = spec.split(":")
