@@ -100,7 +100,7 @@ def update_docs(result: dict, docs: str = "docs") -> None:
     """Put the section into an existing docs/worlds.md (and worlds.json) without re-running the whole report."""
     from reports.shifts import put_section
 
-    put_section(docs, SECTION_TITLE, markdown(result), "camvid", result, "## Scene building")  # after the shifts
+    put_section(docs, "camvid", result)
 
 
 if __name__ == "__main__":

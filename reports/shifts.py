@@ -89,31 +89,24 @@ def markdown(result: dict) -> list[str]:
     return lines
 
 
-def put_section(docs: str, title: str, lines: list[str], key: str, result: dict, anchor: str) -> None:
-    """Replace the section ``title`` of docs/worlds.md with ``lines`` (else insert it before the section
-    starting with ``anchor``, else append it), and ``key`` of docs/worlds.json with ``result``."""
+def put_section(docs: str, key: str, result: dict) -> None:
+    """Set ``key`` of docs/worlds.json to ``result`` and write docs/worlds.md from that JSON as the
+    generator does (``reports.worlds_md.markdown``), so the page is always what the generator writes."""
     import json
     from pathlib import Path
 
-    md, js = Path(docs, "worlds.md"), Path(docs, "worlds.json")
-    text = md.read_text() if md.exists() else ""
-    section = "\n".join(lines).strip("\n") + "\n\n"
-    if title in text:
-        head, _, rest = text.partition(title)
-        nxt = rest.find("\n## ")
-        text = head.rstrip("\n") + "\n\n" + section + (rest[nxt + 1:] if nxt >= 0 else "")
-    else:
-        at = text.find("\n" + anchor)
-        text = text + "\n" + section if at < 0 else text[:at].rstrip("\n") + "\n\n" + section + text[at + 1:]
-    md.write_text(text)
-    data = json.loads(js.read_text()) if js.exists() else {}
+    from reports.worlds_md import markdown as page
+
+    js = Path(docs, "worlds.json")
+    data = json.loads(js.read_text())
     data[key] = result
     js.write_text(json.dumps(data, indent=1, default=float) + "\n")
+    Path(docs, "worlds.md").write_text(page(data))
 
 
 def update_docs(result: dict, docs: str = "docs") -> None:
     """Put the section into an existing docs/worlds.md (and worlds.json) without re-running the whole report."""
-    put_section(docs, SECTION_TITLE, markdown(result), "shifts", result, "## Scene building")  # before the timings
+    put_section(docs, "shifts", result)
 
 
 if __name__ == "__main__":
