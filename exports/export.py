@@ -10,7 +10,10 @@ there:
   (or FedDrive's federated splits);
 * ``coco`` (``exports.coco``): images and COCO instance annotations (RLE masks
   and boxes); needs the ``instance`` and ``objects`` outputs;
-* ``hf`` (``exports.hf``): Parquet shards with embedded images and a card.
+* ``hf`` (``exports.hf``): Parquet shards with embedded images and a card;
+* ``webdataset`` (``exports.webdataset``): tar shards of bounded size, local or
+  s3://, written in place and resumable (its ``Layout.run`` replaces the flow
+  below).
 
 What they share (the frames, file placing, decoders) is ``exports.placing``.
 Every layout also gets ``frames.csv`` (one row per frame: source frame id,
@@ -42,6 +45,7 @@ from manifests.query import SPLITS, Query, run_query
 from manifests.reader import require_outputs
 from manifests.root import EXPORT_MARKER, RootError, check_export_target, export_tree
 from exports.idda import SPLIT_FILES
+from exports.webdataset import SHARD_SIZE
 from exports.placing import FILE_MODES, CheckedSource, DamagedFile, Layout, frames_of, index_csv, write
 
 log = logging.getLogger(__name__)
@@ -56,6 +60,7 @@ FORMATS: dict[str, str] = {
     "idda": "exports.idda",
     "hf": "exports.hf",
     "coco": "exports.coco",
+    "webdataset": "exports.webdataset",
 }
 
 
@@ -80,6 +85,8 @@ class ExportConfig:
     splits: str = "scenario"  # idda layout: a key of exports.idda.SPLIT_FILES
     holdout: str | None = None  # feddrive splits: domains for test_user_diff_domain
     skip_damaged: bool = False  # leave out frames with a damaged file (counted) instead of refusing
+    outputs: tuple[str, ...] | None = None  # webdataset: the outputs written per frame (None: all the rows hold)
+    shard_size: int = SHARD_SIZE  # webdataset: the most bytes a shard holds
 
     def validate(self) -> None:
         if self.format not in FORMATS:
@@ -98,8 +105,22 @@ class ExportConfig:
             parse_selection(self.holdout)
         if self.files not in FILE_MODES:
             raise ValueError(f"unknown file mode {self.files!r}; valid modes: {', '.join(FILE_MODES)}")
-        if "://" in self.to and not self.to.startswith("file://"):
-            raise ValueError(f"export target must be a local directory, got {self.to}")
+        webdataset = self.format == "webdataset"
+        if "://" in self.to and not self.to.startswith("file://") and not (webdataset and self.to.startswith("s3://")):
+            raise ValueError(f"export target must be a local directory (or s3:// for webdataset), got {self.to}")
+        if not webdataset and (self.outputs is not None or self.shard_size != SHARD_SIZE):
+            raise ValueError(f"--outputs and --shard-size are for the webdataset format, not {self.format!r}")
+        if webdataset:
+            from exports.webdataset import MIN_SHARD_SIZE
+            from manifests.outputs import check_outputs
+
+            if self.outputs is not None:
+                check_outputs(self.outputs)
+            if self.shard_size < MIN_SHARD_SIZE:
+                raise ValueError(f"shard size must be at least {MIN_SHARD_SIZE:,} bytes, got {self.shard_size:,}")
+            if self.skip_damaged:
+                raise ValueError("--skip-damaged is not available for webdataset (its shards are planned before "
+                                 "reading); `idda produce --repair` mends the root")
         if self.threads < 1:
             raise ValueError(f"threads must be at least 1, got {self.threads}")
         self.query.validate()
@@ -117,6 +138,7 @@ class ExportReport:
     seconds: float
     damaged: list[str] = field(default_factory=list)  # files found damaged (--skip-damaged: their frames left out)
     skipped: int = 0  # frames left out for them
+    resumed: int = 0  # webdataset: shards an interrupted export had written and verified, kept
 
 
 def _target_dir(to: str) -> str:
@@ -218,6 +240,8 @@ def export(config: ExportConfig) -> ExportReport:
     from storage import Storage
 
     config.validate()
+    if layout(config.format).run is not None:  # a format that writes its target itself
+        return layout(config.format).run(config)
     start = time.perf_counter()
     storage = Storage.from_uri(config.root)
     target = _target_dir(config.to)

@@ -220,4 +220,7 @@ class Layout:
     """An export format: the outputs it reads and the builder that writes it."""
 
     outputs: tuple[str, ...]  # outputs the root must hold (a format may also use others when present)
-    build: Builder
+    build: Builder | None  # None for a format with ``run``
+    # a format that writes its target itself (webdataset: in place, resumable, local or s3): the whole export,
+    # ExportConfig -> ExportReport; None for the others, which ``exports.export.export`` builds in a temp folder
+    run: Callable | None = None

@@ -27,8 +27,8 @@ RealSplits = Annotated[list[str], typer.Option("--real-split", help="Split of th
 
 def export(
     root: str = typer.Argument(..., help=ROOT_HELP),
-    fmt: str = typer.Option(..., "--format", "-f", help="Layout: cityscapes, idda, hf (HuggingFace Parquet shards) or coco (instances as RLE masks and boxes; needs the instance and objects outputs)."),
-    to: Path = typer.Option(..., "--to", help="Target directory (local); must be empty or absent unless --force."),
+    fmt: str = typer.Option(..., "--format", "-f", help="Layout: cityscapes, idda, hf (HuggingFace Parquet shards), coco (instances as RLE masks and boxes; needs the instance and objects outputs) or webdataset (tar shards)."),
+    to: str = typer.Option(..., "--to", help="Target directory (local; s3:// too for webdataset); must be empty or absent unless --force (webdataset: or an unfinished export of the same selection, which resumes)."),
     preset: Preset = None,
     domains: Domains = None,
     split: Splits = [],
@@ -45,18 +45,24 @@ def export(
     as_split: Optional[str] = typer.Option(None, "--as-split", help="Put every exported frame in this split (train, val or test)."),
     splits: str = typer.Option("scenario", "--splits", help="idda split files: scenario (train/val/test.json) or feddrive (FedDrive's federated splits)."),
     holdout: Optional[str] = typer.Option(None, help="With --splits feddrive: domains whose frames form test_user_diff_domain, e.g. 'towns=T07'."),
+    outputs: Optional[str] = typer.Option(None, "--outputs", help="webdataset: the outputs each sample holds, comma-separated (default: every output the frames hold)."),
+    shard_size: str = typer.Option("1GB", "--shard-size", help="webdataset: the most bytes a shard holds, e.g. 1GB, 256MB."),
     catalog: CatalogFile = None,
 ) -> None:
-    """Export a query's frames as a Cityscapes, IDDA or HuggingFace layout (never re-renders).
+    """Export a query's frames as a Cityscapes, IDDA, HuggingFace, COCO or WebDataset layout (never re-renders).
 
     cityscapes: leftImg8bit/ and gtFine/ (labelIds, labelTrainIds, RGBA color,
     instanceIds) that cityscapesScripts and torchvision read. idda:
     <scenario>/RGB/*.jpg, <scenario>/Semantic/*.png (class ids) and split
-    files. hf: Parquet shards with embedded images and a card. Splits are the
-    manifest's, by episode (--as-split puts every frame in one split).
+    files. hf: Parquet shards with embedded images and a card. webdataset:
+    <split>/<split>-NNNNNN.tar shards (one sample per frame: its files and
+    manifest row as JSON), resumable. Splits are the manifest's, by episode
+    (--as-split puts every frame in one split).
     """
     from exports.export import ExportConfig, export as run_export
+    from exports.webdataset import SHARD_SIZE, parse_size
     from manifests.catalog import using
+    from manifests.outputs import parse_outputs
 
     with user_errors(), using(root_catalog(root, catalog)):
         if copy and symlink:
@@ -67,6 +73,8 @@ def export(
             root=root, to=str(to), format=fmt, query=query,
             files="copy" if copy else "symlink" if symlink else "hardlink", force=force, threads=threads,
             as_split=as_split, splits=splits, holdout=holdout, skip_damaged=skip_damaged,
+            outputs=parse_outputs(outputs) if outputs is not None else None,
+            shard_size=parse_size(shard_size) if fmt == "webdataset" else SHARD_SIZE,
         )
         report = run_export(config)
         if report.damaged:
@@ -75,6 +83,8 @@ def export(
         for code, missing in sorted(report.shortfall.items()):
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
         splits = ", ".join(f"{n:,} {s}" for s, n in report.per_split.items() if n)
+        if report.resumed:
+            typer.echo(f"kept {count(report.resumed, 'shard')} an earlier run had written (verified)")
         typer.echo(
             f"exported {of_held(report.frames, report.held)} ({splits}) as {report.format} to {report.target}: "
             f"{report.files:,} files in {report.seconds:.1f} s"
