@@ -15,7 +15,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 # What producing never needs: the test extra's heavy or test-only packages.
 NOT_FOR_PRODUCING = ("torch", "polars", "duckdb", "moto", "boto3", "pytest", "hypothesis", "datasets",
-                     "huggingface_hub", "pycocotools", "pandas")
+                     "huggingface_hub", "pycocotools", "pandas", "webdataset", "rerun_sdk")
 
 
 def _name(requirement: str) -> str:
@@ -31,7 +31,8 @@ def test_base_dependencies_are_what_producing_and_evaluating_need():
     assert not base & set(NOT_FOR_PRODUCING), base & set(NOT_FOR_PRODUCING)
     assert "cityscapesscripts" in base  # idda evaluate right after make produce
     test = {_name(r) for r in _project()["optional-dependencies"]["test"]}
-    assert {"torch", "polars", "duckdb", "moto", "datasets"} <= test
+    assert {"torch", "polars", "duckdb", "moto", "datasets", "webdataset", "rerun_sdk"} <= test
+    assert [_name(r) for r in _project()["optional-dependencies"]["view"]] == ["rerun_sdk"]
     assert _project()["optional-dependencies"]["analysis"] == ["torch==2.13.0"]
 
 

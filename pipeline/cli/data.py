@@ -1,4 +1,4 @@
-"""CLI commands for the people who train on a dataset: export, evaluate, distances, card, shifts.
+"""CLI commands for the people who train on a dataset: export, evaluate, distances, card, shifts, view.
 
 ``register(app)`` adds them to the ``idda`` typer app (``pipeline.cli`` calls
 it at its bottom); it is idempotent. Like every command, each one parses its
@@ -239,7 +239,31 @@ def shifts(
         typer.echo(f"wrote {json_out}")
 
 
-COMMANDS = {"export": export, "evaluate": evaluate, "distances": distances, "card": card, "shifts": shifts}
+def view(
+    root: str = typer.Argument(..., help=ROOT_HELP),
+    scenario: str = typer.Option(..., "--scenario", help="The episode's scenario code, e.g. T01_CS_A."),
+    episode: int = typer.Option(..., "--episode", help="The episode's index in its scenario."),
+    out: Optional[Path] = typer.Option(None, "--out", help="The rerun recording to write (.rrd); open it with `rerun FILE.rrd`."),
+    spawn: bool = typer.Option(False, "--spawn", help="Open the rerun viewer and stream the episode to it."),
+    stride: Optional[int] = typer.Option(None, "--stride", help="Depth point cloud: every N-th pixel (default: at most 200,000 points a frame)."),
+    catalog: CatalogFile = None,
+) -> None:
+    """Look at an episode in rerun: per frame the RGB, the semantic labels, the depth as a
+    point cloud in world coordinates, the camera pose and frustum, the 3D boxes and the
+    condition columns as time series (needs rerun-sdk: pip install -e '.[view]')."""
+    from analysis.viewer import ViewConfig, view as run_view
+    from manifests.catalog import using
+
+    with user_errors(), using(root_catalog(root, catalog)):
+        output_root(root)
+        report = run_view(ViewConfig(root=root, scenario=scenario, episode=episode,
+                                     out=None if out is None else str(out), spawn=spawn, stride=stride))
+        where = f" to {report.out}" if report.out else ""
+        typer.echo(f"recorded {count(report.frames, 'frame')} of {scenario} episode {episode}{where}")
+
+
+COMMANDS = {"export": export, "evaluate": evaluate, "distances": distances, "card": card, "shifts": shifts,
+            "view": view}
 
 
 def register(app: typer.Typer) -> None:
