@@ -239,3 +239,18 @@ def test_parse_size_and_tar_bytes():
             wd.parse_size(bad)
     assert wd.tar_bytes([]) == 10240 and wd.tar_bytes([1]) == 10240 and wd.tar_bytes([10240 - 3 * 512]) == 10240
     assert wd.tar_bytes([10240 - 3 * 512 + 1]) == 20480
+
+
+def test_the_training_snippet_in_the_docs_runs(shards, rows, tmp_path, monkeypatch):
+    docs = (Path(__file__).resolve().parents[1] / "docs" / "training.md").read_text()
+    snippet = next(block for block in re.findall(r"```python\n(.*?)```", docs, re.S) if "import webdataset" in block)
+    (tmp_path / "shards").symlink_to(shards)
+    monkeypatch.chdir(tmp_path)
+    seen: dict = {}
+    exec(compile(snippet.replace("    pass  #", "    seen.setdefault('batches', []).append((images, labels, K))  #"),
+                 "training.md", "exec"), {"seen": seen})
+    images = [im for batch in seen["batches"] for im in batch[0]]
+    train = [r for r in rows.values() if r["split"] == "train"]
+    assert len(images) == len(train) and tuple(images[0].shape) == (3, train[0]["height"], train[0]["width"])
+    assert {tuple(k.flatten().tolist()) for batch in seen["batches"] for k in batch[2]} == {
+        tuple(float(v) for v in r["K"]) for r in train}
