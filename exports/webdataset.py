@@ -190,7 +190,7 @@ def _tar_info(member: Member) -> tarfile.TarInfo:
     return info
 
 
-def shard_bytes(source, shard: Shard, pool: ThreadPoolExecutor) -> tuple[bytes, list[int]]:
+def shard_bytes(source, shard: Shard, pool: ThreadPoolExecutor) -> tuple[memoryview, list[int]]:
     """The tar of ``shard`` (files read through ``source``, checked) and each sample's byte offset."""
     members = [m for _, ms in shard.samples for m in ms]
     datas = pool.map(lambda m: m.data if m.rel is None else source.read_bytes(m.rel), members)
@@ -202,7 +202,7 @@ def shard_bytes(source, shard: Shard, pool: ThreadPoolExecutor) -> tuple[bytes, 
             offsets.append(out.tell())
             for member in sample:
                 tar.addfile(_tar_info(member), io.BytesIO(next(it)))
-    data = out.getvalue()
+    data = out.getbuffer()  # no copy: a shard is held once, beside the files it was made of
     if len(data) != shard.size:  # the plan's bound rests on this
         raise AssertionError(f"{shard.name}: wrote {len(data)} bytes, planned {shard.size}")
     return data, offsets

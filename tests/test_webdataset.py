@@ -254,3 +254,13 @@ def test_the_training_snippet_in_the_docs_runs(shards, rows, tmp_path, monkeypat
     assert len(images) == len(train) and tuple(images[0].shape) == (3, train[0]["height"], train[0]["width"])
     assert {tuple(k.flatten().tolist()) for batch in seen["batches"] for k in batch[2]} == {
         tuple(float(v) for v in r["K"]) for r in train}
+
+
+def test_bench_export_end_to_end_tiny(tmp_path):
+    from benchmarks import bench_export as bench
+
+    result = bench.main(out_dir=str(tmp_path), frames=2, width=64, height=36, world="test", rounds=1)
+    assert list(result["variants"]) == list(bench.VARIANTS)
+    assert all(v["seconds"] > 0 and v["frames_per_s"] > 0 for v in result["variants"].values())
+    assert result["variants"]["webdataset, 1 GB shards"]["shards"] >= 1
+    assert "| webdataset, 1 GB shards |" in (tmp_path / "bench_export.md").read_text()
