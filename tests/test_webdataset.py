@@ -264,3 +264,21 @@ def test_bench_export_end_to_end_tiny(tmp_path):
     assert all(v["seconds"] > 0 and v["frames_per_s"] > 0 for v in result["variants"].values())
     assert result["variants"]["webdataset, 1 GB shards"]["shards"] >= 1
     assert "| webdataset, 1 GB shards |" in (tmp_path / "bench_export.md").read_text()
+
+
+def test_a_damaged_root_file_refuses_the_export(root, rows, tmp_path):
+    import shutil
+
+    from exports.placing import DamagedFile
+
+    copy = tmp_path / "root"
+    shutil.copytree(root, copy)
+    row = next(iter(rows.values()))
+    victim = copy / row["depth_raw_path"]
+    victim.write_bytes(victim.read_bytes()[:-1] + b"\x00")  # same size, other bytes
+    target = tmp_path / "w"
+    with pytest.raises(DamagedFile, match=row["depth_raw_path"]):
+        ex.export(ex.ExportConfig(root=str(copy), to=str(target), format="webdataset", shard_size=BOUND))
+    assert not (target / ex.MARKER).exists()
+    with pytest.raises(ValueError, match="--skip-damaged is not available"):
+        ex.export(ex.ExportConfig(root=str(copy), to=str(target), format="webdataset", skip_damaged=True))
