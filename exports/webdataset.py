@@ -44,6 +44,7 @@ import hashlib
 import io
 import json
 import logging
+import math
 import os
 import shutil
 import tarfile
@@ -132,8 +133,20 @@ def selected_outputs(table, outputs: tuple[str, ...] | None) -> tuple[str, ...]:
     return tuple(held)
 
 
+def strict_json(value):
+    """``value`` with every non-finite float as None: strict JSON has no Infinity or NaN (a clear day's
+    ``visibility_m`` is infinite), and readers outside Python refuse them."""
+    if isinstance(value, float):
+        return value if math.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: strict_json(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [strict_json(v) for v in value]
+    return value
+
+
 def _row_json(row: dict) -> bytes:
-    return (json.dumps(row, sort_keys=True, separators=(",", ":")) + "\n").encode()
+    return (json.dumps(strict_json(row), sort_keys=True, separators=(",", ":"), allow_nan=False) + "\n").encode()
 
 
 def _members(row: dict, outputs: tuple[str, ...]) -> tuple[Member, ...]:

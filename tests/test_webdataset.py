@@ -62,13 +62,18 @@ def ex_outputs(row: dict) -> list[str]:
     return [o for o in OUTPUTS if row.get(output_columns(o)[0])]
 
 
+def _refuse(name: str):
+    raise AssertionError(f"{name} in a sample's JSON: not strict JSON")
+
+
 def check_samples(samples: list[dict], root: Path, rows: dict) -> None:
     """``samples`` ({"__key__", ext: bytes, ...}) are exactly the root's frames, byte for byte."""
     assert sorted(s["__key__"] for s in samples) == sorted(rows)
     for s in samples:
         row = rows[s["__key__"]]
         got = {k: bytes(v) for k, v in s.items() if not k.startswith("__")}
-        assert json.loads(got.pop("json")) == json.loads(json.dumps(row))
+        text = got.pop("json").decode()
+        assert json.loads(text, parse_constant=_refuse) == wd.strict_json(json.loads(json.dumps(row)))
         assert got == expected_sample(root, row)
 
 
@@ -282,3 +287,15 @@ def test_a_damaged_root_file_refuses_the_export(root, rows, tmp_path):
     assert not (target / ex.MARKER).exists()
     with pytest.raises(ValueError, match="--skip-damaged is not available"):
         ex.export(ex.ExportConfig(root=str(copy), to=str(target), format="webdataset", skip_damaged=True))
+
+
+def test_a_samples_json_is_strict_even_where_the_row_holds_infinity(rows):
+    """A clear day's ``visibility_m`` is infinite; strict JSON has no Infinity (readers outside Python refuse
+    it), so the sample's JSON says null there and keeps every finite value."""
+    row = dict(next(iter(rows.values())), visibility_m=float("inf"), fog_density=float("nan"))
+    member = wd._members(row, ())[-1]
+    text = member.data.decode()
+    parsed = json.loads(text, parse_constant=_refuse)
+    assert parsed["visibility_m"] is None and parsed["fog_density"] is None
+    assert parsed["K"] == list(row["K"]) and parsed["uid"] == row["uid"]
+    assert member.size == len(member.data)
