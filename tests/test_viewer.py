@@ -30,25 +30,14 @@ def rows(root):
 @pytest.fixture(scope="module")
 def recording(root, tmp_path_factory) -> dict:
     """{entity path: {column: [(frame or None, value)]}} of the recording `idda view` writes."""
-    from rerun.chunk import RrdReader
+    from analysis.view_picture import read_recording
 
     out = tmp_path_factory.mktemp("view") / "episode.rrd"
     done = CliRunner().invoke(cli_app(), ["view", str(root), "--scenario", SCENARIO, "--episode", "0",
                                           "--out", str(out), "--stride", "1"])
     assert done.exit_code == 0, done.output
     assert "recorded 2 frames" in done.output
-    found: dict = {}
-    for chunk in RrdReader(out).stream():
-        batch = chunk.to_record_batch()
-        frames = batch.column("frame").to_pylist() if "frame" in batch.schema.names else [None] * batch.num_rows
-        columns = found.setdefault(chunk.entity_path, {})
-        for name in batch.schema.names:
-            if ":" in name:
-                columns.setdefault(name, []).extend(zip(frames, batch.column(name).to_pylist()))
-    for columns in found.values():
-        for values in columns.values():
-            values.sort(key=lambda fv: -1 if fv[0] is None else fv[0])
-    return found
+    return read_recording(str(out))
 
 
 def test_every_frame_and_entity_is_recorded(recording, rows):
@@ -134,3 +123,27 @@ def test_without_rerun_it_names_the_install_line(root, tmp_path, monkeypatch):
                                             "--out", str(tmp_path / "a.rrd")])
     assert result.exit_code == 2 and result.output.count("\n") == 1
     assert "pip install -e '.[view]'" in result.output
+
+
+def test_a_picture_of_a_frame_is_drawn_from_the_recording(root, rows, tmp_path):
+    """``--picture`` draws the chosen frame of the recording it wrote (read back through rerun's reader)."""
+    import cv2
+
+    from analysis.view_picture import frames_of, picture_png, read_recording
+
+    runner, app = CliRunner(), cli_app()
+    out, picture = tmp_path / "ep.rrd", tmp_path / "ep.png"
+    args = ["view", str(root), "--scenario", SCENARIO, "--episode", "0", "--out", str(out)]
+    done = runner.invoke(app, [*args, "--picture", str(picture), "--frame", str(rows[-1]["frame"])])
+    assert done.exit_code == 0, done.output
+    image = cv2.imread(str(picture))
+    assert image is not None and image.shape[0] > 400 and image.std() > 10
+    recording = read_recording(str(out))
+    assert frames_of(recording) == [r["frame"] for r in rows]
+    assert picture.read_bytes() == picture_png(recording, rows[-1]["frame"])  # drawn from the recording, same bytes
+    assert picture_png(recording, rows[0]["frame"]) != picture.read_bytes()  # another frame, another picture
+    bad = runner.invoke(app, [*args, "--picture", str(picture), "--frame", "99"])
+    assert bad.exit_code == 2 and "frame 99 is not in the recording" in bad.output
+    without = runner.invoke(app, ["view", str(root), "--scenario", SCENARIO, "--episode", "0", "--spawn",
+                                  "--picture", str(tmp_path / "x.png")])
+    assert without.exit_code == 2 and "give --out" in without.output

@@ -246,6 +246,8 @@ def view(
     out: Optional[Path] = typer.Option(None, "--out", help="The rerun recording to write (.rrd); open it with `rerun FILE.rrd`."),
     spawn: bool = typer.Option(False, "--spawn", help="Open the rerun viewer and stream the episode to it."),
     stride: Optional[int] = typer.Option(None, "--stride", help="Depth point cloud: every N-th pixel (default: at most 200,000 points a frame)."),
+    picture: Optional[Path] = typer.Option(None, "--picture", help="Also draw one frame of the recording (read back from --out) as a PNG, for places without a display."),
+    frame: Optional[int] = typer.Option(None, "--frame", help="The frame --picture draws (default: the middle one)."),
     catalog: CatalogFile = None,
 ) -> None:
     """Look at an episode in rerun: per frame the RGB, the semantic labels, the depth as a
@@ -255,11 +257,18 @@ def view(
     from manifests.catalog import using
 
     with user_errors(), using(root_catalog(root, catalog)):
+        if picture is not None and out is None:
+            raise ValueError("--picture draws from the recording: give --out FILE.rrd too")
         output_root(root)
         report = run_view(ViewConfig(root=root, scenario=scenario, episode=episode,
                                      out=None if out is None else str(out), spawn=spawn, stride=stride))
         where = f" to {report.out}" if report.out else ""
         typer.echo(f"recorded {count(report.frames, 'frame')} of {scenario} episode {episode}{where}")
+        if picture is not None:
+            from analysis.view_picture import picture_png, read_recording
+
+            write_local(picture, picture_png(read_recording(report.out), frame))
+            typer.echo(f"drew {picture}")
 
 
 COMMANDS = {"export": export, "evaluate": evaluate, "distances": distances, "card": card, "shifts": shifts,
