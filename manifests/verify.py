@@ -402,9 +402,9 @@ def _part_listing(storage, report: VerifyReport) -> tuple[dict[str, dict[int, tu
 def _producer_live(storage, except_owner: str | None) -> bool:
     from manifests.lease import live_producers
 
-    try:
-        return bool(live_producers(storage, except_owner=except_owner))
-    except (StorageError, OSError):  # a read-only root: its dead leases cannot be removed
+    try:  # only looks: verify never changes the root (dead leases stay for the next producer to remove)
+        return bool(live_producers(storage, except_owner=except_owner, take_over=False))
+    except (StorageError, OSError):  # leases that cannot be listed: no producer known to be live
         return False
 
 

@@ -355,6 +355,61 @@ def test_lease_of_a_live_process_is_not_taken_over(tmp_path):
         acquire_exclusive(storage, "repair", wait_s=0)
 
 
+# ------------------------- issue 38: verify never changes the root; a rerun clears dead leases ----
+
+
+def _killed_driver_lease(root) -> str:
+    """Register a producer on ``root`` in a child process and SIGKILL it: its lease stays; returns its path."""
+    import signal
+
+    code = ("import sys, time\nfrom manifests.lease import register_producer\nfrom storage import Storage\n"
+            "lease = register_producer(Storage.from_uri(sys.argv[1]))\nprint(lease.rel, flush=True)\ntime.sleep(300)\n")
+    env = {**os.environ, "PYTHONPATH": os.path.dirname(os.path.dirname(os.path.abspath(__file__)))}
+    child = subprocess.Popen([sys.executable, "-c", code, str(root)], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        rel = child.stdout.readline().strip()
+    finally:
+        os.kill(child.pid, signal.SIGKILL)
+        child.wait()
+    assert rel.startswith(PRODUCER_PREFIX)
+    return rel
+
+
+def _every_file(root) -> dict[str, str]:
+    import hashlib
+    from pathlib import Path
+
+    return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(Path(root).rglob("*")) if p.is_file()}
+
+
+def test_verify_leaves_a_dead_drivers_lease_and_a_rerun_removes_it(tmp_path):
+    """Issue 38: `idda verify` deleted a SIGKILLed driver's lease and bumped
+    generation.json. Verify only looks: every file of the root, leases and
+    generation included, is byte for byte what it was. The rerun that takes
+    the root over removes the dead lease, without a generation bump."""
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+    from pipeline.driver import ProduceConfig, produce
+    from tests.roots import render_root
+
+    plan = PlanConfig(domains="T01_CN_A", frames_per_scenario=2, width=64, height=36, seed=7)
+    root = tmp_path / "root"
+    storage = render_root(root, RunConfig(plan=plan, world="test"), compact=True)
+    storage.write_bytes("_lease/generation.json", json.dumps({"generation": 4}).encode())
+    dead = _killed_driver_lease(root)
+    before = _every_file(root)
+    assert dead in before and "_lease/generation.json" in before
+    result = CliRunner().invoke(app, ["verify", str(root), "--no-ray"])
+    assert result.exit_code == 0 and "OK: " in result.output, result.output
+    assert _every_file(root) == before
+    report = produce(ProduceConfig(run=RunConfig(plan=plan, world="test"), out=str(root)))  # all done: no Ray
+    assert report.skipped_episodes == 1 and report.rendered_episodes == 0
+    assert storage.list_files(PRODUCER_PREFIX) == []  # the dead lease is gone, and the rerun's own released
+    assert read_generation(storage) == 4
+
+
 # ---------------------------------------- issue 21.12: racing root creation ----
 
 
