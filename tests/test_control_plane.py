@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -383,7 +384,20 @@ def _every_file(root) -> dict[str, str]:
             for p in sorted(Path(root).rglob("*")) if p.is_file()}
 
 
-def test_verify_leaves_a_dead_drivers_lease_and_a_rerun_removes_it(tmp_path):
+SMALL = PlanConfig(domains="T01_CN_A", frames_per_scenario=2, width=64, height=36, seed=7)
+
+
+@pytest.fixture(scope="module")
+def small_root(tmp_path_factory):
+    """One episode of two frames rendered without Ray, indexed: copy it before changing it."""
+    from tests.roots import render_root
+
+    root = tmp_path_factory.mktemp("small") / "root"
+    render_root(root, RunConfig(plan=SMALL, world="test"), compact=True)
+    return root
+
+
+def test_verify_leaves_a_dead_drivers_lease_and_a_rerun_removes_it(small_root, tmp_path):
     """Issue 38: `idda verify` deleted a SIGKILLed driver's lease and bumped
     generation.json. Verify only looks: every file of the root, leases and
     generation included, is byte for byte what it was. The rerun that takes
@@ -392,11 +406,10 @@ def test_verify_leaves_a_dead_drivers_lease_and_a_rerun_removes_it(tmp_path):
 
     from pipeline.cli import app
     from pipeline.driver import ProduceConfig, produce
-    from tests.roots import render_root
 
-    plan = PlanConfig(domains="T01_CN_A", frames_per_scenario=2, width=64, height=36, seed=7)
     root = tmp_path / "root"
-    storage = render_root(root, RunConfig(plan=plan, world="test"), compact=True)
+    shutil.copytree(small_root, root)
+    storage = Storage.from_uri(str(root))
     storage.write_bytes("_lease/generation.json", json.dumps({"generation": 4}).encode())
     dead = _killed_driver_lease(root)
     before = _every_file(root)
@@ -404,10 +417,41 @@ def test_verify_leaves_a_dead_drivers_lease_and_a_rerun_removes_it(tmp_path):
     result = CliRunner().invoke(app, ["verify", str(root), "--no-ray"])
     assert result.exit_code == 0 and "OK: " in result.output, result.output
     assert _every_file(root) == before
-    report = produce(ProduceConfig(run=RunConfig(plan=plan, world="test"), out=str(root)))  # all done: no Ray
+    report = produce(ProduceConfig(run=RunConfig(plan=SMALL, world="test"), out=str(root)))  # all done: no Ray
     assert report.skipped_episodes == 1 and report.rendered_episodes == 0
     assert storage.list_files(PRODUCER_PREFIX) == []  # the dead lease is gone, and the rerun's own released
     assert read_generation(storage) == 4
+
+
+def test_verify_lists_foreign_files_and_fails_on_them_only_with_strict(small_root, tmp_path):
+    """Issue 38: a file whose name does not follow the layout was not reported.
+    Verify lists such files (top level, inside a scenario's folder, under
+    manifest/) without failing; --strict fails on them; the root's own names
+    (the card's files included) and hidden names are not listed."""
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    root = tmp_path / "root"
+    shutil.copytree(small_root, root)
+    foreign = ["T01_CN_A/e0000/rgb/thumbs.db", "T01_CN_A/notes.txt", "manifest/town=T01/readme.txt", "notes.txt",
+               "scratch"]
+    for rel in foreign[:-1]:
+        (root / rel).write_text("not ours")
+    (root / "scratch").mkdir()
+    (root / "scratch" / "a.bin").write_bytes(b"x")
+    for rel in ("README.md", "class_shares.png", "preview/T01_CN_A.png", ".DS_Store", "T01_CN_A/.DS_Store"):
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(b"x")
+    before = _every_file(root)
+    result = CliRunner().invoke(app, ["verify", str(root), "--no-ray"])
+    assert result.exit_code == 0, result.output
+    listed = [line.split(None, 1)[1] for line in result.output.splitlines() if line.startswith("foreign ")]
+    assert listed == sorted(foreign)
+    assert "OK: " in result.output and "5 foreign files" in result.output
+    strict = CliRunner().invoke(app, ["verify", str(root), "--no-ray", "--strict"])
+    assert strict.exit_code == 1 and "FAILED (--strict): " in strict.output, strict.output
+    assert _every_file(root) == before
 
 
 # ---------------------------------------- issue 21.12: racing root creation ----

@@ -225,13 +225,16 @@ def verify(
     workers: Optional[int] = typer.Option(None, help="CPUs for a local Ray cluster (default: all cores)."),
     use_ray: Optional[bool] = typer.Option(None, "--ray/--no-ray", help="Check on Ray, or in this process (default: Ray for large roots or with an address)."),
     threads: int = typer.Option(8, help="Files checked in parallel per task."),
+    strict: bool = typer.Option(False, "--strict", help="Fail (exit 1) on foreign files too: files whose names are not of the root's layout."),
     catalog: CatalogFile = None,
 ) -> None:
     """Recompute every checksum; report missing, corrupt and extra files.
 
     Runs as Ray tasks, one per scenario. Exits 1 when anything is wrong;
     `idda produce --repair` fixes it. Frames a running producer is writing
-    are reported as in progress, not as damage.
+    are reported as in progress, not as damage. Files whose names are not of
+    the root's layout are listed as foreign (left alone; --strict fails on them).
+    Verify never changes the root.
     """
     from manifests.selection import parse_selection
     from manifests.verify import Scope, parse_since, verify as run_verify
@@ -254,15 +257,25 @@ def verify(
             typer.echo(f"{p.kind:<8} {p.path}" + (f"  ({p.detail})" if p.detail else ""))
         if len(report.problems) > 50:
             typer.echo(f"... and {len(report.problems) - 50} more")
+        for rel in report.foreign[:50]:
+            typer.echo(f"foreign  {rel}")
+        if len(report.foreign) > 50:
+            typer.echo(f"... and {len(report.foreign) - 50} more foreign")
         mb = report.bytes_checked / 1e6
         rate = mb / report.seconds if report.seconds else 0.0
         summary = f"checked {report.files_checked:,} files, {mb:,.1f} MB in {report.seconds:.1f} s ({rate:.0f} MB/s)"
         if report.in_progress:
             summary += (f"; {count(len(report.in_progress), 'episode')} in progress (a producer is writing them; "
                         "verify again when it has finished)")
-        if report.ok:
+        if report.foreign:
+            summary += (f"; {count(len(report.foreign), 'foreign file')} (not of the root's layout: verify and repair "
+                        "leave them alone" + ("" if strict else "; --strict fails on them") + ")")
+        if report.ok and not (strict and report.foreign):
             typer.echo(f"OK: {summary}")
             return
+        if report.ok:  # only foreign files, under --strict
+            typer.echo(f"FAILED (--strict): {summary}.")
+            raise typer.Exit(code=1)
         counts = ", ".join(f"{n} {kind}" for kind, n in sorted(report.counts().items()))
         typer.echo(f"FAILED: {counts}; {summary}. {verify_advice(report)}")
         raise typer.Exit(code=1)
