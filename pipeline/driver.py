@@ -444,7 +444,29 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     from manifests.catalog import using
 
     with using(config.run.plan.catalog):
-        return _produce(config, progress, episode_fn)
+        config.validate()
+        with _cluster_first(config):
+            return _produce(config, progress, episode_fn)
+
+
+@contextmanager
+def _cluster_first(config: ProduceConfig):
+    """With a cluster address, attach before anything touches ``--out``, so a failed
+    attach (a dead address, a refused token) writes nothing there; detach at the end.
+    A private local cluster is started later, and only if there is something to render."""
+    if not _address(config):
+        yield
+        return
+    ray = _import_ray()
+    if ray.is_initialized():
+        yield
+        return
+    _connect(ray, config)
+    try:
+        yield
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
 
 
 def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
@@ -453,7 +475,6 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
     from manifests.root import claim_root
     from storage import Storage, StorageError
 
-    config.validate()
     plan = make_plan(config.run.plan)
     storage = Storage.from_uri(config.out)
     claim_root(storage)  # refuses a non-empty directory that is not ours; creates and marks the root

@@ -127,6 +127,7 @@ def test_token_cluster_without_a_token_here_is_one_line(tmp_path):
     lines = result.stderr.strip().splitlines()
     assert lines[-1].startswith("error: ") and "uses token authentication" in lines[-1] and address in lines[-1]
     assert "Traceback" not in result.stderr
+    assert not (tmp_path / "refused").exists()  # issue 38: a failed attach writes nothing to --out
 
 
 @contextlib.contextmanager
@@ -152,3 +153,8 @@ def test_dead_ray_address_is_one_line_and_exit_2(tmp_path, dead):
     assert result.returncode == 2, result.stderr[-3000:]
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: no Ray cluster answers at " + address), result.stderr
+    assert not (tmp_path / "out").exists()  # issue 38: nothing written to --out before the cluster answers
+    (tmp_path / "empty").mkdir()
+    with dead() as address:  # an empty --out stays empty
+        assert _produce(env, address, tmp_path / "empty", timeout=60).returncode == 2
+    assert list((tmp_path / "empty").iterdir()) == []

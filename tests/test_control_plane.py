@@ -454,6 +454,22 @@ def test_verify_lists_foreign_files_and_fails_on_them_only_with_strict(small_roo
     assert _every_file(root) == before
 
 
+def test_a_root_that_holds_no_frame_says_so_when_the_size_differs(tmp_path):
+    """Issue 38: a run that wrote only the marker and run.json (killed at once) made a
+    later run of another size say the root "holds frames made with a different width"."""
+    from pipeline.runmeta import RunConfigError
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    claim_root(storage)
+    prepare_root(storage, RunConfig(plan=SMALL, world="test"))
+    other = RunConfig(plan=replace(SMALL, width=96), world="test")
+    with pytest.raises(RunConfigError, match="holds no frames, but its run.json records a run with another width"):
+        prepare_root(storage, other)
+    (tmp_path / "root" / "T01_CN_A").mkdir()  # a frame folder: frames may be there
+    with pytest.raises(RunConfigError, match="holds frames made with a different width"):
+        prepare_root(storage, other)
+
+
 # ---------------------------------------- issue 21.12: racing root creation ----
 
 
