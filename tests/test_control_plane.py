@@ -273,6 +273,30 @@ def test_part_commit_fails_after_the_lease_was_taken_over(tmp_path):
     assert read_generation(storage) == 1
 
 
+def test_no_frame_file_is_written_once_the_lease_is_gone(tmp_path):
+    """Issue 38: a worker on a hung node woke after its driver had finished and wrote 48
+    frame files into the root. Frame files are fenced like parts: once the producer's
+    lease is gone (the driver released it), a worker that was stopped for longer than
+    FENCE_EVERY_S writes no further frame file, no stats and no part."""
+    from pipeline.episode_job import FENCE_EVERY_S, run_episode
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    claim_root(storage)
+    spec = make_plan(PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36)).episodes[0]
+    producer = register_producer(storage, ttl_s=60)
+
+    def on_frame(n: int) -> None:
+        if n == 1:  # the worker is stopped; meanwhile its driver finishes and releases the lease
+            producer.release()
+            time.sleep(FENCE_EVERY_S + 0.1)
+
+    with pytest.raises(LeaseLost, match="lost the lease"):
+        run_episode(spec, storage, world="test", on_frame=on_frame, fence=producer.fence)
+    written = sorted(p.name for p in (tmp_path / "root").rglob("*") if p.is_file())
+    assert written and all(name.startswith("0000_000_") for name in written if name != ROOT_MARKER), written
+    assert done_episodes(storage) == set() and not storage.list_files("_stats/")
+
+
 def test_fence_holds_when_the_lease_is_revived_by_a_racing_refresh(tmp_path):
     """A refresh that read its lease just before the takeover and wrote it
     back just after: the generation was bumped, so the commit still fails."""
