@@ -298,7 +298,7 @@ class _NodeWatch:
         if self._head is None:
             return False
         try:
-            socket.create_connection(self._head, timeout=1.0).close()
+            socket.create_connection(self._head, timeout=2.0).close()
         except OSError:
             self._silent_since = self._silent_since or time.monotonic()
             self.head_gone = time.monotonic() - self._silent_since >= HEAD_GONE_S

@@ -13,7 +13,8 @@ import typer
 from pipeline.cli import data as cli_data, domains as cli_domains
 from pipeline.cli.domains import CatalogFile, domain_file, root_catalog, root_pairing, root_rules
 from pipeline.cli.progress import (
-    ProgressDisplay, VerifyDisplay, format_interrupted, format_outage, format_produce_report, stop_signals,
+    ProgressDisplay, VerifyDisplay, format_head_lost, format_interrupted, format_outage, format_produce_report,
+    stop_signals,
     verify_advice,
 )
 from pipeline.cli.common import (
@@ -29,7 +30,8 @@ app = typer.Typer(
     help="Produce large multi-domain synthetic driving datasets (IDDA-style).\n\n"
     "Domains are selected with one grammar everywhere: 'all'; scenario codes such as "
     "T01_CS_A,T07_HRN_* ; or axis filters such as 'towns=T01-T06 weathers=CN viewpoints=A,M'.\n\n"
-    "Exit codes: 0 done; 1 the data has a problem (verify found damage, episodes failed); "
+    "Exit codes: 0 done; 1 the data has a problem (verify found damage, episodes failed) or produce stopped "
+    "because its storage or its Ray cluster's head went away (run it again to resume); "
     "2 a usage error, including a selection that matches no frames, or an environment that cannot render "
     "(render workers crashing on every episode); 130 interrupted (Ctrl-C); "
     "143 and 129 stopped by SIGTERM and SIGHUP (resume by running the same command again).",
@@ -139,7 +141,8 @@ def produce(
     and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
     """
     from manifests.lease import ttl_from_env as lease_ttl_from_env
-    from pipeline.driver import ProduceConfig, ProduceInterrupted, RendererCrashes, StorageOutage, produce as run_produce
+    from pipeline.driver import (HeadLost, ProduceConfig, ProduceInterrupted, RendererCrashes, StorageOutage,
+                                 produce as run_produce)
     from pipeline.runmeta import RunConfig
 
     with user_errors():
@@ -175,6 +178,10 @@ def produce(
 
                 bar.close()
                 typer.echo(format_outage(outage, Storage.from_uri(out).endpoint), err=True)
+                raise typer.Exit(code=1) from None
+            except HeadLost as lost:  # the cluster is gone; what finished is committed
+                bar.close()
+                typer.echo(format_head_lost(lost), err=True)
                 raise typer.Exit(code=1) from None
             except RendererCrashes as crashes:  # the environment cannot render: no retry helps
                 bar.close()
