@@ -24,10 +24,8 @@ from manifests.outputs import OUTPUTS, file_of_path, markdown_table
 from manifests.schema import PART_SCHEMA, output_columns, part_path
 from exports.hf import HF_SPLITS, card_header, citation_section
 from manifests.query import SPLITS
+from manifests.root import CARD_FILE, CHART_FILE, PREVIEW_DIR  # the root's own names (verify knows them)
 
-CARD_FILE = "README.md"
-CHART_FILE = "class_shares.png"
-PREVIEW_DIR = "preview"
 PREVIEW_MAX_WIDTH = 480  # contact-sheet frames are rendered at most this wide
 CARD_MARK = "<!-- written by idda card: it replaces this file when run again -->"
 _OUR_CARD_SIGNS = (CARD_MARK.encode(), b"# IDDA-style synthetic driving dataset")  # the second: cards before the mark

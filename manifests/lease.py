@@ -19,10 +19,13 @@ within a few seconds of each other.
 Fencing: ``_lease/generation.json`` holds the root's lease generation. A
 producer records it in its lease when it registers and every episode's part
 commit re-checks it (``check_fence``), before and after writing the part.
-Whoever removes a dead producer's lease (repair, through ``live_producers``)
-bumps the generation first, so a producer that was stopped past its lease's
+A repair (through ``live_producers``) bumps the generation before it removes
+dead producers' leases, so a producer that was stopped past its lease's
 expiry and wakes up afterwards can no longer mark an episode done: its commit
 fails with LeaseLost, and its refresh thread does not bring the lease back.
+A new producer removes dead producers' lease files when it registers, without
+a bump (their holders fail their next fence check: the file is gone). Verify
+only looks (``live_producers(take_over=False)``): it never changes the root.
 
 A lease of a process on this same host (same host name and pid namespace)
 whose pid no longer exists is dead at once, whatever its expiry: the next
@@ -283,26 +286,53 @@ def exclusive_holder(storage) -> dict | None:
 
 
 def register_producer(storage, owner: str | None = None, ttl_s: float = TTL_S) -> Lease:
-    """Announce a running producer (kept alive until released), fenced by the root's generation."""
+    """Announce a running producer (kept alive until released), fenced by the root's generation.
+
+    Dead producers' lease files (a killed driver's) are removed first, without
+    a generation bump: a holder that was only stopped finds its lease file gone
+    at its next fence check and commits nothing more, and producers add only
+    files identical whoever writes them, so no other fence is needed here."""
     owner = owner or new_owner()
+    remove_dead_producers(storage)
     lease = Lease(storage, f"{PRODUCER_PREFIX}{owner}.json", owner, "produce", ttl_s, generation=read_generation(storage))
     storage.write_bytes(lease.rel, _body(owner, "produce", ttl_s, lease.generation))
     return lease.keep_alive()
 
 
-def live_producers(storage, except_owner: str | None = None) -> list[dict]:
-    """Live producer leases other than ``except_owner``'s. Dead ones are taken
-    over: their files are removed (their holders can no longer commit). Where
-    no other producer is live (so the caller, a repair under the exclusive
-    lease, goes on to delete files) the root's generation is bumped first,
-    which also fences a holder that refreshed its lease at the very moment it
-    was judged dead, or whose lease file someone else removed."""
+def _producer_leases(storage, except_owner: str | None) -> tuple[list[tuple[str, dict]], list[tuple[str, dict | None]]]:
+    """(live, dead) producer leases other than ``except_owner``'s, as (path, content)."""
     found, dead = [], []
     for rel in storage.list_files(PRODUCER_PREFIX):
         info = read_lease(storage, rel)
         if info is not None and info.get("owner") == except_owner:
             continue
         (found if is_live(info) else dead).append((rel, info))
+    return found, dead
+
+
+def remove_dead_producers(storage) -> int:
+    """Remove the lease files of dead producers (expired, or their process gone from
+    this host); the generation is left as it is. Returns how many were removed."""
+    _, dead = _producer_leases(storage, None)
+    for rel, info in dead:
+        _say_taken_over(storage, info)
+        storage.delete(rel)
+    return len(dead)
+
+
+def live_producers(storage, except_owner: str | None = None, take_over: bool = True) -> list[dict]:
+    """Live producer leases other than ``except_owner``'s.
+
+    ``take_over=False`` only looks: nothing in the root changes (verify).
+    With ``take_over`` (a repair, under the exclusive lease) dead ones are
+    taken over: their files are removed (their holders can no longer commit).
+    Where no other producer is live (so the caller goes on to delete files)
+    the root's generation is bumped first, which also fences a holder that
+    refreshed its lease at the very moment it was judged dead, or whose lease
+    file someone else removed."""
+    found, dead = _producer_leases(storage, except_owner)
+    if not take_over:
+        return [info for _, info in found]
     if not found:
         bump_generation(storage)
     for rel, info in dead:

@@ -22,9 +22,13 @@ import hashlib
 import json
 import os
 
-from manifests.schema import MANIFEST_DIR, RUN_FILE
+from manifests.lease import LEASE_DIR
+from manifests.schema import INDEX_DIR, MANIFEST_DIR, RUN_FILE, STATS_DIR
 
 ROOT_MARKER = "idda-root.json"  # <root>/idda-root.json: "this directory is an idda output root"
+CARD_FILE = "README.md"  # <root>/README.md: the dataset card (`idda card`)
+CHART_FILE = "class_shares.png"  # <root>/class_shares.png: the card's class-share chart
+PREVIEW_DIR = "preview"  # <root>/preview/: the card's contact sheet
 ROOT_MARKER_BODY = (json.dumps({"idda_output_root": 1, "contract": "see docs/contract.md of idda-pipeline"}) + "\n").encode()
 EXPORT_MARKER = "EXPORT.json"  # written last into an export: a finished export of ours
 
@@ -44,6 +48,15 @@ def root_entries(storage) -> list[str]:
     writes and deletes a probe file there, and a listing that stats each entry
     failed on the vanished probe."""
     return [name for name in storage.entries() if not _is_hidden_temp(name)]
+
+
+def own_top_names(scenarios) -> frozenset[str]:
+    """The top-level names a root's own files and folders have: its marker, run.json,
+    the manifest, indexes, stats and leases, the card's files, and a folder per
+    scenario of ``scenarios`` (codes; the root's catalog). Any other name is foreign:
+    verify lists it, nothing deletes it."""
+    return frozenset({ROOT_MARKER, RUN_FILE, MANIFEST_DIR, INDEX_DIR, STATS_DIR, LEASE_DIR,
+                      CARD_FILE, CHART_FILE, PREVIEW_DIR, *scenarios})
 
 
 def is_our_root(storage) -> bool:

@@ -39,7 +39,7 @@ from manifests.encoding import RGB_FORMATS
 from manifests.outputs import OUTPUTS
 from manifests.reader import as_storage, filed_where_named, index_bytes, index_episodes, index_files, index_summaries, index_table
 from manifests.layout import LAYOUTS, frame_path, held_layout, match_frame_file, record_layout
-from manifests.root import root_entries
+from manifests.root import own_top_names, root_entries
 from manifests.runrecord import RunRecordError, read_record
 from manifests.schema import (MANIFEST_DIR, PART_RE, PART_SCHEMA, RUN_FILE, as_plain_lists, frame_id, named_rows,
                               newer_part, output_columns, part_path)
@@ -74,6 +74,7 @@ class VerifyReport:
     episodes_checked: int = 0
     first_hash_s: float | None = None  # seconds from the start to the first file hashed
     in_progress: set[tuple[str, int]] = field(default_factory=set)  # frames of a live producer, no part yet
+    foreign: list[str] = field(default_factory=list)  # files not of the root's layout: listed, not damage
 
     @property
     def ok(self) -> bool:
@@ -235,6 +236,7 @@ class UnitResult:
     bytes_checked: int = 0
     episodes_checked: int = 0
     in_progress: set[int] = field(default_factory=set)
+    foreign: list[str] = field(default_factory=list)
     first_hash_at: float | None = None  # wall-clock time of the unit's first hash
 
 
@@ -252,6 +254,11 @@ def parse_since(text: str, now: float | None = None) -> float:
     if when.tzinfo is None:
         when = when.replace(tzinfo=dt.timezone.utc)
     return when.timestamp()
+
+
+def _is_hidden(rel: str) -> bool:
+    """A name starting with a dot (an in-flight temp file, OS litter such as .DS_Store): never listed."""
+    return rel.rpartition("/")[2].startswith(".")
 
 
 def _under_link(rel: str, links: list[str]) -> bool:
@@ -337,13 +344,15 @@ def check_unit(storage, unit: VerifyUnit, config: dict | None, threads: int = 8,
 
 def _find_strays(unit: VerifyUnit, listing: dict, listed: set[str], result: UnitResult) -> None:
     """Frame files of the root's own layout that no part in scope lists: extra, or
-    in progress beside a live producer; other names are never ours to report."""
+    in progress beside a live producer; files of other names are foreign (listed, never ours)."""
     in_scope = {episode for episode, _ in unit.parts}
     for rel, entry in listing.items():
         if entry.link or rel in listed:
             continue
         scenario, episode = _episode_of(rel, unit.layouts)
         if episode is None:
+            if not _is_hidden(rel) and (unit.since is None or entry.mtime >= unit.since):
+                result.foreign.append(rel)
             continue
         if episode not in in_scope:
             if episode in unit.with_part or (unit.since is not None and entry.mtime < unit.since):
@@ -383,7 +392,9 @@ def _part_listing(storage, report: VerifyReport) -> tuple[dict[str, dict[int, tu
             report.problems.append(Problem("link", entry.rel, None, None, LINK_DETAIL))
             continue
         match = PART_RE.match(entry.rel)
-        if match and not filed_where_named(entry.rel):  # not the episode's part: a stray file, never read
+        if not match and not _is_hidden(entry.rel):
+            report.foreign.append(entry.rel)
+        elif match and not filed_where_named(entry.rel):  # not the episode's part: a stray file, never read
             report.problems.append(Problem("extra", entry.rel, None, None, "a part filed under another scenario's folder"))
         elif match:
             held = parts.setdefault(match.group("scenario"), {})
@@ -402,9 +413,9 @@ def _part_listing(storage, report: VerifyReport) -> tuple[dict[str, dict[int, tu
 def _producer_live(storage, except_owner: str | None) -> bool:
     from manifests.lease import live_producers
 
-    try:
-        return bool(live_producers(storage, except_owner=except_owner))
-    except (StorageError, OSError):  # a read-only root: its dead leases cannot be removed
+    try:  # only looks: verify never changes the root (dead leases stay for the next producer to remove)
+        return bool(live_producers(storage, except_owner=except_owner, take_over=False))
+    except (StorageError, OSError):  # leases that cannot be listed: no producer known to be live
         return False
 
 
@@ -419,7 +430,9 @@ def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool,
                                            "a folder where a part file goes"))
     indexes = index_files(storage)
     codes = {s.code for s in all_scenarios()}  # of the catalog in force: the root's (verify)
-    folders = {name for name in root_entries(storage) if name in codes}
+    top = root_entries(storage)
+    folders = {name for name in top if name in codes}
+    report.foreign.extend(sorted(set(top) - own_top_names(codes)))
     units = []
     for scenario in sorted(set(parts) | folders | set(indexes)):
         if scope.scenarios is not None and scenario not in scope.scenarios:
@@ -485,11 +498,13 @@ def verify(root, threads: int = 8, progress: Callable[[VerifyProgress], None] | 
         report.bytes_checked += result.bytes_checked
         report.episodes_checked += result.episodes_checked
         report.in_progress.update((result.scenario, e) for e in result.in_progress)
+        report.foreign.extend(result.foreign)
         if result.first_hash_at is not None:
             first_hash = min(first_hash or result.first_hash_at, result.first_hash_at)
         files_done = report.files_checked
         tell()
     report.problems.sort(key=_problem_order)
+    report.foreign.sort()
     report.first_hash_s = None if first_hash is None else max(0.0, first_hash - wall_start)
     report.seconds = time.perf_counter() - start
     return report

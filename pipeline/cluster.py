@@ -47,7 +47,10 @@ def _import_ray():
 
 
 def _host_port(address: str) -> tuple[str, int] | None:
-    """(host, port) of a plain ``host:port`` GCS address; None for "auto", ray:// and the like."""
+    """(host, port) of a plain ``host:port`` GCS address or of a ``ray://host:port``
+    client address; None for "auto" and the like."""
+    if address.startswith("ray://"):
+        address = address[len("ray://"):]
     host, sep, port = address.rpartition(":")
     if not sep or not port.isdigit() or "/" in host or not host:
         return None
@@ -55,30 +58,49 @@ def _host_port(address: str) -> tuple[str, int] | None:
 
 
 # Asks a GCS, without a token, whether it is alive; prints "ok", "token" (it
-# wants one) or the error. A child process: Ray's client logs its retries to
-# stderr from C++ threads and keeps trying for 40 s or more.
+# wants one) or the error. Where it wants one and argv[3] is "1", asks again
+# with this machine's token: "token-ok", or "token-refused" (another token).
+# A child process: Ray's client logs its retries to stderr from C++ threads and
+# keeps trying for 40 s or more.
 _PROBE = """
-import sys
-from ray._raylet import GcsClient
+import os, sys
+from ray._raylet import Config, GcsClient
 from ray.exceptions import AuthenticationError
-try:
+def first_line(exc):
+    return (str(exc).strip().splitlines() or [type(exc).__name__])[0]
+def alive():
     GcsClient(address=sys.argv[1]).check_alive([], timeout=float(sys.argv[2]))
+try:
+    alive()
     print("ok")
 except AuthenticationError:
-    print("token")
+    if sys.argv[3] != "1":
+        print("token")
+    else:
+        os.environ["RAY_AUTH_MODE"] = "token"
+        Config.initialize("")
+        try:
+            alive()
+            print("token-ok")
+        except AuthenticationError:
+            print("token-refused")
+        except Exception as exc:
+            print(first_line(exc))
 except Exception as exc:
-    print((str(exc).strip().splitlines() or [type(exc).__name__])[0])
+    print(first_line(exc))
 """
 
 
-def _probe_gcs(address: str) -> str:
-    """"ok", "token" (the cluster uses token authentication) or why the GCS at ``address`` did not answer."""
+def _probe_gcs(address: str, with_token: bool = False) -> str:
+    """"ok", "token" (the cluster uses token authentication), with ``with_token`` then
+    "token-ok" or "token-refused" (this machine's token), or why the GCS at ``address``
+    did not answer."""
     import subprocess
     import sys
 
     env = {k: v for k, v in os.environ.items() if k != RAY_AUTH_MODE}
     try:
-        done = subprocess.run([sys.executable, "-c", _PROBE, address, str(ATTACH_TIMEOUT_S)], env=env,
+        done = subprocess.run([sys.executable, "-c", _PROBE, address, str(ATTACH_TIMEOUT_S), "1" if with_token else "0"], env=env,
                               stdin=subprocess.DEVNULL, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
                               text=True, timeout=2 * ATTACH_TIMEOUT_S)
     except subprocess.TimeoutExpired:
@@ -100,9 +122,11 @@ def check_cluster(address: str) -> bool:
     dead address is one line in seconds instead of Ray's minutes of retries.
     Then the GCS is asked, without a token, whether it is alive: it refuses
     only if the cluster uses token authentication, and only then does this
-    driver switch to token mode (with a token at hand); a cluster without
+    driver switch to token mode (with a token at hand), after asking again
+    with the token (a wrong one is refused in one line); a cluster without
     authentication is attached to as it is. A ``RAY_AUTH_MODE`` set by the
-    user stands. ConnectionError naming the address when it cannot work.
+    user stands. A ``ray://`` client address is reached over TCP only.
+    ConnectionError naming the address when it cannot work.
     """
     import socket
 
@@ -113,15 +137,18 @@ def check_cluster(address: str) -> bool:
         socket.create_connection(target, timeout=ATTACH_TIMEOUT_S).close()
     except OSError as exc:
         raise _unreachable(address, exc.strerror or str(exc) or "timed out") from None
-    if RAY_AUTH_MODE in os.environ:
+    if RAY_AUTH_MODE in os.environ or address.startswith("ray://"):  # a client server is no GCS to probe
         return False
-    answer = _probe_gcs(address)
+    answer = _probe_gcs(address, with_token=ray_token_available())  # one child process, both questions
     if answer == "ok":
         return False
-    if answer != "token":
-        raise _unreachable(address, answer)
-    if not ray_token_available():
+    if answer == "token":
         raise ConnectionError(f"the Ray cluster at {address} uses token authentication and this machine has no token; {_AUTH_HINT}")
+    if answer == "token-refused":  # a wrong token: Ray alone retried for ~25 s, in 20 lines, naming another address
+        raise ConnectionError(f"the Ray cluster at {address} refused this machine's token (another cluster's, or an old "
+                              f"one); {_AUTH_HINT}")
+    if answer != "token-ok":
+        raise _unreachable(address, answer)
     from ray._raylet import Config
 
     os.environ[RAY_AUTH_MODE] = "token"
@@ -145,15 +172,49 @@ _LOCAL_CLUSTER_ENV = {
 _RAY_INIT_COMMON = dict(log_to_driver=False, logging_level=logging.WARNING)
 
 
+_ANSI = __import__("re").compile(r"\x1b\[[0-9;]*[A-Za-z]")
+_RAY_LINES = logging.getLogger("ray.cluster_messages")
+
+
+def _quiet_cluster_messages(ray) -> None:
+    """Keep the cluster's own messages (the raylet's "A worker died ...", printed by
+    Ray's driver thread with colour codes) off a stream that is not a terminal: they
+    go to the ``ray.cluster_messages`` logger at debug level, without colour codes, and
+    idda says in its own words what happened (a lost node, a failed episode). On a
+    terminal they are left as Ray prints them. Where Ray's printer is not found (another
+    Ray version), nothing changes."""
+    import sys
+
+    worker = getattr(getattr(ray, "_private", None), "worker", None)
+    printer = getattr(worker, "print_to_stdstream", None)
+    if printer is None or getattr(printer, "idda_quiet", False):
+        return
+
+    def print_to_stdstream(data, ignore_prefix: bool):
+        stream = sys.stderr if data.get("is_err") else sys.stdout
+        if getattr(stream, "isatty", lambda: False)():
+            return printer(data, ignore_prefix)
+        for line in data.get("lines", []):
+            _RAY_LINES.debug("(%s) %s", data.get("pid"), _ANSI.sub("", str(line)))
+
+    print_to_stdstream.idda_quiet = True
+    worker.print_to_stdstream = print_to_stdstream
+
+
 def attach(ray, address: str | None, workers: int | None = None) -> None:
     """Attach to the cluster at ``address`` (one line if nothing answers there), or start a
     local one of ``workers`` CPUs (default all cores), unless this process already has Ray."""
     if ray.is_initialized():
         return
+    _quiet_cluster_messages(ray)
     if address:
         check_cluster(address)
+        import warnings
+
         try:
-            ray.init(address=address, **_RAY_INIT_COMMON)
+            with warnings.catch_warnings():  # Ray Client's own warnings: the error below says it in one line
+                warnings.simplefilter("ignore")
+                ray.init(address=address, **_RAY_INIT_COMMON)
         except ConnectionError as exc:
             raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc})") from exc
     else:

@@ -117,8 +117,9 @@ class ProduceReport:
     reshifted: list[str] = field(default_factory=list)  # shifting episodes made longer: rendered again whole
     seconds: float = 0.0
     per_scenario: dict[str, dict] = field(default_factory=dict)  # frames, episodes, seconds
-    workers: int = 0
+    workers: int = 0  # task slots when rendering started
     crashed: int = 0  # episodes whose worker died of a native fault on every try
+    nodes_lost: int = 0  # cluster nodes that died or stopped answering meanwhile (their episodes ran elsewhere)
 
     @property
     def ok(self) -> bool:
@@ -131,6 +132,16 @@ class ProduceInterrupted(Exception):
     def __init__(self, report: ProduceReport) -> None:
         super().__init__(f"interrupted after {report.rendered_episodes} episode(s)")
         self.report = report
+
+
+class HeadLost(Exception):
+    """The Ray cluster's head stopped answering mid-run (its GCS port refuses
+    connections for HEAD_GONE_S), so nothing more can be scheduled; ``report``
+    says what was done. Finished episodes are committed: run again to resume."""
+
+    def __init__(self, report: ProduceReport, address: str) -> None:
+        super().__init__(f"the Ray head at {address} is gone")
+        self.report, self.address = report, address
 
 
 class StorageOutage(Exception):
@@ -216,11 +227,14 @@ class _LiveFrames:
         self._ray, self.counter = ray, counter
         self._version, self._counts, self._shown = 0, {}, 0
         self.watch, self._retry_at = None, 0.0
+        self.nodes: dict[str, str] = {}  # episode key -> the Ray node id it last reported from
+        self._asked: set[str] = set()
 
     def ask(self, keys: list[str]) -> None:
         """Start a long poll of the counts of ``keys`` unless one runs or the actor just failed."""
         if self.counter is None or self.watch is not None or time.monotonic() < self._retry_at:
             return
+        self._asked = set(keys)
         try:
             self.watch = self.counter.counts.remote(keys, self._version, PROGRESS_WAIT_S)
         except Exception as exc:  # pragma: no cover - a handle whose actor is gone for good
@@ -236,7 +250,9 @@ class _LiveFrames:
         """Read the answer of the finished long poll."""
         watch, self.watch = self.watch, None
         try:
-            self._version, self._counts = self._ray.get(watch)
+            self._version, self._counts, nodes = self._ray.get(watch)
+            # kept across a restart of the actor (it comes back empty); finished episodes dropped
+            self.nodes = {key: node for key, node in {**self.nodes, **nodes}.items() if key in self._asked}
         except Exception as exc:  # ActorDiedError, ActorUnavailableError, ...: best effort
             self._failed(exc)
 
@@ -250,6 +266,94 @@ class _LiveFrames:
         live = sum(min(self._counts.get(spec.key, 0), spec.frames) for spec in running)
         self._shown = max(self._shown, finished + live)
         return self._shown
+
+
+NODE_POLL_S = 2.0  # on a cluster, the driver looks for nodes Ray marked dead this often
+HEAD_GONE_S = 10.0  # the head's GCS port refusing connections this long: the head is gone (Ray waits 60 s, then aborts)
+
+
+class _NodeWatch:
+    """The cluster's nodes as the driver last saw them (``ray.nodes()``, at most
+    once per ``every_s``): ``lost()`` gives the nodes found dead since the last
+    call, once each. Ray marks a node dead when it stops answering its health
+    checks (a hung node: failure threshold x (period + timeout), about 65 s with
+    Ray's defaults), minutes before a task running there fails. ``head_gone``:
+    the head's GCS port (a ``host:port`` address) refused connections for HEAD_GONE_S."""
+
+    def __init__(self, ray, every_s: float = NODE_POLL_S, address: str | None = None) -> None:
+        from pipeline.cluster import _host_port
+
+        self._ray, self._every_s = ray, every_s
+        self._next = time.monotonic() + every_s
+        self._dead = {node["NodeID"] for node in self._nodes() if not node.get("Alive")}
+        plain = address is not None and not address.startswith("ray://")  # a client server is no GCS
+        self.address, self._head = address, (_host_port(address) if plain else None)
+        self._silent_since: float | None = None
+        self.head_gone = False  # the head's GCS port has refused connections for HEAD_GONE_S
+
+    def _head_silent(self) -> bool:
+        """Whether the head's GCS port refuses connections now (updates ``head_gone``)."""
+        import socket
+
+        if self._head is None:
+            return False
+        try:
+            socket.create_connection(self._head, timeout=2.0).close()
+        except OSError:
+            self._silent_since = self._silent_since or time.monotonic()
+            self.head_gone = time.monotonic() - self._silent_since >= HEAD_GONE_S
+            return True
+        self._silent_since = None
+        return False
+
+    def _nodes(self) -> list[dict]:
+        try:
+            return self._ray.nodes()
+        except Exception as exc:  # the GCS busy or gone: asked again next time
+            log.debug("could not list the cluster's nodes: %s", exc)
+            return []
+
+    def lost(self) -> list[tuple[str, str]]:
+        """(node id, address) of the nodes marked dead since the last call; [] between polls."""
+        if time.monotonic() < self._next:
+            return []
+        self._next = time.monotonic() + self._every_s
+        if self._head_silent():  # no GCS to ask (Ray's own calls would wait for it)
+            return []
+        found = [(node["NodeID"], node.get("NodeManagerAddress", "?")) for node in self._nodes()
+                 if not node.get("Alive") and node["NodeID"] not in self._dead]
+        self._dead.update(node_id for node_id, _ in found)
+        return found
+
+
+def _retry_lost_nodes(ray, watch: _NodeWatch, live: _LiveFrames, in_flight: dict, queue: deque,
+                      report: ProduceReport, given_up: list) -> bool:
+    """Give up the episodes of nodes found dead: cancel their tasks (forced: the node may
+    only be stopped, and wake), cancel those not yet known to have started anywhere
+    (not forced: one may have been meant for the lost node), run them all again first,
+    and say so in one line per node. True if a node was lost."""
+    lost = watch.lost()
+    if watch.head_gone:
+        raise HeadLost(report, watch.address)
+    if not lost:
+        return False
+    unknown = [ref for ref, spec in in_flight.items() if spec.key not in live.nodes]
+    for i, (node_id, address) in enumerate(lost):
+        on_node = [ref for ref, spec in in_flight.items() if live.nodes.get(spec.key) == node_id]
+        retried = [(ref, True) for ref in on_node] + ([(ref, False) for ref in unknown] if i == 0 else [])
+        for ref, force in retried:
+            try:
+                ray.cancel(ref, force=force)
+            except Exception as exc:  # already finished, or its node unreachable: it is given up either way
+                log.debug("cancelling a task of lost node %s: %s", address, exc)
+            spec = in_flight.pop(ref)
+            live.nodes.pop(spec.key, None)
+            queue.appendleft(spec)
+            given_up.append(ref)  # kept referenced: a dropped failed ref makes Ray log an "unhandled error"
+        report.nodes_lost += 1
+        log.warning("node %s lost: %s retried elsewhere", address,
+                    f"{len(retried)} episode" + ("" if len(retried) == 1 else "s"))
+    return True
 
 
 def _task_options(config: ProduceConfig, slots: int, local: bool, own_cluster: bool) -> tuple[dict, str | None]:
@@ -324,10 +428,11 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         task = ray.remote(episode_task).options(**options)
         storage_ref = ray.put(storage)
         counter = None
-        if progress is not None:
+        if progress is not None or not local:  # on a cluster, it also tells which node runs each episode
             counter = ray.remote(FrameCounter).options(**PROGRESS_ACTOR_OPTIONS).remote()
         live = _LiveFrames(ray, counter)
-        queue, in_flight = deque(todo), {}
+        watch = None if local else _NodeWatch(ray, address=_address(config))
+        queue, in_flight, given_up = deque(todo), {}, []
         frames_total = sum(e.frames for e in todo)
 
         def report_progress() -> None:
@@ -352,15 +457,23 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                 in_flight[ref] = spec
             live.ask([spec.key for spec in in_flight.values()])
             watched = [live.watch] if live.watch is not None else []
-            ready, _ = ray.wait(list(in_flight) + watched, num_returns=1, timeout=live.wait_s())
+            timeout = live.wait_s()
+            if watch is not None:  # a hung node's tasks never finish: look at the nodes every NODE_POLL_S
+                timeout = NODE_POLL_S if timeout is None else min(timeout, NODE_POLL_S)
+            ready, _ = ray.wait(list(in_flight) + watched, num_returns=1, timeout=timeout)
             if live.watch is not None and live.watch in ready:
                 ready = [ref for ref in ready if ref != live.watch]
                 live.take()
+            for ref in ready:
+                _collect(ray, ref, in_flight, report, config.max_retries)
+            if watch is not None and _retry_lost_nodes(ray, watch, live, in_flight, queue, report, given_up):
+                # Ray hands a new task a worker lease it holds already (of the same scheduling class), even one
+                # on the lost node whose task was just cancelled: the task then waits on a stopped process for
+                # ever. A different resource shape (a few bytes of memory more) makes new tasks take new leases.
+                task = ray.remote(episode_task).options(**options, memory=report.nodes_lost)
             if not ready:
                 report_progress()
                 continue
-            for ref in ready:
-                _collect(ray, ref, in_flight, report, config.max_retries)
             if report.crashed and not report.rendered_episodes and (
                     report.crashed >= CRASHES_TO_STOP or not (queue or in_flight)):
                 for other in in_flight:  # every episode so far died natively: the rest would too
@@ -444,7 +557,35 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     from manifests.catalog import using
 
     with using(config.run.plan.catalog):
-        return _produce(config, progress, episode_fn)
+        config.validate()
+        with _cluster_first(config):
+            return _produce(config, progress, episode_fn)
+
+
+@contextmanager
+def _cluster_first(config: ProduceConfig):
+    """With a cluster address, attach before anything touches ``--out``, so a failed
+    attach (a dead address, a refused token) writes nothing there; detach at the end.
+    A private local cluster is started later, and only if there is something to render."""
+    if not _address(config):
+        yield
+        return
+    ray = _import_ray()
+    if ray.is_initialized():
+        yield
+        return
+    _connect(ray, config)
+    try:
+        yield
+    except HeadLost:  # nothing to shut down: Ray's shutdown would wait for the GCS that is gone
+        raise
+    except BaseException:
+        if ray.is_initialized():
+            ray.shutdown()
+        raise
+    else:
+        if ray.is_initialized():
+            ray.shutdown()
 
 
 def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
@@ -453,7 +594,6 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
     from manifests.root import claim_root
     from storage import Storage, StorageError
 
-    config.validate()
     plan = make_plan(config.run.plan)
     storage = Storage.from_uri(config.out)
     claim_root(storage)  # refuses a non-empty directory that is not ours; creates and marks the root

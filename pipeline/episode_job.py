@@ -94,12 +94,41 @@ def frame_files(spec: EpisodeSpec, frame) -> dict[str, bytes]:
     return {name: file_bytes(name, content, spec.rgb_format) for name, content in frame_outputs(spec, frame).items()}
 
 
-def store_frame(spec: EpisodeSpec, frame, storage) -> dict:
-    """Encode one frame's outputs, write their files; return its manifest row."""
+# Frame files are fenced: the producer's lease is checked before a frame file is
+# written whenever this long (monotonic clock: it runs on while a process is
+# stopped) has passed since the last check, so a worker stopped past its lease
+# (a hung node given up) writes at most the one file it was writing on waking.
+FENCE_EVERY_S = 1.0
+
+
+class FrameFence:
+    """The producer's lease (``manifests.lease.Fence``, None: unfenced), checked
+    before frame files are written at most once per ``every_s``, and on
+    ``check(force=True)``; LeaseLost once the lease is gone or its generation moved."""
+
+    def __init__(self, storage, fence, every_s: float = FENCE_EVERY_S) -> None:
+        self._storage, self._fence, self._every_s = storage, fence, every_s
+        self._checked = float("-inf")
+
+    def check(self, force: bool = False) -> None:
+        from manifests.lease import check_fence
+
+        if self._fence is None:
+            return
+        now = time.monotonic()
+        if force or now - self._checked >= self._every_s:
+            check_fence(self._storage, self._fence)
+            self._checked = time.monotonic()
+
+
+def store_frame(spec: EpisodeSpec, frame, storage, fence: FrameFence | None = None) -> dict:
+    """Encode one frame's outputs, write their files (each after ``fence.check()``); return its manifest row."""
     with deflating_with(spec.png_deflater):  # the root's deflater (an older root keeps its own)
         files = frame_files(spec, frame)
     for name, data in files.items():
         fid = frame_id(spec.episode, frame.index)
+        if fence is not None:
+            fence.check()
         storage.write_bytes(frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout), data)
     return frame_row(spec, frame, files)
 
@@ -110,10 +139,12 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
 
     ``on_frame(n)``, if given, is called after each frame's files are written
     with the number of frames written so far (the driver's progress).
-    ``fence`` (``manifests.lease.Fence``): the producer's lease, checked just
-    before and just after the part is written; LeaseLost, and no part, if the
-    lease was taken over meanwhile (a repair may have deleted this episode's
-    frames)."""
+    ``fence`` (``manifests.lease.Fence``): the producer's lease, checked before
+    frame files are written (``FrameFence``: at most once per FENCE_EVERY_S),
+    before the stats, and just before and just after the part is written;
+    LeaseLost, and nothing more written, if the lease was taken over or
+    released meanwhile (a repair may have deleted this episode's frames, or
+    the driver gave this task up and finished)."""
     from render_workers.render.episode import render_episode
 
     start = time.perf_counter()
@@ -123,11 +154,12 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     storage.remove_stale_temp(part_dir, part_stem(spec.scenario, spec.episode))  # under any of its names
     rows: list[dict] = []
     kill_after, full_after = _fault_after(), _enospc_after()
+    frame_fence = FrameFence(storage, fence)
 
     def sink(frame) -> None:
         if full_after is not None and len(rows) >= full_after:
             raise storage_error("write", storage.join(spec.scenario), OSError(errno.ENOSPC, "No space left on device"))
-        rows.append(store_frame(spec, frame, storage))
+        rows.append(store_frame(spec, frame, storage, frame_fence))
         if on_frame is not None:
             on_frame(len(rows))
         if kill_after is not None and len(rows) >= kill_after:
@@ -140,6 +172,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     seconds = time.perf_counter() - start
     result = EpisodeResult(spec.scenario, spec.episode, len(rows), seconds, socket.gethostname(), os.getpid())
     stats = {"frames": len(rows), "seconds": round(seconds, 3), "node": result.node, "stages": info.timings}
+    frame_fence.check(force=True)
     storage.write_bytes(f"{STATS_DIR}/{spec.scenario}_e{spec.episode:04d}.json", json.dumps(stats).encode())
     _stop_before_commit()
     commit_part(storage, spec, rows, fence)

@@ -26,8 +26,8 @@ class Fatal:
 
 
 class FrameReporter:
-    """An episode's ``on_frame``: sends its frame count to the progress actor,
-    batched and back-pressured.
+    """An episode's ``on_frame``: sends its frame count, and the Ray node it runs
+    on (``node``), to the progress actor, batched and back-pressured.
 
     At most one call is in flight (a new count waits until the actor acked
     the last one; counts are cumulative, so a skipped one is carried by the
@@ -36,8 +36,8 @@ class FrameReporter:
     at most one call per second per task. Progress is best effort: a dead or
     restarting actor costs the display some updates, never the episode."""
 
-    def __init__(self, counter, key: str, interval_s: float) -> None:
-        self._counter, self._key, self._interval = counter, key, interval_s
+    def __init__(self, counter, key: str, interval_s: float, node: str | None = None) -> None:
+        self._counter, self._key, self._interval, self._node = counter, key, interval_s, node
         self._pending = None
         self._last = float("-inf")
 
@@ -48,7 +48,7 @@ class FrameReporter:
         if self._pending is not None and not self._acked():
             return
         try:
-            self._pending = self._counter.frame.remote(self._key, n)
+            self._pending = self._counter.frame.remote(self._key, n, self._node)
         except Exception as exc:  # the actor is gone for good: no more progress from this task
             log.debug("progress report of %s dropped: %s", self._key, exc)
             return
@@ -77,7 +77,12 @@ def episode_task(spec, storage, world, counter=None, lp_threads=None, progress_i
 
     if lp_threads is not None:  # read when this worker's GL context is made (its first episode)
         os.environ.setdefault("LP_NUM_THREADS", lp_threads)
-    on_frame = FrameReporter(counter, spec.key, progress_interval_s) if counter is not None else None
+    on_frame = None
+    if counter is not None:
+        import ray
+
+        on_frame = FrameReporter(counter, spec.key, progress_interval_s, ray.get_runtime_context().get_node_id())
+        on_frame(0)  # at once: the driver learns which node runs this episode (it gives up a hung node's)
     try:
         return (episode_fn or run_episode)(spec, storage, world=world, on_frame=on_frame, fence=fence)
     except StorageError as exc:
@@ -90,7 +95,7 @@ class FrameCounter:
     """Ray actor the render tasks report their frame counts to.
 
     Keeps the highest count per running episode (a retried episode is not
-    counted twice). ``counts`` answers as soon as a count moves (or after
+    counted twice) and the node each one last reported from. ``counts`` answers as soon as a count moves (or after
     ``timeout``) with the counts of the episodes the driver still waits for,
     and forgets the others, so its memory is bounded by the tasks in flight,
     not by the plan. Holds nothing the run needs: if it dies, Ray restarts it
@@ -100,24 +105,33 @@ class FrameCounter:
         import asyncio
 
         self._done: dict[str, int] = {}
+        self._nodes: dict[str, str] = {}
         self._version = 0
         self._moved = asyncio.Event()
 
-    async def frame(self, key: str, n: int) -> None:
+    async def frame(self, key: str, n: int, node: str | None = None) -> None:
+        moved = False
+        if node is not None and self._nodes.get(key) != node:
+            self._nodes[key] = node
+            moved = True
         if n > self._done.get(key, 0):
             self._done[key] = n
+            moved = True
+        if moved:
             self._version += 1
             self._moved.set()
 
-    async def counts(self, keys: list[str], seen: int, timeout: float) -> tuple[int, dict[str, int]]:
+    async def counts(self, keys: list[str], seen: int, timeout: float) -> tuple[int, dict[str, int], dict[str, str]]:
+        """(version, frame counts, nodes) of ``keys``, once the version moves past ``seen`` or after ``timeout``."""
         import asyncio
 
         wanted = set(keys)
         self._done = {k: n for k, n in self._done.items() if k in wanted}
+        self._nodes = {k: node for k, node in self._nodes.items() if k in wanted}
         if self._version == seen:
             self._moved.clear()
             try:
                 await asyncio.wait_for(self._moved.wait(), timeout)
             except asyncio.TimeoutError:
                 pass
-        return self._version, {k: n for k, n in self._done.items() if k in wanted}
+        return self._version, dict(self._done), dict(self._nodes)

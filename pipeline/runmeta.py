@@ -261,6 +261,17 @@ def changed_entries(old: dict | None, new: dict | None) -> list[str]:
     return changed
 
 
+def holds_frames(storage) -> bool:
+    """Whether the root holds a part or anything beside its own bookkeeping (a scenario
+    folder, say): False for a root whose run wrote nothing but its marker and run.json."""
+    from manifests.root import own_top_names, root_entries
+    from manifests.schema import MANIFEST_DIR
+
+    if storage.list_files(MANIFEST_DIR + "/", suffix=".parquet"):
+        return True
+    return bool(set(root_entries(storage)) - own_top_names(()))
+
+
 def _refuse_differences(storage, old: dict, new: dict, extend: bool) -> None:
     """RunConfigError unless a run of ``new`` may add to a root made with ``old``."""
     if old == new:
@@ -272,6 +283,11 @@ def _refuse_differences(storage, old: dict, new: dict, extend: bool) -> None:
         )
     diffs = _differences(old, new)
     fixed = [k for k in FRAME_DEFINING if old.get(k) != new.get(k)]
+    if fixed and not holds_frames(storage):  # a run that made nothing (killed at once, or refused): say so
+        raise RunConfigError(
+            f"{storage.uri} holds no frames, but its {RUN_FILE} records a run with another {', '.join(fixed)} "
+            f"({'; '.join(diffs)}); run that command, or use a new --out (this one holds nothing to keep)"
+        )
     if fixed == ["outputs"]:
         raise RunConfigError(
             f"{storage.uri} holds the outputs {','.join(old['outputs'])}; this run asks for "

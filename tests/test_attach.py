@@ -127,6 +127,91 @@ def test_token_cluster_without_a_token_here_is_one_line(tmp_path):
     lines = result.stderr.strip().splitlines()
     assert lines[-1].startswith("error: ") and "uses token authentication" in lines[-1] and address in lines[-1]
     assert "Traceback" not in result.stderr
+    assert not (tmp_path / "refused").exists()  # issue 38: a failed attach writes nothing to --out
+
+
+def test_a_wrong_token_is_one_line_naming_the_address_given(tmp_path):
+    """Issue 38: another token than the head's took 23.8 s and 20 lines of Ray's
+    InvalidAuthToken logs, then named an address the user had not given. Now: one line
+    within 30 s, naming the address given; nothing written to --out."""
+    import ray
+
+    if ray.is_initialized():
+        ray.shutdown()
+    env = _clean_env(_home_with_token(tmp_path / "head"))
+    with ray_head(env, "token") as (address, head):
+        start = time.monotonic()
+        result = _produce(_clean_env(_home_with_token(tmp_path / "here")), address, tmp_path / "refused", timeout=120)
+        took = time.monotonic() - start
+    assert result.returncode == 2, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"error: the Ray cluster at {address} refused this machine's token")
+    assert took < 30, took
+    assert not (tmp_path / "refused").exists()
+
+
+def test_a_dead_ray_client_address_is_one_line_without_warnings(tmp_path):
+    """Issue 38: a ray:// address nobody answers at took 33 s, with a two-line UserWarning of Ray's."""
+    env = _clean_env(tmp_path)
+    address = f"ray://127.0.0.1:{_free_port()}"
+    start = time.monotonic()
+    result = _produce(env, address, tmp_path / "out", timeout=60)
+    assert result.returncode == 2, result.stderr[-3000:]
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: no Ray cluster answers at " + address), result.stderr
+    assert time.monotonic() - start < 30 and not (tmp_path / "out").exists()
+
+
+def test_a_killed_head_is_one_line_with_what_is_committed_and_exit_1(tmp_path):
+    """Issue 38: with the head SIGKILLed mid-run, produce worked on for ~60 s and then exited 1
+    with Ray's C++ line `Failed to connect to GCS within 60 seconds` and no resume hint. Now:
+    one line naming the head, what is committed and how to resume, exit 1, well before Ray's 60 s."""
+    import ray
+
+    if ray.is_initialized():
+        ray.shutdown()
+    env = _clean_env(_home_with_token(tmp_path))
+    out = tmp_path / "out"
+    args = ["--domains", "towns=T01,T07 weathers=CN,HRN viewpoints=A", "--frames-per-scenario", "6", "--width", "64",
+            "--height", "36", "--seed", "7", "--world", "test", "--out", str(out)]
+    with ray_head(env, "token") as (address, head):
+        run = subprocess.Popen([sys.executable, "-m", "pipeline.cli", "produce", *args], env={**env, "RAY_ADDRESS": address},
+                               stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        try:
+            deadline = time.monotonic() + 240
+            while not list(out.glob("T*/e0000/rgb/*.png")):
+                assert run.poll() is None, run.communicate()[1][-3000:]
+                assert time.monotonic() < deadline, "no frame was written"
+                time.sleep(0.2)
+            for pid in [head.pid, *_descendants(head.pid)]:  # the head node, all of it
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+            killed = time.monotonic()
+            _, stderr = run.communicate(timeout=120)
+            took = time.monotonic() - killed
+        finally:
+            if run.poll() is None:
+                run.kill()
+                run.communicate()
+    assert run.returncode == 1, stderr[-3000:]
+    last = stderr.strip().splitlines()[-1]
+    assert last.startswith(f"error: the Ray head at {address} is gone; ") and "episodes committed" in last, stderr[-3000:]
+    assert last.endswith("run the same command again to resume once the head is back")
+    assert "rpc_client" not in stderr and took < 45, (took, stderr[-3000:])
+
+
+def test_the_clusters_own_messages_stay_out_of_a_non_terminal_stream(tmp_path):
+    """Issue 38: Ray's raylet lines ("(raylet) A worker died ...", with raw colour codes)
+    reached stdout when it was not a terminal. A worker killed mid-episode (retried, the
+    run succeeds): neither stream holds Ray's lines or a colour code."""
+    env = _clean_env(tmp_path)
+    env["IDDA_FAULT_INJECT"] = f"kill-after:1:{tmp_path / 'killed-once'}"
+    cmd = [sys.executable, "-m", "pipeline.cli", "produce", *ARGS, "--out", str(tmp_path / "out"), "--workers", "1"]
+    result = subprocess.run(cmd, env=env, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 0, result.stderr[-3000:]
+    assert (tmp_path / "killed-once").exists(), "the fault hook never fired"
+    both = result.stdout + result.stderr
+    assert "\x1b[" not in both and "(raylet)" not in both, both[-3000:]
 
 
 @contextlib.contextmanager
@@ -152,3 +237,8 @@ def test_dead_ray_address_is_one_line_and_exit_2(tmp_path, dead):
     assert result.returncode == 2, result.stderr[-3000:]
     lines = result.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("error: no Ray cluster answers at " + address), result.stderr
+    assert not (tmp_path / "out").exists()  # issue 38: nothing written to --out before the cluster answers
+    (tmp_path / "empty").mkdir()
+    with dead() as address:  # an empty --out stays empty
+        assert _produce(env, address, tmp_path / "empty", timeout=60).returncode == 2
+    assert list((tmp_path / "empty").iterdir()) == []

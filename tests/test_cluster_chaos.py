@@ -1,11 +1,18 @@
 """Node loss never fails a run: on a three-node ``ray.cluster_utils.Cluster``
 (head plus two workers) a worker node is removed mid-run, once the node that
 holds the progress actor, once a plain one. The same produce() call finishes,
-its report is ok, and the root is byte-identical to a local run's."""
+its report is ok, and the root is byte-identical to a local run's. A node that
+hangs (SIGSTOP) is given up once Ray's health check marks it dead, its
+episodes run elsewhere, and when it wakes it writes nothing into the root."""
 
 from __future__ import annotations
 
+import logging
+import os
+import signal
 import threading
+import time
+from pathlib import Path
 
 import pytest
 
@@ -94,3 +101,99 @@ def test_losing_a_worker_node_does_not_fail_the_run(local_reference, tmp_path, m
     report, digest = _run_and_remove(tmp_path, monkeypatch, actor_on_doomed=False)
     assert report.ok and report.rendered_episodes == 8
     assert digest == local_reference
+
+
+# A short health check: a node that stops answering is marked dead after about period x threshold (3 s).
+HEALTH_CHECK = {"health_check_period_ms": 1000, "health_check_failure_threshold": 3, "health_check_timeout_ms": 1000,
+                "health_check_initial_delay_ms": 1000}
+HEAD_HOST = "head_host"  # a custom resource of the head only: the progress actor stays off the hung node
+
+
+def _busy_worker(raylet_pid: int) -> bool:
+    """Whether a worker process below ``raylet_pid`` runs an episode (Ray names it after the task)."""
+    from tests.faultkit import descendants
+
+    for pid in descendants(raylet_pid):
+        try:
+            if b"episode_task" in Path(f"/proc/{pid}/cmdline").read_bytes():
+                return True
+        except OSError:
+            continue
+    return False
+
+
+def _every_file(root: Path) -> dict[str, tuple]:
+    """Every file with its bytes' digest, inode and mtime: a rewrite with the same bytes shows too."""
+    import hashlib
+
+    out = {}
+    for path in sorted(root.rglob("*")):
+        if path.is_file():
+            st = path.stat()
+            out[path.relative_to(root).as_posix()] = (hashlib.sha256(path.read_bytes()).hexdigest(), st.st_ino, st.st_mtime_ns)
+    return out
+
+
+def test_a_hung_node_is_given_up_and_writes_nothing_when_it_wakes(local_reference, tmp_path, monkeypatch, caplog):
+    """Issue 38: a worker node's raylet and its workers SIGSTOPped mid-episode stalled the
+    run for minutes, and on SIGCONT the hung worker wrote frame files after the driver had
+    exited. Now the driver gives the node up once Ray marks it dead, runs its episodes on
+    the head, says so in one line, and the woken worker writes nothing (frame fence)."""
+    import ray
+    from ray._private import ray_constants
+    from ray.cluster_utils import Cluster
+
+    from pipeline import driver
+    from tests.faultkit import descendants
+
+    if ray.is_initialized():
+        ray.shutdown()
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "resources": {HEAD_HOST: 1},
+                                                            "_system_config": HEALTH_CHECK})
+    node = cluster.add_node(num_cpus=1)
+    cluster.wait_for_nodes()
+    monkeypatch.setattr(driver, "PROGRESS_ACTOR_OPTIONS", {**driver.PROGRESS_ACTOR_OPTIONS, "resources": {HEAD_HOST: 0.01}})
+    raylet = node.all_processes[ray_constants.PROCESS_TYPE_RAYLET][0].process.pid
+    out = tmp_path / "cluster"
+    result, stopped = {}, []
+    caplog.set_level(logging.WARNING, logger="pipeline.driver")
+
+    def drive():
+        try:
+            result["report"] = produce(_config(out, address=cluster.address), lambda p: None)
+        except BaseException as exc:  # surfaced below
+            result["error"] = exc
+
+    thread = threading.Thread(target=drive)
+    try:
+        thread.start()
+        deadline = time.monotonic() + 300
+        while not _busy_worker(raylet):
+            assert time.monotonic() < deadline and thread.is_alive(), "no episode ran on the worker node"
+            time.sleep(0.05)
+        stopped = [raylet, *descendants(raylet)]
+        for pid in stopped:
+            os.kill(pid, signal.SIGSTOP)
+        thread.join(timeout=240)
+        assert not thread.is_alive(), "the run did not finish after the node hung"
+        before = _every_file(out)
+        for pid in stopped:
+            os.kill(pid, signal.SIGCONT)
+        stopped = []
+        time.sleep(5)  # the woken worker would write its next frame files now
+        assert _every_file(out) == before
+    finally:
+        for pid in stopped:
+            try:
+                os.kill(pid, signal.SIGCONT)
+            except ProcessLookupError:
+                pass
+        if ray.is_initialized():
+            ray.shutdown()
+        cluster.shutdown()
+    assert "error" not in result, repr(result.get("error"))
+    report = result["report"]
+    assert report.ok and report.rendered_episodes == 8 and report.nodes_lost == 1
+    lines = [r.getMessage() for r in caplog.records if " lost: " in r.getMessage()]
+    assert len(lines) == 1 and lines[0].startswith("node ") and "retried elsewhere" in lines[0], lines
+    assert tree_digest(out) == local_reference

@@ -7,6 +7,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
 import socket
 import subprocess
 import sys
@@ -272,6 +273,30 @@ def test_part_commit_fails_after_the_lease_was_taken_over(tmp_path):
     assert read_generation(storage) == 1
 
 
+def test_no_frame_file_is_written_once_the_lease_is_gone(tmp_path):
+    """Issue 38: a worker on a hung node woke after its driver had finished and wrote 48
+    frame files into the root. Frame files are fenced like parts: once the producer's
+    lease is gone (the driver released it), a worker that was stopped for longer than
+    FENCE_EVERY_S writes no further frame file, no stats and no part."""
+    from pipeline.episode_job import FENCE_EVERY_S, run_episode
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    claim_root(storage)
+    spec = make_plan(PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36)).episodes[0]
+    producer = register_producer(storage, ttl_s=60)
+
+    def on_frame(n: int) -> None:
+        if n == 1:  # the worker is stopped; meanwhile its driver finishes and releases the lease
+            producer.release()
+            time.sleep(FENCE_EVERY_S + 0.1)
+
+    with pytest.raises(LeaseLost, match="lost the lease"):
+        run_episode(spec, storage, world="test", on_frame=on_frame, fence=producer.fence)
+    written = sorted(p.name for p in (tmp_path / "root").rglob("*") if p.is_file())
+    assert written and all(name.startswith("0000_000_") for name in written if name != ROOT_MARKER), written
+    assert done_episodes(storage) == set() and not storage.list_files("_stats/")
+
+
 def test_fence_holds_when_the_lease_is_revived_by_a_racing_refresh(tmp_path):
     """A refresh that read its lease just before the takeover and wrote it
     back just after: the generation was bumped, so the commit still fails."""
@@ -353,6 +378,120 @@ def test_lease_of_a_live_process_is_not_taken_over(tmp_path):
     storage.write_bytes(EXCLUSIVE, _lease_of(os.getpid(), "compaction"))
     with pytest.raises(LeaseError, match="locked"):
         acquire_exclusive(storage, "repair", wait_s=0)
+
+
+# ------------------------- issue 38: verify never changes the root; a rerun clears dead leases ----
+
+
+def _killed_driver_lease(root) -> str:
+    """Register a producer on ``root`` in a child process and SIGKILL it: its lease stays; returns its path."""
+    import signal
+
+    code = ("import sys, time\nfrom manifests.lease import register_producer\nfrom storage import Storage\n"
+            "lease = register_producer(Storage.from_uri(sys.argv[1]))\nprint(lease.rel, flush=True)\ntime.sleep(300)\n")
+    env = {**os.environ, "PYTHONPATH": os.path.dirname(os.path.dirname(os.path.abspath(__file__)))}
+    child = subprocess.Popen([sys.executable, "-c", code, str(root)], stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        rel = child.stdout.readline().strip()
+    finally:
+        os.kill(child.pid, signal.SIGKILL)
+        child.wait()
+    assert rel.startswith(PRODUCER_PREFIX)
+    return rel
+
+
+def _every_file(root) -> dict[str, str]:
+    import hashlib
+    from pathlib import Path
+
+    return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+            for p in sorted(Path(root).rglob("*")) if p.is_file()}
+
+
+SMALL = PlanConfig(domains="T01_CN_A", frames_per_scenario=2, width=64, height=36, seed=7)
+
+
+@pytest.fixture(scope="module")
+def small_root(tmp_path_factory):
+    """One episode of two frames rendered without Ray, indexed: copy it before changing it."""
+    from tests.roots import render_root
+
+    root = tmp_path_factory.mktemp("small") / "root"
+    render_root(root, RunConfig(plan=SMALL, world="test"), compact=True)
+    return root
+
+
+def test_verify_leaves_a_dead_drivers_lease_and_a_rerun_removes_it(small_root, tmp_path):
+    """Issue 38: `idda verify` deleted a SIGKILLed driver's lease and bumped
+    generation.json. Verify only looks: every file of the root, leases and
+    generation included, is byte for byte what it was. The rerun that takes
+    the root over removes the dead lease, without a generation bump."""
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+    from pipeline.driver import ProduceConfig, produce
+
+    root = tmp_path / "root"
+    shutil.copytree(small_root, root)
+    storage = Storage.from_uri(str(root))
+    storage.write_bytes("_lease/generation.json", json.dumps({"generation": 4}).encode())
+    dead = _killed_driver_lease(root)
+    before = _every_file(root)
+    assert dead in before and "_lease/generation.json" in before
+    result = CliRunner().invoke(app, ["verify", str(root), "--no-ray"])
+    assert result.exit_code == 0 and "OK: " in result.output, result.output
+    assert _every_file(root) == before
+    report = produce(ProduceConfig(run=RunConfig(plan=SMALL, world="test"), out=str(root)))  # all done: no Ray
+    assert report.skipped_episodes == 1 and report.rendered_episodes == 0
+    assert storage.list_files(PRODUCER_PREFIX) == []  # the dead lease is gone, and the rerun's own released
+    assert read_generation(storage) == 4
+
+
+def test_verify_lists_foreign_files_and_fails_on_them_only_with_strict(small_root, tmp_path):
+    """Issue 38: a file whose name does not follow the layout was not reported.
+    Verify lists such files (top level, inside a scenario's folder, under
+    manifest/) without failing; --strict fails on them; the root's own names
+    (the card's files included) and hidden names are not listed."""
+    from typer.testing import CliRunner
+
+    from pipeline.cli import app
+
+    root = tmp_path / "root"
+    shutil.copytree(small_root, root)
+    foreign = ["T01_CN_A/e0000/rgb/thumbs.db", "T01_CN_A/notes.txt", "manifest/town=T01/readme.txt", "notes.txt",
+               "scratch"]
+    for rel in foreign[:-1]:
+        (root / rel).write_text("not ours")
+    (root / "scratch").mkdir()
+    (root / "scratch" / "a.bin").write_bytes(b"x")
+    for rel in ("README.md", "class_shares.png", "preview/T01_CN_A.png", ".DS_Store", "T01_CN_A/.DS_Store"):
+        (root / rel).parent.mkdir(parents=True, exist_ok=True)
+        (root / rel).write_bytes(b"x")
+    before = _every_file(root)
+    result = CliRunner().invoke(app, ["verify", str(root), "--no-ray"])
+    assert result.exit_code == 0, result.output
+    listed = [line.split(None, 1)[1] for line in result.output.splitlines() if line.startswith("foreign ")]
+    assert listed == sorted(foreign)
+    assert "OK: " in result.output and "5 foreign files" in result.output
+    strict = CliRunner().invoke(app, ["verify", str(root), "--no-ray", "--strict"])
+    assert strict.exit_code == 1 and "FAILED (--strict): " in strict.output, strict.output
+    assert _every_file(root) == before
+
+
+def test_a_root_that_holds_no_frame_says_so_when_the_size_differs(tmp_path):
+    """Issue 38: a run that wrote only the marker and run.json (killed at once) made a
+    later run of another size say the root "holds frames made with a different width"."""
+    from pipeline.runmeta import RunConfigError
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    claim_root(storage)
+    prepare_root(storage, RunConfig(plan=SMALL, world="test"))
+    other = RunConfig(plan=replace(SMALL, width=96), world="test")
+    with pytest.raises(RunConfigError, match="holds no frames, but its run.json records a run with another width"):
+        prepare_root(storage, other)
+    (tmp_path / "root" / "T01_CN_A").mkdir()  # a frame folder: frames may be there
+    with pytest.raises(RunConfigError, match="holds frames made with a different width"):
+        prepare_root(storage, other)
 
 
 # ---------------------------------------- issue 21.12: racing root creation ----

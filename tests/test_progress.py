@@ -80,9 +80,9 @@ class _GatedCounter(FrameCounter):
         super().__init__()
         self.gate = asyncio.Event()
 
-    async def frame(self, key: str, n: int) -> None:
+    async def frame(self, key: str, n: int, node: str | None = None) -> None:
         await self.gate.wait()
-        await super().frame(key, n)
+        await super().frame(key, n, node)
 
     async def release(self) -> None:
         self.gate.set()
@@ -98,10 +98,10 @@ class _Sent:
     def frame(self):
         return self
 
-    def remote(self, key: str, n: int):
+    def remote(self, key: str, n: int, node: str | None = None):
         self.sent += 1
         self.last = n
-        return self.actor.frame.remote(key, n)
+        return self.actor.frame.remote(key, n, node)
 
 
 @pytest.fixture(scope="module")
@@ -158,13 +158,14 @@ def test_counter_forgets_finished_episodes():
 
     async def scenario():
         counter = FrameCounter()
-        await counter.frame("a", 3)
-        await counter.frame("b", 2)
-        await counter.frame("a", 1)  # a retried attempt starting over does not lower the count
-        version, counts = await counter.counts(["a", "b"], -1, 0.0)
-        assert counts == {"a": 3, "b": 2}
-        version, counts = await counter.counts(["b"], version, 0.0)  # "a" finished: dropped
-        assert counts == {"b": 2} and counter._done == {"b": 2}
+        await counter.frame("a", 3, "node1")
+        await counter.frame("b", 0, "node2")  # a task's first report, at its start: its node
+        await counter.frame("b", 2, "node2")
+        await counter.frame("a", 1, "node3")  # a retried attempt starting over does not lower the count
+        version, counts, nodes = await counter.counts(["a", "b"], -1, 0.0)
+        assert counts == {"a": 3, "b": 2} and nodes == {"a": "node3", "b": "node2"}  # the node it runs on now
+        version, counts, nodes = await counter.counts(["b"], version, 0.0)  # "a" finished: dropped
+        assert counts == {"b": 2} and counter._done == {"b": 2} and nodes == {"b": "node2"}
 
     asyncio.run(scenario())
 

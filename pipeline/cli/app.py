@@ -13,7 +13,8 @@ import typer
 from pipeline.cli import data as cli_data, domains as cli_domains
 from pipeline.cli.domains import CatalogFile, domain_file, root_catalog, root_pairing, root_rules
 from pipeline.cli.progress import (
-    ProgressDisplay, VerifyDisplay, format_interrupted, format_outage, format_produce_report, stop_signals,
+    ProgressDisplay, VerifyDisplay, format_head_lost, format_interrupted, format_outage, format_produce_report,
+    stop_signals,
     verify_advice,
 )
 from pipeline.cli.common import (
@@ -29,7 +30,8 @@ app = typer.Typer(
     help="Produce large multi-domain synthetic driving datasets (IDDA-style).\n\n"
     "Domains are selected with one grammar everywhere: 'all'; scenario codes such as "
     "T01_CS_A,T07_HRN_* ; or axis filters such as 'towns=T01-T06 weathers=CN viewpoints=A,M'.\n\n"
-    "Exit codes: 0 done; 1 the data has a problem (verify found damage, episodes failed); "
+    "Exit codes: 0 done; 1 the data has a problem (verify found damage, episodes failed) or produce stopped "
+    "because its storage or its Ray cluster's head went away (run it again to resume); "
     "2 a usage error, including a selection that matches no frames, or an environment that cannot render "
     "(render workers crashing on every episode); 130 interrupted (Ctrl-C); "
     "143 and 129 stopped by SIGTERM and SIGHUP (resume by running the same command again).",
@@ -139,7 +141,8 @@ def produce(
     and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
     """
     from manifests.lease import ttl_from_env as lease_ttl_from_env
-    from pipeline.driver import ProduceConfig, ProduceInterrupted, RendererCrashes, StorageOutage, produce as run_produce
+    from pipeline.driver import (HeadLost, ProduceConfig, ProduceInterrupted, RendererCrashes, StorageOutage,
+                                 produce as run_produce)
     from pipeline.runmeta import RunConfig
 
     with user_errors():
@@ -175,6 +178,10 @@ def produce(
 
                 bar.close()
                 typer.echo(format_outage(outage, Storage.from_uri(out).endpoint), err=True)
+                raise typer.Exit(code=1) from None
+            except HeadLost as lost:  # the cluster is gone; what finished is committed
+                bar.close()
+                typer.echo(format_head_lost(lost), err=True)
                 raise typer.Exit(code=1) from None
             except RendererCrashes as crashes:  # the environment cannot render: no retry helps
                 bar.close()
@@ -225,13 +232,16 @@ def verify(
     workers: Optional[int] = typer.Option(None, help="CPUs for a local Ray cluster (default: all cores)."),
     use_ray: Optional[bool] = typer.Option(None, "--ray/--no-ray", help="Check on Ray, or in this process (default: Ray for large roots or with an address)."),
     threads: int = typer.Option(8, help="Files checked in parallel per task."),
+    strict: bool = typer.Option(False, "--strict", help="Fail (exit 1) on foreign files too: files whose names are not of the root's layout."),
     catalog: CatalogFile = None,
 ) -> None:
     """Recompute every checksum; report missing, corrupt and extra files.
 
     Runs as Ray tasks, one per scenario. Exits 1 when anything is wrong;
     `idda produce --repair` fixes it. Frames a running producer is writing
-    are reported as in progress, not as damage.
+    are reported as in progress, not as damage. Files whose names are not of
+    the root's layout are listed as foreign (left alone; --strict fails on them).
+    Verify never changes the root.
     """
     from manifests.selection import parse_selection
     from manifests.verify import Scope, parse_since, verify as run_verify
@@ -254,15 +264,25 @@ def verify(
             typer.echo(f"{p.kind:<8} {p.path}" + (f"  ({p.detail})" if p.detail else ""))
         if len(report.problems) > 50:
             typer.echo(f"... and {len(report.problems) - 50} more")
+        for rel in report.foreign[:50]:
+            typer.echo(f"foreign  {rel}")
+        if len(report.foreign) > 50:
+            typer.echo(f"... and {len(report.foreign) - 50} more foreign")
         mb = report.bytes_checked / 1e6
         rate = mb / report.seconds if report.seconds else 0.0
         summary = f"checked {report.files_checked:,} files, {mb:,.1f} MB in {report.seconds:.1f} s ({rate:.0f} MB/s)"
         if report.in_progress:
             summary += (f"; {count(len(report.in_progress), 'episode')} in progress (a producer is writing them; "
                         "verify again when it has finished)")
-        if report.ok:
+        if report.foreign:
+            summary += (f"; {count(len(report.foreign), 'foreign file')} (not of the root's layout: verify and repair "
+                        "leave them alone" + ("" if strict else "; --strict fails on them") + ")")
+        if report.ok and not (strict and report.foreign):
             typer.echo(f"OK: {summary}")
             return
+        if report.ok:  # only foreign files, under --strict
+            typer.echo(f"FAILED (--strict): {summary}.")
+            raise typer.Exit(code=1)
         counts = ", ".join(f"{n} {kind}" for kind, n in sorted(report.counts().items()))
         typer.echo(f"FAILED: {counts}; {summary}. {verify_advice(report)}")
         raise typer.Exit(code=1)

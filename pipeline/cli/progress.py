@@ -148,6 +148,14 @@ def format_outage(outage, endpoint: str) -> str:
     )
 
 
+def format_head_lost(lost) -> str:
+    """The one line of a run whose Ray head went away: what is committed, how to go on."""
+    report = lost.report
+    done = report.skipped_episodes + report.rendered_episodes
+    return (f"error: {lost}; {done:,} of {report.planned_episodes:,} episodes committed "
+            f"({report.rendered_episodes:,} this run); run the same command again to resume once the head is back")
+
+
 def format_produce_report(report) -> str:
     from pipeline.status import format_duration
 
@@ -168,10 +176,13 @@ def format_produce_report(report) -> str:
         lines.append(f"{report.out}: nothing to render; all {report.planned_episodes:,} planned episodes are done")
         return "\n".join(lines)
     rate = report.rendered_frames / report.seconds if report.seconds else 0.0
+    workers = count(report.workers, "worker")
+    if report.nodes_lost:  # what ran: the slots at the start, less the nodes lost on the way
+        workers += f" at the start, {count(report.nodes_lost, 'node')} lost"
     lines.append(
         f"{report.out}: rendered {count(report.rendered_frames, 'frame')} in "
         f"{count(report.rendered_episodes, 'episode')} "
-        f"({format_duration(report.seconds)}, {rate:.2f} frames/s on {count(report.workers, 'worker')}); "
+        f"({format_duration(report.seconds)}, {rate:.2f} frames/s on {workers}); "
         f"{report.skipped_episodes:,} of {report.planned_episodes:,} episodes were already done"
     )
     for key, error in report.failed:
