@@ -353,21 +353,16 @@ def _summaries_while_ray_starts(config: ProduceConfig, storage, state,
     """The parts' summaries (``state.summaries``: footers, or indexes where current), read on
     another thread while this one starts or attaches to Ray when ``start_ray``: a resume of a
     root without indexes reads 14,355 footers at full scale, and Ray takes seconds to start.
-    Returns them and Ray as started, or why a cluster's address could not be attached to (raised
-    where rendering would have attached, after every check of the root, as without this); a local
-    cluster that did not come up (its raylet has 30 s, and the footers' processes take the cores
-    meanwhile) is started again there, the usual way. Nothing is sent to Ray here."""
+    Returns them and Ray as started (or why it could not be: raised where rendering would have
+    started it, after every check of the root, as without this). Nothing is sent to Ray here."""
     if not start_ray:
         return state.summaries(storage), None
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-footers") as pool:
         reading = pool.submit(state.summaries, storage)
         try:
             early = _open_ray(config)
-        except ConnectionError as exc:  # unreachable, or wants a token: said after the root's checks
+        except Exception as exc:  # e.g. an unreachable cluster: said after the root's checks
             early = exc
-        except Exception as exc:
-            log.info("Ray did not start beside the footer reading (%s); starting it after", exc)
-            early = None
         try:
             return reading.result(), early
         except BaseException:
