@@ -15,7 +15,6 @@ import os
 import threading
 import time
 from collections import deque
-from concurrent.futures import ThreadPoolExecutor
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable
@@ -304,83 +303,19 @@ def _collect(ray, ref, in_flight: dict, report: ProduceReport, max_retries: int)
     row["seconds"] += result.seconds
 
 
-@dataclass
-class _RayRun:
-    """Ray as this run holds it: ``started``, this run started or attached to it (then it shuts it down)."""
-
-    ray: object
-    started: bool
-    reaper: object | None = None  # pipeline.reaper.Reaper of a local cluster this run started
-
-    def close(self) -> None:
-        """Shut Ray down if this run started it (again: a no-op)."""
-        if self.started and self.ray.is_initialized():
-            self.ray.shutdown()
-        if self.reaper is not None:
-            self.reaper.stop()
-            self.reaper = None
-
-
-def _open_ray(config: ProduceConfig) -> _RayRun:
-    ray = _import_ray()
-    run = _RayRun(ray, started=not ray.is_initialized())
-    try:
-        _connect(ray, config)
-        if run.started and not _address(config):  # our own local cluster: it dies with this process
-            from pipeline.reaper import Reaper
-
-            run.reaper = Reaper()
-    except BaseException:
-        run.close()
-        raise
-    return run
-
-
-def _pending_by_name(plan, state) -> bool:
-    """Whether the listing alone shows an episode to render: one without a part, or whose part's
-    name counts fewer rows than planned (an old name, without a count, is taken as done)."""
-    from manifests.schema import named_rows
-
-    for spec in plan.episodes:
-        listed = state.parts.get(spec.scenario, {}).get(spec.episode)
-        if listed is None or (named_rows(listed[0]) or spec.frames) < spec.frames:
-            return True
-    return False
-
-
-def _summaries_while_ray_starts(config: ProduceConfig, storage, state,
-                                start_ray: bool) -> tuple[dict, _RayRun | Exception | None]:
-    """The parts' summaries (``state.summaries``: footers, or indexes where current), read on
-    another thread while this one starts or attaches to Ray when ``start_ray``: a resume of a
-    root without indexes reads 14,355 footers at full scale, and Ray takes seconds to start.
-    Returns them and Ray as started (or why it could not be: raised where rendering would have
-    started it, after every check of the root, as without this). Nothing is sent to Ray here."""
-    if not start_ray:
-        return state.summaries(storage), None
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-footers") as pool:
-        reading = pool.submit(state.summaries, storage)
-        try:
-            early = _open_ray(config)
-        except Exception as exc:  # e.g. an unreachable cluster: said after the root's checks
-            early = exc
-        try:
-            return reading.result(), early
-        except BaseException:
-            if isinstance(early, _RayRun):
-                early.close()
-            raise
-
-
 def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
                    progress: Callable[[Progress], None] | None, start: float, episode_fn=None,
-                   fence=None, ray_run: _RayRun | Exception | None = None) -> None:
-    """Run one task per pending episode, at most ``limit`` in flight; fills ``report``.
-    ``ray_run``: Ray as this run started it already, or why it could not (default: started or attached to now)."""
-    if isinstance(ray_run, Exception):
-        raise ray_run
-    ray_run = _open_ray(config) if ray_run is None else ray_run
-    ray, started = ray_run.ray, ray_run.started
+                   fence=None) -> None:
+    """Run one task per pending episode, at most ``limit`` in flight; fills ``report``."""
+    ray = _import_ray()
+    started = not ray.is_initialized()
+    reaper = None
     try:
+        _connect(ray, config)
+        if started and not _address(config):  # our own local cluster: it dies with this process
+            from pipeline.reaper import Reaper
+
+            reaper = Reaper()
         slots = max(1, int(ray.cluster_resources().get("CPU", 1) // config.cpus_per_task))
         report.workers = slots
         limit = config.max_in_flight or 2 * slots
@@ -433,7 +368,10 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                 raise RendererCrashes(report, report.crashed)
             report_progress()
     finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
-        ray_run.close()
+        if started and ray.is_initialized():
+            ray.shutdown()
+        if reaper is not None:
+            reaper.stop()
 
 
 def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
@@ -534,12 +472,10 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
         pending_episodes(plan, episode_frames(storage, scan(storage).summaries(storage)))
         report.repaired = repair_alone(storage, config, plan, owner)
     producer = register_producer(storage, owner=owner, ttl_s=config.lease_ttl_s)
-    early = None  # Ray, when started while the footers were read
     try:
         check_no_repair_running(storage)
         state = scan(storage)
-        # O(parts): footers, or the indexes where current; meanwhile Ray starts if the listing shows work
-        summaries, early = _summaries_while_ray_starts(config, storage, state, _pending_by_name(plan, state))
+        summaries = state.summaries(storage)  # O(parts): footers, or the indexes where current
         refuse_misfiled(storage, summaries)  # a swapped part is damage, never "done"
         held = episode_frames(storage, summaries)
         todo = pending_episodes(plan, held)
@@ -559,8 +495,7 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
         try:
             if todo:
                 with _folding(storage, producer, config.index_every_s):
-                    _render_on_ray(config, storage, todo, report, progress, start, episode_fn, fence=producer.fence,
-                                   ray_run=early)
+                    _render_on_ray(config, storage, todo, report, progress, start, episode_fn, fence=producer.fence)
         except KeyboardInterrupt:
             raise ProduceInterrupted(report) from None
         _fold_indexes(storage, producer, state)  # also scenarios an earlier (killed) run finished
@@ -572,8 +507,6 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
             }
             storage.write_bytes(f"{STATS_DIR}/driver.json", json.dumps(driver_stats).encode())
     finally:
-        if isinstance(early, _RayRun):  # nothing rendered after all, or a check refused the root
-            early.close()
         try:
             producer.release()
         except StorageError as exc:  # the storage is down: the lease expires by itself
