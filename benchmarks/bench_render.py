@@ -287,7 +287,7 @@ def _markdown(result: dict) -> str:
         "In production resolve, post effects, outputs and PNG encoding run on the episode's second thread,",
         "overlapping the next frame's GL passes.",
     ]
-    return "\n".join(lines + _workers_section(result) + list(_NOTES))
+    return "\n".join(lines + ["", *PROFILE.splitlines()] + _workers_section(result) + list(_NOTES))
 
 
 def _workers_section(result: dict) -> list[str]:
@@ -313,6 +313,59 @@ def _workers_section(result: dict) -> list[str]:
     ]
     return lines
 
+
+# A standing section: `python -m benchmarks.profile_frame`'s figures, by thread, and the levers they weigh.
+PROFILE = """## One frame in production's loop, by thread (issue 35)
+
+`python -m benchmarks.profile_frame` (PYTHONPATH at the tree; 8 frames of T01_CN_A at 1920x1080 after a
+2-frame warm-up, `render_episode` with a sink doing `store_frame`'s work output by output, the
+default eight outputs). Each stage is timed on the thread it runs on: CPU is that thread's own
+(`thread_time`), llvmpipe's rasteriser threads are read from /proc. Measured on main at 561ff20
+(this tree renders the same: its changes are in the resume path), 2 cores at load average 31-35
+(five other jobs), so wall times are 5-10x a quiet machine's and only the CPU shares mean much.
+Two runs gave process CPU 1.26 and 1.29 s per frame; the second run's figures:
+
+| thread | stage | CPU s / frame | share |
+|---|---|---:|---:|
+| render | GL passes, Python side (pyrender's draw calls, uniforms, read-back) | 0.284 | 22% |
+| llvmpipe x2 | rasterising and shading both passes | 0.280 | 22% |
+| second | resolve (sky behind the colour, ids and depth from the reads) | 0.076 | 6% |
+| second | post effects | 0.155 | 12% |
+| second | objects table, object counts | 0.051 | 4% |
+| second | PNG deflate (libdeflate level 2, seven PNGs) | 0.172 | 13% |
+| second | array encodings (depth_raw 0.037, depth_log 0.012, depth_gray 0.007, semantic_color 0.005, semantic_raw 0.003) | 0.063 | 5% |
+| second | PNG Sub filter, sha256, writes, manifest row | 0.014 | 1% |
+| | the rest (interpreter, allocator, the loop) | 0.197 | 15% |
+| | **process CPU per frame** | **1.293** | |
+
+Bytes per frame: rgb 726,962; depth_raw 350,321; depth_log 60,545; depth_gray 37,596; semantic_raw
+28,564; semantic_color 28,378; instance 8,367; objects 5,569: 1,246,302 in all.
+
+What that says about the levers named in issue 35 (two workers on two cores keep every thread busy,
+so only CPU per frame moves frames/s end to end):
+
+* **The deflate**, 13% of the frame: its bytes are the root's record, so only a new encoder (recorded
+  per root, as the deflater is) could make it cheaper. In one process on one frame's seven filtered
+  outputs (CPU ms, bytes; medians of 5 alternating rounds, load 33): libdeflate level 1 159 ms,
+  1,117,313 B; **level 2 155 ms, 1,094,812 B** (the default); level 3 156 ms, 1,076,889 B; level 4
+  179 ms; level 6 236 ms, 999,613 B; zlib level 1 144 ms, 1,436,608 B. Nothing at hand is both
+  deterministic and cheaper by more than noise (ISA-L is, but not deterministic: issue 21.11; zlib-ng
+  is not installed, and its output may follow CPU-specific code paths). libdeflate's cost follows the
+  input, not the output: depth_gray, semantic_raw and semantic_color (6.2 MB of rows each, 28-38 KB
+  deflated) cost 23 ms each, like depth_log, against rgb's 34-40 ms.
+* **Encoding the outputs in parallel threads**: the `deflate` package releases the GIL
+  (`PyEval_SaveThread` in its module), so seven deflates could run at once; that shortens a lone
+  worker's frame (the last episode of a run), not the CPU per frame. Not measured end to end: the
+  machine was at load 25-37 throughout, and the benchmark's two workers overlap all but the run's tail.
+* **Work done twice**: the three depth encodings each check for NaN and normalise the same buffer
+  (0.056 CPU-s together); semantic_color is already one table lookup (0.005). Sharing the NaN check and
+  the float64 normalisation would save at most ~0.02 CPU-s per frame (under 2%).
+* **GL**: the Python side of the two passes and llvmpipe's threads are 44% of the frame; the work done
+  before (see the profiling notes below) is where that stands.
+
+So the 5 frames/s goal (0.4 CPU-s per frame at the production benchmark's ~3.7 frames/s on two cores,
+a 26% cut) is not reached by any one of these; the deflate and the GL Python side are the two
+largest single items."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
