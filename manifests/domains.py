@@ -102,6 +102,15 @@ class Weather:
     # (postfx.sensor); the frame is blended towards that look by this share. 0 = the frames as before.
     camera: float = param("a real camera's tone and sensor, blended in by this share (0 = off)", "share", 0.0, 1.0,
                           default=0.0)
+    # Random textures (issue 34), opt-in: every class gets a world-anchored procedural pattern and a second
+    # colour drawn per episode (render_workers.render.texturefx.retexture). 0 = the surfaces as designed.
+    textures: float = param("per-episode random texture of every class (0 = off)", "share", 0.0, 1.0, default=0.0)
+    # Leaf clusters on tree crowns (issue 34), opt-in: world-anchored clusters, gaps and leaves over the smooth
+    # crowns (render_workers.render.texturefx.foliage). 0 = the crowns as designed.
+    foliage: float = param("leaf clusters and gaps on tree crowns (0 = off)", "share", 0.0, 1.0, default=0.0)
+    # Ambient occlusion (issue 34), opt-in: corners, kerbs and the ground under cars darkened by how much nearer
+    # their surroundings are (render_workers.render.postfx.occlusion, from depth). 0 = no occlusion.
+    occlusion: float = param("screen-space ambient occlusion from depth (0 = off)", "share", 0.0, 1.0, default=0.0)
 
     @property
     def precipitation(self) -> float:

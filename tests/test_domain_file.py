@@ -35,9 +35,10 @@ TOWNS_REF = (
     ('T07', 'Town07', 11.0, 'farmland', 1, 150.0, (4.0, 9.0), 0.15, 0.8, 0.15, False, True, False, False, False),
 )
 # Parameters added with fog, night, snow and shifts (snowfall, snow_cover, street_lights, car_lights,
-# shift_from, shift_to, easing), structured domain randomization (randomize) and a real camera's look
-# (camera): their defaults, which the paper's three weathers keep.
-NEW_WEATHER_DEFAULTS = (0.0, 0.0, 0.0, 0.0, "", "", "linear", 0.0, 0.0)
+# shift_from, shift_to, easing), structured domain randomization (randomize), a real camera's look
+# (camera) and the surface and light levers (textures, foliage, occlusion): their defaults, which the
+# paper's three weathers keep.
+NEW_WEATHER_DEFAULTS = (0.0, 0.0, 0.0, 0.0, "", "", "linear", 0.0, 0.0, 0.0, 0.0, 0.0)
 _V = visibility_of_share  # fog, a share per km in those tables, is the visibility of that share (issue 32)
 WEATHERS_REF = (
     ('CN', 'ClearNoon', 65.0, 40.0, (1.0, 0.98, 0.94), 4.0, 0.45, (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0,

@@ -4,7 +4,8 @@ Each effect takes a float32 HxWx3 image in [0, 1] (sRGB) and an :class:`FxContex
 (the frame's depth, classes, camera, weather, ego speed and rng) and returns a
 new image. :data:`ORDER` applies them scene first (puddles, wet road, fog), then
 atmosphere (rain), then lens and camera (bloom, flare, motion blur), then the
-weather's colour grading, the opt-in per-episode class colours (``randomize``),
+weather's colour grading, the opt-in per-episode class textures (``retexture``, in
+``render_workers.render.texturefx``) and colours (``randomize``),
 and last a real camera's look (issue 34): ``tone`` (exposure and white balance
 per episode, a filmic curve, muted colour) and ``sensor`` (vignetting, lens
 blur, chromatic aberration, noise, JPEG-like compression). An effect whose weather strength is zero is a no-op. Snow cover,
@@ -25,7 +26,7 @@ import numpy as np
 
 from manifests.catalog import Weather, class_id
 from manifests.fog import extinction
-from render_workers.render import weatherfx
+from render_workers.render import texturefx, weatherfx
 from render_workers.render.camera import CameraRig
 from render_workers.worlds.scene import World
 
@@ -342,6 +343,36 @@ def _filmic(x: np.ndarray) -> np.ndarray:
     return np.clip(x * (f(2.51) * x + f(0.03)) / (x * (f(2.43) * x + f(0.59)) + f(0.14)), f(0.0), f(1.0))
 
 
+OCCLUSION_RADIUS = 0.03  # screen-space ambient occlusion: the neighbourhood, as a share of the frame's width
+OCCLUSION_GAIN = 6.0  # darkening per unit of relative disparity excess ...
+OCCLUSION_MAX = 0.45  # ... up to this share of the light, at full strength
+
+
+def occlusion(img: np.ndarray, ctx: FxContext) -> np.ndarray:
+    """Screen-space ambient occlusion from depth (the weather's ``occlusion`` strength, opt-in): a pixel whose
+    neighbourhood is nearer than itself (a corner, a kerb, the ground under a car, the wall behind a tree) is
+    darkened by how much nearer, the unsharp mask of disparity (Luft et al. 2006). The sky is left alone."""
+    strength = ctx.weather.occlusion
+    if strength <= 0.0:
+        return img
+    import cv2
+
+    f = np.float32
+    # Disparity (1 / depth) is affine in the pixel's position on any plane, so its local mean equals it there:
+    # only creases and nearer things in front make the excess. The sky and the ego's hood are no surfaces of
+    # the scene: the mean is taken over the rest.
+    disparity = f(1.0) / np.maximum(ctx.depth, f(0.1))
+    sigma = max(1.0, OCCLUSION_RADIUS * ctx.rig.width)
+    sky = ctx.classes == SKY_ID
+    scene = (~(ctx.hood_mask | sky)).astype(np.float32)
+    near = cv2.GaussianBlur(disparity * scene, (0, 0), sigma) / np.maximum(cv2.GaussianBlur(scene, (0, 0), sigma),
+                                                                          f(1e-3))
+    excess = (near - disparity) / disparity
+    dark = np.clip(excess * f(OCCLUSION_GAIN), f(0.0), f(OCCLUSION_MAX)) * f(strength)
+    dark[sky | ctx.hood_mask] = 0.0
+    return cv2.multiply(img, cv2.merge([f(1.0) - dark] * 3))
+
+
 RANDOMIZE_GAIN = 0.45  # at full strength each class's channel gains lie within 1 +- this ...
 RANDOMIZE_LEVEL = 0.3  # ... times one brightness gain within 1 +- this
 RANDOMIZE_STREAM = 35  # the episode's colours: np.random.default_rng([episode_seed, RANDOMIZE_STREAM])
@@ -425,6 +456,8 @@ def sensor(img: np.ndarray, ctx: FxContext) -> np.ndarray:
 
 EFFECTS: dict[str, Effect] = {
     "antialias": antialias,
+    "foliage": texturefx.foliage,
+    "occlusion": occlusion,
     "puddles": puddles,
     "wet_road": wet_road,
     "snow_cover": weatherfx.snow_cover,
@@ -436,6 +469,7 @@ EFFECTS: dict[str, Effect] = {
     "lens_flare": lens_flare,
     "motion_blur": motion_blur,
     "grading": grading,
+    "retexture": texturefx.retexture,
     "randomize": randomize,
     "tone": tone,
     "sensor": sensor,
