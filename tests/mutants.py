@@ -53,7 +53,7 @@ MODULES: dict[str, tuple[str, ...]] = {
     "pipeline/runmeta.py": ("tests/test_layout.py", "tests/test_pairing.py"),
     "pipeline/repair.py": (),
     "exports/export.py": ("tests/test_export.py", "tests/test_durability.py"),
-    "pipeline/episode_job.py": ("tests/test_episode.py", "tests/test_control_plane.py"),
+    "pipeline/episode_job.py": ("tests/test_episode.py", "tests/test_control_plane.py", "tests/test_durability.py"),
     "manifests/writer.py": ("tests/test_part_names.py", "tests/test_manifest_query.py"),
     "manifests/reader.py": ("tests/test_manifest_query.py", "tests/test_part_names.py", "tests/test_control_plane.py",
                             "tests/test_footer_pool.py"),

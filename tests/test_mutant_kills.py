@@ -644,3 +644,29 @@ def test_repair_with_extend_records_the_extended_config(monkeypatch, tiny_root, 
     repair.repair_alone(storage, config, make_plan(config.run.plan), owner="me")
     record = read_record(storage)
     assert record["config"]["domains"] == "T01_CN_A,T01_HRN_A" and record["history"][0]["domains"] == "T01_CN_A"
+
+
+# ------------------------------------------------------------ pipeline/episode_job ----
+
+
+def test_a_producer_that_lost_its_lease_never_writes_the_part(monkeypatch, tmp_path):
+    """The check before the write: a producer whose lease was taken over writes no
+    part at all (not one that appears, then is deleted again)."""
+    from manifests.lease import LeaseLost, bump_generation, register_producer
+    from manifests.synthetic import episode_table
+    from pipeline import episode_job
+    from storage import Storage
+    from tests.test_caught_bugs import tiny_spec
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    spec = tiny_spec()
+    producer = register_producer(storage, ttl_s=60)
+    written = []
+    monkeypatch.setattr(episode_job, "write_part", lambda *args: written.append(args))
+    try:
+        bump_generation(storage)  # a repair took the root over
+        with pytest.raises(LeaseLost, match="generation 0 -> 1"):
+            episode_job.commit_part(storage, spec, episode_table(spec).to_pylist(), producer.fence)
+    finally:
+        producer.release()
+    assert written == []
