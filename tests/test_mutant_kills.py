@@ -670,3 +670,55 @@ def test_a_producer_that_lost_its_lease_never_writes_the_part(monkeypatch, tmp_p
     finally:
         producer.release()
     assert written == []
+
+
+# ----------------------------------------------------------------- manifests/writer ----
+
+
+class _AnyFrame:
+    """A rendered frame whose every field is 0, its class counts given."""
+
+    def __init__(self, class_counts):
+        from manifests.schema import FIELD_SOURCE
+
+        self.index = 0
+        self.class_counts = class_counts
+        self.object_counts = {}
+        self.conditions = {name: 0.0 for name, source in FIELD_SOURCE.items() if source == "condition"}
+
+    def __getattr__(self, name):
+        return 0
+
+
+def test_a_frame_row_refuses_unknown_outputs_and_wrong_class_counts_naming_the_frame():
+    import re
+
+    from manifests.catalog import LABELS
+    from manifests.writer import ManifestError, frame_row
+    from tests.test_caught_bugs import tiny_spec
+
+    spec = tiny_spec()
+    pixels = spec.width * spec.height
+    with pytest.raises(ManifestError, match=re.escape(f"{spec.key} frame 0: unknown outputs ['bogus']")):
+        frame_row(spec, _AnyFrame([pixels] + [0] * (len(LABELS) - 1)), {"bogus": b"x"})
+    with pytest.raises(ManifestError, match=re.escape(
+            f"{spec.key} frame 0: class counts must be {len(LABELS)} values summing to {pixels}, got shape (2,) sum 3")):
+        frame_row(spec, _AnyFrame([1, 2]), {})
+
+
+def test_a_part_is_zstd_with_statistics_and_no_arrow_schema():
+    """What old roots' parts are, byte for byte: zstd pages, statistics (status and
+    compaction read them), no stored Arrow schema (it halved footer reads' speed)."""
+    import io
+
+    import pyarrow.parquet as pq
+
+    from manifests.synthetic import episode_table
+    from manifests.writer import part_bytes
+    from tests.test_caught_bugs import tiny_spec
+
+    meta = pq.ParquetFile(io.BytesIO(part_bytes(episode_table(tiny_spec())))).metadata
+    assert b"ARROW:schema" not in (meta.metadata or {})
+    columns = [meta.row_group(0).column(i) for i in range(meta.num_columns)]
+    assert {c.compression for c in columns} == {"ZSTD"}
+    assert all(c.is_stats_set for c in columns)
