@@ -679,11 +679,13 @@ class _AnyFrame:
     """A rendered frame whose every field is 0, its class counts given."""
 
     def __init__(self, class_counts):
+        import collections
+
         from manifests.schema import FIELD_SOURCE
 
         self.index = 0
         self.class_counts = class_counts
-        self.object_counts = {}
+        self.object_counts = collections.defaultdict(int)
         self.conditions = {name: 0.0 for name, source in FIELD_SOURCE.items() if source == "condition"}
 
     def __getattr__(self, name):
@@ -704,6 +706,38 @@ def test_a_frame_row_refuses_unknown_outputs_and_wrong_class_counts_naming_the_f
     with pytest.raises(ManifestError, match=re.escape(
             f"{spec.key} frame 0: class counts must be {len(LABELS)} values summing to {pixels}, got shape (2,) sum 3")):
         frame_row(spec, _AnyFrame([1, 2]), {})
+
+
+def test_a_frame_row_names_the_frame_and_its_files():
+    from manifests.catalog import LABELS
+    from manifests.writer import frame_row
+    from storage import sha256_bytes
+    from tests.test_caught_bugs import tiny_spec
+
+    spec = tiny_spec()
+    row = frame_row(spec, _AnyFrame([spec.width * spec.height] + [0] * (len(LABELS) - 1)), {"rgb": b"png"})
+    assert (row["frame_id"], row["uid"], row["frame"]) == ("0000_000", f"0000_000_{spec.scenario}", 0)
+    assert (row["rgb_path"], row["rgb_bytes"], row["rgb_sha256"]) == (
+        f"{spec.scenario}/e0000/rgb/0000_000_{spec.scenario}.png", 3, sha256_bytes(b"png"))
+    assert row["depth_raw_path"] is None and row["depth_raw_bytes"] is None
+
+
+def test_read_part_reads_an_episodes_part_under_whichever_name(tmp_path):
+    from manifests.schema import part_path
+    from manifests.synthetic import episode_table
+    from manifests.writer import part_bytes, read_part, write_part
+    from storage import Storage
+    from tests.test_caught_bugs import tiny_spec
+
+    storage = Storage.from_uri(str(tmp_path))
+    spec = tiny_spec()
+    table = episode_table(spec)
+    storage.write_bytes(part_path(spec.scenario, spec.episode), part_bytes(table))  # an old root's name
+    assert read_part(storage, spec.scenario, spec.episode).equals(table)
+    write_part(storage, spec.scenario, spec.episode, table)  # the name that counts its rows
+    assert storage.list_files(part_path(spec.scenario, spec.episode).rpartition("/")[0]) == [
+        part_path(spec.scenario, spec.episode, len(table))]
+    assert read_part(storage, spec.scenario, spec.episode).equals(table)
 
 
 def test_a_part_is_zstd_with_statistics_and_no_arrow_schema():
