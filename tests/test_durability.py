@@ -201,3 +201,25 @@ def test_an_export_commit_is_synced_into_the_targets_folder(tmp_path, monkeypatc
     ex.export(ex.ExportConfig(root=str(root), to=str(target), format="cityscapes", force=replacing))
     assert calls.synced_after_publish(target)
     assert (target / ex.MARKER).is_file()
+
+
+def test_a_folder_made_meanwhile_by_another_writer_is_no_error(tmp_path, calls, monkeypatch):
+    """Two workers write the first files of one new folder: the one that finds it
+    missing, then sees it made by the other, goes on; a relative path syncs '.'."""
+    made_meanwhile = tmp_path / "T01_CN_A"
+    made_meanwhile.mkdir()
+    real_isdir, asked = os.path.isdir, []
+
+    def isdir(path):  # missing when make_dirs looks, there when makedirs does
+        if path == str(made_meanwhile) and not asked:
+            asked.append(path)
+            return False
+        return real_isdir(path)
+
+    monkeypatch.setattr(os.path, "isdir", isdir)
+    atomic.make_dirs(str(made_meanwhile))
+    assert calls.index("dirsync", tmp_path) is not None
+    monkeypatch.chdir(tmp_path)
+    calls.events.clear()
+    atomic.make_dirs("relative")
+    assert calls.events == [("dirsync", str(tmp_path))] and (tmp_path / "relative").is_dir()
