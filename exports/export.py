@@ -47,6 +47,7 @@ from manifests.root import EXPORT_MARKER, RootError, check_export_target, export
 from exports.idda import SPLIT_FILES
 from exports.webdataset import SHARD_SIZE
 from exports.placing import FILE_MODES, CheckedSource, DamagedFile, Layout, frames_of, index_csv, write
+from storage.atomic import sync_dir
 
 log = logging.getLogger(__name__)
 
@@ -229,9 +230,11 @@ def _commit(tmp: str, target: str, tree: dict | None) -> None:
             os.rename(old, target)
             raise RootError(f"export target {target} changed while exporting; nothing was replaced")
         os.rename(tmp, target)
+        sync_dir(os.path.dirname(os.path.abspath(target)))  # the commit on disk before the old export goes
         shutil.rmtree(old)  # never follows symlinks: an export's links are removed, not their targets
     else:
         os.replace(tmp, target)  # an empty directory is replaced atomically
+        sync_dir(os.path.dirname(os.path.abspath(target)))
 
 
 def export(config: ExportConfig) -> ExportReport:

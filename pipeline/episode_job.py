@@ -129,8 +129,14 @@ def store_frame(spec: EpisodeSpec, frame, storage, fence: FrameFence | None = No
         fid = frame_id(spec.episode, frame.index)
         if fence is not None:
             fence.check()
-        storage.write_bytes(frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout), data)
+        # each file fsynced, its folder once before the part (sync_frame_dirs): the part is the commit point
+        storage.write_bytes(frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout), data, durable=False)
     return frame_row(spec, frame, files)
+
+
+def sync_frame_dirs(storage, spec: EpisodeSpec) -> None:
+    """fsync the episode's frame folders: their files' names are on disk before its part names them."""
+    storage.sync_dirs(output_dir(spec.scenario, name, spec.episode, spec.layout) for name in spec.outputs)
 
 
 def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
@@ -174,6 +180,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     stats = {"frames": len(rows), "seconds": round(seconds, 3), "node": result.node, "stages": info.timings}
     frame_fence.check(force=True)
     storage.write_bytes(f"{STATS_DIR}/{spec.scenario}_e{spec.episode:04d}.json", json.dumps(stats).encode())
+    sync_frame_dirs(storage, spec)
     _stop_before_commit()
     commit_part(storage, spec, rows, fence)
     log.debug("%s done: %d frames in %.1f s", spec.key, len(rows), seconds)

@@ -138,13 +138,16 @@ class Storage:
 
     # -- writes ------------------------------------------------------------------
 
-    def write_bytes(self, rel: str, data: bytes) -> None:
-        """Write ``data`` to ``rel`` atomically: readers see the old object or the whole new one."""
+    def write_bytes(self, rel: str, data: bytes, durable: bool = True) -> None:
+        """Write ``data`` to ``rel`` atomically: readers see the old object or the whole new one.
+
+        Local: the file and (``durable``) its directory are fsynced, so it survives a power
+        loss; with ``durable=False`` the caller syncs the directory later (``sync_dirs``)."""
         rel = clean_rel(rel)
         data = _as_bytes(data)
         try:
             if self.is_local:
-                atomic.atomic_write(self.path(rel), data)
+                atomic.atomic_write(self.path(rel), data, durable)
             elif len(data) <= S3_SINGLE_PUT_MAX:
                 self._s3_put(self.path(rel), data)
             else:
@@ -170,6 +173,16 @@ class Storage:
             return atomic.exclusive_write(self.path(rel), data)
         except OSError as exc:
             raise storage_error("create", self.join(rel), exc) from exc
+
+    def sync_dirs(self, rels) -> None:
+        """Make the names written into the folders ``rels`` durable (local: fsync each; S3: nothing to do)."""
+        if not self.is_local:
+            return
+        for rel in rels:
+            try:
+                atomic.sync_dir(self.path(clean_rel(rel)))
+            except OSError as exc:
+                raise storage_error("sync", self.join(rel), exc) from exc
 
     def delete(self, rel: str) -> None:
         """Delete the file at ``rel``; a missing file is not an error."""

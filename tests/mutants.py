@@ -8,11 +8,14 @@ are left out (mutmut forks a process per mutant; neither survives a fork). The s
 goes to stdout and ``.mutants/scores.json``; docs/mutants.md keeps the last
 one and says why each survivor lives.
 
-    python -m tests.mutants [--max-children N] [--before] [--survivors] [module ...]
+    python -m tests.mutants [--max-children N] [--before] [--survivors] [--sample PATTERN ...] [module ...]
 
 ``--before`` leaves out the tests written against survivors (the score
 before them); ``--survivors`` reruns only the last run's survivors, timeouts
-and unfinished mutants with today's tests (mutmut's runs take minutes each).
+and unfinished mutants with today's tests (mutmut's runs take minutes each);
+``--sample`` runs only the mutants whose names match (fnmatch), e.g.
+``'*__mutmut_*1'``: mutants 1, 11, 21... of every function, one in ten, and
+scores that sample alone.
 
 Also a pytest plugin (``-p tests.mutants``, which mutmut is told to load):
 it deselects those tests.
@@ -21,6 +24,7 @@ it deselects those tests.
 from __future__ import annotations
 
 import argparse
+import fnmatch
 import json
 import os
 import shutil
@@ -43,13 +47,13 @@ DATA_PROTECTING = ("storage/atomic.py", "storage/checksum.py", "manifests/root.p
 ALWAYS = ("tests/test_caught_bugs.py", "tests/test_mutant_kills.py")
 # module -> the fast tests that exercise it (besides ALWAYS); modules in the order they are worth running
 MODULES: dict[str, tuple[str, ...]] = {
-    "storage/atomic.py": ("tests/test_storage.py",),
+    "storage/atomic.py": ("tests/test_storage.py", "tests/test_durability.py"),
     "manifests/lease.py": ("tests/test_control_plane.py",),
     "manifests/runrecord.py": ("tests/test_layout.py",),
     "pipeline/runmeta.py": ("tests/test_layout.py", "tests/test_pairing.py"),
     "pipeline/repair.py": (),
-    "exports/export.py": ("tests/test_export.py",),
-    "pipeline/episode_job.py": ("tests/test_episode.py", "tests/test_control_plane.py"),
+    "exports/export.py": ("tests/test_export.py", "tests/test_durability.py"),
+    "pipeline/episode_job.py": ("tests/test_episode.py", "tests/test_control_plane.py", "tests/test_durability.py"),
     "manifests/writer.py": ("tests/test_part_names.py", "tests/test_manifest_query.py"),
     "manifests/reader.py": ("tests/test_manifest_query.py", "tests/test_part_names.py", "tests/test_control_plane.py",
                             "tests/test_footer_pool.py"),
@@ -117,10 +121,12 @@ def summary(status: dict[str, str]) -> dict:
     return {"caught": caught, "timeout": sum(s == "timeout" for s in status.values()), "total": len(status), **rest}
 
 
-def run_module(module: str, max_children: int, tests: list[str], only: list[str] | None = None) -> dict[str, str]:
-    """Mutate ``module`` against ``tests``; ``only``: rerun just these mutants of the last run (kept)."""
+def run_module(module: str, max_children: int, tests: list[str], only: list[str] | None = None,
+               sample: list[str] | None = None) -> dict[str, str]:
+    """Mutate ``module`` against ``tests``; ``only``: rerun just these mutants of the last run (kept);
+    ``sample``: run only the mutants matching these patterns (mutmut's test timings, if any, are kept)."""
     folder = WORK / _name(module)
-    if only is None and folder.exists():
+    if only is None and sample is None and folder.exists():
         shutil.rmtree(folder)
     folder.mkdir(parents=True, exist_ok=True)
     for name in (*PACKAGES, "tests"):
@@ -130,9 +136,11 @@ def run_module(module: str, max_children: int, tests: list[str], only: list[str]
     (folder / "pyproject.toml").write_text(_config(module, tests))
     env = {k: v for k, v in os.environ.items() if k != "PYTHONPATH"}
     mutmut = Path(sys.executable).parent / "mutmut"
-    subprocess.run([str(mutmut), "run", "--max-children", str(max_children), *(only or [])], cwd=folder, env=env,
-                   check=False)
+    subprocess.run([str(mutmut), "run", "--max-children", str(max_children), *(only or sample or [])], cwd=folder,
+                   env=env, check=False)
     found = statuses(folder, module)
+    if sample is not None:
+        return {key: s for key, s in found.items() if any(fnmatch.fnmatch(key, p) for p in sample)}
     return found if only is None else {key: found[key] for key in only}
 
 
@@ -144,6 +152,8 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"leave {ALWAYS[-1]} out: the score before the tests written against survivors")
     parser.add_argument("--survivors", action="store_true",
                         help="rerun only the last run's survivors, timeouts and unfinished mutants, with today's tests")
+    parser.add_argument("--sample", nargs="+", metavar="PATTERN",
+                        help="run and score only the mutants whose names match, e.g. '*__mutmut_*1' (one in ten)")
     args = parser.parse_args(argv)
     unknown = [m for m in args.modules if m not in MODULES]
     if unknown:
@@ -159,7 +169,7 @@ def main(argv: list[str] | None = None) -> int:
             again = [key for key, s in last.items() if s != "killed"]  # a timeout is checked again: load can fake one
             scores[module] = {**last, **(run_module(module, args.max_children, tests, again) if again else {})}
         else:
-            scores[module] = run_module(module, args.max_children, tests)
+            scores[module] = run_module(module, args.max_children, tests, sample=args.sample)
         WORK.mkdir(exist_ok=True)
         now = json.loads(scores_file.read_text()) if scores_file.exists() else {}  # another module's run may have ended
         scores = {**now, module: scores[module]}

@@ -82,6 +82,7 @@ def test_lease_ttl_from_the_environment():
 
     assert ttl_from_env({}) == TTL_S
     assert ttl_from_env({TTL_ENV: "2.5"}) == 2.5
+    assert ttl_from_env({TTL_ENV: "0.5"}) == 0.5  # the tests' short leases: any positive number, below 1 s too
     for bad in ("0", "-3", "soon", "nan", ""):
         with pytest.raises(ValueError, match=f"^{TTL_ENV} must be a positive number of seconds, got '{bad}'$"):
             ttl_from_env({TTL_ENV: bad})
@@ -130,6 +131,177 @@ def test_a_lease_of_another_users_process_on_this_host_is_live(monkeypatch):
 
     monkeypatch.setattr(lease.os, "kill", gone)
     assert not lease.is_live(_this_host_lease(4321))
+
+
+
+@pytest.mark.parametrize("other", ["pidns", "host"])
+def test_a_lease_of_another_pid_namespace_or_host_is_judged_by_its_expiry_alone(monkeypatch, other):
+    """A pid means nothing outside its own namespace (a container) or host: such a
+    lease is live until it expires, even where no process of that pid runs here."""
+    from manifests import lease
+
+    assert lease.is_live(_this_host_lease(os.getpid()))  # our own process, really running
+
+    def gone(pid, sig):
+        raise ProcessLookupError(errno.ESRCH, "no such process")
+
+    monkeypatch.setattr(lease.os, "kill", gone)
+    assert not lease.is_live(_this_host_lease(4321))
+    info = {**_this_host_lease(4321), other: "pid:[1]" if other == "pidns" else "elsewhere"}
+    assert lease.is_live(info)
+
+
+def test_taking_over_a_lease_warns_only_where_its_process_is_gone(tmp_path, caplog):
+    """A torn or expired exclusive lease is taken over quietly; one live by its expiry
+    whose process on this host is gone is taken over with a warning naming its pid."""
+    import json
+    import logging
+    import time
+
+    from manifests.lease import EXCLUSIVE, acquire_exclusive, exclusive_holder
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    dead = _this_host_lease(os.getpid())
+    for body, warned in ((b"{torn", False), (json.dumps({**dead, "expires": time.time() - 5}).encode(), False),
+                         (json.dumps({**dead, "pid": 2 ** 22 + 17}).encode(), True)):
+        storage.write_bytes(EXCLUSIVE, body)
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="manifests.lease"):
+            with acquire_exclusive(storage, "repair", owner="me") as held:
+                assert exclusive_holder(storage)["owner"] == "me" == held.owner
+        assert exclusive_holder(storage) is None
+        said = [r.getMessage() for r in caplog.records]
+        assert said == ([f"took over the lease of produce by o on {tmp_path}: its process {2 ** 22 + 17} on this "
+                         "host is gone"] if warned else []), body
+
+
+def test_a_refreshed_producer_lease_keeps_the_generation_it_registered_under(tmp_path):
+    from manifests.lease import bump_generation, read_lease, register_producer
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    bump_generation(storage)
+    producer = register_producer(storage, owner="p")
+    try:
+        producer.refresh()
+        info = read_lease(storage, producer.rel)
+        assert (info["owner"], info["purpose"], info["generation"]) == ("p", "produce", 1)
+    finally:
+        producer.release()
+
+
+def test_a_lease_is_kept_alive_by_a_daemon_thread_and_released_for_good(tmp_path):
+    """The refresher runs every quarter of the TTL from a daemon thread (a killed
+    producer's interpreter never waits for it); release stops and joins it, then
+    removes the lease file, which then stays gone."""
+    import time
+
+    from manifests.lease import read_lease, register_producer
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    producer = register_producer(storage, owner="p", ttl_s=0.4)
+    first = read_lease(storage, producer.rel)
+    assert (first["owner"], first["purpose"], first["generation"]) == ("p", "produce", 0)
+    assert producer._thread.daemon and producer._thread.name == "lease-produce"
+    time.sleep(0.5)
+    assert read_lease(storage, producer.rel)["expires"] > first["expires"]  # refreshed meanwhile
+    producer.release()
+    assert not producer._thread.is_alive()
+    assert not storage.exists(producer.rel)
+    time.sleep(0.3)
+    assert not storage.exists(producer.rel)  # no refresh brings it back
+
+
+def test_release_waits_for_a_refresh_under_way(tmp_path):
+    """A refresh still writing after release returned could bring the lease back."""
+    import time
+
+    from manifests.lease import register_producer
+    from storage import Storage
+
+    producer = register_producer(Storage.from_uri(str(tmp_path)), owner="p", ttl_s=0.2)
+    steps = []
+
+    def slow_refresh():
+        steps.append("start")
+        time.sleep(0.4)
+        steps.append("end")
+
+    producer.refresh = slow_refresh
+    time.sleep(0.15)  # the refresher is inside a refresh now
+    producer.release()
+    assert steps == ["start", "end"]
+
+
+def test_release_leaves_a_lease_that_is_no_longer_ours(tmp_path):
+    from manifests.lease import EXCLUSIVE, _body, acquire_exclusive, read_lease
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    held = acquire_exclusive(storage, "compact", owner="me")
+    storage.write_bytes(EXCLUSIVE, _body("someone", "repair", 60))  # taken over meanwhile
+    held.release()
+    assert read_lease(storage, EXCLUSIVE)["owner"] == "someone"
+
+
+def test_a_locked_root_is_refused_at_once_unless_asked_to_wait(monkeypatch, tmp_path):
+    from manifests import lease
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    with lease.acquire_exclusive(storage, "repair", owner="holder") as held:
+        assert held.purpose == "repair" and lease.exclusive_holder(storage)["purpose"] == "repair"
+        waits = []
+        monkeypatch.setattr(lease.time, "sleep", waits.append)
+        with pytest.raises(lease.LeaseError, match=f"^{tmp_path} is locked: repair by holder "):
+            lease.acquire_exclusive(storage, "compact")
+        assert waits == []  # no wait by default
+
+
+def test_an_owner_names_its_host_and_process():
+    import re
+    import socket
+
+    from manifests.lease import new_owner
+
+    assert re.fullmatch(f"{re.escape(socket.gethostname())}-{os.getpid()}-[0-9a-f]{{8}}", new_owner())
+    assert new_owner() != new_owner()
+
+
+class _NotLocal:
+    """A local Storage taken the way an S3 root is (no hard links): for the S3 lease protocol."""
+
+    is_local = False
+
+    def __init__(self, storage):
+        self._storage = storage
+
+    def __getattr__(self, name):
+        return getattr(self._storage, name)
+
+
+def test_an_s3_exclusive_lease_is_won_by_the_writer_that_reads_itself_back(monkeypatch, tmp_path):
+    """S3 has no exclusive create: the holder writes its lease, waits, reads it back;
+    of two writers only the last one's lease reads back as its own."""
+    from manifests import lease
+    from storage import Storage
+
+    storage = _NotLocal(Storage.from_uri(str(tmp_path)))
+    assert lease._create(storage, lease.EXCLUSIVE, "first", "repair", 60) is True  # (settles S3_SETTLE_S)
+    assert lease.read_lease(storage, lease.EXCLUSIVE)["owner"] == "first"
+    assert lease._create(storage, lease.EXCLUSIVE, "second", "repair", 60) is False  # it exists
+    storage.delete(lease.EXCLUSIVE)
+    waits = []
+
+    def overwritten_meanwhile(seconds):
+        waits.append(seconds)
+        storage.write_bytes(lease.EXCLUSIVE, lease._body("racer", "repair", 60))
+
+    monkeypatch.setattr(lease.time, "sleep", overwritten_meanwhile)
+    assert lease._create(storage, lease.EXCLUSIVE, "third", "repair", 60) is False
+    assert waits == [lease.S3_SETTLE_S] and lease.read_lease(storage, lease.EXCLUSIVE)["owner"] == "racer"
 
 
 # ------------------------------------------------------------ manifests/runrecord ----
@@ -472,3 +644,115 @@ def test_repair_with_extend_records_the_extended_config(monkeypatch, tiny_root, 
     repair.repair_alone(storage, config, make_plan(config.run.plan), owner="me")
     record = read_record(storage)
     assert record["config"]["domains"] == "T01_CN_A,T01_HRN_A" and record["history"][0]["domains"] == "T01_CN_A"
+
+
+# ------------------------------------------------------------ pipeline/episode_job ----
+
+
+def test_a_producer_that_lost_its_lease_never_writes_the_part(monkeypatch, tmp_path):
+    """The check before the write: a producer whose lease was taken over writes no
+    part at all (not one that appears, then is deleted again)."""
+    from manifests.lease import LeaseLost, bump_generation, register_producer
+    from manifests.synthetic import episode_table
+    from pipeline import episode_job
+    from storage import Storage
+    from tests.test_caught_bugs import tiny_spec
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    spec = tiny_spec()
+    producer = register_producer(storage, ttl_s=60)
+    written = []
+    monkeypatch.setattr(episode_job, "write_part", lambda *args: written.append(args))
+    try:
+        bump_generation(storage)  # a repair took the root over
+        with pytest.raises(LeaseLost, match="generation 0 -> 1"):
+            episode_job.commit_part(storage, spec, episode_table(spec).to_pylist(), producer.fence)
+    finally:
+        producer.release()
+    assert written == []
+
+
+# ----------------------------------------------------------------- manifests/writer ----
+
+
+class _AnyFrame:
+    """A rendered frame whose every field is 0, its class counts given."""
+
+    def __init__(self, class_counts):
+        import collections
+
+        from manifests.schema import FIELD_SOURCE
+
+        self.index = 0
+        self.class_counts = class_counts
+        self.object_counts = collections.defaultdict(int)
+        self.conditions = {name: 0.0 for name, source in FIELD_SOURCE.items() if source == "condition"}
+
+    def __getattr__(self, name):
+        return 0
+
+
+def test_a_frame_row_refuses_unknown_outputs_and_wrong_class_counts_naming_the_frame():
+    import re
+
+    from manifests.catalog import LABELS
+    from manifests.writer import ManifestError, frame_row
+    from tests.test_caught_bugs import tiny_spec
+
+    spec = tiny_spec()
+    pixels = spec.width * spec.height
+    with pytest.raises(ManifestError, match=re.escape(f"{spec.key} frame 0: unknown outputs ['bogus']")):
+        frame_row(spec, _AnyFrame([pixels] + [0] * (len(LABELS) - 1)), {"bogus": b"x"})
+    with pytest.raises(ManifestError, match=re.escape(
+            f"{spec.key} frame 0: class counts must be {len(LABELS)} values summing to {pixels}, got shape (2,) sum 3")):
+        frame_row(spec, _AnyFrame([1, 2]), {})
+
+
+def test_a_frame_row_names_the_frame_and_its_files():
+    from manifests.catalog import LABELS
+    from manifests.writer import frame_row
+    from storage import sha256_bytes
+    from tests.test_caught_bugs import tiny_spec
+
+    spec = tiny_spec()
+    row = frame_row(spec, _AnyFrame([spec.width * spec.height] + [0] * (len(LABELS) - 1)), {"rgb": b"png"})
+    assert (row["frame_id"], row["uid"], row["frame"]) == ("0000_000", f"0000_000_{spec.scenario}", 0)
+    assert (row["rgb_path"], row["rgb_bytes"], row["rgb_sha256"]) == (
+        f"{spec.scenario}/e0000/rgb/0000_000_{spec.scenario}.png", 3, sha256_bytes(b"png"))
+    assert row["depth_raw_path"] is None and row["depth_raw_bytes"] is None
+
+
+def test_read_part_reads_an_episodes_part_under_whichever_name(tmp_path):
+    from manifests.schema import part_path
+    from manifests.synthetic import episode_table
+    from manifests.writer import part_bytes, read_part, write_part
+    from storage import Storage
+    from tests.test_caught_bugs import tiny_spec
+
+    storage = Storage.from_uri(str(tmp_path))
+    spec = tiny_spec()
+    table = episode_table(spec)
+    storage.write_bytes(part_path(spec.scenario, spec.episode), part_bytes(table))  # an old root's name
+    assert read_part(storage, spec.scenario, spec.episode).equals(table)
+    write_part(storage, spec.scenario, spec.episode, table)  # the name that counts its rows
+    assert storage.list_files(part_path(spec.scenario, spec.episode).rpartition("/")[0]) == [
+        part_path(spec.scenario, spec.episode, len(table))]
+    assert read_part(storage, spec.scenario, spec.episode).equals(table)
+
+
+def test_a_part_is_zstd_with_statistics_and_no_arrow_schema():
+    """What old roots' parts are, byte for byte: zstd pages, statistics (status and
+    compaction read them), no stored Arrow schema (it halved footer reads' speed)."""
+    import io
+
+    import pyarrow.parquet as pq
+
+    from manifests.synthetic import episode_table
+    from manifests.writer import part_bytes
+    from tests.test_caught_bugs import tiny_spec
+
+    meta = pq.ParquetFile(io.BytesIO(part_bytes(episode_table(tiny_spec())))).metadata
+    assert b"ARROW:schema" not in (meta.metadata or {})
+    columns = [meta.row_group(0).column(i) for i in range(meta.num_columns)]
+    assert {c.compression for c in columns} == {"ZSTD"}
+    assert all(c.is_stats_set for c in columns)
