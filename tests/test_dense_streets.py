@@ -89,3 +89,30 @@ def test_street_density_is_a_town_parameter_of_domain_files():
     assert catalog.BUILTIN.by_code("town")["T01"].street_density == 0.0
     with pytest.raises(CatalogError, match="street_density"):
         with_file(catalog.BUILTIN, '[[town]]\ncode = "T01D"\nlike = "T01"\nstreet_density = 1.5\n', "bad.toml")
+
+
+def test_the_crowd_keeps_clear_of_everyone(t02_dense):
+    """The cars and people dense streets add share the strips' and walking lanes' slots with the others:
+    no two vehicles overlap, no two walkers meet (the checks of tests/test_world.py)."""
+    from tests.test_world import _boxes_at, _movers, _overlap, _box
+
+    scene = populate(t02_dense, "V", 0)
+    movers = _movers(scene)
+    for t in (0.0, 30.0, 60.0):
+        boxes = [_box(a, t) for a in movers]
+        centres = np.array([b[0] for b in boxes])
+        for i in range(len(boxes)):
+            for j in np.flatnonzero(np.linalg.norm(centres[i + 1:] - centres[i], axis=1) < 14.0) + i + 1:
+                assert not _overlap(boxes[i], boxes[j]), f"{movers[i].kind} / {movers[j].kind} overlap at t={t}"
+    walkers = [a for a in scene.actors if a.kind == "pedestrian" and a.path.closed]
+    local = []
+    for a in walkers:
+        verts = np.concatenate([p.mesh.vertices[:, :2] for p in a.parts])
+        lo, hi = verts.min(axis=0), verts.max(axis=0)
+        local.append(((lo + hi) / 2, (hi - lo) / 2))
+    for t in (0.0, 30.0, 60.0):
+        boxes = _boxes_at(walkers, t, local)
+        centres = np.array([b[0] for b in boxes])
+        for i in range(len(walkers)):
+            for j in np.flatnonzero(np.linalg.norm(centres[i + 1:] - centres[i], axis=1) < 3.0) + i + 1:
+                assert not _overlap(boxes[i], boxes[j], shrink=0.0), f"two pedestrians meet at t={t}"
