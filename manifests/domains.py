@@ -56,6 +56,13 @@ class Town:
     tunnels: bool = param("has tunnels")
     roundabouts: bool = param("has roundabouts")
     freeway: bool = param("has a freeway")
+    # Dense streets (issue 34), opt-in: real streets are crowded where ours are open. Above 0: facades at the
+    # pavement in a continuous, taller frontage, cars parked along the kerbs, more people on the pavement,
+    # lamp posts, sign poles and street clutter instead of street trees (render_workers.worlds: buildings,
+    # streets, traffic). 0 = the town as designed, byte for byte.
+    street_density: float = param("how crowded its streets are: parked cars, people, poles, signs and a "
+                                  "continuous frontage at the pavement (0 = as designed)", "share", 0.0, 1.0,
+                                  default=0.0)
 
     @property
     def stream(self) -> int:

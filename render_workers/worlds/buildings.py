@@ -24,8 +24,10 @@ from manifests.catalog import lookup
 from render_workers.worlds.styles import surface, is_urban
 from render_workers.worlds import meshes as M
 from render_workers.worlds.kit import PALETTE, Kit
+from render_workers.worlds.town_plan import OUTER_Z
 
 FLOOR_M = 3.2
+DENSE_TALLER = 0.25  # at street density 1, buildings are this share taller (and their kits' floor caps too)
 
 
 @dataclass(frozen=True)
@@ -157,8 +159,19 @@ def _windows(kit: Kit, facades, z, floors, floor_m, style: str, look: str) -> No
 
 def _floors(kit: Kit, floor_m: float = FLOOR_M) -> int:
     lo, hi = kit.t.building_height_m
-    h = lo + (hi - lo) * kit.rng.random() ** 1.6
+    h = (lo + (hi - lo) * kit.rng.random() ** 1.6) * (1.0 + DENSE_TALLER * kit.t.street_density)
     return max(1, int(round((h - 0.5) / floor_m)))
+
+
+def _tight(kit: Kit, metres: float) -> float:
+    """A setback or gap between buildings, shrunk towards 0 on dense streets (``Town.street_density``:
+    facades meet the pavement and each other); as given at density 0."""
+    return metres * (1.0 - kit.t.street_density)
+
+
+def _max_floors(kit: Kit, floors: int) -> int:
+    """A kit's floor cap, raised on dense streets (``DENSE_TALLER``)."""
+    return floors + int(round(floors * DENSE_TALLER * kit.t.street_density))
 
 
 # --------------------------------------------------------------------------
@@ -168,7 +181,7 @@ def european(kit: Kit, lot: Lot) -> None:
     """Terraced town house at the pavement: brick or plaster, tiled gable roof."""
     rng = kit.rng
     depth = min(lot.depth, rng.uniform(9, 13))
-    house(kit, lot, lot.s0, lot.s1, rng.uniform(0.0, 0.8), depth, min(_floors(kit), 4),
+    house(kit, lot, lot.s0, lot.s1, _tight(kit, rng.uniform(0.0, 0.8)), depth, min(_floors(kit), _max_floors(kit, 4)),
           kit.pick(kit.style.facades), kit.pick(kit.style.roofs), "gable", "framed")
 
 
@@ -177,18 +190,19 @@ def modern(kit: Kit, lot: Lot) -> None:
     rng = kit.rng
     facade = kit.pick(kit.style.facades)
     glass = surface(facade).look == "glass"
-    setback = rng.uniform(1.0, 5.0)
+    setback = _tight(kit, rng.uniform(1.0, 5.0))
     depth = lot.depth * rng.uniform(0.75, 1.0) - setback
-    house(kit, lot, lot.s0 + 0.5, lot.s1 - 0.5, setback, depth, _floors(kit, 3.5), facade,
+    house(kit, lot, lot.s0 + _tight(kit, 0.5), lot.s1 - _tight(kit, 0.5), setback, depth, _floors(kit, 3.5), facade,
           kit.pick(kit.style.roofs), "flat", "curtain" if glass else kit.pick(["grid", "ribbon"]), floor_m=3.5)
 
 
 def alpine(kit: Kit, lot: Lot) -> None:
     """Chalet-style house: plaster below, timber top floor, steep roof with deep eaves."""
     rng = kit.rng
-    setback = rng.uniform(2.0, 5.0)
+    setback = _tight(kit, rng.uniform(2.0, 5.0))
     depth = min(lot.depth - setback, rng.uniform(9, 12))
-    house(kit, lot, lot.s0 + 1.0, lot.s1 - 1.0, setback, depth, min(_floors(kit, 3.0), 4),
+    house(kit, lot, lot.s0 + _tight(kit, 1.0), lot.s1 - _tight(kit, 1.0), setback, depth,
+          min(_floors(kit, 3.0), _max_floors(kit, 4)),
           kit.pick(kit.style.facades), kit.pick(kit.style.roofs), "steep", "grid",
           floor_m=3.0, top_facade="timber dark")
 
@@ -197,16 +211,17 @@ def suburban(kit: Kit, lot: Lot) -> None:
     """A detached sided house behind a lawn, or an industrial shed."""
     rng = kit.rng
     if lot.width > 24 and rng.random() < 0.55:  # shed: long, low, metal, roller doors
-        setback = rng.uniform(3.0, 8.0)
+        setback = _tight(kit, rng.uniform(3.0, 8.0))
         facade = kit.pick([f for f in kit.style.facades if surface(f).look == "metal"] or list(kit.style.facades))
-        house(kit, lot, lot.s0 + 1, lot.s1 - 1, setback, lot.depth - setback, 1, facade, "roof metal", "flat",
+        house(kit, lot, lot.s0 + _tight(kit, 1), lot.s1 - _tight(kit, 1), setback, lot.depth - setback, 1, facade, "roof metal", "flat",
               "ribbon", floor_m=rng.uniform(6.5, 9.0))
         return
-    setback = rng.uniform(5.0, 9.0)
+    setback = _tight(kit, rng.uniform(5.0, 9.0))
     depth = min(lot.depth - setback, rng.uniform(8, 11))
-    house(kit, lot, lot.s0 + 2, lot.s1 - 2, setback, depth, int(rng.integers(1, 3)),
+    house(kit, lot, lot.s0 + _tight(kit, 2), lot.s1 - _tight(kit, 2), setback, depth,
+          _max_floors(kit, int(rng.integers(1, 3))),
           kit.pick(kit.style.facades), kit.pick(kit.style.roofs[:2]), "gable", "grid", floor_m=2.9)
-    if rng.random() < 0.7:
+    if rng.random() < 0.7 and setback > 1.0:  # a garden fence, where there is a front garden
         kit.fence_line(lot.point(lot.s0, 0.3), lot.point(lot.s1, 0.3), lot.z, 1.0)
 
 
@@ -250,6 +265,38 @@ def town_blocks(kit: Kit) -> None:
         kit.river_railing(rect, river_side)
 
 
+OUTER_ROW_M = 14.0  # depth of the row of buildings dense streets put along the town's outer edge
+OUTER_ROW_STEP_M = 2.0  # the row is laid where it is clear of river, freeway and railway, checked this often
+
+
+def outer_row(kit: Kit) -> None:
+    """Dense streets (``Town.street_density`` above 0) have buildings on both sides: a row of lots along
+    the outside of the perimeter street too, where it is clear of the river, the freeway and its
+    connectors and the railway (else the perimeter looks onto open country). Nothing, and no draw, at 0."""
+    if not is_urban(kit.t) or kit.t.street_density <= 0:
+        return
+    rx0, ry0, rx1, ry1 = kit.lay.rect
+    depth = OUTER_ROW_M
+    rows = (  # origin, along, away from the street (as a block side's inward), length
+        (np.array([rx1, ry0]), np.array([-1.0, 0]), np.array([0, -1.0]), rx1 - rx0),  # south, street to the north
+        (np.array([rx0, ry1]), np.array([1.0, 0]), np.array([0, 1.0]), rx1 - rx0),  # north
+        (np.array([rx0, ry0]), np.array([0, 1.0]), np.array([-1.0, 0]), ry1 - ry0),  # west
+        (np.array([rx1, ry1]), np.array([0, -1.0]), np.array([1.0, 0]), ry1 - ry0),  # east
+    )
+    for o, a, away, length in rows:
+        ss = np.arange(0.0, length + 1e-9, OUTER_ROW_STEP_M)
+        clear = [all(kit.free_outside(o + a * s + away * d, 0.0) for d in (1.0, depth)) for s in ss]
+        start = None
+        for s, ok in zip([*ss, None], [*clear, False]):
+            if ok and start is None:
+                start = s
+            elif not ok and start is not None:
+                end = s - OUTER_ROW_STEP_M if s is not None else ss[-1]
+                if end - start > 8:
+                    lots(kit, o, a, away, start + 1.0, end - 1.0, depth, OUTER_Z)
+                start = None
+
+
 def frontage(kit: Kit, rect, z, sides) -> None:
     """Buildings and fillers along the street sides of a block."""
     x0, y0, x1, y1 = rect
@@ -287,7 +334,8 @@ def lots(kit: Kit, o, a, inw, s0, s1, depth, z) -> None:
         width = min(rng.uniform(w_lo, w_hi), s1 - s)
         if s1 - s - width < 6:
             width = s1 - s
-        if rng.random() < t.building_density and depth > 6:
+        # dense streets (Town.street_density) fill the gaps: at 1 every lot has its building
+        if rng.random() < t.building_density + t.street_density * (1.0 - t.building_density) and depth > 6:
             build(kit, Lot(o, a, inw, s, s + width, depth, z))
         else:
             filler(kit, o, a, inw, s, s + width, depth, z)

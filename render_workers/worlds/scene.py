@@ -151,6 +151,7 @@ class World:
     walk_lanes: tuple[tuple[Path, ...], ...] = ()  # per lane: the closed walkways moved k lanes off the road
     textures: dict = field(default_factory=dict)  # texture name -> (px, px, 3) uint8, for Part.texture
     lights: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))  # (N, 3) street lamps' luminaires (centres)
+    street_density: float = 0.0  # the town's Town.street_density: traffic fills its kerbs and pavements by it
 
 
 @dataclass(frozen=True, eq=False)

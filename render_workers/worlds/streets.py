@@ -138,7 +138,7 @@ def sidewalk_ring(kit, x0, y0, x1, y1, w, outward: bool, gaps=()) -> None:
         bands = [((x0 - w, y0 - w, x1 + w, y0), "s_out"), ((x0 - w, y1, x1 + w, y1 + w), "n_out"),
                  ((x0 - w, y0, x0, y1), "w_out"), ((x1, y0, x1 + w, y1), "e_out")]
     look = kit.pick(kit.style.paving)
-    planting = kit.rng.random() < 0.5
+    planting = kit.rng.random() < 0.5 * (1.0 - kit.t.street_density)  # dense streets are paved to the kerb
     for (a0, b0, a1, b1), side in bands:
         pieces = split_span(a0, a1, gaps, 0.5) if side == "s_out" else [(a0, a1)]
         for p0_, p1_ in pieces:
@@ -245,7 +245,10 @@ def furniture(kit: Kit) -> None:
                 if not (0 <= nb[0] < len(xs) and 0 <= nb[1] < len(ys)):
                     continue
                 length = abs((xs[nb[0]] - x) + (ys[nb[1]] - y))
-                street_side(kit, np.array([x, y]), d, length, spacing, kerb, z, urban)
+                if urban and t.street_density > 0:
+                    dense_street_side(kit, np.array([x, y]), d, length, spacing, kerb, z)
+                else:
+                    street_side(kit, np.array([x, y]), d, length, spacing, kerb, z, urban)
                 junction_furniture(kit, (i, j), np.array([x, y]), d, kerb, z, urban)
 
 
@@ -277,6 +280,38 @@ def street_side(kit, c, d, length, spacing, kerb, z, urban) -> None:
         elif not urban and u < 0.9:
             hb = base + np.array([*n_right, 0.0]) * 1.5
             kit.tree(hb, species="bush")
+
+
+# On dense streets (Town.street_density 1) the furniture line is this much closer-set and its trees this
+# much rarer; what is not a lamp or a tree is a sign pole (DENSE_SIGN_SHARE of the slots) or street clutter.
+DENSE_SPACING_CUT, DENSE_TREE_CUT, DENSE_SIGN_SHARE = 0.45, 0.4, 0.5
+
+
+def dense_street_side(kit, c, d, length, spacing, kerb, z) -> None:
+    """``street_side`` of a town with dense streets (``Town.street_density`` above 0): lamp posts every
+    other slot, few trees, sign poles facing the traffic on this side, and bins, benches, bollards and
+    boxes between them, on a furniture line closer-set by the density."""
+    lay, rng, t = kit.lay, kit.rng, kit.t
+    density = t.street_density
+    n_right = np.array([d[1], -d[0]])
+    s_vals = np.arange(lay.hw + 9.0, length - lay.hw - 5.0, spacing * (1.0 - DENSE_SPACING_CUT * density))
+    yaw_to_road = float(np.arctan2(-n_right[1], -n_right[0]))
+    facing = float(np.arctan2(-d[1], -d[0]))  # traffic on this side drives along d: plates face back along it
+    tree_p = min(0.9, t.vegetation_density * 1.5) * (1.0 - DENSE_TREE_CUT * density)
+    for k, s in enumerate(s_vals):
+        p = c + d * (s + rng.uniform(-1.0, 1.0)) + n_right * (lay.hw + kerb)
+        if kit.on_river(p[1], 4.0):
+            continue
+        base = np.array([p[0], p[1], z])
+        u = rng.random()
+        if k % 2 == 1:
+            kit.street_lamp(base, yaw_to_road)
+        elif u < tree_p:
+            kit.tree(base, scale=rng.uniform(0.85, 1.25))
+        elif u < tree_p + DENSE_SIGN_SHARE * density:
+            kit.traffic_sign(base, facing)
+        else:
+            kit.static_prop(base + np.array([*n_right, 0.0]) * 0.3, yaw_to_road)
 
 
 def junction_furniture(kit, q, c, d, kerb, z, urban) -> None:

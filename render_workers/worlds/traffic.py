@@ -51,6 +51,12 @@ FREEWAY_EGO_WEIGHT = 0.4
 # pedestrians over 210 episodes of the seven towns).
 WALK_SLOT_M = 1.0
 WALK_TRIES = 10
+# Dense streets (Town.street_density, issue 34): at density 1 the kerbside strips hold a parked car per
+# DENSE_PARKING_M of their length (where one fits), and DENSE_WALKERS more people walk the pavements.
+DENSE_PARKING_M = 9.0
+DENSE_WALKERS = 150
+DENSE_NEAR_M = 25.0  # parked cars fill the strips of the loops this close to the ego's
+DENSE_STREAM = 34  # the crowd's generator: default_rng([episode seed, DENSE_STREAM])
 
 
 # --------------------------------------------------------------------------
@@ -112,6 +118,9 @@ class _Placement:
     speeds: np.ndarray
     slots: list
     actors: list = field(default_factory=list)
+    parked: list = field(default_factory=list)  # per loop: its parking strips' occupied stretches (_LoopSlots)
+    walk_speed: dict = field(default_factory=dict)  # (walkway, lane) -> the pace of everyone in it
+    walk_slots: dict = field(default_factory=dict)  # (walkway, lane) -> its occupied stretches (_LoopSlots)
 
     @property
     def ego_loop(self):
@@ -181,11 +190,14 @@ def _place_moving(p: _Placement, n_moving: int) -> int:
     return placed
 
 
-def _place_parked(p: _Placement, target: int, room: int) -> int:
-    """Parked vehicles in the kerbside strips (at most ``room``); returns how many were placed."""
+def _place_parked(p: _Placement, target: int, room: int, only: frozenset | None = None) -> int:
+    """Parked vehicles in the kerbside strips (at most ``room``; ``only``: of these loops); returns how many
+    were placed."""
     rng, loops = p.rng, p.loops
-    parking = [(i, a, b) for i, lp in enumerate(loops) for a, b in lp.parking]
-    parked = [_LoopSlots(L) for L in p.lengths]
+    parking = [(i, a, b) for i, lp in enumerate(loops) for a, b in lp.parking if only is None or i in only]
+    if not p.parked:
+        p.parked = [_LoopSlots(L) for L in p.lengths]
+    parked = p.parked
     placed = 0
     if not parking:
         return 0
@@ -234,8 +246,7 @@ def _place_walkers(p: _Placement, n_sidewalk: int) -> None:
     lanes = world.walk_lanes
     if not lanes or len(lanes[0]) != len(walk_loops):
         raise RuntimeError("walkway lanes do not match the world's walkways")
-    lane_speed: dict[tuple[int, int], float] = {}
-    lane_slots: dict[tuple[int, int], _LoopSlots] = {}
+    lane_speed, lane_slots = p.walk_speed, p.walk_slots
     for _ in range(n_sidewalk):
         i = int(rng.choice(len(walk_loops), p=wts))
         key = (i, int(rng.integers(len(lanes))))
@@ -251,6 +262,26 @@ def _place_walkers(p: _Placement, n_sidewalk: int) -> None:
                 slots.take(s, WALK_SLOT_M / 2)
                 p.actors.append(Actor("pedestrian", parts, path, s, lane_speed[key], 0.0))
                 break
+
+
+def _crowd(p: _Placement, density: float, episode_seed: int) -> tuple[int, int]:
+    """Dense streets (``World.street_density`` above 0): after everyone IDDA's counts place, cars parked
+    along the kerbs until the strips are ``density`` full (a car per ``DENSE_PARKING_M`` of strip) and
+    ``density`` x ``DENSE_WALKERS`` more people on the pavements, most along the ego's route. Drawn from a
+    generator of their own, after the others: the episode's other actors are the same as without it.
+    Returns (cars, people) added."""
+    if density <= 0:
+        return 0, 0
+    p.rng = np.random.default_rng([episode_seed, DENSE_STREAM])
+    # the kerbs the ego passes: strips of the loops beside its own (those out of sight stay as they were)
+    near = frozenset(i for i, lp in enumerate(p.loops)
+                     if i == p.ego_i or _min_distance(lp.path.points, p.ego_loop.path.points) < DENSE_NEAR_M)
+    strips = sum(b - a for i in near for a, b in p.loops[i].parking)
+    target = int(round(density * strips / DENSE_PARKING_M))
+    cars = _place_parked(p, target, target, near)
+    before = len(p.actors)
+    _place_walkers(p, int(round(density * DENSE_WALKERS)))
+    return cars, len(p.actors) - before
 
 
 def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeScene:
@@ -270,12 +301,13 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
     n_parked = _place_parked(p, n_parked_target, n_vehicles - n_two - placed_moving)
     crossing = _place_crossing(p, n_pedestrians)
     _place_walkers(p, n_pedestrians - len(crossing))
+    dense_parked, dense_walkers = _crowd(p, world.street_density, episode_seed)
     return EpisodeScene(
         world=world,
         actors=tuple(p.actors),
         ego=p.ego,
-        n_vehicles=n_vehicles,
-        n_pedestrians=n_pedestrians,
+        n_vehicles=n_vehicles + dense_parked,
+        n_pedestrians=n_pedestrians + dense_walkers,
         extras={
             "viewpoint": vp.code,
             "camera_height_m": vp.camera_height_m,
@@ -286,5 +318,6 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
             "two_wheelers": placed_two,
             "crossing_pedestrians": len(crossing),
             "ego_size_m": p.ego_size,
+            **({"dense_parked": dense_parked, "dense_walkers": dense_walkers} if world.street_density > 0 else {}),
         },
     )

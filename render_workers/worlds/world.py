@@ -34,6 +34,7 @@ FEATURES = (
     streets.streets,
     streets.sidewalks,
     buildings.town_blocks,
+    buildings.outer_row,  # dense streets only
     countryside.farmland_blocks,
     streets.furniture,
     river.river,
@@ -74,6 +75,7 @@ def build_town(t: Town, seed: int) -> World:
         walk_lanes=walk_lanes(lay),
         textures=town_textures(look(t), seed, t.stream),
         lights=lights,
+        street_density=t.street_density,
     )
 
 
