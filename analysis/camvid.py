@@ -14,7 +14,7 @@ split over CamVid's 11 classes (mean IoU over the classes present there);
 ``kept`` = synthetic mIoU / real mIoU. The test split is never read.
 
 Frames of both sides are resized to the network's input as in
-:mod:`analysis.shifts` (area for RGB, nearest for labels) and trained with the
+:mod:`analysis.shift_table` (area for RGB, nearest for labels) and trained with the
 same batch order rule, flips and learning-rate schedule.
 """
 
@@ -29,7 +29,7 @@ from dataclasses import asdict, dataclass, field
 import numpy as np
 
 from analysis.metrics import IGNORE, class_iou, confusion, mean_iou
-from manifests.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID
+from domains.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID
 
 log = logging.getLogger(__name__)
 
@@ -74,9 +74,9 @@ def sequence(image: str) -> str:
 
 
 def load_camvid(path: str, split: str, width: int, height: int, max_frames: int | None = None):
-    """A split's frames (``analysis.shifts.Frames``), sequences as episodes, labels as indices 0..10."""
+    """A split's frames (``analysis.shift_table.Frames``), sequences as episodes, labels as indices 0..10."""
     from analysis.real import read_label_ids, read_rgb
-    from analysis.shifts import Frames, prepare
+    from analysis.shift_table import Frames, prepare
 
     pairs = camvid_pairs(path, split)[:max_frames]
     sequences = {s: i for i, s in enumerate(dict.fromkeys(sequence(im) for im, _ in pairs))}
@@ -91,7 +91,7 @@ def load_camvid(path: str, split: str, width: int, height: int, max_frames: int 
 
 def crop_hood(rgb: np.ndarray, ids: np.ndarray, viewpoint_code: str) -> tuple[np.ndarray, np.ndarray]:
     """The frame without the rows of its viewpoint's hood (the catalog's ``hood_fraction``)."""
-    from manifests.catalog import viewpoint
+    from domains.catalog import viewpoint
 
     rows = int(math.ceil(viewpoint(viewpoint_code).hood_fraction * rgb.shape[0]))
     return (rgb[: rgb.shape[0] - rows], ids[: ids.shape[0] - rows]) if rows else (rgb, ids)
@@ -100,7 +100,7 @@ def crop_hood(rgb: np.ndarray, ids: np.ndarray, viewpoint_code: str) -> tuple[np
 def load_synthetic(root, domains: str, width: int, height: int, max_frames: int | None = None):
     """The selection's frames (manifest order), hood cropped, labels mapped onto CamVid's classes."""
     from analysis.loaders import FrameDataset
-    from analysis.shifts import Frames, prepare
+    from analysis.shift_table import Frames, prepare
     from manifests.query import Query
 
     data = FrameDataset(root, Query(domains=domains), outputs=("rgb", "semantic_raw"))
@@ -134,8 +134,8 @@ class TransferConfig:
     device: str = "auto"
 
     def validate(self) -> None:
-        from analysis.shifts import check_training
-        from manifests.selection import parse_selection
+        from analysis.shift_table import check_training
+        from domains.selection import parse_selection
 
         parse_selection(self.domains)
         check_training(self, INPUT_MULTIPLE)
@@ -192,7 +192,7 @@ def network_seed(seed: int) -> int:
 
 
 def train_and_score(torch, name: str, data, val, config: TransferConfig, device: str) -> Side:
-    from analysis.shifts import predict, train
+    from analysis.shift_table import predict, train
 
     start = time.perf_counter()
     log.info("training on %s (%d frames, %d steps on %s)", name, len(data), config.steps, device)
@@ -207,7 +207,7 @@ def run_transfer(config: TransferConfig, ceiling: Side | None = None) -> Transfe
 
     ``ceiling``: the real side of an earlier report with the same config but root and
     domains (it depends on nothing else), to measure several selections against one."""
-    from analysis.shifts import _device, deterministic_torch
+    from analysis.shift_table import _device, deterministic_torch
     from analysis.segnet import SegNet, parameter_count
 
     config.validate()

@@ -55,9 +55,9 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import (active, code_axes, scenario as lookup_scenario, split_code,
+from domains.catalog import (active, code_axes, scenario as lookup_scenario, split_code,
                                weather as lookup_weather)
-from manifests.outputs import read_output
+from outputs.table import read_output
 
 IMAGE_SIZE = (72, 128)  # (height, width) every frame is resized to
 VAR_FLOOR = 1e-12
@@ -476,7 +476,7 @@ def embedding_png(report: DistanceReport, title: str = "Domains: 2-D PCA of the 
     from matplotlib.lines import Line2D
 
     cmap = plt.get_cmap("tab10")
-    cat = active()  # the root's catalog, with any user entries (pipeline.cli.domains)
+    cat = active()  # the root's catalog, with any user entries (pipeline.cli.domain_files)
     town_color = {t.code: cmap(i % 10) for i, t in enumerate(cat.towns)}
     fig, ax = plt.subplots(figsize=(7.5, 6), dpi=110)
     paper_domains = {d for p in PAPER_PAIRS for d in (p.source, p.target)}

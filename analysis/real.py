@@ -17,7 +17,7 @@ city, name) order. Distances use the images only; shifts also need the
 labelIds of every image.
 
 Classes. Cityscapes' 19 evaluated classes map onto our 16 evaluated ones by
-the catalog's own table (``manifests.catalog.LABELS``: each evaluated class's
+the catalog's own table (``domains.catalog.LABELS``: each evaluated class's
 ``cityscapes_id``, what the Cityscapes export writes), inverted, plus
 :data:`OTHER_VEHICLES`: Cityscapes tells truck, bus and train from car, our
 ``vehicle`` class holds all of them. Every other label id (Cityscapes' ignored
@@ -28,7 +28,7 @@ training indices of its frames (the tests check that).
 For shifts, the folder's cities stand for episodes: held-out frames are
 those of ``val``/``test`` when the chosen splits include ``train`` too (the
 oracle then trains on ``train``, Cityscapes' own protocol), else the last
-fifth of every city's images (``analysis.shifts.held_out_mask``).
+fifth of every city's images (``analysis.shift_table.held_out_mask``).
 """
 
 from __future__ import annotations
@@ -39,7 +39,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from analysis.metrics import IGNORE, TRAIN_INDEX_LUT
-from manifests.catalog import CLASS_IDS, LABELS
+from domains.catalog import CLASS_IDS, LABELS
 
 REAL = "real"  # the name a pair uses for the real folder (scenario codes always hold "_")
 IMAGES, LABELS_DIR = "leftImg8bit", "gtFine"
@@ -180,8 +180,8 @@ def scored_images(folder: RealFolder) -> list[RealImage]:
 
 
 def load_real(folder: RealFolder, width: int, height: int, max_frames: int | None = None):
-    """The folder's frames for ``analysis.shifts`` (``Frames``): cities as episodes, labels as training indices."""
-    from analysis.shifts import Frames, prepare
+    """The folder's frames for ``analysis.shift_table`` (``Frames``): cities as episodes, labels as training indices."""
+    from analysis.shift_table import Frames, prepare
 
     images = scored_images(folder)
     images = images if max_frames is None else images[:max_frames]

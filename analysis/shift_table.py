@@ -49,7 +49,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from manifests.catalog import lookup
+from domains.catalog import lookup
 from analysis.distances import PAPER_PAIRS, PaperPair
 from analysis.metrics import EVAL_CLASSES, IGNORE, NUM_EVAL, TRAIN_INDEX_LUT, class_iou, confusion, mean_iou
 

@@ -65,7 +65,7 @@ if action == "status":
 else:
     import pipeline.driver as driver
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.provenance import RunConfig
     marks = {}
     real_compact = driver.compact
 
@@ -104,10 +104,10 @@ def _probe(tree: Path, action: str, uri: str) -> dict:
 
 
 def _build(storage, threads: int) -> float:
-    from manifests.root import claim_root
+    from roots.contract import claim_root
     from manifests.synthetic import write_parts
     from pipeline.planner import PlanConfig, make_plan
-    from pipeline.runmeta import RunConfig, prepare_root
+    from pipeline.provenance import RunConfig, prepare_root
 
     start = time.perf_counter()
     claim_root(storage)

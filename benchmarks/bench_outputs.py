@@ -51,7 +51,7 @@ LIMIT = 0.05  # the default outputs may be at most this much slower than before
 
 
 def _outputs(set_name: str) -> tuple[str, ...]:
-    from manifests.outputs import DEFAULT_OUTPUTS
+    from outputs.table import DEFAULT_OUTPUTS
 
     extra = OPT_IN if set_name == "+all" else () if set_name in ("default", ISAL_SET) else (set_name[1:],)
     return tuple(DEFAULT_OUTPUTS) + extra
@@ -61,7 +61,7 @@ def _deflating(deflater: str | None):
     """The PNG deflater ``deflater`` in force (None: the tree's own; older trees know no other)."""
     if deflater is None:
         return contextlib.nullcontext()
-    from manifests.deflaters import deflating_with
+    from outputs.deflaters import deflating_with
 
     return deflating_with(deflater)
 
@@ -69,7 +69,7 @@ def _deflating(deflater: str | None):
 def _episode(renderer, world: str, outputs: tuple[str, ...], frames: int, width: int, height: int,
              seed: int, out: Path, deflater: str | None = None) -> dict:
     """One episode through production's loop: its totals (wall, CPU, stages) and bytes per output."""
-    from manifests.spec import EpisodeSpec
+    from roots.episode_spec import EpisodeSpec
     from pipeline.episode_job import frame_files
     from render_workers.render.episode import render_episode
 

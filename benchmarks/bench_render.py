@@ -45,10 +45,10 @@ EFFECTS = ("antialias", "puddles", "wet_road", "fog", "rain", "bloom", "lens_fla
 
 def _spec(code: str, frames: int, seed: int = 1):
     """An episode spec with the paper's six outputs (trees before the Output table write exactly those)."""
-    from manifests.spec import EpisodeSpec
+    from roots.episode_spec import EpisodeSpec
 
     try:
-        from manifests.outputs import SEED_OUTPUTS
+        from outputs.table import SEED_OUTPUTS
     except ImportError:  # the baseline tree: six outputs is all it has
         return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0)
     return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0, outputs=SEED_OUTPUTS)
@@ -56,7 +56,7 @@ def _spec(code: str, frames: int, seed: int = 1):
 
 def _png_encoder():
     """The tree's PNG writer: ``png_bytes`` (any PNG-able array) where it exists, else ``encode_png`` (RGB)."""
-    from manifests import encoding
+    from outputs import encoding
 
     return getattr(encoding, "png_bytes", None) or encoding.encode_png
 
@@ -66,7 +66,7 @@ def _frame_files(frame) -> dict[str, bytes]:
     from render_workers.render import episode
 
     if hasattr(frame, "buffers"):  # trees where the episode job encodes the renderer's buffers
-        from manifests.outputs import SEED_OUTPUTS, encode_outputs, file_bytes
+        from outputs.table import SEED_OUTPUTS, encode_outputs, file_bytes
 
         return {name: file_bytes(name, content) for name, content in encode_outputs(frame.buffers, SEED_OUTPUTS).items()}
     if hasattr(episode, "encode_frame"):  # the Output table's trees
@@ -283,7 +283,7 @@ def _markdown(result: dict) -> str:
         f"Load average (1 min) when each probe ended: {', '.join(f'{x:.1f}' for x in loads)}.",
         "",
         "PNG encoding after: PNG filter Sub in numpy, one IDAT deflated by the root's deflater (libdeflate; ISA-L before issue 21.11)",
-        "(`manifests.encoding`); before: OpenCV's libpng at zlib level 1 with its adaptive filters.",
+        "(`outputs.encoding`); before: OpenCV's libpng at zlib level 1 with its adaptive filters.",
         "In production resolve, post effects, outputs and PNG encoding run on the episode's second thread,",
         "overlapping the next frame's GL passes.",
     ]

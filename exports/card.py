@@ -18,9 +18,9 @@ from dataclasses import dataclass
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from manifests.catalog import LABELS, scenario, split_code
+from domains.catalog import LABELS, scenario, split_code
 from manifests.layout import NEW_ROOT_LAYOUT, PATTERNS, layout_of_path
-from manifests.outputs import OUTPUTS, file_of_path, markdown_table
+from outputs.table import OUTPUTS, file_of_path, markdown_table
 from manifests.schema import PART_SCHEMA, output_columns, part_path
 from exports.hf import HF_SPLITS, card_header, citation_section
 from manifests.query import SPLITS
@@ -319,7 +319,7 @@ def write_card(config: CardConfig) -> CardResult:
     """Write ``README.md`` and ``class_shares.png`` into the root (and a contact sheet if asked)."""
     from manifests.reader import part_files, read_manifest
     from manifests.stats import bar_chart_png, share_table
-    from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record
+    from roots.run_file import REPAIR_HINT, RunRecordError, read_record
     from storage import Storage
 
     storage = Storage.from_uri(config.root)
@@ -338,7 +338,7 @@ def write_card(config: CardConfig) -> CardResult:
     previews = find_previews(storage)
     verified = None
     if config.verify:
-        from manifests.verify import verify
+        from roots.verify import verify
 
         verified = verify(storage)
     # Local cards say "." (run the commands in the root, which may move); s3 cards the URI.

@@ -15,7 +15,7 @@ there:
   s3://, written in place and resumable (its ``Layout.run`` replaces the flow
   below).
 
-What they share (the frames, file placing, decoders) is ``exports.placing``.
+What they share (the frames, file placing, decoders) is ``exports.shared``.
 Every layout also gets ``frames.csv`` (one row per frame: source frame id,
 scenario, split and the exported paths) and, written last, ``EXPORT.json``
 (format, source root, query, counts): an export without it is unfinished.
@@ -43,10 +43,10 @@ from dataclasses import asdict, dataclass, field, replace
 
 from manifests.query import SPLITS, Query, run_query
 from manifests.reader import require_outputs
-from manifests.root import EXPORT_MARKER, RootError, check_export_target, export_tree
+from roots.contract import EXPORT_MARKER, RootError, check_export_target, export_tree
 from exports.idda import SPLIT_FILES
 from exports.webdataset import SHARD_SIZE
-from exports.placing import FILE_MODES, CheckedSource, DamagedFile, Layout, frames_of, index_csv, write
+from exports.shared import FILE_MODES, CheckedSource, DamagedFile, Layout, frames_of, index_csv, write
 
 log = logging.getLogger(__name__)
 
@@ -98,7 +98,7 @@ class ExportConfig:
         if self.splits != "scenario" and self.format != "idda":
             raise ValueError(f"split files {self.splits!r} are for the idda format, not {self.format!r}")
         if self.holdout is not None:
-            from manifests.selection import parse_selection
+            from domains.selection import parse_selection
 
             if self.splits != "feddrive":
                 raise ValueError("a holdout selection needs --splits feddrive")
@@ -112,7 +112,7 @@ class ExportConfig:
             raise ValueError(f"--outputs and --shard-size are for the webdataset format, not {self.format!r}")
         if webdataset:
             from exports.webdataset import MIN_SHARD_SIZE
-            from manifests.outputs import check_outputs
+            from outputs.table import check_outputs
 
             if self.outputs is not None:
                 check_outputs(self.outputs)
@@ -322,7 +322,7 @@ def export(config: ExportConfig) -> ExportReport:
 
 def _listed_files(table) -> dict[str, tuple[int, str]]:
     """Every file the manifest rows of ``table`` list: {path: (bytes, sha256)}."""
-    from manifests.outputs import OUTPUTS
+    from outputs.table import OUTPUTS
     from manifests.schema import output_columns
 
     listed = {}

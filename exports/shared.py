@@ -18,7 +18,7 @@ from typing import Callable, Mapping
 import numpy as np
 import pyarrow as pa
 
-from manifests.outputs import OUTPUTS, file_of_path, read_output
+from outputs.table import OUTPUTS, file_of_path, read_output
 from manifests.schema import output_columns, with_uids
 
 # ------------------------------------------------------------ the frames ----

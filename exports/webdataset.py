@@ -28,13 +28,13 @@ Resumable: a shard counts as done when its stats file exists, names the same
 plan, and the tar's size and sha256 match it; an interrupted export run again
 writes only the shards not done. Verified: every root file is checked against
 the size and sha256 its manifest row lists as it is read
-(``exports.placing.CheckedSource``). The target must be empty, or hold only
+(``exports.shared.CheckedSource``). The target must be empty, or hold only
 what an export of ours wrote: the same plan resumes (no ``--force`` needed);
 another plan is replaced only with ``--force``, and only when every file there
 is one that plan lists; any other file refuses the export (with or without
 ``--force``), and symlinks are never followed. A local target that is a
 finished export of another format is replaced under ``--force`` by the same
-rule as every export (``manifests.root.check_export_target``).
+rule as every export (``roots.contract.check_export_target``).
 """
 
 from __future__ import annotations
@@ -51,8 +51,8 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
-from exports.placing import Layout
-from manifests.outputs import OUTPUTS
+from exports.shared import Layout
+from outputs.table import OUTPUTS
 from manifests.query import SPLITS
 from manifests.schema import output_columns, with_uids
 
@@ -64,7 +64,7 @@ PLAN = "webdataset.json"
 SHARDS_INDEX = "shards.json"
 FRAMES_INDEX = "frames.csv"
 STATS = "stats"
-MARKER = "EXPORT.json"  # manifests.root.EXPORT_MARKER
+MARKER = "EXPORT.json"  # roots.contract.EXPORT_MARKER
 _BLOCK = 512
 _RECORD = 20 * _BLOCK  # tarfile pads the archive to whole records
 _END = 2 * _BLOCK  # two zero blocks end a tar
@@ -232,7 +232,7 @@ def _ours(plan: dict) -> set[str]:
 
 
 def _check_local(path: str, source) -> None:
-    from manifests.root import RootError, enclosing_root, is_our_root
+    from roots.contract import RootError, enclosing_root, is_our_root
     from storage import Storage
 
     if os.path.islink(path):
@@ -251,7 +251,7 @@ def _check_local(path: str, source) -> None:
 
 def _prepare_target(target, plan: dict, force: bool) -> str:
     """Check the target and clear what must go; returns "fresh", "resume" or "replace"."""
-    from manifests.root import RootError, check_export_target
+    from roots.contract import RootError, check_export_target
 
     listed = target.walk()
     if not listed:
@@ -295,10 +295,10 @@ def export_webdataset(config):
     from dataclasses import replace
 
     from exports.export import ExportReport, _listed_files
-    from exports.placing import CheckedSource
+    from exports.shared import CheckedSource
     from manifests.query import run_query
     from manifests.reader import read_manifest
-    from manifests.root import export_tree
+    from roots.contract import export_tree
     from storage import Storage, sha256_bytes
 
     config.validate()

@@ -19,8 +19,8 @@ from __future__ import annotations
 
 import re
 
-from manifests.catalog import scenario_pattern
-from manifests.outputs import FORMATS, OUTPUT_TABLE, OUTPUTS, extension
+from domains.catalog import scenario_pattern
+from outputs.table import FORMATS, OUTPUT_TABLE, OUTPUTS, extension
 from manifests.schema import frame_stem
 
 FLAT = 1

@@ -18,7 +18,7 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from manifests.catalog import scenario_pattern, split_code
+from domains.catalog import scenario_pattern, split_code
 from manifests.schema import (
     INDEX_DIR,
     INDEX_EPISODES_KEY,
@@ -37,7 +37,7 @@ from manifests.schema import (
     part_stem,
     output_columns,
 )
-from manifests.outputs import OUTPUTS
+from outputs.table import OUTPUTS
 from manifests.summary import _SUMMARY_COLUMNS, PartSummary, summary_of_footer, summary_of_table  # noqa: F401 (public here too)
 
 _INDEX_RE = re.compile("^" + INDEX_DIR + "/" + scenario_pattern() + r"\.parquet$")

@@ -57,7 +57,7 @@ _SUMMARY_AT = {name: PART_SCHEMA.get_field_index(name) for name in _SUMMARY_COLU
 
 def _summary(size: int, rows: int, bounds: dict[str, tuple]) -> PartSummary:
     """From each summary column's (min, max); (None, None) for an all-null column."""
-    from manifests.outputs import file_of_path
+    from outputs.table import file_of_path
 
     def distinct(values) -> tuple:
         return tuple(sorted(set(v for v in values if v is not None)))

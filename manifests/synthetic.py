@@ -11,14 +11,14 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import INSTANCE_LABELS, LABELS, using, viewpoint, weather
-from manifests.conditions import FOG_DENSITY, VISIBILITY, frame_conditions
-from manifests.shifts import weather_at
-from manifests.geometry import HFOV_DEG, flat, intrinsics
-from manifests.outputs import OUTPUTS
+from domains.catalog import INSTANCE_LABELS, LABELS, using, viewpoint, weather
+from domains.conditions import FOG_DENSITY, VISIBILITY, frame_conditions
+from domains.ramps import weather_at
+from outputs.geometry import HFOV_DEG, flat, intrinsics
+from outputs.table import OUTPUTS
 from manifests.layout import frame_path
 from manifests.schema import OLD_PART_SCHEMA, PART_SCHEMA, frame_id, output_columns
-from manifests.spec import NEW_RULES
+from roots.episode_spec import NEW_RULES
 from manifests.stats import PAPER_SHARES
 
 _SHARES = np.array([PAPER_SHARES[label.name] for label in LABELS])
@@ -73,7 +73,7 @@ def episode_table(spec) -> pa.Table:
 
 
 def _poses(spec, camera_height_m: float, times: np.ndarray) -> dict[str, list]:
-    """Calibration and poses of an ego driving along world +x at 10 m/s (manifests.geometry's convention)."""
+    """Calibration and poses of an ego driving along world +x at 10 m/s (outputs.geometry's convention)."""
     cam_to_ego = np.array([[0.0, 0.0, 1.0, 0.2], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, camera_height_m],
                            [0.0, 0.0, 0.0, 1.0]])
     ego = [np.eye(4) for _ in times]

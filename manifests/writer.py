@@ -13,13 +13,13 @@ import pyarrow.parquet as pq
 
 import numpy as np
 
-from manifests.catalog import LABELS
+from domains.catalog import LABELS
 from manifests.layout import frame_path
-from manifests.conditions import FOG_DENSITY, VISIBILITY
+from domains.conditions import FOG_DENSITY, VISIBILITY
 from manifests.schema import (FIELD_SOURCE, OBJECT_FIELDS, OLD_PART_SCHEMA, PART_SCHEMA, frame_id, frame_uid,
                               output_columns, part_path)
-from manifests.spec import NEW_RULES
-from manifests.outputs import OUTPUTS
+from roots.episode_spec import NEW_RULES
+from outputs.table import OUTPUTS
 from storage import sha256_bytes
 
 

@@ -8,7 +8,7 @@ Columns (``OBJECT_SCHEMA``):
 
 * ``instance_id``: the object's id in the frame's ``instance`` PNG, stable over
   the episode's frames;
-* ``class_id`` / ``class_name``: its class (``manifests.catalog.LABELS``);
+* ``class_id`` / ``class_name``: its class (``domains.catalog.LABELS``);
 * ``x0, y0, x1, y1``: the tight 2D box of its visible pixels, ``x0 <= x < x1``
   and ``y0 <= y < y1`` (pixel indices, so width = x1 - x0);
 * ``pixels``: visible pixel count;
@@ -39,7 +39,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from manifests.catalog import INSTANCE_LABELS, LABELS
+from domains.catalog import INSTANCE_LABELS, LABELS
 
 OBJECT_SCHEMA = pa.schema(
     [

@@ -20,14 +20,14 @@ from dataclasses import dataclass, field
 from typing import Callable
 
 from manifests.layout import record_layout
-from manifests.lease import TTL_S
+from roots.lease import TTL_S
 from manifests.reader import compact, episode_frames, refuse_misfiled, scan
 from manifests.schema import STATS_DIR
 from pipeline.planner import make_plan
 from pipeline.ray_task import Fatal, FrameCounter, episode_task
 from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
 from pipeline.repair import check_no_repair_running, refuse_in_the_way, repair_alone
-from pipeline.runmeta import RunConfig, RunConfigError, for_root, prepare_root, read_run
+from pipeline.provenance import RunConfig, RunConfigError, for_root, prepare_root, read_run
 
 log = logging.getLogger(__name__)
 
@@ -395,8 +395,8 @@ def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
 def reshifted_episodes(todo, frames: dict[tuple[str, int], int]) -> list[str]:
     """The keys of the episodes in ``todo`` that hold frames already and whose weather shifts: an
     --extend renders them again whole, and as the shift runs over the episode's length
-    (manifests.shifts) their earlier frames change (docs/weathers.md)."""
-    from manifests.catalog import weather
+    (domains.ramps) their earlier frames change (docs/weathers.md)."""
+    from domains.catalog import weather
 
     return [spec.key for spec in todo if frames.get((spec.scenario, spec.episode)) and weather(spec.weather).shift_from]
 
@@ -441,7 +441,7 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     in a Ray task (default: ``pipeline.episode_job.run_episode``); the control
     plane benchmark swaps in a stand-in that writes no images. The run's user
     domain entries (``PlanConfig.catalog``) are in force meanwhile."""
-    from manifests.catalog import using
+    from domains.catalog import using
 
     with using(config.run.plan.catalog):
         return _produce(config, progress, episode_fn)
@@ -449,8 +449,8 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
 
 def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
              episode_fn: Callable | None) -> ProduceReport:
-    from manifests.lease import new_owner, register_producer
-    from manifests.root import claim_root
+    from roots.lease import new_owner, register_producer
+    from roots.contract import claim_root
     from storage import Storage, StorageError
 
     config.validate()

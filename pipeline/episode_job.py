@@ -18,11 +18,11 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from manifests.deflaters import deflating_with
-from manifests.outputs import OUTPUTS, encode_outputs, file_bytes
+from outputs.deflaters import deflating_with
+from outputs.table import OUTPUTS, encode_outputs, file_bytes
 from manifests.layout import frame_path, output_dir
 from manifests.schema import STATS_DIR, frame_id, part_path, part_stem
-from manifests.spec import NEW_RULES, EpisodeSpec
+from roots.episode_spec import NEW_RULES, EpisodeSpec
 from manifests.writer import frame_row, write_part
 from storage.errors import storage_error
 
@@ -110,7 +110,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
 
     ``on_frame(n)``, if given, is called after each frame's files are written
     with the number of frames written so far (the driver's progress).
-    ``fence`` (``manifests.lease.Fence``): the producer's lease, checked just
+    ``fence`` (``roots.lease.Fence``): the producer's lease, checked just
     before and just after the part is written; LeaseLost, and no part, if the
     lease was taken over meanwhile (a repair may have deleted this episode's
     frames)."""
@@ -153,7 +153,7 @@ def commit_part(storage, spec: EpisodeSpec, rows: list[dict], fence=None) -> Non
     The second check closes the window between the first and the write: a
     part written after a takeover is deleted again (the episode stays pending;
     whoever renders it next writes the same bytes)."""
-    from manifests.lease import LeaseLost, check_fence
+    from roots.lease import LeaseLost, check_fence
 
     check_fence(storage, fence)
     rel = write_part(storage, spec.scenario, spec.episode, rows)  # last: the "done" marker
@@ -168,9 +168,9 @@ def render_plan(storage, config, extend: bool = False) -> None:
     """Claim ``storage`` as a root, prepare it for ``config`` (a RunConfig) and
     render every planned episode into it here, one after another, with no Ray:
     the same files produce's workers write (tests, reports). ``extend``: as --extend."""
-    from manifests.root import claim_root
+    from roots.contract import claim_root
     from pipeline.planner import make_plan
-    from pipeline.runmeta import for_root, prepare_root
+    from pipeline.provenance import for_root, prepare_root
 
     storage.ensure_writable()
     claim_root(storage)  # as produce does: the root marker first

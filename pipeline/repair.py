@@ -11,7 +11,7 @@ from manifests.reader import episode_parts
 from manifests.layout import frame_path
 from manifests.schema import frame_id, index_path, part_path
 from pipeline.cluster import cluster_address
-from pipeline.runmeta import RunConfigError, prepare_root
+from pipeline.provenance import RunConfigError, prepare_root
 
 if TYPE_CHECKING:
     from pipeline.driver import ProduceConfig
@@ -29,9 +29,9 @@ def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
     scenarios are verified. A symbolic link anywhere in them, or a part whose
     rows belong to another run (seed, resolution), refuses the whole repair:
     RootError or RunConfigError, and nothing deleted."""
-    from manifests.root import RootError
-    from manifests.verify import Scope, verify
-    from pipeline.runmeta import check_before_repair
+    from roots.contract import RootError
+    from roots.verify import Scope, verify
+    from pipeline.provenance import check_before_repair
 
     check_before_repair(storage, config.run, extend=config.extend)
     scope = Scope(scenarios=frozenset(plan.scenarios()))
@@ -82,7 +82,7 @@ def refuse_in_the_way(storage, specs, layout: int, nothing_done: str, parts_only
     """RootError in one line naming the first thing (a folder, a link, a special file) that
     stands where rendering ``specs`` would write a file (``parts_only``: only their parts).
     Nothing of it is ever deleted: it may be a user's."""
-    from manifests.root import RootError
+    from roots.contract import RootError
 
     for spec in specs:
         for rel in episode_files(spec, layout)[-1 if parts_only else 0:]:
@@ -97,7 +97,7 @@ def refuse_in_the_way(storage, specs, layout: int, nothing_done: str, parts_only
 def _root_layout(storage) -> int:
     """The root's file layout: run.json's, else that of the frames its parts list."""
     from manifests.layout import NEW_ROOT_LAYOUT, held_layout, record_layout
-    from manifests.runrecord import RunRecordError, read_record
+    from roots.run_file import RunRecordError, read_record
 
     try:
         record = read_record(storage)
@@ -115,7 +115,7 @@ def verify_runner(config: ProduceConfig):
 
 
 def check_no_repair_running(storage) -> None:
-    from manifests.lease import LeaseError, describe, exclusive_holder
+    from roots.lease import LeaseError, describe, exclusive_holder
 
     holder = exclusive_holder(storage)
     if holder is not None and holder.get("purpose") == "repair":
@@ -124,7 +124,7 @@ def check_no_repair_running(storage) -> None:
 
 def repair_alone(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
     """Repair under the root's exclusive lease, refusing beside another live producer."""
-    from manifests.lease import LeaseError, acquire_exclusive, describe, live_producers
+    from roots.lease import LeaseError, acquire_exclusive, describe, live_producers
 
     with acquire_exclusive(storage, "repair", owner=owner):
         others = live_producers(storage, except_owner=owner)

@@ -6,11 +6,11 @@ import json
 from dataclasses import dataclass, field
 
 from manifests.reader import episode_frames
-from manifests.root import require_root
-from manifests.runrecord import REPAIR_HINT
+from roots.contract import require_root
+from roots.run_file import REPAIR_HINT
 from manifests.schema import STATS_DIR
 from pipeline.planner import make_plan
-from pipeline.runmeta import read_run, recorded_config
+from pipeline.provenance import read_run, recorded_config
 from storage import StorageError
 
 

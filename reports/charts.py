@@ -27,7 +27,7 @@ def presence_png(stats: dict) -> bytes:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from manifests.catalog import LABELS
+    from domains.catalog import LABELS
 
     idx = [label.id for label in LABELS if label.evaluated]
     names = [LABELS[i].name for i in idx]
@@ -55,7 +55,7 @@ def town_share_png(stats: dict) -> bytes:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from manifests.catalog import LABELS, NAME2LABEL
+    from domains.catalog import LABELS, NAME2LABEL
 
     towns = list(stats["share_by_town"])
     fig, ax = plt.subplots(figsize=(9, 4), dpi=100)
@@ -109,8 +109,8 @@ def town_sheet(root: str, table, out_dir: Path, cell_width: int = TOWN_SHEET_CEL
     import cv2
     import pyarrow.compute as pc
 
-    from manifests.catalog import TOWNS
-    from manifests.encoding import decode_png
+    from domains.catalog import TOWNS
+    from outputs.encoding import decode_png
 
     frames = sorted(set(table.column("frame").to_pylist()))
     middle = frames[len(frames) // 2]
@@ -141,8 +141,8 @@ def contact_sheets(root: str, table, out_dir: Path, cell_width: int) -> list[str
     import cv2
     import pyarrow.compute as pc
 
-    from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS
-    from manifests.encoding import decode_png
+    from domains.catalog import TOWNS, VIEWPOINTS, WEATHERS
+    from outputs.encoding import decode_png
     from render_workers.render.preview import contact_sheet
 
     first = table.filter(pc.and_(pc.equal(table.column("episode"), 0), pc.equal(table.column("frame"), 0)))

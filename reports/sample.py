@@ -1,7 +1,7 @@
 """The sample ``make report`` renders: its size, how it is produced, and which towns are urban.
 
 One short episode per scenario at reduced resolution (``pipeline.driver.produce``),
-rebuilt on every run in ``SAMPLE_ROOT``; ``reports.shifts`` renders its five domains
+rebuilt on every run in ``SAMPLE_ROOT``; ``reports.shift_section`` renders its five domains
 the same way.
 """
 
@@ -27,7 +27,7 @@ log = logging.getLogger(__name__)
 def produce_sample(root: str, frames: int, width: int, height: int, workers: int, domains: str = "all") -> dict:
     from pipeline.driver import ProduceConfig, produce
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.provenance import RunConfig
     from render_workers.render.episode import DEFAULT_WORLD
 
     shutil.rmtree(root, ignore_errors=True)  # a stale root would be resumed, not re-rendered
@@ -59,7 +59,7 @@ def episode_stats(root: str) -> list[dict]:
 
 def urban_towns() -> tuple[str, ...]:
     """Towns with sidewalks and buildings (``render_workers.worlds.styles.urban``): the rare-class presence target's frames."""
-    from manifests.catalog import TOWNS
+    from domains.catalog import TOWNS
     from render_workers.worlds.styles import is_urban
 
     return tuple(t.code for t in TOWNS if is_urban(t))
@@ -67,7 +67,7 @@ def urban_towns() -> tuple[str, ...]:
 
 def span(codes: tuple[str, ...]) -> str:
     """Town codes as a range when they are consecutive in the catalog (T01-T06), else listed."""
-    from manifests.catalog import TOWNS
+    from domains.catalog import TOWNS
 
     order = [t.code for t in TOWNS]
     at = [order.index(c) for c in codes]

@@ -2,11 +2,11 @@
 
 Renders the paper's five domains (T01_CS_A, T01_CS_J, T01_HRN_J, T01_HRN_A,
 T07_HRN_A; 150 frames each at 320x180, procedural world, run seed 0) into
-``SHIFT_ROOT``, runs ``analysis.shifts`` on them (the same as
+``SHIFT_ROOT``, runs ``analysis.shift_table`` on them (the same as
 ``idda shifts SHIFT_ROOT``) and returns the table and the per-case figures.
 :func:`markdown` turns them into the report's "Domain shift" section.
 
-``.venv/bin/python -m reports.shifts`` does only this part and
+``.venv/bin/python -m reports.shift_section`` does only this part and
 replaces the section in an existing docs/worlds.md (and ``shifts`` in
 docs/worlds.json).
 """
@@ -30,7 +30,7 @@ def measure(root: str = SHIFT_ROOT, frames: int = FRAMES, width: int = WIDTH, he
     from reports.sample import produce_sample
 
     try:
-        from analysis.shifts import ShiftConfig, format_shift_table, require_torch, run_shifts
+        from analysis.shift_table import ShiftConfig, format_shift_table, require_torch, run_shifts
 
         require_torch()
     except ImportError as exc:
@@ -67,7 +67,7 @@ def markdown(result: dict) -> list[str]:
         return lines + [f"Not computed: {result['error']}", ""]
     s, cfg = result["sample"], result["config"]
     lines += [
-        f"`idda shifts` (analysis/shifts.py) on the paper's five domains, {s['frames_per_scenario']} frames each at "
+        f"`idda shifts` (analysis/shift_table.py) on the paper's five domains, {s['frames_per_scenario']} frames each at "
         f"{s['width']}x{s['height']} (procedural world, run seed 0). For each case a small encoder-decoder "
         f"({result['parameters']:,} parameters, trained from scratch at {cfg['width']}x{cfg['height']}, "
         f"{cfg['steps']} steps of {cfg['batch_size']} frames) learns the source domain and is scored on the "

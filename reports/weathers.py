@@ -1,6 +1,6 @@
 """The pictures of docs/weathers.md: the weathers beyond the paper, and a shift inside an episode.
 
-* A contact sheet: one paired episode (the same scene, manifests.spec PAIRED) of
+* A contact sheet: one paired episode (the same scene, roots.episode_spec PAIRED) of
   ``TOWN``/``VIEWPOINT`` under each weather of ``SHEET_WEATHERS``, one column per
   frame picked, one row per weather, each labelled.
 * A strip: the frames of one shifting episode (``SHIFT``, e.g. CNtoNT) side by
@@ -35,8 +35,8 @@ def episode_frames(weather: str, frames: int, *, width: int = WIDTH, height: int
                    interval_s: float = INTERVAL_S, renderer=None) -> list:
     """The rendered frames (``render_workers.worlds.scene.Frame``) of episode 0 of TOWN_weather_VIEWPOINT,
     seeded as a new (paired) root seeds it."""
-    from manifests.catalog import format_code, scenario
-    from manifests.spec import PAIRED, EpisodeSpec, episode_seed
+    from domains.catalog import format_code, scenario
+    from roots.episode_spec import PAIRED, EpisodeSpec, episode_seed
     from render_workers.render import episode
 
     code = format_code(TOWN, weather, VIEWPOINT)

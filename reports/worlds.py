@@ -11,9 +11,9 @@ episode per scenario at reduced resolution, frames 3 s apart), then writes
   urban towns T01-T06;
 * the paper's three domain distances (``analysis.distances``) and a 2-D
   embedding of all domains;
-* the paper's domain-shift table (``reports.shifts``: ``idda shifts``
+* the paper's domain-shift table (``reports.shift_section``: ``idda shifts``
   on its five domains, 150 frames each);
-* synthetic to real on CamVid at two seeds (``reports.camvid``: ``idda shifts
+* synthetic to real on CamVid at two seeds (``reports.camvid_section``: ``idda shifts
   --camvid``; the folder from ``$IDDA_CAMVID``, else the section says it was skipped);
 * one contact sheet per weather (7 towns x 5 viewpoints): frame 0 of episode 0
   of every scenario, i.e. exactly what ``render_workers.render.preview.write_preview``
@@ -31,9 +31,9 @@ from pathlib import Path
 
 import numpy as np
 
-from manifests.catalog import split_code
-from reports.camvid import measure as measure_camvid
-from reports.shifts import measure as measure_shifts
+from domains.catalog import split_code
+from reports.camvid_section import measure as measure_camvid
+from reports.shift_section import measure as measure_shifts
 from reports.charts import CELL_WIDTH, MAX_PNG_BYTES, contact_sheets, presence_png, town_share_png, town_sheet
 from reports.sample import FRAMES, HEIGHT, LARGE, RARE, SAMPLE_ROOT, SEED, WIDTH, WORKERS, episode_stats, produce_sample, urban_towns
 from reports.worlds_md import markdown
@@ -49,7 +49,7 @@ def class_tables(table) -> dict:
     import pyarrow as pa
     import pyarrow.compute as pc
 
-    from manifests.catalog import LABELS, TOWNS
+    from domains.catalog import LABELS, TOWNS
     from manifests.stats import PAPER_SHARES, class_pixels, class_presence
 
     towns = pc.utf8_slice_codeunits(table.column("scenario"), 0, 3)
@@ -123,8 +123,8 @@ def distances(root: str, images: Path) -> dict:
 
 def world_timings(stats: list[dict]) -> dict:
     """Fresh build_world and populate times per town (this process), and the sample's render times."""
-    from manifests.catalog import TOWNS
-    from manifests.spec import town_seed
+    from domains.catalog import TOWNS
+    from roots.episode_spec import town_seed
     from pipeline.planner import EPISODE_FRAMES
     from render_workers.worlds import traffic, world
 
@@ -167,7 +167,7 @@ def bench_render(docs: Path) -> dict | None:
 
 
 def _styles() -> dict:
-    from manifests.catalog import TOWNS
+    from domains.catalog import TOWNS
     from render_workers.worlds.styles import look
 
     def row(s) -> dict:

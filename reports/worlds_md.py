@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from reports.camvid import markdown as camvid_markdown
-from reports.shifts import markdown as shifts_markdown
+from reports.camvid_section import markdown as camvid_markdown
+from reports.shift_section import markdown as shifts_markdown
 from reports.sample import LARGE, SEED, span, urban_towns
 
 

@@ -11,7 +11,7 @@ from typer.testing import CliRunner
 
 from analysis.camvid import CAMVID_TO_INDEX, OURS_TO_INDEX, camvid_pairs, is_camvid, load_synthetic
 from analysis.metrics import IGNORE
-from manifests.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID, LABELS, class_id
+from domains.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID, LABELS, class_id
 from tests.test_export import cli_app
 
 DOMAINS = "T01_CN_V"  # no hood: the frames are the same on both sides
@@ -27,7 +27,7 @@ def twins(tmp_path_factory):
     from analysis.loaders import FrameDataset
     from manifests.query import Query
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.provenance import RunConfig
     from tests.roots import render_root
 
     base = tmp_path_factory.mktemp("camvid")
@@ -111,7 +111,7 @@ def test_the_same_frames_on_both_sides_keep_everything(twins, tmp_path):
 
 def test_the_hood_is_cropped_before_mapping(twins):
     from analysis.camvid import crop_hood
-    from manifests.catalog import viewpoint
+    from domains.catalog import viewpoint
 
     rgb, ids = np.zeros((100, 8, 3), np.uint8), np.zeros((100, 8), np.uint8)
     cut = crop_hood(rgb, ids, "A")
@@ -144,7 +144,7 @@ def test_config_is_checked_before_training(twins):
 
 
 def test_report_section_says_why_it_is_skipped(monkeypatch, tmp_path):
-    from reports.camvid import ENV, SECTION_TITLE, markdown, measure
+    from reports.camvid_section import ENV, SECTION_TITLE, markdown, measure
 
     monkeypatch.delenv(ENV, raising=False)
     skipped = measure(docs=str(tmp_path))

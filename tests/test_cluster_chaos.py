@@ -11,7 +11,7 @@ import pytest
 
 from pipeline.driver import ProduceConfig, produce
 from pipeline.planner import PlanConfig
-from pipeline.runmeta import RunConfig
+from pipeline.provenance import RunConfig
 from tests.test_produce import tree_digest
 
 pytestmark = pytest.mark.slow

@@ -16,7 +16,7 @@ from dataclasses import replace
 
 import pytest
 
-from manifests.lease import (
+from roots.lease import (
     EXCLUSIVE,
     PRODUCER_PREFIX,
     LeaseLost,
@@ -33,13 +33,13 @@ from manifests.reader import (
     read_manifest,
     scan,
 )
-from manifests.root import ROOT_MARKER, claim_root
+from roots.contract import ROOT_MARKER, claim_root
 from manifests.schema import index_path
 from tests.roots import part_of, to_old_names
 from manifests.synthetic import episode_table, write_parts
 from manifests.writer import write_part
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.runmeta import RunConfig, check_rows, prepare_root
+from pipeline.provenance import RunConfig, check_rows, prepare_root
 from pipeline.status import root_status
 from storage import Storage
 
@@ -294,7 +294,7 @@ def test_fence_holds_when_the_lease_is_revived_by_a_racing_refresh(tmp_path):
 
 
 def test_produce_stops_and_says_so_when_its_lease_is_lost(ray_local, tmp_path):
-    from manifests.lease import bump_generation
+    from roots.lease import bump_generation
     from pipeline.driver import ProduceConfig, produce
     from storage import StorageError
 
@@ -334,7 +334,7 @@ def test_lease_of_a_process_gone_from_this_host_is_taken_over_at_once(tmp_path, 
     pid = _dead_pid()
     storage.write_bytes(EXCLUSIVE, _lease_of(pid, "compaction"))
     storage.write_bytes(f"{PRODUCER_PREFIX}gone-{pid}.json", _lease_of(pid, "produce"))
-    caplog.set_level(logging.WARNING, logger="manifests.lease")
+    caplog.set_level(logging.WARNING, logger="roots.lease")
     start = time.monotonic()
     with acquire_exclusive(storage, "repair", wait_s=0):
         assert live_producers(storage) == []
@@ -346,7 +346,7 @@ def test_lease_of_a_process_gone_from_this_host_is_taken_over_at_once(tmp_path, 
 
 
 def test_lease_of_a_live_process_is_not_taken_over(tmp_path):
-    from manifests.lease import LeaseError
+    from roots.lease import LeaseError
 
     storage = Storage.from_uri(str(tmp_path / "root"))
     claim_root(storage)

@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from manifests.catalog import NUM_CLASSES, PALETTE
-from manifests.outputs import DEFAULT_OUTPUTS as OUTPUTS, IMAGE_OUTPUTS, read_output
-from manifests.spec import EpisodeSpec
-from manifests.spec import FRAME_PERIOD_S
+from domains.catalog import NUM_CLASSES, PALETTE
+from outputs.table import DEFAULT_OUTPUTS as OUTPUTS, IMAGE_OUTPUTS, read_output
+from roots.episode_spec import EpisodeSpec
+from roots.episode_spec import FRAME_PERIOD_S
 from pipeline.episode_job import frame_files, frame_outputs
 from render_workers.render import episode
 from render_workers.worlds import testworld
-from manifests.encoding import decode_depth_raw
+from outputs.encoding import decode_depth_raw
 from render_workers.render.renderer import Renderer
 
 W, H = 160, 90

@@ -16,8 +16,8 @@ from typer.testing import CliRunner
 
 from exports import cityscapes as cs_layout, idda
 from exports import export as ex
-from exports.placing import Layout, per_frame
-from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
+from exports.shared import Layout, per_frame
+from domains.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
 from manifests.query import Query
 from manifests.reader import read_manifest
 from tests.s3_server import s3_server  # noqa: F401  (fixture)
@@ -31,7 +31,7 @@ def make_tiny_root(tmp_path_factory) -> Path:
     """A small rendered root (test world, 64x36), built once per test session
     and shared by the export, loader, distance and card tests (read-only)."""
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.provenance import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.getbasetemp() / "tiny_root"
@@ -238,7 +238,7 @@ def test_refuses_non_empty_target_and_force_replaces(root, tmp_path):
 def test_export_never_touches_an_output_root(root, tmp_path):
     """Issue 10.1: a target inside a root (its manifest/, a scenario folder, an
     empty new folder) or holding one is refused, with or without --force."""
-    from manifests.verify import verify
+    from roots.verify import verify
 
     copy = tmp_path / "root"
     shutil.copytree(root, copy)
@@ -348,7 +348,7 @@ def _listing(path: Path) -> dict[str, str]:
 def test_force_deletes_only_what_an_earlier_export_wrote(root, tmp_path):
     """Issue 21.4: --force deleted an output root nested two levels below --to.
     It may replace only an export holding exactly what it wrote; symlinks are never followed."""
-    from manifests.root import RootError
+    from roots.contract import RootError
 
     target = tmp_path / "exp"
     config = ex.ExportConfig(root=str(root), to=str(target), format="idda", query=Query(domains="T07_*_*"))

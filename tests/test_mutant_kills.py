@@ -78,7 +78,7 @@ def test_written_files_get_the_usual_mode_never_executable(tmp_path, how):
 
 
 def test_lease_ttl_from_the_environment():
-    from manifests.lease import TTL_ENV, TTL_S, ttl_from_env
+    from roots.lease import TTL_ENV, TTL_S, ttl_from_env
 
     assert ttl_from_env({}) == TTL_S
     assert ttl_from_env({TTL_ENV: "2.5"}) == 2.5
@@ -90,7 +90,7 @@ def test_lease_ttl_from_the_environment():
 def test_a_lease_is_described_by_purpose_owner_and_time_left():
     import time
 
-    from manifests.lease import describe
+    from roots.lease import describe
 
     line = describe({"purpose": "repair", "owner": "host-7-ab12", "expires": time.time() + 3600})
     assert line in {f"repair by host-7-ab12 (lease expires in {s} s unless renewed)" for s in (3598, 3599, 3600)}
@@ -101,7 +101,7 @@ def _this_host_lease(pid) -> dict:
     import socket
     import time
 
-    from manifests.lease import _pid_namespace
+    from roots.lease import _pid_namespace
 
     return {"owner": "o", "host": socket.gethostname(), "pidns": _pid_namespace(), "pid": pid,
             "purpose": "produce", "expires": time.time() + 60}
@@ -110,14 +110,14 @@ def _this_host_lease(pid) -> dict:
 @pytest.mark.parametrize("pid", [0, -1, "1234", None])
 def test_a_lease_whose_pid_is_odd_is_judged_by_its_expiry_alone(pid):
     """Only a real pid that is gone makes a live lease dead: an odd one proves nothing."""
-    from manifests.lease import is_live
+    from roots.lease import is_live
 
     assert is_live(_this_host_lease(pid))
 
 
 def test_a_lease_of_another_users_process_on_this_host_is_live(monkeypatch):
     """os.kill(pid, 0) refused (EPERM): the process exists, so its lease is live."""
-    from manifests import lease
+    from roots import lease
 
     def refused(pid, sig):
         raise PermissionError(errno.EPERM, "not yours")
@@ -137,7 +137,7 @@ def test_a_lease_of_another_users_process_on_this_host_is_live(monkeypatch):
 
 def _record(**config_changes) -> dict:
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.provenance import RunConfig
 
     config = RunConfig(plan=PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36),
                        world="test").to_dict()
@@ -169,7 +169,7 @@ _DROP = object()
     ({**_record(), "layout": True}, "unknown file layout True"),
 ])
 def test_a_run_record_of_the_wrong_shape_is_refused_naming_what(record, says):
-    from manifests.runrecord import RunRecordError, check_record
+    from roots.run_file import RunRecordError, check_record
 
     with pytest.raises(RunRecordError) as raised:
         check_record(record, "root/run.json")
@@ -177,7 +177,7 @@ def test_a_run_record_of_the_wrong_shape_is_refused_naming_what(record, says):
 
 
 def test_a_run_record_without_optional_keys_or_checksum_reads_as_an_old_root():
-    from manifests.runrecord import OPTIONAL_CONFIG, check_record
+    from roots.run_file import OPTIONAL_CONFIG, check_record
 
     old = _record(**{key: _DROP for key in OPTIONAL_CONFIG}, scale=_DROP, frames_per_scenario=_DROP)
     assert check_record(old, "root/run.json") is old
@@ -186,7 +186,7 @@ def test_a_run_record_without_optional_keys_or_checksum_reads_as_an_old_root():
 
 
 def test_run_json_that_is_not_a_file_or_not_json_is_damaged(tmp_path):
-    from manifests.runrecord import RunRecordError, read_record
+    from roots.run_file import RunRecordError, read_record
     from manifests.schema import RUN_FILE
     from storage import Storage
 
@@ -214,7 +214,7 @@ REPAIR_PLAN = dict(domains="T01_CN_A", frames_per_scenario=3, width=64, height=3
 def tiny_root(tmp_path_factory):
     """One 3-frame episode at 64x36, rendered without Ray, its index written: copied by each test."""
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.provenance import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("tiny") / "root"
@@ -234,7 +234,7 @@ def _copy_of(tiny_root, tmp_path):
 def _produce_config(root, **plan_changes):
     from pipeline.driver import ProduceConfig
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.provenance import RunConfig
 
     return ProduceConfig(run=RunConfig(plan=PlanConfig(**{**REPAIR_PLAN, **plan_changes}), world="test"),
                          out=str(root), workers=1)
@@ -244,7 +244,7 @@ def test_repair_drops_the_damaged_episode_strays_and_a_bad_index_and_rewrites_ru
     import logging
 
     from manifests.reader import done_episodes, episode_parts
-    from manifests.runrecord import read_record
+    from roots.run_file import read_record
     from manifests.schema import RUN_FILE, index_path
     from pipeline.planner import make_plan
     from pipeline.repair import repair_alone
@@ -261,7 +261,7 @@ def test_repair_drops_the_damaged_episode_strays_and_a_bad_index_and_rewrites_ru
     from dataclasses import replace
 
     unplanned = type(plan)(plan.config, (replace(plan.episodes[0], episode=1),))  # its scenario, another episode
-    from manifests.lease import register_producer
+    from roots.lease import register_producer
 
     me = register_producer(storage, owner="me")  # produce --repair: our own producer lease is live
     try:
@@ -293,12 +293,12 @@ def test_repair_drops_a_bad_index_alone_and_names_it(tiny_root, tmp_path):
 
 def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_root, tmp_path):
     from manifests.reader import episode_parts
-    from manifests.root import RootError
+    from roots.contract import RootError
     from manifests.schema import PART_SCHEMA
     from manifests.writer import read_part_file, write_part
     from pipeline.planner import make_plan
     from pipeline.repair import _repair
-    from pipeline.runmeta import RunConfigError
+    from pipeline.provenance import RunConfigError
 
     root, storage = _copy_of(tiny_root, tmp_path)
     config = _produce_config(root)
@@ -339,7 +339,7 @@ def _files(root) -> dict[str, bytes]:
 
 
 def test_repair_waits_for_other_producers_and_nobody_starts_beside_a_repair(tiny_root, tmp_path):
-    from manifests.lease import LeaseError, acquire_exclusive, register_producer
+    from roots.lease import LeaseError, acquire_exclusive, register_producer
     from pipeline.planner import make_plan
     from pipeline.repair import check_no_repair_running, repair_alone
 
@@ -380,7 +380,7 @@ KEPT_RUN_JSON = b"""{
 def test_a_kept_run_json_still_reads_and_is_written_again_byte_for_byte(tmp_path):
     import json
 
-    from manifests.runrecord import RunRecordError, read_record, record_bytes
+    from roots.run_file import RunRecordError, read_record, record_bytes
     from manifests.schema import RUN_FILE
     from storage import Storage
 
@@ -405,7 +405,7 @@ def test_repair_needs_extend_for_another_config_and_verifies_only_its_plans_scen
     from manifests.reader import done_episodes
     from pipeline.planner import make_plan
     from pipeline.repair import _repair
-    from pipeline.runmeta import RunConfigError
+    from pipeline.provenance import RunConfigError
 
     root, storage = _copy_of(tiny_root, tmp_path)
     frame = sorted((root / "T01_CN_A").rglob("*.png"))[0]
@@ -438,7 +438,7 @@ def test_repairs_verify_goes_to_the_cluster_and_workers_produce_was_given(monkey
 def test_repair_holds_the_exclusive_lease_as_a_repair_under_its_own_name(monkeypatch, tiny_root, tmp_path):
     """While it deletes, repair's lease says "repair" by its owner: producers starting meanwhile
     refuse (check_no_repair_running), and the lease is the one its owner releases."""
-    from manifests.lease import LeaseError, exclusive_holder
+    from roots.lease import LeaseError, exclusive_holder
     from pipeline import repair
     from pipeline.planner import make_plan
 
@@ -459,7 +459,7 @@ def test_repair_holds_the_exclusive_lease_as_a_repair_under_its_own_name(monkeyp
 
 
 def test_repair_with_extend_records_the_extended_config(monkeypatch, tiny_root, tmp_path):
-    from manifests.runrecord import read_record
+    from roots.run_file import read_record
     from pipeline import repair
     from pipeline.planner import make_plan
 

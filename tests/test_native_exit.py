@@ -22,7 +22,7 @@ import sys
 import pyarrow as pa
 import pytest
 
-from manifests.runrecord import record_bytes
+from roots.run_file import record_bytes
 from tests.faultkit import REPO
 from tests.test_control_plane import MANY, synthetic_root
 

@@ -17,7 +17,7 @@ from pipeline.cli.progress import RATE_WINDOW, ProgressDisplay, RateWindow, form
 from pipeline.driver import ProduceConfig, Progress, produce
 from pipeline.ray_task import FrameCounter, FrameReporter
 from pipeline.planner import PlanConfig
-from pipeline.runmeta import RunConfig
+from pipeline.provenance import RunConfig
 
 FRAMES = 4  # per scenario: one episode each
 WINDOW = 3  # frames: small, so this short run shows a rate

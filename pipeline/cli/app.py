@@ -10,8 +10,8 @@ from typing import Optional
 
 import typer
 
-from pipeline.cli import data as cli_data, domains as cli_domains
-from pipeline.cli.domains import CatalogFile, domain_file, root_catalog, root_pairing, root_rules
+from pipeline.cli import data as cli_data, domain_files as cli_domains
+from pipeline.cli.domain_files import CatalogFile, domain_file, root_catalog, root_pairing, root_rules
 from pipeline.cli.progress import (
     ProgressDisplay, VerifyDisplay, format_interrupted, format_outage, format_produce_report, stop_signals,
     verify_advice,
@@ -20,7 +20,7 @@ from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MaxCondition, MinCondition, MinShare, OneLineUsageErrors, PerScenario,
     Preset, SampleSeed, Splits, Total, build_query, count, of_held, output_root, user_errors, write_local,
 )
-from manifests.outputs import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
+from outputs.table import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import require_outputs
 from pipeline.planner import PlanConfig, make_plan
 
@@ -106,7 +106,7 @@ def plan(
                                         height=height, seed=seed, catalog=domain_file(catalog).layer_json()))
         typer.echo(format_plan_table(the_plan))
         if out is not None:
-            from pipeline.planio import write_plan
+            from pipeline.plan_file import write_plan
 
             write_plan(the_plan, out)
             typer.echo(f"wrote {len(the_plan.episodes):,} episodes to {out}")
@@ -138,9 +138,9 @@ def produce(
     Re-running the same command skips finished episodes: kill it at any time
     and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
     """
-    from manifests.lease import ttl_from_env as lease_ttl_from_env
+    from roots.lease import ttl_from_env as lease_ttl_from_env
     from pipeline.driver import ProduceConfig, ProduceInterrupted, RendererCrashes, StorageOutage, produce as run_produce
-    from pipeline.runmeta import RunConfig
+    from pipeline.provenance import RunConfig
 
     with user_errors():
         if scale is None and frames_per_scenario is None:
@@ -233,11 +233,11 @@ def verify(
     `idda produce --repair` fixes it. Frames a running producer is writing
     are reported as in progress, not as damage.
     """
-    from manifests.selection import parse_selection
-    from manifests.verify import Scope, parse_since, verify as run_verify
+    from domains.selection import parse_selection
+    from roots.verify import Scope, parse_since, verify as run_verify
     from pipeline.verify_ray import choose_runner
 
-    from manifests.catalog import using
+    from domains.catalog import using
 
     with user_errors():
         with using(root_catalog(root, catalog)):
@@ -296,7 +296,7 @@ def query(
 ) -> None:
     """Filter frames and draw seeded stratified samples, e.g. --preset best-case."""
     from manifests import query as q
-    from manifests.catalog import using
+    from domains.catalog import using
     from manifests.reader import scan_manifest
 
     with user_errors(), using(root_catalog(root, catalog)):
@@ -346,7 +346,7 @@ def stats(
 ) -> None:
     """Class pixel shares as a table and a log-scale bar chart (paper's Fig. pixeldistr)."""
     from manifests import query as q
-    from manifests.catalog import using
+    from domains.catalog import using
     from manifests.reader import read_manifest
     from manifests.stats import bar_chart_png, format_share_table, share_table
 
@@ -377,9 +377,9 @@ def preview(
 ) -> None:
     """Render one frame per scenario into a contact sheet (rows = viewpoints,
     columns = towns, one sheet per weather) plus one frame's six outputs."""
-    from manifests.selection import parse_selection
+    from domains.selection import parse_selection
     from render_workers.worlds.registry import check_world
-    from manifests.catalog import using
+    from domains.catalog import using
     from render_workers.render.preview import write_preview
 
     with user_errors(), using(domain_file(catalog)) as in_force:

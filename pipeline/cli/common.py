@@ -18,10 +18,10 @@ try:  # typer 0.2x vendors click; its exceptions are that copy's
 except ImportError:  # older typer: click itself
     from click import exceptions as click_errors
 
-from manifests.lease import LeaseError
-from manifests.selection import SELECTION_HELP
+from roots.lease import LeaseError
+from domains.selection import SELECTION_HELP
 from manifests.writer import ManifestError
-from pipeline.runmeta import RunConfigError
+from pipeline.provenance import RunConfigError
 from storage import StorageError
 
 ROOT_HELP = "Output root (path or s3:// URI)."
@@ -94,8 +94,8 @@ class OneLineUsageErrors(TyperGroup):
 
 def output_root(root: str):
     """The storage of an output root; for any other path the one sentence every
-    command gives (``manifests.root.require_root``)."""
-    from manifests.root import require_root
+    command gives (``roots.contract.require_root``)."""
+    from roots.contract import require_root
     from storage import Storage
 
     storage = Storage.from_uri(root)

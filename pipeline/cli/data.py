@@ -17,7 +17,7 @@ from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
     build_query, count, of_held, output_root, user_errors, write_local,
 )
-from pipeline.cli.domains import CatalogFile, root_catalog
+from pipeline.cli.domain_files import CatalogFile, root_catalog
 
 Real = Annotated[Optional[Path], typer.Option(
     "--real", help="A real dataset folder in Cityscapes layout (leftImg8bit/, gtFine/ labelIds for shifts): "
@@ -61,8 +61,8 @@ def export(
     """
     from exports.export import ExportConfig, export as run_export
     from exports.webdataset import SHARD_SIZE, parse_size
-    from manifests.catalog import using
-    from manifests.outputs import parse_outputs
+    from domains.catalog import using
+    from outputs.table import parse_outputs
 
     with user_errors(), using(root_catalog(root, catalog)):
         if copy and symlink:
@@ -127,7 +127,7 @@ def distances(
     With --real, a Cityscapes-layout folder is the domain 'real' (no pair
     naming it: every sampled domain is compared with it)."""
     from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
-    from manifests.catalog import using
+    from domains.catalog import using
 
     with user_errors(), using(root_catalog(root, catalog)):
         output_root(root)
@@ -152,7 +152,7 @@ def card(
 
     Exits 1 when the root fails verification (the card says so too)."""
     from exports.card import CardConfig, write_card
-    from manifests.catalog import using
+    from domains.catalog import using
 
     with user_errors(), using(root_catalog(root, None)):  # the root's declared domains: its scenarios
         output_root(root)
@@ -197,11 +197,11 @@ def shifts(
     Needs PyTorch: pip install -e '.[analysis]'."""
     import json
 
-    from manifests.catalog import using
+    from domains.catalog import using
 
     with user_errors(), using(root_catalog(root, catalog)):
         from analysis.distances import parse_pairs
-        from analysis.shifts import CASE_BY_NAME, ShiftConfig, format_shift_table, require_torch, run_shifts
+        from analysis.shift_table import CASE_BY_NAME, ShiftConfig, format_shift_table, require_torch, run_shifts
 
         require_torch()  # the analysis extra: say so before reading any data
         output_root(root)
@@ -252,7 +252,7 @@ def view(
     point cloud in world coordinates, the camera pose and frustum, the 3D boxes and the
     condition columns as time series (needs rerun-sdk: pip install -e '.[view]')."""
     from analysis.viewer import ViewConfig, view as run_view
-    from manifests.catalog import using
+    from domains.catalog import using
 
     with user_errors(), using(root_catalog(root, catalog)):
         output_root(root)

@@ -25,8 +25,8 @@ def domain_file(path: Path | None, base=None):
     """``base`` (default: the built-in catalog) with the entries of the domain file at ``path`` (None: none).
 
     CatalogError (a ValueError: one ``error:`` line) names file, entry and key."""
-    from manifests.catalog import BUILTIN
-    from manifests.domainfile import CatalogError, with_file
+    from domains.catalog import BUILTIN
+    from domains.catalog_file import CatalogError, with_file
     from render_workers.worlds.styles import STYLE_BY_NAME
 
     base = BUILTIN if base is None else base
@@ -47,7 +47,7 @@ def domain_file(path: Path | None, base=None):
 def recorded_layer(root: str) -> dict | None:
     """The user domain entries a root's run.json records; None where it has no (readable) record:
     the command itself then reports what is wrong with the root."""
-    from manifests.runrecord import RunRecordError, read_record
+    from roots.run_file import RunRecordError, read_record
     from storage import Storage, StorageError
 
     try:
@@ -58,11 +58,11 @@ def recorded_layer(root: str) -> dict | None:
 
 
 def root_recorded(root: str, key: str):
-    """A root's recorded ``key`` of those RECORDED_DEFAULTS lists ("pairing", "rules": manifests.spec): what its
+    """A root's recorded ``key`` of those RECORDED_DEFAULTS lists ("pairing", "rules": roots.episode_spec): what its
     run.json records (absent: a root from before the key, its RECORDED_DEFAULTS value); a new root's
     (PlanConfig's default) where it has no record, or one that cannot be read (the command then reports
     what is wrong with it)."""
-    from manifests.runrecord import RunRecordError, read_record
+    from roots.run_file import RunRecordError, read_record
     from pipeline.planner import RECORDED_DEFAULTS, PlanConfig
     from storage import Storage, StorageError
 
@@ -74,18 +74,18 @@ def root_recorded(root: str, key: str):
 
 
 def root_pairing(root: str) -> int:
-    """The pairing of a root's episode seeds (manifests.spec): UNPAIRED in a root from before pairing."""
+    """The pairing of a root's episode seeds (roots.episode_spec): UNPAIRED in a root from before pairing."""
     return root_recorded(root, "pairing")
 
 
 def root_rules(root: str) -> int:
-    """The rules of a root (manifests.spec): OLD_RULES in a root from before them."""
+    """The rules of a root (roots.episode_spec): OLD_RULES in a root from before them."""
     return root_recorded(root, "rules")
 
 
 def root_catalog(root: str | None, path: Path | None):
     """The catalog a command on ``root`` works with: the root's recorded entries, then the file's."""
-    from manifests.catalog import catalog_for
+    from domains.catalog import catalog_for
 
     return domain_file(path, catalog_for(recorded_layer(root) if root else None))
 
@@ -101,7 +101,7 @@ def show(
 ) -> None:
     """Print the resolved catalog as a domain file: every entry with every parameter, each
     under a comment giving its meaning, unit and range. The output loads back as the same catalog."""
-    from manifests.domainfile import catalog_toml
+    from domains.catalog_file import catalog_toml
 
     with user_errors():
         typer.echo(catalog_toml(root_catalog(root, catalog)), nl=False)

@@ -30,13 +30,13 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using, weather as lookup_weather
-from manifests.shifts import weather_at
-from manifests.conditions import frame_conditions
-from manifests.geometry import CV_FROM_GL, normals_from_depth, pose_cells
-from manifests.objects import object_counts
-from manifests.spec import NEW_RULES, EpisodeSpec
-from manifests.spec import town_seed
+from domains.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using, weather as lookup_weather
+from domains.ramps import weather_at
+from domains.conditions import frame_conditions
+from outputs.geometry import CV_FROM_GL, normals_from_depth, pose_cells
+from outputs.objects import object_counts
+from roots.episode_spec import NEW_RULES, EpisodeSpec
+from roots.episode_spec import town_seed
 from render_workers.render import postfx
 from render_workers.worlds import worldcache
 from render_workers.render.camera import measured_hood_fraction
@@ -87,7 +87,7 @@ def world_builder(name: str) -> WorldBuilder:
 def cached_world(world: str, town_code: str, seed: int, variant: str = "") -> World:
     """A town's static world, loaded (or built) once per process and reused across its episodes.
 
-    ``variant`` (``manifests.catalog.town_variant``) tells a town a domain file
+    ``variant`` (``domains.catalog.town_variant``) tells a town a domain file
     declares or changes from the built-in town of its code; the catalog that
     declares it must be in force while it is built.
 
