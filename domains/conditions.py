@@ -7,7 +7,7 @@ frame). ``idda query --min-condition/--max-condition NAME=VALUE`` filters on
 them. Rows of roots written before the columns existed read them as null.
 
 Fog is ``visibility_m`` (float64, domains.fog). Roots made before rules
-(roots.episode_spec.OLD_RULES) record ``fog_density`` instead, the float32 share of
+(manifests.schema.OLD_RULES) record ``fog_density`` instead, the float32 share of
 contrast lost per km they always had, and no ``visibility_m``; a query reads
 their visibility from it (``with_visibility``), and a new root's fog_density is
 null.

@@ -9,7 +9,7 @@ record it as float64 (``domains.conditions``).
 Catalogs before declared fog as the share of contrast lost per 1000 m and rows recorded it as a
 float32 ``fog_density``, where a dense fog such as 0.9999999999 reads 1.0. A share ``f`` is
 ``beta = -ln(1 - f) / 1000`` (the renderer's formula then, the share capped at 1 - 1e-12), so FG is
-260 m; roots made before rules (roots.episode_spec.OLD_RULES) keep recording and blending the share.
+260 m; roots made before rules (manifests.schema.OLD_RULES) keep recording and blending the share.
 
 A shift (domains.ramps) blends visibility in the contrast it leaves at the foggier end's
 visibility, linearly: that contrast runs evenly from the clear end's to 5 %, and the contrast at

@@ -101,7 +101,7 @@ def held_layout(storage, parts: int = 8) -> int | None:
     of its first ``parts`` parts; None if it has none (for a root whose run.json
     is lost or damaged)."""
     from manifests.schema import MANIFEST_DIR, PART_SCHEMA, output_columns
-    from manifests.writer import ManifestError, read_part_file
+    from manifests.part_file import ManifestError, read_part_file
     from storage import StorageError
 
     for rel in storage.list_files(MANIFEST_DIR + "/", suffix=".parquet")[:parts]:

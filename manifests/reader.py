@@ -99,6 +99,12 @@ def episode_parts(storage, scenario: str, episode: int) -> list[str]:
     return sorted(found, key=lambda rel: -1 if named_rows(rel) is None else named_rows(rel), reverse=True)
 
 
+def read_part(storage, scenario: str, episode: int) -> pa.Table:
+    """An episode's part, under whichever name it was written."""
+    listed = episode_parts(storage, scenario, episode)
+    return read_part_file(storage, listed[0] if listed else part_path(scenario, episode), PART_SCHEMA)
+
+
 def part_files(storage) -> dict[str, dict[int, str]]:
     """Parts per scenario: {scenario: {episode: relative path}}."""
     return {scenario: {e: rel for e, (rel, _) in eps.items()} for scenario, eps in part_listing(storage).items()}
@@ -308,7 +314,7 @@ def _part_rows(storage, rel: str, size: int) -> int | None:
 def refuse_misfiled(storage, summaries: dict[tuple[str, int], PartSummary | None]) -> None:
     """MisfiledParts naming the parts whose rows belong to another scenario or
     episode (swapped or copied parts): such a root is damaged, not done."""
-    from manifests.writer import MisfiledParts
+    from manifests.part_file import MisfiledParts
 
     wrong = sorted(key for key, s in summaries.items() if isinstance(s, PartSummary) and s.misfiled(*key))
     if wrong:
@@ -323,7 +329,7 @@ def _refuse_misfiled_fragments(storage, part_ds: ds.Dataset, rels: list[str]) ->
     """MisfiledParts naming the parts (of those read without an index) whose rows name another
     scenario or episode than their names: a swapped or copied part would give another
     scenario's frames twice. Each footer is read once and kept for the scan that follows."""
-    from manifests.writer import MisfiledParts
+    from manifests.part_file import MisfiledParts
 
     by_path = {storage.path(rel): rel for rel in rels}
 
@@ -419,7 +425,7 @@ def index_bytes(table: pa.Table) -> bytes:
 
 def build_index(storage, scenario: str, episodes: list[int]) -> bytes:
     """The bytes of ``scenario``'s index over ``episodes``, built from its parts."""
-    from manifests.writer import read_part_file
+    from manifests.part_file import read_part_file
 
     tables, sizes = [], {}
     listed = part_listing(storage).get(scenario, {})
@@ -437,7 +443,8 @@ def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str
     the other parts, read now. The sizes recorded are those of the bytes read,
     so a part rewritten meanwhile leaves the new index stale, never wrong.
     None where a part holds another scenario's or episode's rows (never indexed)."""
-    from manifests.writer import ManifestError, arrow_reader, read_part_file
+    from manifests.part_file import ManifestError, read_part_file
+    from storage.buffers import arrow_reader
 
     kept: dict[int, tuple[pa.Table, int]] = {}
     try:
@@ -514,7 +521,7 @@ def compact(root, scenarios: list[str] | None = None, state: ManifestScan | None
 def _readable_files(storage, files: list[str]) -> list[str]:
     """``files`` with each unreadable index swapped for its scenario's parts;
     ManifestError naming an unreadable part."""
-    from manifests.writer import ManifestError, read_part_file
+    from manifests.part_file import ManifestError, read_part_file
 
     parts = part_files(storage)
     out = []
@@ -535,7 +542,7 @@ def scan_manifest(root, scan):
     """``scan(dataset)`` over the manifest. If the scan fails on a damaged file,
     a damaged index is skipped (its parts are read instead) and a damaged part
     raises ManifestError naming it: never an anonymous Arrow error."""
-    from manifests.writer import ManifestError
+    from manifests.part_file import ManifestError
 
     storage = as_storage(root)
     try:

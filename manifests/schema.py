@@ -11,6 +11,18 @@ from domains.catalog import AXES, CODE_CHARS, INSTANCE_LABELS, LABELS, code_axes
 from domains.conditions import PART_CONDITIONS, VISIBILITY
 from outputs.table import OUTPUTS
 
+# The root's rules for what its rows and files say (issue 32; docs/layout.md, "Rules of a root"). A new
+# root records "rules": 1 in run.json's config; a root made before, without the key, keeps OLD_RULES
+# for its life (resume, --extend, --repair and verify read it from run.json):
+#   splits: per scene (town, viewpoint, episode: pipeline.planner.scene_places), so every weather of a
+#           paired scene has one split; OLD_RULES: per scenario, from its place in the selection
+#   flow:   a motion the 16-bit encoding cannot hold is invalid (outputs.encoding.encode_flow);
+#           OLD_RULES: clamped to +-512 px and kept valid (outputs.table.OLD_RULE_ENCODERS)
+#   fog:    recorded as visibility_m (float64) and blended by shifts in the contrast it leaves
+#           (domains.fog); OLD_RULES: fog_density (float32 share per km), blended linearly
+OLD_RULES, NEW_RULES = 0, 1
+RULES = (OLD_RULES, NEW_RULES)
+
 # ---------------------------------------------------------------- plan ----
 PLAN_SCHEMA = pa.schema(
     [
@@ -70,7 +82,7 @@ _FRAME_FIELDS = [
     # Null in roots written before they existed; fog_density null in roots of rules (visibility_m instead).
     *((c.column, pa.float32(), "condition") for c in PART_CONDITIONS),
 ]
-# Added with rules (roots.episode_spec.NEW_RULES) after every other column, so no column of older parts moves.
+# Added with rules (manifests.schema.NEW_RULES) after every other column, so no column of older parts moves.
 _RULE_FIELDS = [(VISIBILITY.column, pa.float64(), "condition")]
 FIELD_SOURCE = {name: source for name, _, source in _FRAME_FIELDS + _RULE_FIELDS}
 # An output a run did not ask for has null path, size and checksum.
@@ -85,7 +97,7 @@ OBJECT_FIELDS = [(label.object_column, pa.int32()) for label in INSTANCE_LABELS]
 # Schema of a part file (one episode); the full manifest adds PARTITION_KEYS.
 OLD_PART_SCHEMA = pa.schema([(n, t) for n, t, _ in _FRAME_FIELDS] + _OUTPUT_FIELDS + PIXEL_FIELDS + OBJECT_FIELDS)
 PART_SCHEMA = pa.schema(list(OLD_PART_SCHEMA) + [(n, t) for n, t, _ in _RULE_FIELDS])  # what readers read
-# a part of a root made before rules (roots.episode_spec.OLD_RULES) has the columns of OLD_PART_SCHEMA only
+# a part of a root made before rules (manifests.schema.OLD_RULES) has the columns of OLD_PART_SCHEMA only
 MANIFEST_SCHEMA = pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA))
 
 

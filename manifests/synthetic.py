@@ -18,7 +18,7 @@ from outputs.geometry import HFOV_DEG, flat, intrinsics
 from outputs.table import OUTPUTS
 from manifests.layout import frame_path
 from manifests.schema import OLD_PART_SCHEMA, PART_SCHEMA, frame_id, output_columns
-from roots.episode_spec import NEW_RULES
+from manifests.schema import NEW_RULES
 from manifests.stats import PAPER_SHARES
 
 _SHARES = np.array([PAPER_SHARES[label.name] for label in LABELS])

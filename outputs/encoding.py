@@ -282,7 +282,7 @@ def encode_flow(flow: np.ndarray) -> np.ndarray:
 
 
 def encode_flow_clamped(flow: np.ndarray) -> np.ndarray:
-    """``encode_flow`` as roots made before rules (roots.episode_spec.OLD_RULES) keep it: a motion beyond
+    """``encode_flow`` as roots made before rules (manifests.schema.OLD_RULES) keep it: a motion beyond
     the 16-bit range is clamped to +-512 px and stays valid."""
     _check("flow", flow, np.float32, 3)
     valid = flow[..., 2] > 0

@@ -90,7 +90,7 @@ def write_objects(table: pa.Table, name: str = "objects") -> bytes:
 
 
 def read_objects(data: bytes, name: str = "objects") -> pa.Table:
-    from manifests.writer import arrow_reader  # (writer imports this module's neighbours)
+    from storage.buffers import arrow_reader  # (writer imports this module's neighbours)
 
     try:
         table = pq.read_table(arrow_reader(data))

@@ -155,7 +155,7 @@ OUTPUT_TABLE: tuple[Output, ...] = (
            "motion, `u = (R - 2**15) / 64`, `v = (G - 2**15) / 64`, B = 1 where valid (0 for the last frame, the sky, "
            "points whose next position is out of view and motion beyond the encoding's +-512 px)"),
 )
-# The encoders of roots made before rules (roots.episode_spec.OLD_RULES) where they differ, so such a root
+# The encoders of roots made before rules (manifests.schema.OLD_RULES) where they differ, so such a root
 # keeps writing what it holds: docs/layout.md, "Rules of a root".
 OLD_RULE_ENCODERS: dict[str, Callable] = {"flow": encode_flow_clamped}
 OUTPUT_BY_NAME: dict[str, Output] = {o.name: o for o in OUTPUT_TABLE}

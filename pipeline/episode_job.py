@@ -22,7 +22,8 @@ from outputs.deflaters import deflating_with
 from outputs.table import OUTPUTS, encode_outputs, file_bytes
 from manifests.layout import frame_path, output_dir
 from manifests.schema import STATS_DIR, frame_id, part_path, part_stem
-from roots.episode_spec import NEW_RULES, EpisodeSpec
+from manifests.schema import NEW_RULES
+from roots.episode_spec import EpisodeSpec
 from manifests.writer import frame_row, write_part
 from storage.errors import storage_error
 

@@ -20,8 +20,17 @@ from domains.catalog import TOWN_BY_CODE, TOWNS, WEATHERS, VIEWPOINTS, Town, cat
 from outputs.encoding import check_rgb_format
 from outputs.table import DEFAULT_OUTPUTS, check_outputs
 from domains.selection import parse_selection
-from roots.episode_spec import (FRAME_PERIOD_S, NEW_RULES, OLD_RULES, PAIRED, UNPAIRED, EpisodeSpec, check_frame_interval,
-                            check_pairing, check_rules, episode_seed)
+from roots.episode_spec import (
+    FRAME_PERIOD_S,
+    PAIRED,
+    UNPAIRED,
+    EpisodeSpec,
+    check_frame_interval,
+    check_pairing,
+    check_rules,
+    episode_seed,
+)
+from manifests.schema import NEW_RULES, OLD_RULES
 
 PAPER_TOTAL_FRAMES = 1_006_800
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
@@ -95,7 +104,7 @@ class PlanConfig:
     # roots.episode_spec.PAIRED (new roots): episode seeds leave the weather out; UNPAIRED is what a config
     # recorded before pairing means (run.json or a plan file without the key: RECORDED_DEFAULTS)
     pairing: int = PAIRED
-    # roots.episode_spec.NEW_RULES (new roots): splits per scene, ...; OLD_RULES is what a config recorded
+    # manifests.schema.NEW_RULES (new roots): splits per scene, ...; OLD_RULES is what a config recorded
     # before them means (RECORDED_DEFAULTS)
     rules: int = NEW_RULES
 

@@ -165,7 +165,7 @@ def _encoder_held(storage, rgb_format: str) -> str:
     from outputs.encoding import encoder_identity
     from outputs.table import OUTPUTS
     from manifests.schema import MANIFEST_DIR, PART_SCHEMA, output_columns
-    from manifests.writer import ManifestError, read_part_file
+    from manifests.part_file import ManifestError, read_part_file
     from storage import StorageError
 
     for rel in storage.list_files(MANIFEST_DIR + "/", suffix=".parquet")[:8]:
@@ -208,7 +208,7 @@ def for_root(specs, record: dict) -> list:
 
     from domains.catalog import scenario as lookup_scenario, using
     from manifests.layout import record_layout
-    from roots.episode_spec import NEW_RULES, OLD_RULES
+    from manifests.schema import NEW_RULES, OLD_RULES
     from pipeline.planner import scene_places, scene_split
 
     layout, deflater = record_layout(record), root_deflater(record)

@@ -13,6 +13,7 @@ from domains.catalog import Scenario, Town, active, code_axes
 from outputs.deflaters import DEFAULT_DEFLATER
 from outputs.encoding import check_rgb_format
 from manifests.layout import NEW_ROOT_LAYOUT, check_layout
+from manifests.schema import NEW_RULES, OLD_RULES, RULES
 from outputs.table import DEFAULT_OUTPUTS, check_outputs, output
 
 FRAME_PERIOD_S = 3.0  # the default frame interval: one frame every 3 s of simulated time (the paper's)
@@ -27,17 +28,6 @@ _PAIRED_STREAM = 5
 # old per-weather seeds (UNPAIRED) for its life.
 UNPAIRED, PAIRED = 0, 1
 PAIRINGS = (UNPAIRED, PAIRED)
-# The root's rules for what its rows and files say (issue 32; docs/layout.md, "Rules of a root"). A new
-# root records "rules": 1 in run.json's config; a root made before, without the key, keeps OLD_RULES
-# for its life (resume, --extend, --repair and verify read it from run.json):
-#   splits: per scene (town, viewpoint, episode: pipeline.planner.scene_places), so every weather of a
-#           paired scene has one split; OLD_RULES: per scenario, from its place in the selection
-#   flow:   a motion the 16-bit encoding cannot hold is invalid (outputs.encoding.encode_flow);
-#           OLD_RULES: clamped to +-512 px and kept valid (outputs.table.OLD_RULE_ENCODERS)
-#   fog:    recorded as visibility_m (float64) and blended by shifts in the contrast it leaves
-#           (domains.fog); OLD_RULES: fog_density (float32 share per km), blended linearly
-OLD_RULES, NEW_RULES = 0, 1
-RULES = (OLD_RULES, NEW_RULES)
 
 
 def check_frame_interval(seconds: float) -> float:

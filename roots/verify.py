@@ -44,7 +44,9 @@ from roots.run_file import RunRecordError, read_record
 from manifests.schema import (MANIFEST_DIR, PART_RE, PART_SCHEMA, RUN_FILE, as_plain_lists, frame_id, named_rows,
                               newer_part, output_columns, part_path)
 from roots.episode_spec import UNPAIRED, episode_seed
-from manifests.writer import ManifestError, arrow_reader, part_bytes, read_part_file
+from manifests.part_file import ManifestError, read_part_file
+from storage.buffers import arrow_reader
+from manifests.writer import part_bytes
 from storage import StorageError, sha256_bytes
 
 # Problem kinds: missing | corrupt | extra (frame files), bad-part | bad-index | bad-run (the manifest),

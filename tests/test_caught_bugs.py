@@ -27,7 +27,8 @@ from roots.contract import RootError, claim_root, export_tree
 from roots.run_file import RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE, part_path
 from manifests.synthetic import episode_table
-from manifests.writer import ManifestError, part_bytes, read_part_file
+from manifests.part_file import ManifestError, read_part_file
+from manifests.writer import part_bytes
 from pipeline.planner import PlanConfig, make_plan
 from pipeline.provenance import RunConfig, RunConfigError, check_before_repair, prepare_root
 from storage import Storage

@@ -91,7 +91,7 @@ def test_a_root_made_before_rules_keeps_fog_density_and_queries_read_its_visibil
     import pyarrow.parquet as pq
 
     from manifests.schema import OLD_PART_SCHEMA
-    from roots.episode_spec import OLD_RULES
+    from manifests.schema import OLD_RULES
 
     storage = Storage.from_uri(str(tmp_path))
     plan = make_plan(PlanConfig(domains="towns=T01 weathers=CN,FG viewpoints=A", frames_per_scenario=2, width=64,

@@ -112,7 +112,7 @@ def test_a_swapped_part_is_misfiled_not_done_from_its_footer_or_its_index(tmp_pa
     import shutil
 
     from manifests.reader import PartSummary, refuse_misfiled
-    from manifests.writer import MisfiledParts
+    from manifests.part_file import MisfiledParts
 
     storage = synthetic_root(str(tmp_path / "root"))
     a, b = make_plan(PLAN).episodes[0], make_plan(PLAN).episodes[-1]

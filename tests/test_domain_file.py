@@ -17,7 +17,8 @@ from domains.catalog import ALL_SCENARIOS, BUILTIN, TOWNS, VIEWPOINTS, WEATHERS,
 from domains.catalog_file import CatalogError, catalog_from_text, catalog_toml, with_file
 from domains.selection import parse_selection
 from domains.fog import visibility_of_share
-from roots.episode_spec import OLD_RULES, PAIRED, UNPAIRED, episode_seed, town_seed
+from manifests.schema import OLD_RULES
+from roots.episode_spec import PAIRED, UNPAIRED, episode_seed, town_seed
 from pipeline.cli import app
 from pipeline.planner import PlanConfig, make_plan
 

@@ -9,7 +9,7 @@ from domains.catalog import class_id
 from outputs.encoding import decode_depth_raw, decode_png
 from outputs.geometry import CV_FROM_GL, HFOV_DEG, as_matrix, depth_to_world, intrinsics, project, world_to_camera
 from roots.episode_spec import EpisodeSpec
-from manifests.writer import read_part
+from manifests.reader import read_part
 from render_workers.render.camera import camera_rig
 
 W, H = 160, 90
@@ -210,7 +210,7 @@ def test_flow_beyond_the_encodings_range_is_invalid_in_a_full_hd_wide_render(tmp
     from dataclasses import replace
 
     from outputs.table import output, read_output
-    from roots.episode_spec import OLD_RULES
+    from manifests.schema import OLD_RULES
     from pipeline.episode_job import run_episode
     from storage import Storage
 

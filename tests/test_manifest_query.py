@@ -14,7 +14,8 @@ from manifests.schema import MANIFEST_SCHEMA, PART_SCHEMA, part_path, with_uids
 from tests.roots import part_of
 from manifests.stats import PAPER_SHARES, bar_chart_png, class_pixels, share_table
 from manifests.synthetic import episode_rows
-from manifests.writer import ManifestError, part_bytes, part_table, write_part
+from manifests.part_file import ManifestError
+from manifests.writer import part_bytes, part_table, write_part
 from pipeline.planner import PlanConfig, make_plan
 from storage import Storage
 

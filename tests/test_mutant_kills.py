@@ -295,7 +295,8 @@ def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_roo
     from manifests.reader import episode_parts
     from roots.contract import RootError
     from manifests.schema import PART_SCHEMA
-    from manifests.writer import read_part_file, write_part
+    from manifests.part_file import read_part_file
+    from manifests.writer import write_part
     from pipeline.planner import make_plan
     from pipeline.repair import _repair
     from pipeline.provenance import RunConfigError

@@ -16,7 +16,8 @@ from domains.catalog import scenario
 from outputs.table import read_output
 from manifests.reader import read_manifest
 from manifests.schema import part_path
-from roots.episode_spec import NEW_RULES, OLD_RULES, PAIRED, UNPAIRED, episode_seed
+from manifests.schema import NEW_RULES, OLD_RULES
+from roots.episode_spec import PAIRED, UNPAIRED, episode_seed
 from pipeline.cli import app
 from pipeline.cli.domain_files import root_pairing, root_rules
 from pipeline.planner import PlanConfig

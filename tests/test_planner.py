@@ -6,7 +6,7 @@ from hypothesis import strategies as st
 
 from domains.catalog import ALL_SCENARIOS, TOWNS
 from domains.selection import parse_selection
-from roots.episode_spec import NEW_RULES, OLD_RULES, RULES
+from manifests.schema import NEW_RULES, OLD_RULES, RULES
 from pipeline.planner import (
     PAPER_TOTAL_FRAMES,
     PlanConfig,

@@ -20,7 +20,7 @@ except ImportError:  # older typer: click itself
 
 from roots.lease import LeaseError
 from domains.selection import SELECTION_HELP
-from manifests.writer import ManifestError
+from manifests.part_file import ManifestError
 from pipeline.provenance import RunConfigError
 from storage import StorageError
 

@@ -35,7 +35,8 @@ from domains.ramps import weather_at
 from domains.conditions import frame_conditions
 from outputs.geometry import CV_FROM_GL, normals_from_depth, pose_cells
 from outputs.objects import object_counts
-from roots.episode_spec import NEW_RULES, EpisodeSpec
+from manifests.schema import NEW_RULES
+from roots.episode_spec import EpisodeSpec
 from roots.episode_spec import town_seed
 from render_workers.render import postfx
 from render_workers.worlds import worldcache
