@@ -38,6 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from analysis.camvid_layout import camvid_pairs, is_camvid, sequence
 from analysis.metrics import IGNORE, TRAIN_INDEX_LUT
 from domains.catalog import CLASS_IDS, LABELS
 
@@ -87,8 +88,6 @@ class RealFolder:
     @property
     def camvid(self) -> bool:
         """Whether the folder is in CamVid's layout rather than Cityscapes'."""
-        from analysis.camvid import is_camvid
-
         return not os.path.isdir(os.path.join(self.path, IMAGES)) and is_camvid(self.path)
 
     def images(self, labels: bool = False) -> list[RealImage]:
@@ -99,8 +98,6 @@ class RealFolder:
         if not os.path.isdir(self.path):
             raise ValueError(f"real data folder {self.path} does not exist")
         if self.camvid:
-            from analysis.camvid import camvid_pairs, sequence
-
             return [RealImage(split, sequence(image), image, label)
                     for split in self.splits for image, label in camvid_pairs(self.path, split, labels)]
         top = os.path.join(self.path, IMAGES)
@@ -177,23 +174,3 @@ def scored_images(folder: RealFolder) -> list[RealImage]:
         raise ValueError(f"{folder.path} is in CamVid layout, whose 11 classes are not our 16: "
                          "measure it with idda shifts --camvid FOLDER, not in a pair")
     return folder.images(labels=True)
-
-
-def load_real(folder: RealFolder, width: int, height: int, max_frames: int | None = None):
-    """The folder's frames for ``analysis.shift_table`` (``Frames``): cities as episodes, labels as training indices."""
-    from analysis.shift_table import Frames, prepare
-
-    images = scored_images(folder)
-    images = images if max_frames is None else images[:max_frames]
-    cities = {key: i for i, key in enumerate(dict.fromkeys((im.split, im.city) for im in images))}
-    arrays, labels, episodes, frames = [], [], [], []
-    seen = [0] * len(cities)  # images so far per city: the frame number
-    for im in images:
-        image, label = prepare(read_rgb(im.image), read_label_ids(im.label), CITYSCAPES_TO_INDEX, width, height)
-        arrays.append(image)
-        labels.append(label)
-        episodes.append(cities[(im.split, im.city)])
-        frames.append(seen[episodes[-1]])
-        seen[episodes[-1]] += 1
-    return Frames(np.stack(arrays), np.stack(labels), np.array(episodes), np.array(frames),
-                  np.array([im.split for im in images]))

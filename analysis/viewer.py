@@ -33,6 +33,8 @@ import numpy as np
 
 from domains.catalog import LABELS
 from domains.conditions import CONDITION_COLUMNS
+from manifests.reader import as_storage, read_manifest
+from outputs.encoding import decode_depth_raw
 from outputs.geometry import as_matrix, depth_to_world
 from outputs.table import read_output
 from manifests.schema import output_columns
@@ -81,7 +83,6 @@ def episode_rows(storage, scenario: str, episode: int) -> list[dict]:
     """The manifest rows of one episode, in frame order; ValueError naming what the root holds."""
     import pyarrow.compute as pc
 
-    from manifests.reader import read_manifest
 
     table = read_manifest(storage)
     rows = table.filter(pc.and_(pc.equal(table.column("scenario"), scenario),
@@ -147,8 +148,6 @@ def log_frame(rr, rec, storage, row: dict, stride: int | None) -> None:
         rec.log("world/camera/image/semantic", rr.SegmentationImage(semantic[..., 0]))
     depth_image = _read(storage, row, "depth_raw")
     if depth_image is not None:
-        from outputs.encoding import decode_depth_raw
-
         depth = decode_depth_raw(depth_image).astype(np.float32)
         rec.log("world/camera/image/depth", rr.DepthImage(depth, meter=1.0))
         step = _stride(row, stride)
@@ -170,8 +169,6 @@ def log_frame(rr, rec, storage, row: dict, stride: int | None) -> None:
 
 def view(config: ViewConfig) -> ViewReport:
     """Write (and or stream) the recording of one episode."""
-    from manifests.reader import as_storage
-
     config.validate()
     rr = _rerun()
     storage = as_storage(config.root)

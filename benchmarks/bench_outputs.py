@@ -39,6 +39,15 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks import baseline
+from benchmarks.baseline import tree_env
+from outputs.deflaters import deflating_with
+from outputs.table import DEFAULT_OUTPUTS
+from pipeline.episode_job import frame_files
+from render_workers.render.episode import DEFAULT_WORLD, render_episode
+from render_workers.render.renderer import Renderer
+from roots.episode_spec import EpisodeSpec
+
 BASELINE = "5045587~1"  # main before issue 24 (poses, flow, normals, trainIds)
 WIDTH, HEIGHT = 1920, 1080
 SCENARIO = "T01_CN_A"
@@ -51,8 +60,6 @@ LIMIT = 0.05  # the default outputs may be at most this much slower than before
 
 
 def _outputs(set_name: str) -> tuple[str, ...]:
-    from outputs.table import DEFAULT_OUTPUTS
-
     extra = OPT_IN if set_name == "+all" else () if set_name in ("default", ISAL_SET) else (set_name[1:],)
     return tuple(DEFAULT_OUTPUTS) + extra
 
@@ -61,7 +68,6 @@ def _deflating(deflater: str | None):
     """The PNG deflater ``deflater`` in force (None: the tree's own; older trees know no other)."""
     if deflater is None:
         return contextlib.nullcontext()
-    from outputs.deflaters import deflating_with
 
     return deflating_with(deflater)
 
@@ -69,10 +75,6 @@ def _deflating(deflater: str | None):
 def _episode(renderer, world: str, outputs: tuple[str, ...], frames: int, width: int, height: int,
              seed: int, out: Path, deflater: str | None = None) -> dict:
     """One episode through production's loop: its totals (wall, CPU, stages) and bytes per output."""
-    from roots.episode_spec import EpisodeSpec
-    from pipeline.episode_job import frame_files
-    from render_workers.render.episode import render_episode
-
     spec = EpisodeSpec(SCENARIO, 0, seed, frames, width, height, "train", 0, outputs=outputs)
     written: dict[str, int] = {}
 
@@ -101,8 +103,6 @@ def per_frame(long: dict, short: dict, frames: int) -> dict:
 
 def probe(world: str, sets: list[str], frames: int, width: int, height: int) -> dict:
     """Figures of each output set, in this process's tree (whichever is first on sys.path)."""
-    from render_workers.render.renderer import Renderer
-
     result = {}
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:
         # warm-up: the measured episode itself, so shaders, uploads and caches for everything it shows are
@@ -118,8 +118,6 @@ def probe(world: str, sets: list[str], frames: int, width: int, height: int) -> 
 
 def _run_probe(tree: Path | None, world: str, sets: tuple[str, ...], frames: int, width: int, height: int,
                cache: str) -> dict:
-    from benchmarks.baseline import tree_env
-
     here = Path(__file__).resolve()
     cwd = tree if tree is not None else here.parent.parent
     env = tree_env(tree) if tree is not None else dict(os.environ)
@@ -145,8 +143,6 @@ def _medians(runs: list[dict]) -> dict:
 def measure(world: str, frames: int = FRAMES, width: int = WIDTH, height: int = HEIGHT,
             rounds: int | None = None) -> dict:
     """Alternating before / after probes; medians per output set."""
-    from benchmarks import baseline
-
     rounds = baseline.rounds(3) if rounds is None else rounds
     ref = os.environ.get("BENCH_OUTPUTS_BASELINE", BASELINE)
     before, after = [], []
@@ -188,8 +184,6 @@ def verdict(result: dict) -> dict:
 
 def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height: int = HEIGHT,
          rounds: int | None = None, world: str | None = None) -> dict:
-    from render_workers.render.episode import DEFAULT_WORLD
-
     world = world or os.environ.get("BENCH_WORLD", DEFAULT_WORLD)
     result = {"command": "BENCH=outputs make bench (benchmarks/bench_outputs.py)", "scenario": SCENARIO,
               "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),

@@ -25,6 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from benchmarks.baseline import baseline_tree, rounds, tree_env
 from outputs.table import SEED_OUTPUTS  # the paper's six
 from render_workers.render.episode import DEFAULT_WORLD
 
@@ -54,10 +55,11 @@ print(time.perf_counter() - start, inside)
 _RAY = """
 import os, sys, time
 import ray
-from pipeline.driver import ProduceConfig, produce, start_local_cluster
+from pipeline.settings import ProduceConfig
+from pipeline.driver import produce, start_local_cluster
 from outputs.table import SEED_OUTPUTS
 from pipeline.planner import PlanConfig
-from pipeline.provenance import RunConfig
+from pipeline.settings import RunConfig
 workers = int(sys.argv[7])
 t0 = time.perf_counter()
 start_local_cluster(ray, workers)  # the cluster produce() starts for itself
@@ -94,8 +96,6 @@ STAGES = ("world", "populate", "load", "scene_update", "color_pass", "class_pass
 
 def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...] = ()) -> dict:
     """One run of the user's command; the rate it reports, its wall time and per-stage s/frame."""
-    from benchmarks.baseline import tree_env
-
     cwd = tree if tree is not None else Path(__file__).resolve().parent.parent
     env = tree_env(tree) if tree is not None else dict(os.environ)
     env["IDDA_WORLD_CACHE"] = cache
@@ -120,8 +120,6 @@ def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...]
 
 
 def end_to_end() -> dict:
-    from benchmarks.baseline import baseline_tree, rounds
-
     before, after = [], []
     with baseline_tree() as (ref, tree, reason), tempfile.TemporaryDirectory(prefix="idda-bench-e2e-") as tmp:
         for i in range(rounds()):

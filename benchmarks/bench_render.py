@@ -31,7 +31,12 @@ import tempfile
 import time
 from pathlib import Path
 
-from render_workers.render.episode import DEFAULT_WORLD
+from benchmarks.baseline import baseline_tree, rounds, tree_env
+from outputs import encoding
+from render_workers.render import episode, postfx
+from render_workers.render.episode import DEFAULT_WORLD, load_episode, render_episode, render_frame
+from render_workers.render.renderer import Renderer
+from roots.episode_spec import EpisodeSpec
 
 WIDTH, HEIGHT = 1920, 1080
 SCENARIOS = ("T01_CN_A", "T01_HRN_A", "T01_CS_M")  # clear, worst-case effects, low sun
@@ -45,8 +50,6 @@ EFFECTS = ("antialias", "puddles", "wet_road", "fog", "rain", "bloom", "lens_fla
 
 def _spec(code: str, frames: int, seed: int = 1):
     """An episode spec with the paper's six outputs (trees before the Output table write exactly those)."""
-    from roots.episode_spec import EpisodeSpec
-
     try:
         from outputs.table import SEED_OUTPUTS
     except ImportError:  # the baseline tree: six outputs is all it has
@@ -56,15 +59,11 @@ def _spec(code: str, frames: int, seed: int = 1):
 
 def _png_encoder():
     """The tree's PNG writer: ``png_bytes`` (any PNG-able array) where it exists, else ``encode_png`` (RGB)."""
-    from outputs import encoding
-
     return getattr(encoding, "png_bytes", None) or encoding.encode_png
 
 
 def _frame_files(frame) -> dict[str, bytes]:
     """A frame's file bytes, through whichever encoding API the measured tree has."""
-    from render_workers.render import episode
-
     if hasattr(frame, "buffers"):  # trees where the episode job encodes the renderer's buffers
         from outputs.table import SEED_OUTPUTS, encode_outputs, file_bytes
 
@@ -83,9 +82,6 @@ def _encode_and_write(frame, out: Path) -> None:
 # -- the probe: runs inside the tree it measures ------------------------------
 def probe(world: str) -> dict:
     """Stage samples (seconds per frame) of whichever code is first on sys.path."""
-    from render_workers.render import episode, postfx
-    from render_workers.render.renderer import Renderer
-
     fx: dict[str, float] = {}
     original = postfx.apply
 
@@ -131,8 +127,6 @@ def probe(world: str) -> dict:
 
 
 def _run_probe(tree: Path | None, world: str) -> dict:
-    from benchmarks.baseline import tree_env
-
     cwd = tree if tree is not None else Path(__file__).resolve().parent.parent
     env = tree_env(tree) if tree is not None else dict(os.environ)
     with tempfile.TemporaryDirectory(prefix="idda-bench-worlds-") as cache:
@@ -158,8 +152,6 @@ def _merge(runs: list[dict]) -> dict:
 
 def stage_tables(world: str) -> dict:
     """Before/after probes, alternated; medians per stage."""
-    from benchmarks.baseline import baseline_tree, rounds
-
     before, after = [], []
     with baseline_tree() as (ref, tree, reason):
         for _ in range(rounds()):
@@ -174,8 +166,6 @@ def stage_tables(world: str) -> dict:
 def _worker(world: str, code: str, seed: int, barrier, lp_threads: str | None, queue) -> None:
     if lp_threads is not None:
         os.environ["LP_NUM_THREADS"] = lp_threads
-    from render_workers.render.episode import load_episode, render_episode, render_frame
-    from render_workers.render.renderer import Renderer
 
     spec = _spec(code, THROUGHPUT_FRAMES, seed)
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:

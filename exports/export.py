@@ -29,7 +29,6 @@ half-finished export is never mistaken for a finished one.
 
 from __future__ import annotations
 
-import importlib
 import json
 import logging
 import os
@@ -40,35 +39,34 @@ import time
 import uuid
 from dataclasses import asdict, dataclass, field, replace
 
-
-from manifests.query import SPLITS, Query, run_query
-from manifests.reader import require_outputs
-from roots.contract import EXPORT_MARKER, RootError, check_export_target, export_tree
+from domains.selection import parse_selection
+from exports import cityscapes, coco, hf, idda, webdataset
 from exports.idda import SPLIT_FILES
-from exports.webdataset import SHARD_SIZE
-from exports.shared import FILE_MODES, CheckedSource, DamagedFile, Layout, frames_of, index_csv, write
+from exports.shared import (
+    FILE_MODES, CheckedSource, DamagedFile, ExportReport, Layout, frames_of, index_csv, listed_files, write,
+)
+from exports.webdataset import MIN_SHARD_SIZE, SHARD_SIZE
+from manifests.query import SPLITS, Query, run_query
+from manifests.reader import read_manifest, require_outputs
+from outputs.table import check_outputs
+from roots.contract import EXPORT_MARKER, RootError, check_export_target, export_tree
+from storage import Storage
 
 log = logging.getLogger(__name__)
 
 MARKER = EXPORT_MARKER  # written last: its presence means the export is complete
 INDEX = "frames.csv"
 
-# Export formats by name: the module whose LAYOUT writes each (imported on use,
-# so a format's optional dependency, e.g. pycocotools, is needed only by it).
-FORMATS: dict[str, str] = {
-    "cityscapes": "exports.cityscapes",
-    "idda": "exports.idda",
-    "hf": "exports.hf",
-    "coco": "exports.coco",
-    "webdataset": "exports.webdataset",
-}
+# Export formats by name: the module whose LAYOUT writes each (a format's optional dependency, e.g.
+# pycocotools, is imported by its module only when it writes).
+FORMATS = {"cityscapes": cityscapes, "idda": idda, "hf": hf, "coco": coco, "webdataset": webdataset}
 
 
 def layout(name: str) -> Layout:
     """The layout of export format ``name``; ValueError naming the valid formats."""
     if name not in FORMATS:
         raise ValueError(f"unknown export format {name!r}; valid formats: {', '.join(FORMATS)}")
-    return importlib.import_module(FORMATS[name]).LAYOUT
+    return FORMATS[name].LAYOUT
 
 
 # ---------------------------------------------------------------- export ----
@@ -98,8 +96,6 @@ class ExportConfig:
         if self.splits != "scenario" and self.format != "idda":
             raise ValueError(f"split files {self.splits!r} are for the idda format, not {self.format!r}")
         if self.holdout is not None:
-            from domains.selection import parse_selection
-
             if self.splits != "feddrive":
                 raise ValueError("a holdout selection needs --splits feddrive")
             parse_selection(self.holdout)
@@ -111,9 +107,6 @@ class ExportConfig:
         if not webdataset and (self.outputs is not None or self.shard_size != SHARD_SIZE):
             raise ValueError(f"--outputs and --shard-size are for the webdataset format, not {self.format!r}")
         if webdataset:
-            from exports.webdataset import MIN_SHARD_SIZE
-            from outputs.table import check_outputs
-
             if self.outputs is not None:
                 check_outputs(self.outputs)
             if self.shard_size < MIN_SHARD_SIZE:
@@ -126,24 +119,7 @@ class ExportConfig:
         self.query.validate()
 
 
-@dataclass
-class ExportReport:
-    target: str
-    format: str
-    frames: int
-    held: int  # frames the root holds (the query chose ``frames`` of them)
-    files: int
-    per_split: dict[str, int]
-    shortfall: dict[str, int]
-    seconds: float
-    damaged: list[str] = field(default_factory=list)  # files found damaged (--skip-damaged: their frames left out)
-    skipped: int = 0  # frames left out for them
-    resumed: int = 0  # webdataset: shards an interrupted export had written and verified, kept
-
-
 def _target_dir(to: str) -> str:
-    from storage import Storage
-
     storage = Storage.from_uri(to)
     return storage.path()
 
@@ -236,9 +212,6 @@ def _commit(tmp: str, target: str, tree: dict | None) -> None:
 
 def export(config: ExportConfig) -> ExportReport:
     """Export the frames of ``config.query`` from ``config.root`` into ``config.to``."""
-    from manifests.reader import read_manifest
-    from storage import Storage
-
     config.validate()
     if layout(config.format).run is not None:  # a format that writes its target itself
         return layout(config.format).run(config)
@@ -260,7 +233,7 @@ def export(config: ExportConfig) -> ExportReport:
     if config.as_split is not None:
         frames = [replace(f, split=config.as_split) for f in frames]
 
-    expected = _listed_files(result.table)
+    expected = listed_files(result.table)
     parent = os.path.dirname(target)
     os.makedirs(parent, exist_ok=True)
     tmp = _temp_dir(target, "tmp")
@@ -318,20 +291,6 @@ def export(config: ExportConfig) -> ExportReport:
         damaged=sorted(damaged),
         skipped=asked - len(frames),
     )
-
-
-def _listed_files(table) -> dict[str, tuple[int, str]]:
-    """Every file the manifest rows of ``table`` list: {path: (bytes, sha256)}."""
-    from outputs.table import OUTPUTS
-    from manifests.schema import output_columns
-
-    listed = {}
-    for name in OUTPUTS:
-        path, size, sha = output_columns(name)
-        if path in table.column_names:
-            rows = zip(*(table.column(c).to_pylist() for c in (path, size, sha)))
-            listed.update((p, (n, h)) for p, n, h in rows if p is not None)
-    return listed
 
 
 def is_complete(target: str) -> bool:

@@ -14,6 +14,7 @@ import pyarrow as pa
 from domains.catalog import INSTANCE_LABELS, LABELS, using, viewpoint, weather
 from domains.conditions import FOG_DENSITY, VISIBILITY, frame_conditions
 from domains.ramps import weather_at
+from manifests.writer import write_part
 from outputs.geometry import HFOV_DEG, flat, intrinsics
 from outputs.table import OUTPUTS
 from manifests.layout import frame_path
@@ -94,7 +95,6 @@ def write_parts(storage, specs, threads: int = 16) -> int:
     (no frame files); returns how many."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from manifests.writer import write_part
 
     with ThreadPoolExecutor(max_workers=threads) as pool:  # many PUTs at once on S3
         list(pool.map(lambda spec: write_part(storage, spec.scenario, spec.episode, episode_table(spec)), specs))

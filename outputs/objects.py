@@ -40,6 +40,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from domains.catalog import INSTANCE_LABELS, LABELS
+from storage.buffers import arrow_reader
 
 OBJECT_SCHEMA = pa.schema(
     [
@@ -90,8 +91,6 @@ def write_objects(table: pa.Table, name: str = "objects") -> bytes:
 
 
 def read_objects(data: bytes, name: str = "objects") -> pa.Table:
-    from storage.buffers import arrow_reader  # (writer imports this module's neighbours)
-
     try:
         table = pq.read_table(arrow_reader(data))
     except (pa.ArrowException, OSError) as exc:

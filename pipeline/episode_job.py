@@ -23,8 +23,13 @@ from outputs.table import OUTPUTS, encode_outputs, file_bytes
 from manifests.layout import frame_path, output_dir
 from manifests.schema import STATS_DIR, frame_id, part_path, part_stem
 from manifests.schema import NEW_RULES
+from pipeline.planner import make_plan
+from pipeline.provenance import for_root, prepare_root
+from render_workers.render.episode import render_episode
+from roots.contract import claim_root
 from roots.episode_spec import EpisodeSpec
 from manifests.writer import frame_row, write_part
+from roots.lease import LeaseLost, check_fence
 from storage.errors import storage_error
 
 log = logging.getLogger(__name__)
@@ -115,8 +120,6 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     before and just after the part is written; LeaseLost, and no part, if the
     lease was taken over meanwhile (a repair may have deleted this episode's
     frames)."""
-    from render_workers.render.episode import render_episode
-
     start = time.perf_counter()
     for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
         storage.remove_stale_temp(output_dir(spec.scenario, output, spec.episode, spec.layout), f"{spec.episode:04d}_")
@@ -154,8 +157,6 @@ def commit_part(storage, spec: EpisodeSpec, rows: list[dict], fence=None) -> Non
     The second check closes the window between the first and the write: a
     part written after a takeover is deleted again (the episode stays pending;
     whoever renders it next writes the same bytes)."""
-    from roots.lease import LeaseLost, check_fence
-
     check_fence(storage, fence)
     rel = write_part(storage, spec.scenario, spec.episode, rows)  # last: the "done" marker
     try:
@@ -169,10 +170,6 @@ def render_plan(storage, config, extend: bool = False) -> None:
     """Claim ``storage`` as a root, prepare it for ``config`` (a RunConfig) and
     render every planned episode into it here, one after another, with no Ray:
     the same files produce's workers write (tests, reports). ``extend``: as --extend."""
-    from roots.contract import claim_root
-    from pipeline.planner import make_plan
-    from pipeline.provenance import for_root, prepare_root
-
     storage.ensure_writable()
     claim_root(storage)  # as produce does: the root marker first
     record = prepare_root(storage, config, extend=extend)

@@ -15,6 +15,9 @@ import os
 from collections import deque
 from typing import Callable, Iterator
 
+from pipeline.cluster import _import_ray, attach
+from roots.verify import check_unit, plain_runner
+
 log = logging.getLogger(__name__)
 
 # Below this many parts in scope (and with no cluster to attach to), starting a
@@ -26,8 +29,6 @@ def choose_runner(address: str | None = None, workers: int | None = None, use_ra
     """The runner for ``roots.verify.verify``: ``use_ray`` True forces Ray,
     False this process; None (auto) uses Ray with an address, an initialised
     Ray, or at least RAY_MIN_PARTS parts in scope."""
-    from roots.verify import plain_runner
-
     address = address or os.environ.get("RAY_ADDRESS") or None
 
     def run(storage, units, config, threads, on_files):
@@ -53,9 +54,6 @@ def _ray_initialized() -> bool:
 def ray_units(storage, units: list, config: dict | None, threads: int, address: str | None,
               workers: int | None) -> Iterator:
     """Run ``check_unit`` for each unit as a Ray task; yields results as they finish."""
-    from roots.verify import check_unit
-    from pipeline.cluster import _import_ray, attach
-
     ray = _import_ray()
     started = not ray.is_initialized()
     reaper = None

@@ -13,7 +13,7 @@ from domains.catalog import Scenario, Town, active, code_axes
 from outputs.deflaters import DEFAULT_DEFLATER
 from outputs.encoding import check_rgb_format
 from manifests.layout import NEW_ROOT_LAYOUT, check_layout
-from manifests.schema import NEW_RULES, OLD_RULES, RULES
+from manifests.schema import NEW_RULES, RULES
 from outputs.table import DEFAULT_OUTPUTS, check_outputs, output
 
 FRAME_PERIOD_S = 3.0  # the default frame interval: one frame every 3 s of simulated time (the paper's)

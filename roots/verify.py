@@ -40,6 +40,7 @@ from outputs.table import OUTPUTS
 from manifests.reader import as_storage, filed_where_named, index_bytes, index_episodes, index_files, index_summaries, index_table
 from manifests.layout import LAYOUTS, frame_path, held_layout, match_frame_file, record_layout
 from roots.contract import root_entries
+from roots.lease import live_producers
 from roots.run_file import RunRecordError, read_record
 from manifests.schema import (MANIFEST_DIR, PART_RE, PART_SCHEMA, RUN_FILE, as_plain_lists, frame_id, named_rows,
                               newer_part, output_columns, part_path)
@@ -402,8 +403,6 @@ def _part_listing(storage, report: VerifyReport) -> tuple[dict[str, dict[int, tu
 
 
 def _producer_live(storage, except_owner: str | None) -> bool:
-    from roots.lease import live_producers
-
     try:
         return bool(live_producers(storage, except_owner=except_owner))
     except (StorageError, OSError):  # a read-only root: its dead leases cannot be removed

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from analysis.camvid import CAMVID_TO_INDEX, OURS_TO_INDEX, camvid_pairs, is_camvid, load_synthetic
+from analysis.camvid import CAMVID_TO_INDEX, OURS_TO_INDEX, load_synthetic
+from analysis.camvid_layout import camvid_pairs, is_camvid
 from analysis.metrics import IGNORE
 from domains.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID, LABELS, class_id
 from tests.test_export import cli_app
@@ -27,7 +28,7 @@ def twins(tmp_path_factory):
     from analysis.loaders import FrameDataset
     from manifests.query import Query
     from pipeline.planner import PlanConfig
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     base = tmp_path_factory.mktemp("camvid")
@@ -79,7 +80,8 @@ def test_not_camvid_layout_says_what_is_missing(tmp_path):
 
 
 def test_a_camvid_folder_is_a_real_domain_for_distances_not_for_pairs(twins):
-    from analysis.real import RealFolder, load_real
+    from analysis.real import RealFolder
+    from analysis.shift_table import load_real
 
     _, folder = twins
     images = RealFolder(str(folder), ("train", "val")).images()

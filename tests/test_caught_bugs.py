@@ -30,7 +30,8 @@ from manifests.synthetic import episode_table
 from manifests.part_file import ManifestError, read_part_file
 from manifests.writer import part_bytes
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.provenance import RunConfig, RunConfigError, check_before_repair, prepare_root
+from pipeline.settings import RunConfig
+from pipeline.provenance import RunConfigError, check_before_repair, prepare_root
 from storage import Storage
 
 TINY = PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36, seed=5)
@@ -175,7 +176,7 @@ def test_repair_deletes_every_part_name_of_a_damaged_episode(tmp_path):
     killed between writing the counted name and removing the old one leaves
     both; if the episode is damaged, both must go, or the stale one marks the
     episode done again with rows that list the damaged files."""
-    from pipeline.driver import ProduceConfig
+    from pipeline.settings import ProduceConfig
     from pipeline.repair import _repair
     from tests.roots import render_root
 

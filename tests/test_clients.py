@@ -41,7 +41,7 @@ WIDTH, HEIGHT = 64, 36
 def root(tmp_path_factory) -> Path:
     """A real small run: episodes rendered by the worker function, then compacted as produce does."""
     from pipeline.planner import PlanConfig
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     path = tmp_path_factory.mktemp("clients") / "run"

@@ -175,7 +175,7 @@ def held_root(tmp_path_factory):
     from domains.catalog import BUILTIN
     from domains.catalog_file import with_file
     from pipeline.planner import PlanConfig
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     layer = with_file(BUILTIN, DECLARED.replace('"mist"', '"mistyMorning2"'), "codes.toml").layer_json()

@@ -39,7 +39,8 @@ from tests.roots import part_of, to_old_names
 from manifests.synthetic import episode_table, write_parts
 from manifests.writer import write_part
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.provenance import RunConfig, check_rows, prepare_root
+from pipeline.settings import RunConfig
+from pipeline.provenance import check_rows, prepare_root
 from pipeline.status import root_status
 from storage import Storage
 
@@ -180,7 +181,8 @@ def test_fold_reads_only_new_parts_and_equals_a_full_rebuild(tmp_path):
 def test_produce_folds_indexes_while_it_runs(ray_local, tmp_path):
     """A run keeps its indexes current as it goes (every index_every_s), not
     only at the end: a killed run leaves them at most that stale."""
-    from pipeline.driver import ProduceConfig, produce
+    from pipeline.settings import ProduceConfig
+    from pipeline.driver import produce
 
     plan = PlanConfig(domains="towns=T01 weathers=CN viewpoints=A,M", frames_per_scenario=3, width=64, height=36, seed=5)
     out = tmp_path / "root"
@@ -295,7 +297,8 @@ def test_fence_holds_when_the_lease_is_revived_by_a_racing_refresh(tmp_path):
 
 def test_produce_stops_and_says_so_when_its_lease_is_lost(ray_local, tmp_path):
     from roots.lease import bump_generation
-    from pipeline.driver import ProduceConfig, produce
+    from pipeline.settings import ProduceConfig
+    from pipeline.driver import produce
     from storage import StorageError
 
     plan = PlanConfig(domains="T01_CN_A", frames_per_scenario=4, width=64, height=36, seed=5)

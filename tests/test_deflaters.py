@@ -18,7 +18,8 @@ from manifests.reader import read_manifest
 from roots.run_file import record_bytes
 from pipeline.episode_job import run_episode
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.provenance import RunConfig, RunConfigError, check_encoder, prepare_root, root_deflater
+from pipeline.settings import RunConfig
+from pipeline.provenance import RunConfigError, check_encoder, prepare_root, root_deflater
 from storage import Storage
 
 PLAN = PlanConfig(domains="T01_CN_A,T01_HRN_A", frames_per_scenario=2, width=64, height=36, seed=5)

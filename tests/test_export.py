@@ -31,7 +31,7 @@ def make_tiny_root(tmp_path_factory) -> Path:
     """A small rendered root (test world, 64x36), built once per test session
     and shared by the export, loader, distance and card tests (read-only)."""
     from pipeline.planner import PlanConfig
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.getbasetemp() / "tiny_root"
@@ -311,7 +311,6 @@ def test_export_from_s3_root_downloads(root, manifest, tmp_path, s3_server):  # 
 
 def test_a_new_format_is_one_module_and_one_registry_line(root, tmp_path, monkeypatch):
     """A format module only provides LAYOUT (its outputs and builder); FORMATS names it; the rest is shared."""
-    import sys
     import types
 
     def frame(storage, f, tmp, place):
@@ -320,8 +319,7 @@ def test_a_new_format_is_one_module_and_one_registry_line(root, tmp_path, monkey
         return {"image": rel}
 
     module = types.SimpleNamespace(LAYOUT=Layout(("rgb",), per_frame(frame, lambda frames: {f.scenario for f in frames})))
-    monkeypatch.setitem(sys.modules, "tests_toy_format", module)
-    monkeypatch.setitem(ex.FORMATS, "toy", "tests_toy_format")
+    monkeypatch.setitem(ex.FORMATS, "toy", module)  # registered by import: the module object itself
     report = ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "toy"), format="toy", threads=1))
     assert report.frames > 0 and ex.is_complete(str(tmp_path / "toy"))
     assert len(list((tmp_path / "toy").glob("T*/*.png"))) == report.frames

@@ -27,7 +27,8 @@ from roots.run_file import RunRecordError, check_record, read_record, record_byt
 from manifests.schema import RUN_FILE
 from roots.verify import verify
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.provenance import RunConfig, _fresh_record, prepare_root
+from pipeline.settings import RunConfig
+from pipeline.provenance import _fresh_record, prepare_root
 from storage import Storage
 from tests.roots import render_root
 

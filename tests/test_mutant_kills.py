@@ -137,7 +137,7 @@ def test_a_lease_of_another_users_process_on_this_host_is_live(monkeypatch):
 
 def _record(**config_changes) -> dict:
     from pipeline.planner import PlanConfig
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
 
     config = RunConfig(plan=PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36),
                        world="test").to_dict()
@@ -214,7 +214,7 @@ REPAIR_PLAN = dict(domains="T01_CN_A", frames_per_scenario=3, width=64, height=3
 def tiny_root(tmp_path_factory):
     """One 3-frame episode at 64x36, rendered without Ray, its index written: copied by each test."""
     from pipeline.planner import PlanConfig
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("tiny") / "root"
@@ -232,9 +232,9 @@ def _copy_of(tiny_root, tmp_path):
 
 
 def _produce_config(root, **plan_changes):
-    from pipeline.driver import ProduceConfig
+    from pipeline.settings import ProduceConfig
     from pipeline.planner import PlanConfig
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
 
     return ProduceConfig(run=RunConfig(plan=PlanConfig(**{**REPAIR_PLAN, **plan_changes}), world="test"),
                          out=str(root), workers=1)

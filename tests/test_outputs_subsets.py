@@ -46,7 +46,7 @@ def plan_config(outputs):
 def subset_root(tmp_path_factory):
     """A root produced with --outputs rgb,semantic_raw (test world, 64x36, 2 frames)."""
     from pipeline.planner import make_plan
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("subset") / "root"
@@ -131,7 +131,7 @@ def test_an_opt_in_output_follows_through_verify_query_and_loaders(tmp_path):
     from analysis.loaders import FrameDataset
     from domains.catalog import TRAIN_ID_LUT
     from outputs.table import DEFAULT_OUTPUTS
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     assert "semantic_trainid" not in DEFAULT_OUTPUTS

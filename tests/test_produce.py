@@ -21,9 +21,11 @@ from manifests.reader import done_episodes, read_manifest
 from manifests.schema import output_columns
 from roots.verify import verify
 from pipeline.cli import app
-from pipeline.driver import ProduceConfig, produce
+from pipeline.settings import ProduceConfig
+from pipeline.driver import produce
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.provenance import RunConfig, RunConfigError
+from pipeline.settings import RunConfig
+from pipeline.provenance import RunConfigError
 from storage import Storage, StorageError
 from tests.faultkit import descendants as _descendants  # every process below a pid (Ray starts its own sessions)
 

@@ -10,7 +10,8 @@ import pytest
 from typer.testing import CliRunner
 
 from analysis.metrics import EVAL_CLASSES, IGNORE, TRAIN_INDEX_LUT
-from analysis.real import CITYSCAPES_TO_INDEX, OTHER_VEHICLES, REAL, RealFolder, load_real
+from analysis.real import CITYSCAPES_TO_INDEX, OTHER_VEHICLES, REAL, RealFolder
+from analysis.shift_table import load_real
 from domains.catalog import LABELS, class_id
 from tests.test_export import cli_app, make_tiny_root
 
@@ -27,7 +28,7 @@ def export(root, to, *options) -> None:
 def standin(tmp_path_factory):
     """(another root, its Cityscapes export): two domains, 3 frames each, 64x36, test world."""
     from pipeline.planner import PlanConfig
-    from pipeline.provenance import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     base = tmp_path_factory.mktemp("real")

@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from domains.catalog import LABELS
-from outputs.objects import HOOD_ID, INSTANCE_CLASS_IDS, object_table
+from outputs.objects import HOOD_ID, INSTANCE_CLASS_IDS, box_corners, object_table
 from render_workers.worlds.scene import EpisodeScene, Part
 
 MAX_ID = 2**16 - 1
@@ -241,8 +241,6 @@ def frame_objects(instance: np.ndarray, instances: list[Instance], poses: list[n
 
 def _truncation(centre, size, forward, focal, cx, cy, w, h) -> float:
     """Share of the projected 3D box's 2D extent outside the image."""
-    from outputs.objects import box_corners
-
     corners = box_corners(centre, size, float(np.arctan2(-forward[2], forward[0])))
     edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
     pts = [corners[i] for i in range(8) if corners[i][2] >= NEAR_M]
