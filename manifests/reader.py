@@ -419,18 +419,6 @@ def index_bytes(table: pa.Table) -> bytes:
     return sink.getvalue()
 
 
-def build_index(storage, scenario: str, episodes: list[int]) -> bytes:
-    """The bytes of ``scenario``'s index over ``episodes``, built from its parts."""
-    tables, sizes = [], {}
-    listed = part_listing(storage).get(scenario, {})
-    for e in episodes:
-        rel = listed[e][0] if e in listed else part_path(scenario, e)
-        data = storage.read_bytes(rel)
-        tables.append(read_part_file(storage, rel, PART_SCHEMA, data=data))
-        sizes[e] = len(data)
-    return index_bytes(index_table(tables, scenario, episodes, sizes))
-
-
 def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str | None) -> bytes | None:
     """``scenario``'s index over the parts ``listed``: the rows of its current
     index for every part it was built from that is unchanged, and the rows of

@@ -39,7 +39,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from domains.catalog import INSTANCE_LABELS, LABELS
+from domains.catalog import INSTANCE_LABELS
 from storage.buffers import arrow_reader
 
 OBJECT_SCHEMA = pa.schema(
@@ -126,7 +126,3 @@ def box_corners(centre, size, yaw: float) -> np.ndarray:
     half = np.asarray(size, np.float64) / 2
     signs = np.array([[a, b, d] for a in (-1, 1) for b in (-1, 1) for d in (-1, 1)], np.float64)
     return np.asarray(centre, np.float64) + (signs * half) @ np.stack([forward, left, up])
-
-
-def class_name(class_id: int) -> str:
-    return LABELS[class_id].name
