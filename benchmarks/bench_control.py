@@ -37,12 +37,7 @@ from domains.conditions import frame_conditions
 from outputs.geometry import HFOV_DEG, flat, intrinsics
 from manifests.schema import STATS_DIR
 from manifests.writer import frame_row
-from pipeline.driver import produce
 from pipeline.episode_job import EpisodeResult, commit_part
-from pipeline.planner import PlanConfig
-from pipeline.reaper import _proc_table, descendants
-from pipeline.settings import ProduceConfig, RunConfig
-from storage import Storage
 
 log = logging.getLogger("bench")
 
@@ -137,6 +132,8 @@ class MemorySampler:
         self._thread.join()
 
     def _ray_processes(self) -> tuple[float, float]:
+        from pipeline.reaper import _proc_table, descendants
+
         actor, workers = 0.0, [0.0]
         for pid in descendants(os.getpid(), _proc_table()):
             try:
@@ -158,6 +155,11 @@ class MemorySampler:
 
 
 def _run(root: str, episode_fn, scale: float, progress_interval_s: float = 1.0) -> dict:
+    from pipeline.settings import ProduceConfig
+    from pipeline.driver import produce
+    from pipeline.planner import PlanConfig
+    from pipeline.settings import RunConfig
+
     plan = PlanConfig(domains=DOMAINS, scale=scale)
     config = ProduceConfig(run=RunConfig(plan=plan, world="test"), out=root, progress_interval_s=progress_interval_s)
     updates = []
@@ -211,6 +213,7 @@ def _plot(runs: dict, path: Path) -> None:
 
 def main(out_dir: str = "docs") -> dict:
 
+    from storage import Storage
 
     out = Path(out_dir)
     slots = os.cpu_count() or 1

@@ -32,16 +32,6 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.baseline import baseline_tree, tree_env
-from manifests.reader import index_files, part_listing
-from manifests.schema import PART_RE, part_path
-from manifests.synthetic import write_parts
-from pipeline.planner import PlanConfig, make_plan
-from pipeline.provenance import prepare_root
-from pipeline.settings import RunConfig
-from roots.contract import claim_root
-from storage import Storage
-
 BASELINE = "93dc98a"  # main before the control-plane work (issue 22)
 KILLED = ("T01_CN_A", "T04_HRN_M", "T07_CS_B")  # scenarios whose index a killed run left stale
 REPO = Path(__file__).resolve().parent.parent
@@ -75,7 +65,11 @@ if action == "status":
 else:
     import pipeline.driver as driver
     from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    import os, pipeline
+    if os.path.exists(os.path.join(os.path.dirname(pipeline.__file__), "settings.py")):
+        from pipeline.settings import RunConfig
+    else:  # a tree from before issue 36 (the baseline): not this checkout's settings
+        from pipeline.runmeta import RunConfig
     marks = {}
     real_compact = driver.compact
 
@@ -103,6 +97,8 @@ def baseline_measured() -> bool:
 
 
 def _probe(tree: Path, action: str, uri: str) -> dict:
+    from benchmarks.baseline import tree_env
+
     # cwd: the tree itself, since ``python -c`` puts the working directory first on sys.path
     proc = subprocess.run([sys.executable, "-c", PROBE, action, uri, DOMAINS, str(tree)], env=tree_env(tree), cwd=tree,
                           capture_output=True, text=True, timeout=1800)
@@ -112,6 +108,12 @@ def _probe(tree: Path, action: str, uri: str) -> dict:
 
 
 def _build(storage, threads: int) -> float:
+    from roots.contract import claim_root
+    from manifests.synthetic import write_parts
+    from pipeline.planner import PlanConfig, make_plan
+    from pipeline.settings import RunConfig
+    from pipeline.provenance import prepare_root
+
     start = time.perf_counter()
     claim_root(storage)
     prepare_root(storage, RunConfig(plan=PlanConfig(domains=DOMAINS)))
@@ -132,6 +134,8 @@ def _copy(source, target, threads: int = 32, old_names: bool = False) -> float:
 
 
 def _old_name(rel: str) -> str:
+    from manifests.schema import PART_RE, part_path
+
     match = PART_RE.match(rel)
     return rel if match is None else part_path(match.group("scenario"), int(match.group("episode")))
 
@@ -140,6 +144,8 @@ def _rename_parts(storage, counted: bool) -> None:
     """A local root's parts under counted names or the old ones (the baseline reads only those)."""
     import pyarrow.parquet as pq
 
+    from manifests.reader import part_listing
+    from manifests.schema import part_path
 
     for scenario, episodes in part_listing(storage).items():
         for episode, (rel, _) in episodes.items():
@@ -148,6 +154,8 @@ def _rename_parts(storage, counted: bool) -> None:
 
 
 def _drop_indexes(storage, scenarios=None) -> None:
+    from manifests.reader import index_files
+
     for scenario, rel in index_files(storage).items():
         if scenarios is None or scenario in scenarios:
             storage.delete(rel)
@@ -197,6 +205,8 @@ def _side(tree: Path, storage, counter=None, indexes: Path | None = None) -> dic
 def _both(storage, work: Path, counter=None, old=None) -> dict:
     """Both sides; the baseline on the root's parts under their old names
     (``old``: a copy named so on S3; locally they are renamed and back)."""
+    from benchmarks.baseline import baseline_tree
+
     os.environ.setdefault("BENCH_BASELINE", BASELINE)
     with baseline_tree() as (ref, tree, reason):
         if tree is not None and old is None:
@@ -209,6 +219,8 @@ def _both(storage, work: Path, counter=None, old=None) -> dict:
 
 
 def main(out_dir: str = "docs") -> dict:
+    from pipeline.planner import PlanConfig, make_plan
+    from storage import Storage
     from tests.s3_counter import counting_s3_server
 
     plan = make_plan(PlanConfig(domains=DOMAINS))

@@ -21,12 +21,6 @@ import time
 from pathlib import Path
 
 from exports.export import ExportConfig, export
-from manifests.reader import read_manifest
-from manifests.schema import output_columns
-from outputs.table import OUTPUTS
-from pipeline.planner import PlanConfig
-from pipeline.settings import RunConfig
-from storage import Storage
 
 FRAMES = 48  # two scenarios of 24 frames
 DOMAINS = "T01_CN_A,T03_CS_M"
@@ -35,12 +29,19 @@ ROUNDS = 6
 
 
 def _root_bytes(root: Path) -> int:
+    from manifests.reader import read_manifest
+    from outputs.table import OUTPUTS
+    from manifests.schema import output_columns
+    from storage import Storage
+
     table = read_manifest(Storage.from_uri(str(root)))
     return sum(sum(v for v in table.column(output_columns(o)[1]).to_pylist() if v) for o in OUTPUTS
                if output_columns(o)[1] in table.column_names)
 
 
 def _render(root: Path, frames: int, width: int, height: int, world: str) -> float:
+    from pipeline.planner import PlanConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     start = time.perf_counter()

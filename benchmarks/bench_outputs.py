@@ -29,6 +29,7 @@ writes an all-invalid flow image without computing flow.
 from __future__ import annotations
 
 import contextlib
+import importlib
 import json
 import os
 import platform
@@ -38,15 +39,6 @@ import sys
 import tempfile
 import time
 from pathlib import Path
-
-from benchmarks import baseline
-from benchmarks.baseline import tree_env
-from outputs.deflaters import deflating_with
-from outputs.table import DEFAULT_OUTPUTS
-from pipeline.episode_job import frame_files
-from render_workers.render.episode import DEFAULT_WORLD, render_episode
-from render_workers.render.renderer import Renderer
-from roots.episode_spec import EpisodeSpec
 
 BASELINE = "5045587~1"  # main before issue 24 (poses, flow, normals, trainIds)
 WIDTH, HEIGHT = 1920, 1080
@@ -59,22 +51,35 @@ MEASURES = ("frame", "frame_cpu", "outputs", "sink")
 LIMIT = 0.05  # the default outputs may be at most this much slower than before
 
 
+def tree_module(new: str, old: str):
+    """As ``bench_render.tree_module`` (a probe cannot import this checkout's benchmarks): ``new`` of the tree
+    measured, ``old`` in a tree from before issue 36's moves, None where it has neither."""
+    import manifests  # deferred: the measured tree's (first on sys.path), found in the probe's process
+
+    base = Path(manifests.__file__).resolve().parent.parent
+    name = old if (base / "manifests" / "catalog.py").exists() else new
+    return importlib.import_module(name) if base.joinpath(*name.split(".")).with_suffix(".py").exists() else None
+
+
 def _outputs(set_name: str) -> tuple[str, ...]:
     extra = OPT_IN if set_name == "+all" else () if set_name in ("default", ISAL_SET) else (set_name[1:],)
-    return tuple(DEFAULT_OUTPUTS) + extra
+    return tuple(tree_module("outputs.table", "manifests.outputs").DEFAULT_OUTPUTS) + extra
 
 
 def _deflating(deflater: str | None):
     """The PNG deflater ``deflater`` in force (None: the tree's own; older trees know no other)."""
     if deflater is None:
         return contextlib.nullcontext()
-
-    return deflating_with(deflater)
+    return tree_module("outputs.deflaters", "manifests.deflaters").deflating_with(deflater)
 
 
 def _episode(renderer, world: str, outputs: tuple[str, ...], frames: int, width: int, height: int,
              seed: int, out: Path, deflater: str | None = None) -> dict:
     """One episode through production's loop: its totals (wall, CPU, stages) and bytes per output."""
+    EpisodeSpec = tree_module("roots.episode_spec", "manifests.spec").EpisodeSpec  # noqa: N806 (a class)
+    from pipeline.episode_job import frame_files
+    from render_workers.render.episode import render_episode
+
     spec = EpisodeSpec(SCENARIO, 0, seed, frames, width, height, "train", 0, outputs=outputs)
     written: dict[str, int] = {}
 
@@ -103,6 +108,8 @@ def per_frame(long: dict, short: dict, frames: int) -> dict:
 
 def probe(world: str, sets: list[str], frames: int, width: int, height: int) -> dict:
     """Figures of each output set, in this process's tree (whichever is first on sys.path)."""
+    from render_workers.render.renderer import Renderer
+
     result = {}
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:
         # warm-up: the measured episode itself, so shaders, uploads and caches for everything it shows are
@@ -118,6 +125,8 @@ def probe(world: str, sets: list[str], frames: int, width: int, height: int) -> 
 
 def _run_probe(tree: Path | None, world: str, sets: tuple[str, ...], frames: int, width: int, height: int,
                cache: str) -> dict:
+    from benchmarks.baseline import tree_env
+
     here = Path(__file__).resolve()
     cwd = tree if tree is not None else here.parent.parent
     env = tree_env(tree) if tree is not None else dict(os.environ)
@@ -143,6 +152,8 @@ def _medians(runs: list[dict]) -> dict:
 def measure(world: str, frames: int = FRAMES, width: int = WIDTH, height: int = HEIGHT,
             rounds: int | None = None) -> dict:
     """Alternating before / after probes; medians per output set."""
+    from benchmarks import baseline
+
     rounds = baseline.rounds(3) if rounds is None else rounds
     ref = os.environ.get("BENCH_OUTPUTS_BASELINE", BASELINE)
     before, after = [], []
@@ -184,6 +195,8 @@ def verdict(result: dict) -> dict:
 
 def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height: int = HEIGHT,
          rounds: int | None = None, world: str | None = None) -> dict:
+    from render_workers.render.episode import DEFAULT_WORLD
+
     world = world or os.environ.get("BENCH_WORLD", DEFAULT_WORLD)
     result = {"command": "BENCH=outputs make bench (benchmarks/bench_outputs.py)", "scenario": SCENARIO,
               "machine": {"cpus": os.cpu_count(), "platform": platform.platform(),

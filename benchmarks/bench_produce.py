@@ -25,7 +25,6 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.baseline import baseline_tree, rounds, tree_env
 from outputs.table import SEED_OUTPUTS  # the paper's six
 from render_workers.render.episode import DEFAULT_WORLD
 
@@ -96,6 +95,8 @@ STAGES = ("world", "populate", "load", "scene_update", "color_pass", "class_pass
 
 def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...] = ()) -> dict:
     """One run of the user's command; the rate it reports, its wall time and per-stage s/frame."""
+    from benchmarks.baseline import tree_env
+
     cwd = tree if tree is not None else Path(__file__).resolve().parent.parent
     env = tree_env(tree) if tree is not None else dict(os.environ)
     env["IDDA_WORLD_CACHE"] = cache
@@ -120,6 +121,8 @@ def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...]
 
 
 def end_to_end() -> dict:
+    from benchmarks.baseline import baseline_tree, rounds
+
     before, after = [], []
     with baseline_tree() as (ref, tree, reason), tempfile.TemporaryDirectory(prefix="idda-bench-e2e-") as tmp:
         for i in range(rounds()):

@@ -20,6 +20,7 @@ produce`` caps them at 2 when workers fill the cores) and with ``LP_NUM_THREADS=
 
 from __future__ import annotations
 
+import importlib
 import json
 import multiprocessing as mp
 import os
@@ -31,12 +32,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from benchmarks.baseline import baseline_tree, rounds, tree_env
-from outputs import encoding
-from render_workers.render import episode, postfx
-from render_workers.render.episode import DEFAULT_WORLD, load_episode, render_episode, render_frame
-from render_workers.render.renderer import Renderer
-from roots.episode_spec import EpisodeSpec
+from render_workers.render.episode import DEFAULT_WORLD
 
 WIDTH, HEIGHT = 1920, 1080
 SCENARIOS = ("T01_CN_A", "T01_HRN_A", "T01_CS_M")  # clear, worst-case effects, low sun
@@ -48,26 +44,40 @@ STAGES = ("scene_update", "color_pass", "class_pass", "resolve", "post_fx", "out
 EFFECTS = ("antialias", "puddles", "wet_road", "fog", "rain", "bloom", "lens_flare", "motion_blur", "grading")
 
 
+def tree_module(new: str, old: str):
+    """Module ``new`` of the tree measured, or in a tree from before issue 36's moves (the baseline's, which
+    has ``manifests/catalog.py``) its old name ``old``: never this checkout's, which a new top-level package
+    missing there would find instead. None where that tree has no such module."""
+    import manifests  # deferred: the measured tree's (first on sys.path), found in the probe's process
+
+    base = Path(manifests.__file__).resolve().parent.parent
+    name = old if (base / "manifests" / "catalog.py").exists() else new
+    return importlib.import_module(name) if base.joinpath(*name.split(".")).with_suffix(".py").exists() else None
+
+
 def _spec(code: str, frames: int, seed: int = 1):
     """An episode spec with the paper's six outputs (trees before the Output table write exactly those)."""
-    try:
-        from outputs.table import SEED_OUTPUTS
-    except ImportError:  # the baseline tree: six outputs is all it has
-        return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0)
-    return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0, outputs=SEED_OUTPUTS)
+    episode_spec = tree_module("roots.episode_spec", "manifests.spec")
+    table = tree_module("outputs.table", "manifests.outputs")
+    if table is None:  # the baseline tree: six outputs is all it has
+        return episode_spec.EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0)
+    return episode_spec.EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0, outputs=table.SEED_OUTPUTS)
 
 
 def _png_encoder():
     """The tree's PNG writer: ``png_bytes`` (any PNG-able array) where it exists, else ``encode_png`` (RGB)."""
+    encoding = tree_module("outputs.encoding", "manifests.encoding")
     return getattr(encoding, "png_bytes", None) or encoding.encode_png
 
 
 def _frame_files(frame) -> dict[str, bytes]:
     """A frame's file bytes, through whichever encoding API the measured tree has."""
-    if hasattr(frame, "buffers"):  # trees where the episode job encodes the renderer's buffers
-        from outputs.table import SEED_OUTPUTS, encode_outputs, file_bytes
+    from render_workers.render import episode
 
-        return {name: file_bytes(name, content) for name, content in encode_outputs(frame.buffers, SEED_OUTPUTS).items()}
+    if hasattr(frame, "buffers"):  # trees where the episode job encodes the renderer's buffers
+        table = tree_module("outputs.table", "manifests.outputs")
+        encoded = table.encode_outputs(frame.buffers, table.SEED_OUTPUTS)
+        return {name: table.file_bytes(name, content) for name, content in encoded.items()}
     if hasattr(episode, "encode_frame"):  # the Output table's trees
         return episode.encode_frame(frame)
     encode = _png_encoder()
@@ -82,6 +92,9 @@ def _encode_and_write(frame, out: Path) -> None:
 # -- the probe: runs inside the tree it measures ------------------------------
 def probe(world: str) -> dict:
     """Stage samples (seconds per frame) of whichever code is first on sys.path."""
+    from render_workers.render import episode, postfx
+    from render_workers.render.renderer import Renderer
+
     fx: dict[str, float] = {}
     original = postfx.apply
 
@@ -127,6 +140,8 @@ def probe(world: str) -> dict:
 
 
 def _run_probe(tree: Path | None, world: str) -> dict:
+    from benchmarks.baseline import tree_env
+
     cwd = tree if tree is not None else Path(__file__).resolve().parent.parent
     env = tree_env(tree) if tree is not None else dict(os.environ)
     with tempfile.TemporaryDirectory(prefix="idda-bench-worlds-") as cache:
@@ -152,6 +167,8 @@ def _merge(runs: list[dict]) -> dict:
 
 def stage_tables(world: str) -> dict:
     """Before/after probes, alternated; medians per stage."""
+    from benchmarks.baseline import baseline_tree, rounds
+
     before, after = [], []
     with baseline_tree() as (ref, tree, reason):
         for _ in range(rounds()):
@@ -166,6 +183,8 @@ def stage_tables(world: str) -> dict:
 def _worker(world: str, code: str, seed: int, barrier, lp_threads: str | None, queue) -> None:
     if lp_threads is not None:
         os.environ["LP_NUM_THREADS"] = lp_threads
+    from render_workers.render.episode import load_episode, render_episode, render_frame
+    from render_workers.render.renderer import Renderer
 
     spec = _spec(code, THROUGHPUT_FRAMES, seed)
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:

@@ -25,7 +25,6 @@ from manifests.writer import write_part
 from pipeline.planner import PlanConfig, make_plan
 from pipeline.settings import RunConfig
 from pipeline.provenance import _fresh_record
-from roots.verify import verify
 from storage import Storage, sha256_bytes
 
 SCOPE = "T01_CN_A"  # the scenario whose files exist
@@ -95,6 +94,7 @@ class _RequestCounter(logging.Handler):
 
 
 def _s3_requests(episodes: int = 4, frames: int = 40) -> dict:
+    from roots.verify import verify
     from tests.s3_server import local_s3_server
 
     with local_s3_server() as server:

@@ -119,10 +119,12 @@ def imports(root: Path = ROOT) -> list[Import]:
     return out
 
 
-def deferred(found: list[Import] | None = None) -> list[Import]:
-    """The imports of our modules written inside functions."""
+def deferred(found: list[Import] | None = None, benchmarks: bool = False) -> list[Import]:
+    """The imports of our modules written inside functions, in the packages (with ``benchmarks``: in
+    ``benchmarks/``, whose probes run inside the measured revision's tree and import it there)."""
     found = imports() if found is None else found
-    return sorted({(i.importer, i.line): i for i in found if i.deferred}.values(), key=lambda i: (i.importer, i.line))
+    late = {(i.importer, i.line): i for i in found if i.deferred and (i.importer.split(".")[0] == "benchmarks") == benchmarks}
+    return sorted(late.values(), key=lambda i: (i.importer, i.line))
 
 
 def circles(found: list[Import] | None = None) -> list[list[str]]:
@@ -187,6 +189,7 @@ def markdown(pairs: set[tuple[str, str]], found: list[Import] | None = None) -> 
     rows = "\n".join(f"| `{n.replace('.', '/')}/` | {what} |" for n, what in STAGES)
     loops = circles(found)
     late = deferred(found)
+    bench = deferred(found, benchmarks=True)
     late_rows = "\n".join(f"| `{i.importer}` | `{i.imported}` |" for i in late)
     return f"""# The house: one package per stage
 
@@ -210,10 +213,13 @@ no GL, nothing of `render/` and of ours only `domains` (the world cache's digest
 
 Import circles between modules, imports inside functions included: {len(loops) or "none"}.
 
-Imports of our modules written inside functions: {len(late)} (the layer test allows fewer than 40). The rest
-are at the top of their modules. Those left are optional heavy dependencies on the way (the renderer for the
-commands that render, torch for the analysis commands), the Ray worker's module that keeps the progress actor
-light, and a name bound two ways in one module:
+Imports of our modules written inside functions, in the packages: {len(late)} (the layer test allows fewer
+than 40). The rest are at the top of their modules. Those left keep optional heavy dependencies off the
+paths that do not need them (the renderer for the CLI commands that render; torch behind the analysis
+commands, the report sections and the segmentation net), keep the Ray worker's module light for the progress
+actor, or are guarded by a `try` or an `if` (a local cluster's reaper, an S3 outage's message). The
+benchmarks hold {len(bench)} more: a benchmark's probe runs inside the measured revision's tree (the
+"before" side) and imports that tree's modules there, under their names of that revision.
 
 | module | imports, inside a function |
 |---|---|
