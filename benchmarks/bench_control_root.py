@@ -69,7 +69,7 @@ else:
     if os.path.exists(os.path.join(os.path.dirname(pipeline.__file__), "settings.py")):
         from pipeline.settings import RunConfig
     else:  # a tree from before issue 36 (the baseline): not this checkout's settings
-        from pipeline.runmeta import RunConfig
+        from pipeline.runmeta import RunConfig  # house: old name
     marks = {}
     real_compact = driver.compact
 

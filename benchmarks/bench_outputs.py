@@ -63,20 +63,20 @@ def tree_module(new: str, old: str):
 
 def _outputs(set_name: str) -> tuple[str, ...]:
     extra = OPT_IN if set_name == "+all" else () if set_name in ("default", ISAL_SET) else (set_name[1:],)
-    return tuple(tree_module("outputs.table", "manifests.outputs").DEFAULT_OUTPUTS) + extra
+    return tuple(tree_module("outputs.table", "manifests.outputs").DEFAULT_OUTPUTS) + extra  # house: old name
 
 
 def _deflating(deflater: str | None):
     """The PNG deflater ``deflater`` in force (None: the tree's own; older trees know no other)."""
     if deflater is None:
         return contextlib.nullcontext()
-    return tree_module("outputs.deflaters", "manifests.deflaters").deflating_with(deflater)
+    return tree_module("outputs.deflaters", "manifests.deflaters").deflating_with(deflater)  # house: old name
 
 
 def _episode(renderer, world: str, outputs: tuple[str, ...], frames: int, width: int, height: int,
              seed: int, out: Path, deflater: str | None = None) -> dict:
     """One episode through production's loop: its totals (wall, CPU, stages) and bytes per output."""
-    EpisodeSpec = tree_module("roots.episode_spec", "manifests.spec").EpisodeSpec  # noqa: N806 (a class)
+    EpisodeSpec = tree_module("roots.episode_spec", "manifests.spec").EpisodeSpec  # noqa: N806; house: old name
     from pipeline.episode_job import frame_files
     from render_workers.render.episode import render_episode
 

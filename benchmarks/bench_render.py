@@ -45,9 +45,9 @@ EFFECTS = ("antialias", "puddles", "wet_road", "fog", "rain", "bloom", "lens_fla
 
 
 def tree_module(new: str, old: str):
-    """Module ``new`` of the tree measured, or in a tree from before issue 36's moves (the baseline's, which
-    has ``manifests/catalog.py``) its old name ``old``: never this checkout's, which a new top-level package
-    missing there would find instead. None where that tree has no such module."""
+    """Module ``new`` of the tree measured, or in a tree from before issue 36's moves its old name ``old``
+    (the baseline's has ``manifests/catalog.py``; house: old name), never this checkout's, which a new
+    top-level package missing there would find instead. None where that tree has no such module."""
     import manifests  # deferred: the measured tree's (first on sys.path), found in the probe's process
 
     base = Path(manifests.__file__).resolve().parent.parent
@@ -57,8 +57,8 @@ def tree_module(new: str, old: str):
 
 def _spec(code: str, frames: int, seed: int = 1):
     """An episode spec with the paper's six outputs (trees before the Output table write exactly those)."""
-    episode_spec = tree_module("roots.episode_spec", "manifests.spec")
-    table = tree_module("outputs.table", "manifests.outputs")
+    episode_spec = tree_module("roots.episode_spec", "manifests.spec")  # house: old name
+    table = tree_module("outputs.table", "manifests.outputs")  # house: old name
     if table is None:  # the baseline tree: six outputs is all it has
         return episode_spec.EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0)
     return episode_spec.EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0, outputs=table.SEED_OUTPUTS)
@@ -66,7 +66,7 @@ def _spec(code: str, frames: int, seed: int = 1):
 
 def _png_encoder():
     """The tree's PNG writer: ``png_bytes`` (any PNG-able array) where it exists, else ``encode_png`` (RGB)."""
-    encoding = tree_module("outputs.encoding", "manifests.encoding")
+    encoding = tree_module("outputs.encoding", "manifests.encoding")  # house: old name
     return getattr(encoding, "png_bytes", None) or encoding.encode_png
 
 
@@ -75,7 +75,7 @@ def _frame_files(frame) -> dict[str, bytes]:
     from render_workers.render import episode
 
     if hasattr(frame, "buffers"):  # trees where the episode job encodes the renderer's buffers
-        table = tree_module("outputs.table", "manifests.outputs")
+        table = tree_module("outputs.table", "manifests.outputs")  # house: old name
         encoded = table.encode_outputs(frame.buffers, table.SEED_OUTPUTS)
         return {name: table.file_bytes(name, content) for name, content in encoded.items()}
     if hasattr(episode, "encode_frame"):  # the Output table's trees
