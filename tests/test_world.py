@@ -417,7 +417,7 @@ def test_builder_never_reads_town_codes():
     from pathlib import Path
 
     root = Path(W.__file__).parent
-    modules = ["world", "town_plan", "kit", "roadway", "streets", "buildings", "countryside", "freeway", "river", "railway"]
+    modules = ["world", "town_plan", "builder", "roadway", "streets", "buildings", "countryside", "freeway", "river", "railway"]
     for name in modules:
         text = (root / f"{name}.py").read_text()
         assert not re.search(r"T0\d", text), f"{name}.py mentions a town code"
