@@ -366,7 +366,7 @@ def preview(
 ) -> None:
     """Render one frame per scenario into a contact sheet (rows = viewpoints,
     columns = towns, one sheet per weather) plus one frame's six outputs."""
-    # deferred: the renderer (trimesh, scipy: seconds) loads only for the commands that render
+    from render_workers.render.preview import write_preview  # deferred: the renderer (trimesh, scipy) only to render
 
     with user_errors(), using(domain_file(catalog)) as in_force:
         PlanConfig(domains=domains, width=width, height=height, seed=seed, frames_per_scenario=1,
