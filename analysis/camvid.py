@@ -14,7 +14,7 @@ split over CamVid's 11 classes (mean IoU over the classes present there);
 ``kept`` = synthetic mIoU / real mIoU. The test split is never read.
 
 Frames of both sides are resized to the network's input as in
-:mod:`analysis.shifts` (area for RGB, nearest for labels) and trained with the
+:mod:`analysis.shift_table` (area for RGB, nearest for labels) and trained with the
 same batch order rule, flips and learning-rate schedule.
 """
 
@@ -22,20 +22,24 @@ from __future__ import annotations
 
 import logging
 import math
-import os
 import time
 from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from analysis.camvid_layout import SCORE_SPLIT, TRAIN_SPLIT, camvid_pairs, sequence
+from analysis.loaders import FrameDataset
 from analysis.metrics import IGNORE, class_iou, confusion, mean_iou
-from manifests.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID
+from analysis.real import read_label_ids, read_rgb
+from analysis.segnet import SegNet, parameter_count
+from analysis.shift_table import Frames, _device, check_training, deterministic_torch, predict, prepare, train
+from domains.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID, viewpoint
+from domains.selection import parse_selection
+from manifests.query import Query
 
 log = logging.getLogger(__name__)
 
 NUM_CAMVID = len(CAMVID_CLASSES)
-TRAIN_SPLIT, SCORE_SPLIT = "train", "val"
-LAYOUT = "<split>/*.png with labels in <split>annot/*.png"
 INPUT_MULTIPLE = 8  # network input sides (SegNet's skips align by interpolation; 160x120 is CamVid's 4:3)
 # CamVid label -> training index (the labels are already 0..10; void and anything else ignored).
 CAMVID_TO_INDEX = np.full(256, IGNORE, dtype=np.uint8)
@@ -44,40 +48,8 @@ CAMVID_TO_INDEX[:NUM_CAMVID] = np.arange(NUM_CAMVID, dtype=np.uint8)
 OURS_TO_INDEX = np.where(CAMVID_LUT == CAMVID_VOID, IGNORE, CAMVID_LUT).astype(np.uint8)
 
 
-def is_camvid(path: str) -> bool:
-    """Whether the folder is in CamVid's layout (a ``train`` or ``val`` folder with its ``*annot``)."""
-    return any(os.path.isdir(os.path.join(path, s)) and os.path.isdir(os.path.join(path, s + "annot"))
-               for s in (TRAIN_SPLIT, SCORE_SPLIT))
-
-
-def camvid_pairs(path: str, split: str, labels: bool = True) -> list[tuple[str, str]]:
-    """(image, label) paths of a split in name order; ValueError saying what is missing."""
-    if not os.path.isdir(path):
-        raise ValueError(f"CamVid folder {path} does not exist")
-    folder = os.path.join(path, split)
-    if not os.path.isdir(folder):
-        raise ValueError(f"{path} is not in CamVid layout: it has no {split}/ (expected {LAYOUT})")
-    names = sorted(n for n in os.listdir(folder) if n.endswith(".png"))
-    if not names:
-        raise ValueError(f"{path} has no images {split}/*.png")
-    out = [(os.path.join(folder, n), os.path.join(path, split + "annot", n)) for n in names]
-    missing = [label for _, label in out if not os.path.isfile(label)] if labels else []
-    if missing:
-        raise ValueError(f"{path}: {len(missing)} of {len(out)} images of {split}/ have no label, "
-                         f"e.g. {os.path.relpath(missing[0], path)}")
-    return out
-
-
-def sequence(image: str) -> str:
-    """CamVid's sequence of a frame: its name up to the first underscore (0001TP, Seq05VD...)."""
-    return os.path.basename(image).split("_")[0]
-
-
 def load_camvid(path: str, split: str, width: int, height: int, max_frames: int | None = None):
-    """A split's frames (``analysis.shifts.Frames``), sequences as episodes, labels as indices 0..10."""
-    from analysis.real import read_label_ids, read_rgb
-    from analysis.shifts import Frames, prepare
-
+    """A split's frames (``analysis.shift_table.Frames``), sequences as episodes, labels as indices 0..10."""
     pairs = camvid_pairs(path, split)[:max_frames]
     sequences = {s: i for i, s in enumerate(dict.fromkeys(sequence(im) for im, _ in pairs))}
     images, labels = [], []
@@ -91,18 +63,12 @@ def load_camvid(path: str, split: str, width: int, height: int, max_frames: int 
 
 def crop_hood(rgb: np.ndarray, ids: np.ndarray, viewpoint_code: str) -> tuple[np.ndarray, np.ndarray]:
     """The frame without the rows of its viewpoint's hood (the catalog's ``hood_fraction``)."""
-    from manifests.catalog import viewpoint
-
     rows = int(math.ceil(viewpoint(viewpoint_code).hood_fraction * rgb.shape[0]))
     return (rgb[: rgb.shape[0] - rows], ids[: ids.shape[0] - rows]) if rows else (rgb, ids)
 
 
 def load_synthetic(root, domains: str, width: int, height: int, max_frames: int | None = None):
     """The selection's frames (manifest order), hood cropped, labels mapped onto CamVid's classes."""
-    from analysis.loaders import FrameDataset
-    from analysis.shifts import Frames, prepare
-    from manifests.query import Query
-
     data = FrameDataset(root, Query(domains=domains), outputs=("rgb", "semantic_raw"))
     n = len(data) if max_frames is None else min(len(data), max_frames)
     if n == 0:
@@ -134,9 +100,6 @@ class TransferConfig:
     device: str = "auto"
 
     def validate(self) -> None:
-        from analysis.shifts import check_training
-        from manifests.selection import parse_selection
-
         parse_selection(self.domains)
         check_training(self, INPUT_MULTIPLE)
         if self.max_frames is not None and self.max_frames < 1:
@@ -192,8 +155,6 @@ def network_seed(seed: int) -> int:
 
 
 def train_and_score(torch, name: str, data, val, config: TransferConfig, device: str) -> Side:
-    from analysis.shifts import predict, train
-
     start = time.perf_counter()
     log.info("training on %s (%d frames, %d steps on %s)", name, len(data), config.steps, device)
     model, loss = train(torch, data, config, device, seed=network_seed(config.seed), num_classes=NUM_CAMVID)
@@ -207,9 +168,6 @@ def run_transfer(config: TransferConfig, ceiling: Side | None = None) -> Transfe
 
     ``ceiling``: the real side of an earlier report with the same config but root and
     domains (it depends on nothing else), to measure several selections against one."""
-    from analysis.shifts import _device, deterministic_torch
-    from analysis.segnet import SegNet, parameter_count
-
     config.validate()
     start = time.perf_counter()
     with deterministic_torch(config.threads) as torch:

@@ -55,9 +55,13 @@ from dataclasses import dataclass, field
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import (active, code_axes, scenario as lookup_scenario, split_code,
+from analysis.real import REAL, RealFolder, check_real_pairs, real_features
+from domains.catalog import (active, code_axes, scenario as lookup_scenario, split_code,
                                weather as lookup_weather)
-from manifests.outputs import read_output
+from manifests.query import Query, filter_frames
+from manifests.reader import read_manifest, require_outputs
+from outputs.table import read_output
+from storage import Storage
 
 IMAGE_SIZE = (72, 128)  # (height, width) every frame is resized to
 VAR_FLOOR = 1e-12
@@ -280,8 +284,6 @@ class DistanceReport:
 def parse_pairs(text: str) -> tuple[tuple[str, str], ...]:
     """``"T01_CS_A:T01_CS_J,T01_CN_A:real"`` -> pairs of checked scenario codes (of the catalog in
     force: declared domains too) or ``real``, the real folder (analysis.real)."""
-    from analysis.real import REAL
-
     def code(text: str) -> str:
         return REAL if text == REAL else lookup_scenario(text).code
 
@@ -365,9 +367,6 @@ class DistanceConfig:
     real_splits: tuple[str, ...] = ("val",)  # which of its splits
 
     def validate(self) -> None:
-        from analysis.real import REAL, check_real_pairs
-        from manifests.query import Query
-
         if self.samples < 1:
             raise ValueError(f"samples per domain must be at least 1, got {self.samples}")
         if self.components < 1:
@@ -409,11 +408,6 @@ def domain_features(storage, paths: dict[str, list[str]], bank: FilterBank, thre
 def domain_distances(config: DistanceConfig) -> DistanceReport:
     """Sample, extract features, and compare domains of a produced root (and the real folder, if any:
     with no pair naming it, every sampled domain is paired with it)."""
-    from analysis.real import REAL, RealFolder, real_features
-    from manifests.query import Query, filter_frames
-    from manifests.reader import read_manifest, require_outputs
-    from storage import Storage
-
     config.validate()
     real = RealFolder(config.real, config.real_splits) if config.real else None
     if real is not None:
@@ -469,14 +463,13 @@ def embedding_png(report: DistanceReport, title: str = "Domains: 2-D PCA of the 
     """Scatter of the domains' 2-D embedding: colour = town, marker = weather, label = viewpoint."""
     import matplotlib
 
-    from analysis.real import REAL
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib.lines import Line2D
 
     cmap = plt.get_cmap("tab10")
-    cat = active()  # the root's catalog, with any user entries (pipeline.cli.domains)
+    cat = active()  # the root's catalog, with any user entries (pipeline.cli.domain_files)
     town_color = {t.code: cmap(i % 10) for i, t in enumerate(cat.towns)}
     fig, ax = plt.subplots(figsize=(7.5, 6), dpi=110)
     paper_domains = {d for p in PAPER_PAIRS for d in (p.source, p.target)}

@@ -3,7 +3,7 @@
 Both read the images through ``storage`` (local roots and s3://) and decode
 them to plain numpy arrays; neither imports torch. Per requested output:
 
-``manifests.outputs.OUTPUT_TABLE`` lists each output's key, dtype,
+``outputs.table.OUTPUT_TABLE`` lists each output's key, dtype,
 channels and content (``DECODERS`` here is that table by name; ``rgb`` is
 read from a PNG or, in a root made with ``--rgb-format jpg``, a JPEG, as
 HxWx3 uint8 either way);
@@ -35,16 +35,16 @@ from typing import Any, Callable
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import AXES, CITYSCAPES_ID_LUT, TRAIN_ID_LUT
-from manifests.geometry import as_matrix
-from manifests.outputs import OUTPUT_BY_NAME as DECODERS, OUTPUTS, read_output
+from domains.catalog import AXES, CITYSCAPES_ID_LUT, TRAIN_ID_LUT
+from outputs.geometry import as_matrix
+from outputs.table import OUTPUT_BY_NAME as DECODERS, OUTPUTS, read_output
 from manifests.query import Query, run_query
 from manifests.reader import as_storage, read_manifest, require_outputs
 from manifests.schema import output_columns, with_uids
 
 # Per-frame metadata returned with the arrays.
 META_COLUMNS = ("uid", "frame_id", "scenario", *AXES, "episode", "frame", "split", "width", "height")
-# Calibration and pose returned by FrameDataset as float64 matrices (manifests.geometry's convention;
+# Calibration and pose returned by FrameDataset as float64 matrices (outputs.geometry's convention;
 # None in roots written before they existed): K 3x3, cam_to_world 4x4.
 POSE_META = {"K": 3, "cam_to_world": 4}
 # The numeric ones: what ray_dataset keeps by default, because Ray's
@@ -90,7 +90,7 @@ def load_output(storage, rel: str, output: str, decode: bool = True, labels: str
 class FrameDataset:
     """Map-style dataset over a query's frames: ``len(ds)`` and ``ds[i]`` -> dict.
 
-    A sample holds the decoded arrays (keys as ``manifests.outputs.OUTPUT_TABLE``'s ``key``; with
+    A sample holds the decoded arrays (keys as ``outputs.table.OUTPUT_TABLE``'s ``key``; with
     ``decode=False`` the PNG bytes under the output names) and the frame's
     metadata (``META_COLUMNS``, ``index``, and ``K`` and ``cam_to_world`` as matrices: ``POSE_META``). Frames are in manifest order
     (scenario, episode, frame). The object is small and picklable and opens

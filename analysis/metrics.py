@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.catalog import EVALUATED_IDS, LABELS
+from domains.catalog import EVALUATED_IDS, LABELS
 
 IGNORE = 255  # training index of pixels that are not scored
 EVAL_CLASSES: tuple[str, ...] = tuple(LABELS[i].name for i in EVALUATED_IDS)

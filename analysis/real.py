@@ -17,7 +17,7 @@ city, name) order. Distances use the images only; shifts also need the
 labelIds of every image.
 
 Classes. Cityscapes' 19 evaluated classes map onto our 16 evaluated ones by
-the catalog's own table (``manifests.catalog.LABELS``: each evaluated class's
+the catalog's own table (``domains.catalog.LABELS``: each evaluated class's
 ``cityscapes_id``, what the Cityscapes export writes), inverted, plus
 :data:`OTHER_VEHICLES`: Cityscapes tells truck, bus and train from car, our
 ``vehicle`` class holds all of them. Every other label id (Cityscapes' ignored
@@ -28,7 +28,7 @@ training indices of its frames (the tests check that).
 For shifts, the folder's cities stand for episodes: held-out frames are
 those of ``val``/``test`` when the chosen splits include ``train`` too (the
 oracle then trains on ``train``, Cityscapes' own protocol), else the last
-fifth of every city's images (``analysis.shifts.held_out_mask``).
+fifth of every city's images (``analysis.shift_table.held_out_mask``).
 """
 
 from __future__ import annotations
@@ -38,8 +38,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from analysis.camvid_layout import camvid_pairs, is_camvid, sequence
 from analysis.metrics import IGNORE, TRAIN_INDEX_LUT
-from manifests.catalog import CLASS_IDS, LABELS
+from domains.catalog import CLASS_IDS, LABELS
 
 REAL = "real"  # the name a pair uses for the real folder (scenario codes always hold "_")
 IMAGES, LABELS_DIR = "leftImg8bit", "gtFine"
@@ -87,8 +88,6 @@ class RealFolder:
     @property
     def camvid(self) -> bool:
         """Whether the folder is in CamVid's layout rather than Cityscapes'."""
-        from analysis.camvid import is_camvid
-
         return not os.path.isdir(os.path.join(self.path, IMAGES)) and is_camvid(self.path)
 
     def images(self, labels: bool = False) -> list[RealImage]:
@@ -99,8 +98,6 @@ class RealFolder:
         if not os.path.isdir(self.path):
             raise ValueError(f"real data folder {self.path} does not exist")
         if self.camvid:
-            from analysis.camvid import camvid_pairs, sequence
-
             return [RealImage(split, sequence(image), image, label)
                     for split in self.splits for image, label in camvid_pairs(self.path, split, labels)]
         top = os.path.join(self.path, IMAGES)
@@ -177,23 +174,3 @@ def scored_images(folder: RealFolder) -> list[RealImage]:
         raise ValueError(f"{folder.path} is in CamVid layout, whose 11 classes are not our 16: "
                          "measure it with idda shifts --camvid FOLDER, not in a pair")
     return folder.images(labels=True)
-
-
-def load_real(folder: RealFolder, width: int, height: int, max_frames: int | None = None):
-    """The folder's frames for ``analysis.shifts`` (``Frames``): cities as episodes, labels as training indices."""
-    from analysis.shifts import Frames, prepare
-
-    images = scored_images(folder)
-    images = images if max_frames is None else images[:max_frames]
-    cities = {key: i for i, key in enumerate(dict.fromkeys((im.split, im.city) for im in images))}
-    arrays, labels, episodes, frames = [], [], [], []
-    seen = [0] * len(cities)  # images so far per city: the frame number
-    for im in images:
-        image, label = prepare(read_rgb(im.image), read_label_ids(im.label), CITYSCAPES_TO_INDEX, width, height)
-        arrays.append(image)
-        labels.append(label)
-        episodes.append(cities[(im.split, im.city)])
-        frames.append(seen[episodes[-1]])
-        seen[episodes[-1]] += 1
-    return Frames(np.stack(arrays), np.stack(labels), np.array(episodes), np.array(frames),
-                  np.array([im.split for im in images]))

@@ -16,7 +16,7 @@ import io
 
 import numpy as np
 
-from manifests.catalog import LABELS, PALETTE
+from domains.catalog import LABELS, PALETTE
 
 Recording = dict  # {entity path: {column: [(frame or None, value), ...] sorted by frame}}
 SEMANTIC_ALPHA = 0.45

@@ -13,7 +13,7 @@ Entities, per frame on the ``frame`` timeline (and ``sim_time``, seconds):
 * ``world/camera/boxes``: the objects' 3D boxes in the camera frame, where the
   ``objects`` output puts them (centre, size, yaw about the camera's y axis);
 * ``world/depth``: the depth as a point cloud in world coordinates
-  (``manifests.geometry.depth_to_world``), coloured by the RGB, every
+  (``outputs.geometry.depth_to_world``), coloured by the RGB, every
   ``stride``-th pixel in both directions, sky left out;
 * ``world/trajectory``: the camera path over the episode (static);
 * ``conditions/<column>``: each condition column (sun, clouds, rain, fog,
@@ -31,10 +31,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from manifests.catalog import LABELS
-from manifests.conditions import CONDITION_COLUMNS
-from manifests.geometry import as_matrix, depth_to_world
-from manifests.outputs import read_output
+from domains.catalog import LABELS
+from domains.conditions import CONDITION_COLUMNS
+from manifests.reader import as_storage, read_manifest
+from outputs.encoding import decode_depth_raw
+from outputs.geometry import as_matrix, depth_to_world
+from outputs.table import read_output
 from manifests.schema import output_columns
 
 APP_ID = "idda"
@@ -81,7 +83,6 @@ def episode_rows(storage, scenario: str, episode: int) -> list[dict]:
     """The manifest rows of one episode, in frame order; ValueError naming what the root holds."""
     import pyarrow.compute as pc
 
-    from manifests.reader import read_manifest
 
     table = read_manifest(storage)
     rows = table.filter(pc.and_(pc.equal(table.column("scenario"), scenario),
@@ -107,7 +108,7 @@ def annotation_context(rr):
 
 def box_rotation(yaw: float) -> np.ndarray:
     """The 3x3 rotation whose columns are a box's forward, left and up axes in the camera frame
-    (``manifests.objects.box_corners``' axes)."""
+    (``outputs.objects.box_corners``' axes)."""
     c, s = math.cos(yaw), math.sin(yaw)
     return np.array([[c, s, 0.0], [0.0, 0.0, -1.0], [-s, c, 0.0]])
 
@@ -147,8 +148,6 @@ def log_frame(rr, rec, storage, row: dict, stride: int | None) -> None:
         rec.log("world/camera/image/semantic", rr.SegmentationImage(semantic[..., 0]))
     depth_image = _read(storage, row, "depth_raw")
     if depth_image is not None:
-        from manifests.encoding import decode_depth_raw
-
         depth = decode_depth_raw(depth_image).astype(np.float32)
         rec.log("world/camera/image/depth", rr.DepthImage(depth, meter=1.0))
         step = _stride(row, stride)
@@ -170,8 +169,6 @@ def log_frame(rr, rec, storage, row: dict, stride: int | None) -> None:
 
 def view(config: ViewConfig) -> ViewReport:
     """Write (and or stream) the recording of one episode."""
-    from manifests.reader import as_storage
-
     config.validate()
     rr = _rerun()
     storage = as_storage(config.root)

@@ -32,9 +32,9 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from manifests.catalog import INSTANCE_LABELS, LABELS, weather
-from manifests.conditions import frame_conditions
-from manifests.geometry import HFOV_DEG, flat, intrinsics
+from domains.catalog import INSTANCE_LABELS, LABELS, weather
+from domains.conditions import frame_conditions
+from outputs.geometry import HFOV_DEG, flat, intrinsics
 from manifests.schema import STATS_DIR
 from manifests.writer import frame_row
 from pipeline.episode_job import EpisodeResult, commit_part
@@ -155,9 +155,10 @@ class MemorySampler:
 
 
 def _run(root: str, episode_fn, scale: float, progress_interval_s: float = 1.0) -> dict:
-    from pipeline.driver import ProduceConfig, produce
+    from pipeline.settings import ProduceConfig
+    from pipeline.driver import produce
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
 
     plan = PlanConfig(domains=DOMAINS, scale=scale)
     config = ProduceConfig(run=RunConfig(plan=plan, world="test"), out=root, progress_interval_s=progress_interval_s)

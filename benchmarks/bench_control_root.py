@@ -65,7 +65,11 @@ if action == "status":
 else:
     import pipeline.driver as driver
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    import os, pipeline
+    if os.path.exists(os.path.join(os.path.dirname(pipeline.__file__), "settings.py")):
+        from pipeline.settings import RunConfig
+    else:  # a tree from before issue 36 (the baseline): not this checkout's settings
+        from pipeline.runmeta import RunConfig  # house: old name
     marks = {}
     real_compact = driver.compact
 
@@ -104,10 +108,11 @@ def _probe(tree: Path, action: str, uri: str) -> dict:
 
 
 def _build(storage, threads: int) -> float:
-    from manifests.root import claim_root
+    from roots.contract import claim_root
     from manifests.synthetic import write_parts
     from pipeline.planner import PlanConfig, make_plan
-    from pipeline.runmeta import RunConfig, prepare_root
+    from pipeline.settings import RunConfig
+    from pipeline.provenance import prepare_root
 
     start = time.perf_counter()
     claim_root(storage)

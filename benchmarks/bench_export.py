@@ -30,7 +30,7 @@ ROUNDS = 6
 
 def _root_bytes(root: Path) -> int:
     from manifests.reader import read_manifest
-    from manifests.outputs import OUTPUTS
+    from outputs.table import OUTPUTS
     from manifests.schema import output_columns
     from storage import Storage
 
@@ -41,7 +41,7 @@ def _root_bytes(root: Path) -> int:
 
 def _render(root: Path, frames: int, width: int, height: int, world: str) -> float:
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     start = time.perf_counter()

@@ -15,11 +15,11 @@ from pathlib import Path
 import numpy as np
 
 from manifests import query as q
-from manifests.outputs import OUTPUTS
+from outputs.table import OUTPUTS
 from manifests.reader import compact, manifest_dataset, read_manifest
 from manifests.schema import output_columns
 from manifests.synthetic import episode_rows, episode_table
-from manifests.verify import verify
+from roots.verify import verify
 from manifests.writer import write_part
 from pipeline.planner import PlanConfig, make_plan
 from storage import Storage, sha256_bytes

@@ -29,6 +29,7 @@ writes an all-invalid flow image without computing flow.
 from __future__ import annotations
 
 import contextlib
+import importlib
 import json
 import os
 import platform
@@ -50,26 +51,32 @@ MEASURES = ("frame", "frame_cpu", "outputs", "sink")
 LIMIT = 0.05  # the default outputs may be at most this much slower than before
 
 
-def _outputs(set_name: str) -> tuple[str, ...]:
-    from manifests.outputs import DEFAULT_OUTPUTS
+def tree_module(new: str, old: str):
+    """As ``bench_render.tree_module`` (a probe cannot import this checkout's benchmarks): ``new`` of the tree
+    measured, ``old`` in a tree from before issue 36's moves, None where it has neither."""
+    import manifests  # deferred: the measured tree's (first on sys.path), found in the probe's process
 
+    base = Path(manifests.__file__).resolve().parent.parent
+    name = old if (base / "manifests" / "catalog.py").exists() else new
+    return importlib.import_module(name) if base.joinpath(*name.split(".")).with_suffix(".py").exists() else None
+
+
+def _outputs(set_name: str) -> tuple[str, ...]:
     extra = OPT_IN if set_name == "+all" else () if set_name in ("default", ISAL_SET) else (set_name[1:],)
-    return tuple(DEFAULT_OUTPUTS) + extra
+    return tuple(tree_module("outputs.table", "manifests.outputs").DEFAULT_OUTPUTS) + extra  # house: old name
 
 
 def _deflating(deflater: str | None):
     """The PNG deflater ``deflater`` in force (None: the tree's own; older trees know no other)."""
     if deflater is None:
         return contextlib.nullcontext()
-    from manifests.deflaters import deflating_with
-
-    return deflating_with(deflater)
+    return tree_module("outputs.deflaters", "manifests.deflaters").deflating_with(deflater)  # house: old name
 
 
 def _episode(renderer, world: str, outputs: tuple[str, ...], frames: int, width: int, height: int,
              seed: int, out: Path, deflater: str | None = None) -> dict:
     """One episode through production's loop: its totals (wall, CPU, stages) and bytes per output."""
-    from manifests.spec import EpisodeSpec
+    EpisodeSpec = tree_module("roots.episode_spec", "manifests.spec").EpisodeSpec  # noqa: N806; house: old name
     from pipeline.episode_job import frame_files
     from render_workers.render.episode import render_episode
 

@@ -25,7 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from manifests.outputs import SEED_OUTPUTS  # the paper's six
+from outputs.table import SEED_OUTPUTS  # the paper's six
 from render_workers.render.episode import DEFAULT_WORLD
 
 WIDTH, HEIGHT = 960, 540
@@ -41,7 +41,7 @@ _IMPORTS = "import pipeline.episode_job, pipeline.planner, render_workers.render
 _PLAIN = _IMPORTS + """
 import sys, time
 from pipeline.episode_job import run_episode
-from manifests.outputs import SEED_OUTPUTS  # the paper's six, as docs/bench_produce.md reports
+from outputs.table import SEED_OUTPUTS  # the paper's six, as docs/bench_produce.md reports
 from pipeline.planner import PlanConfig, make_plan
 from storage import Storage
 plan = make_plan(PlanConfig(domains=sys.argv[1], frames_per_scenario=int(sys.argv[2]), width=int(sys.argv[3]), height=int(sys.argv[4]), outputs=SEED_OUTPUTS))
@@ -54,10 +54,11 @@ print(time.perf_counter() - start, inside)
 _RAY = """
 import os, sys, time
 import ray
-from pipeline.driver import ProduceConfig, produce, start_local_cluster
-from manifests.outputs import SEED_OUTPUTS
+from pipeline.settings import ProduceConfig
+from pipeline.driver import produce, start_local_cluster
+from outputs.table import SEED_OUTPUTS
 from pipeline.planner import PlanConfig
-from pipeline.runmeta import RunConfig
+from pipeline.settings import RunConfig
 workers = int(sys.argv[7])
 t0 = time.perf_counter()
 start_local_cluster(ray, workers)  # the cluster produce() starts for itself

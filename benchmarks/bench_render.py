@@ -20,6 +20,7 @@ produce`` caps them at 2 when workers fill the cores) and with ``LP_NUM_THREADS=
 
 from __future__ import annotations
 
+import importlib
 import json
 import multiprocessing as mp
 import os
@@ -43,21 +44,29 @@ STAGES = ("scene_update", "color_pass", "class_pass", "resolve", "post_fx", "out
 EFFECTS = ("antialias", "puddles", "wet_road", "fog", "rain", "bloom", "lens_flare", "motion_blur", "grading")
 
 
+def tree_module(new: str, old: str):
+    """Module ``new`` of the tree measured, or in a tree from before issue 36's moves its old name ``old``
+    (the baseline's has ``manifests/catalog.py``; house: old name), never this checkout's, which a new
+    top-level package missing there would find instead. None where that tree has no such module."""
+    import manifests  # deferred: the measured tree's (first on sys.path), found in the probe's process
+
+    base = Path(manifests.__file__).resolve().parent.parent
+    name = old if (base / "manifests" / "catalog.py").exists() else new
+    return importlib.import_module(name) if base.joinpath(*name.split(".")).with_suffix(".py").exists() else None
+
+
 def _spec(code: str, frames: int, seed: int = 1):
     """An episode spec with the paper's six outputs (trees before the Output table write exactly those)."""
-    from manifests.spec import EpisodeSpec
-
-    try:
-        from manifests.outputs import SEED_OUTPUTS
-    except ImportError:  # the baseline tree: six outputs is all it has
-        return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0)
-    return EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0, outputs=SEED_OUTPUTS)
+    episode_spec = tree_module("roots.episode_spec", "manifests.spec")  # house: old name
+    table = tree_module("outputs.table", "manifests.outputs")  # house: old name
+    if table is None:  # the baseline tree: six outputs is all it has
+        return episode_spec.EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0)
+    return episode_spec.EpisodeSpec(code, 0, seed, frames, WIDTH, HEIGHT, "train", 0, outputs=table.SEED_OUTPUTS)
 
 
 def _png_encoder():
     """The tree's PNG writer: ``png_bytes`` (any PNG-able array) where it exists, else ``encode_png`` (RGB)."""
-    from manifests import encoding
-
+    encoding = tree_module("outputs.encoding", "manifests.encoding")  # house: old name
     return getattr(encoding, "png_bytes", None) or encoding.encode_png
 
 
@@ -66,9 +75,9 @@ def _frame_files(frame) -> dict[str, bytes]:
     from render_workers.render import episode
 
     if hasattr(frame, "buffers"):  # trees where the episode job encodes the renderer's buffers
-        from manifests.outputs import SEED_OUTPUTS, encode_outputs, file_bytes
-
-        return {name: file_bytes(name, content) for name, content in encode_outputs(frame.buffers, SEED_OUTPUTS).items()}
+        table = tree_module("outputs.table", "manifests.outputs")  # house: old name
+        encoded = table.encode_outputs(frame.buffers, table.SEED_OUTPUTS)
+        return {name: table.file_bytes(name, content) for name, content in encoded.items()}
     if hasattr(episode, "encode_frame"):  # the Output table's trees
         return episode.encode_frame(frame)
     encode = _png_encoder()
@@ -283,7 +292,7 @@ def _markdown(result: dict) -> str:
         f"Load average (1 min) when each probe ended: {', '.join(f'{x:.1f}' for x in loads)}.",
         "",
         "PNG encoding after: PNG filter Sub in numpy, one IDAT deflated by the root's deflater (libdeflate; ISA-L before issue 21.11)",
-        "(`manifests.encoding`); before: OpenCV's libpng at zlib level 1 with its adaptive filters.",
+        "(`outputs.encoding`); before: OpenCV's libpng at zlib level 1 with its adaptive filters.",
         "In production resolve, post effects, outputs and PNG encoding run on the episode's second thread,",
         "overlapping the next frame's GL passes.",
     ]

@@ -17,19 +17,20 @@ import time
 from collections import Counter
 from pathlib import Path
 
-from manifests.outputs import OUTPUTS
-from manifests.runrecord import record_bytes
+from outputs.table import OUTPUTS
+from roots.run_file import record_bytes
 from manifests.schema import RUN_FILE, output_columns
 from manifests.synthetic import episode_table
 from manifests.writer import write_part
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.runmeta import RunConfig, _fresh_record
+from pipeline.settings import RunConfig
+from pipeline.provenance import _fresh_record
 from storage import Storage, sha256_bytes
 
 SCOPE = "T01_CN_A"  # the scenario whose files exist
 _MEASURE = """
 import json, resource, sys, time
-from manifests.verify import Scope, VerifyReport, plan_units, verify
+from roots.verify import Scope, VerifyReport, plan_units, verify
 from storage import Storage
 storage = Storage.from_uri(sys.argv[1])
 start = time.perf_counter()
@@ -93,7 +94,7 @@ class _RequestCounter(logging.Handler):
 
 
 def _s3_requests(episodes: int = 4, frames: int = 40) -> dict:
-    from manifests.verify import verify
+    from roots.verify import verify
     from tests.s3_server import local_s3_server
 
     with local_s3_server() as server:

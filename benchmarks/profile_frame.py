@@ -39,13 +39,13 @@ def _threads_cpu() -> dict[tuple[str, str], float]:
 
 
 def main() -> dict:
-    import manifests.encoding as enc
+    import outputs.encoding as enc
     import manifests.writer as writer
     import render_workers.render.episode as ep
     import render_workers.render.renderer as rr
-    from manifests.deflaters import deflating_with
-    from manifests.outputs import file_bytes, output
-    from manifests.spec import EpisodeSpec
+    from outputs.deflaters import deflating_with
+    from outputs.table import file_bytes, output
+    from roots.episode_spec import EpisodeSpec
     from render_workers.render import postfx
 
     spent = defaultdict(lambda: [0.0, 0.0])  # stage -> [wall, CPU of its thread]

@@ -33,7 +33,7 @@ def standin(spec, storage, world=None, on_frame=None, fence=None):
 def main(root: str) -> None:
     import pipeline.driver as driver
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     shutil.rmtree(os.path.join(root, "_index"), ignore_errors=True)
     mark = os.environ["PROBE_MARK"] = os.path.join(tempfile.gettempdir(), f"idda-resume-start.{os.getpid()}")
     marks = {}

@@ -18,13 +18,18 @@ from dataclasses import dataclass
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from manifests.catalog import LABELS, scenario, split_code
+from domains.catalog import LABELS, scenario, split_code
 from manifests.layout import NEW_ROOT_LAYOUT, PATTERNS, layout_of_path
-from manifests.outputs import OUTPUTS, file_of_path, markdown_table
+from manifests.reader import part_files, read_manifest
+from manifests.stats import bar_chart_png, share_table
+from outputs.table import OUTPUTS, file_of_path, markdown_table
 from manifests.schema import PART_SCHEMA, output_columns, part_path
 from exports.hf import HF_SPLITS, card_header, citation_section
 from manifests.query import SPLITS
-from manifests.root import CARD_FILE, CHART_FILE, PREVIEW_DIR  # the root's own names (verify knows them)
+from roots.contract import CARD_FILE, CHART_FILE, PREVIEW_DIR  # the root's own names (verify knows them)
+from roots.run_file import REPAIR_HINT, RunRecordError, read_record
+from roots.verify import verify
+from storage import Storage
 
 PREVIEW_MAX_WIDTH = 480  # contact-sheet frames are rendered at most this wide
 CARD_MARK = "<!-- written by idda card: it replaces this file when run again -->"
@@ -109,8 +114,6 @@ def _domain_section(table: pa.Table) -> list[str]:
 
 
 def _class_section(table: pa.Table) -> list[str]:
-    from manifests.stats import share_table
-
     lines = [
         "## Classes and pixel shares",
         "",
@@ -315,11 +318,6 @@ def render_contact_sheet(storage, record: dict | None, codes: list[str]) -> list
 
 def write_card(config: CardConfig) -> CardResult:
     """Write ``README.md`` and ``class_shares.png`` into the root (and a contact sheet if asked)."""
-    from manifests.reader import part_files, read_manifest
-    from manifests.stats import bar_chart_png, share_table
-    from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record
-    from storage import Storage
-
     storage = Storage.from_uri(config.root)
     if storage.exists(CARD_FILE) and not is_our_card(storage.read_bytes(CARD_FILE)):
         raise ValueError(f"{storage.join(CARD_FILE)} exists and was not written by `idda card`; move it away first")
@@ -336,8 +334,6 @@ def write_card(config: CardConfig) -> CardResult:
     previews = find_previews(storage)
     verified = None
     if config.verify:
-        from manifests.verify import verify
-
         verified = verify(storage)
     # Local cards say "." (run the commands in the root, which may move); s3 cards the URI.
     text = card_markdown(table, record, "." if storage.is_local else storage.uri, previews, part_files(storage), verified)

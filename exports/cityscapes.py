@@ -38,11 +38,11 @@ import os
 
 import numpy as np
 
-from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
-from manifests.encoding import decode_png16
-from manifests.geometry import as_matrix
-from manifests.objects import HOOD_ID
-from exports.placing import ExportFrame, Layout, decode, is_jpeg, per_frame, png, write, write_json
+from domains.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
+from outputs.encoding import decode_png16
+from outputs.geometry import as_matrix
+from outputs.objects import HOOD_ID
+from exports.shared import ExportFrame, Layout, decode, is_jpeg, per_frame, png, write, write_json
 
 # Cityscapes label ids and colours (cityscapesScripts helpers/labels.py) for
 # the ids the catalog maps to; the gtFine colour image derives from this.

@@ -26,8 +26,8 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
-from manifests.catalog import INSTANCE_LABELS
-from exports.placing import FILE_MODES, Layout, decode
+from domains.catalog import INSTANCE_LABELS
+from exports.shared import FILE_MODES, Layout, decode
 
 ANNOTATIONS = "annotations/instances_{split}.json"
 

@@ -15,7 +15,7 @@ there:
   s3://, written in place and resumable (its ``Layout.run`` replaces the flow
   below).
 
-What they share (the frames, file placing, decoders) is ``exports.placing``.
+What they share (the frames, file placing, decoders) is ``exports.shared``.
 Every layout also gets ``frames.csv`` (one row per frame: source frame id,
 scenario, split and the exported paths) and, written last, ``EXPORT.json``
 (format, source root, query, counts): an export without it is unfinished.
@@ -29,7 +29,6 @@ half-finished export is never mistaken for a finished one.
 
 from __future__ import annotations
 
-import importlib
 import json
 import logging
 import os
@@ -40,13 +39,18 @@ import time
 import uuid
 from dataclasses import asdict, dataclass, field, replace
 
-
-from manifests.query import SPLITS, Query, run_query
-from manifests.reader import require_outputs
-from manifests.root import EXPORT_MARKER, RootError, check_export_target, export_tree
+from domains.selection import parse_selection
+from exports import cityscapes, coco, hf, idda, webdataset
 from exports.idda import SPLIT_FILES
-from exports.webdataset import SHARD_SIZE
-from exports.placing import FILE_MODES, CheckedSource, DamagedFile, Layout, frames_of, index_csv, write
+from exports.shared import (
+    FILE_MODES, CheckedSource, DamagedFile, ExportReport, Layout, frames_of, index_csv, listed_files, write,
+)
+from exports.webdataset import MIN_SHARD_SIZE, SHARD_SIZE
+from manifests.query import SPLITS, Query, run_query
+from manifests.reader import read_manifest, require_outputs
+from outputs.table import check_outputs
+from roots.contract import EXPORT_MARKER, RootError, check_export_target, export_tree
+from storage import Storage
 from storage.atomic import sync_dir
 
 log = logging.getLogger(__name__)
@@ -54,22 +58,16 @@ log = logging.getLogger(__name__)
 MARKER = EXPORT_MARKER  # written last: its presence means the export is complete
 INDEX = "frames.csv"
 
-# Export formats by name: the module whose LAYOUT writes each (imported on use,
-# so a format's optional dependency, e.g. pycocotools, is needed only by it).
-FORMATS: dict[str, str] = {
-    "cityscapes": "exports.cityscapes",
-    "idda": "exports.idda",
-    "hf": "exports.hf",
-    "coco": "exports.coco",
-    "webdataset": "exports.webdataset",
-}
+# Export formats by name: the module whose LAYOUT writes each (a format's optional dependency, e.g.
+# pycocotools, is imported by its module only when it writes).
+FORMATS = {"cityscapes": cityscapes, "idda": idda, "hf": hf, "coco": coco, "webdataset": webdataset}
 
 
 def layout(name: str) -> Layout:
     """The layout of export format ``name``; ValueError naming the valid formats."""
     if name not in FORMATS:
         raise ValueError(f"unknown export format {name!r}; valid formats: {', '.join(FORMATS)}")
-    return importlib.import_module(FORMATS[name]).LAYOUT
+    return FORMATS[name].LAYOUT
 
 
 # ---------------------------------------------------------------- export ----
@@ -99,8 +97,6 @@ class ExportConfig:
         if self.splits != "scenario" and self.format != "idda":
             raise ValueError(f"split files {self.splits!r} are for the idda format, not {self.format!r}")
         if self.holdout is not None:
-            from manifests.selection import parse_selection
-
             if self.splits != "feddrive":
                 raise ValueError("a holdout selection needs --splits feddrive")
             parse_selection(self.holdout)
@@ -112,9 +108,6 @@ class ExportConfig:
         if not webdataset and (self.outputs is not None or self.shard_size != SHARD_SIZE):
             raise ValueError(f"--outputs and --shard-size are for the webdataset format, not {self.format!r}")
         if webdataset:
-            from exports.webdataset import MIN_SHARD_SIZE
-            from manifests.outputs import check_outputs
-
             if self.outputs is not None:
                 check_outputs(self.outputs)
             if self.shard_size < MIN_SHARD_SIZE:
@@ -127,24 +120,7 @@ class ExportConfig:
         self.query.validate()
 
 
-@dataclass
-class ExportReport:
-    target: str
-    format: str
-    frames: int
-    held: int  # frames the root holds (the query chose ``frames`` of them)
-    files: int
-    per_split: dict[str, int]
-    shortfall: dict[str, int]
-    seconds: float
-    damaged: list[str] = field(default_factory=list)  # files found damaged (--skip-damaged: their frames left out)
-    skipped: int = 0  # frames left out for them
-    resumed: int = 0  # webdataset: shards an interrupted export had written and verified, kept
-
-
 def _target_dir(to: str) -> str:
-    from storage import Storage
-
     storage = Storage.from_uri(to)
     return storage.path()
 
@@ -239,9 +215,6 @@ def _commit(tmp: str, target: str, tree: dict | None) -> None:
 
 def export(config: ExportConfig) -> ExportReport:
     """Export the frames of ``config.query`` from ``config.root`` into ``config.to``."""
-    from manifests.reader import read_manifest
-    from storage import Storage
-
     config.validate()
     if layout(config.format).run is not None:  # a format that writes its target itself
         return layout(config.format).run(config)
@@ -263,7 +236,7 @@ def export(config: ExportConfig) -> ExportReport:
     if config.as_split is not None:
         frames = [replace(f, split=config.as_split) for f in frames]
 
-    expected = _listed_files(result.table)
+    expected = listed_files(result.table)
     parent = os.path.dirname(target)
     os.makedirs(parent, exist_ok=True)
     tmp = _temp_dir(target, "tmp")
@@ -321,20 +294,6 @@ def export(config: ExportConfig) -> ExportReport:
         damaged=sorted(damaged),
         skipped=asked - len(frames),
     )
-
-
-def _listed_files(table) -> dict[str, tuple[int, str]]:
-    """Every file the manifest rows of ``table`` list: {path: (bytes, sha256)}."""
-    from manifests.outputs import OUTPUTS
-    from manifests.schema import output_columns
-
-    listed = {}
-    for name in OUTPUTS:
-        path, size, sha = output_columns(name)
-        if path in table.column_names:
-            rows = zip(*(table.column(c).to_pylist() for c in (path, size, sha)))
-            listed.update((p, (n, h)) for p, n, h in rows if p is not None)
-    return listed
 
 
 def is_complete(target: str) -> bool:

@@ -27,9 +27,9 @@ from concurrent.futures import ThreadPoolExecutor
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from manifests.catalog import code_axes
+from domains.catalog import code_axes
 from manifests.query import SPLITS
-from exports.placing import Layout, decode, png
+from exports.shared import Layout, decode, png
 
 SHARD_FRAMES = 256  # frames per Parquet shard
 LICENSE = "cc-by-4.0"  # declared for the generated frames; edit the card if yours differs

@@ -16,9 +16,10 @@ from __future__ import annotations
 import os
 from typing import Callable
 
-from manifests.encoding import encode_jpeg
+from domains.selection import parse_selection
+from outputs.encoding import encode_jpeg
 from manifests.query import SPLITS
-from exports.placing import ExportFrame, Layout, decode, is_jpeg, per_frame, png, write, write_json
+from exports.shared import ExportFrame, Layout, decode, is_jpeg, per_frame, png, write, write_json
 
 
 def idda_paths(frame: ExportFrame) -> tuple[str, str]:
@@ -80,8 +81,6 @@ def _feddrive_split_files(frames: list[ExportFrame], tmp: str, config) -> list[s
     and, with ``holdout``, ``test_user_diff_domain`` (every frame of the
     held-out scenarios); ``feddrive/val/idda_val_clients.json`` the val
     frames of the training scenarios. Paths are relative to the export root."""
-    from manifests.selection import parse_selection
-
     held = {s.code for s in parse_selection(config.holdout)} if config.holdout else set()
     train: dict[str, list[ExportFrame]] = {}
     val: list[ExportFrame] = []

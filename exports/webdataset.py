@@ -28,13 +28,13 @@ Resumable: a shard counts as done when its stats file exists, names the same
 plan, and the tar's size and sha256 match it; an interrupted export run again
 writes only the shards not done. Verified: every root file is checked against
 the size and sha256 its manifest row lists as it is read
-(``exports.placing.CheckedSource``). The target must be empty, or hold only
+(``exports.shared.CheckedSource``). The target must be empty, or hold only
 what an export of ours wrote: the same plan resumes (no ``--force`` needed);
 another plan is replaced only with ``--force``, and only when every file there
 is one that plan lists; any other file refuses the export (with or without
 ``--force``), and symlinks are never followed. A local target that is a
 finished export of another format is replaced under ``--force`` by the same
-rule as every export (``manifests.root.check_export_target``).
+rule as every export (``roots.contract.check_export_target``).
 """
 
 from __future__ import annotations
@@ -52,10 +52,13 @@ import time
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
-from exports.placing import Layout
-from manifests.outputs import OUTPUTS
-from manifests.query import SPLITS
+from exports.shared import CheckedSource, ExportReport, Layout, listed_files
+from manifests.query import SPLITS, run_query
+from manifests.reader import read_manifest, require_outputs
 from manifests.schema import output_columns, with_uids
+from outputs.table import OUTPUTS
+from roots.contract import RootError, check_export_target, enclosing_root, export_tree, is_our_root
+from storage import Storage, sha256_bytes
 
 log = logging.getLogger(__name__)
 
@@ -65,7 +68,7 @@ PLAN = "webdataset.json"
 SHARDS_INDEX = "shards.json"
 FRAMES_INDEX = "frames.csv"
 STATS = "stats"
-MARKER = "EXPORT.json"  # manifests.root.EXPORT_MARKER
+MARKER = "EXPORT.json"  # roots.contract.EXPORT_MARKER
 _BLOCK = 512
 _RECORD = 20 * _BLOCK  # tarfile pads the archive to whole records
 _END = 2 * _BLOCK  # two zero blocks end a tar
@@ -120,8 +123,6 @@ class Shard:
 
 def selected_outputs(table, outputs: tuple[str, ...] | None) -> tuple[str, ...]:
     """``outputs`` checked against the rows (each row must hold each), or every output all rows hold."""
-    from manifests.reader import require_outputs
-
     if outputs is not None:
         require_outputs(table, outputs, "the webdataset export")
         return tuple(outputs)
@@ -223,8 +224,6 @@ def shard_bytes(source, shard: Shard, pool: ThreadPoolExecutor) -> tuple[memoryv
 
 def _done(target, shard: Shard, plan: str) -> dict | None:
     """The stats of ``shard`` if it was written under ``plan`` and its tar still matches them, else None."""
-    from storage import sha256_bytes
-
     try:
         stats = json.loads(target.read_bytes(shard.stats))
         if stats.get("plan") != plan or target.size(shard.name) != stats["bytes"]:
@@ -245,9 +244,6 @@ def _ours(plan: dict) -> set[str]:
 
 
 def _check_local(path: str, source) -> None:
-    from manifests.root import RootError, enclosing_root, is_our_root
-    from storage import Storage
-
     if os.path.islink(path):
         raise RootError(f"export target {path} is a symlink; give a real directory (symlinks are never followed)")
     if os.path.lexists(path) and not os.path.isdir(path):
@@ -264,8 +260,6 @@ def _check_local(path: str, source) -> None:
 
 def _prepare_target(target, plan: dict, force: bool) -> str:
     """Check the target and clear what must go; returns "fresh", "resume" or "replace"."""
-    from manifests.root import RootError, check_export_target
-
     listed = target.walk()
     if not listed:
         return "fresh"
@@ -307,12 +301,6 @@ def export_webdataset(config):
     """Write the WebDataset shards of ``config`` (an ``exports.export.ExportConfig``); returns its ExportReport."""
     from dataclasses import replace
 
-    from exports.export import ExportReport, _listed_files
-    from exports.placing import CheckedSource
-    from manifests.query import run_query
-    from manifests.reader import read_manifest
-    from manifests.root import export_tree
-    from storage import Storage, sha256_bytes
 
     config.validate()
     start = time.perf_counter()
@@ -341,7 +329,7 @@ def export_webdataset(config):
             target.remove_stale_temp(folder)  # a killed write's temp file
     target.write_bytes(PLAN, (json.dumps(plan, indent=1, sort_keys=True) + "\n").encode())
 
-    source = CheckedSource(storage, _listed_files(table))
+    source = CheckedSource(storage, listed_files(table))
     index, frames_rows, resumed = [], [], 0
     with ThreadPoolExecutor(max_workers=config.threads) as pool:
         for shard in shards:

@@ -19,9 +19,11 @@ from __future__ import annotations
 
 import re
 
-from manifests.catalog import scenario_pattern
-from manifests.outputs import FORMATS, OUTPUT_TABLE, OUTPUTS, extension
-from manifests.schema import frame_stem
+from domains.catalog import scenario_pattern
+from manifests.part_file import ManifestError, read_part_file
+from outputs.table import FORMATS, OUTPUT_TABLE, OUTPUTS, extension
+from manifests.schema import MANIFEST_DIR, PART_SCHEMA, frame_stem, output_columns
+from storage import StorageError
 
 FLAT = 1
 EPISODE_DIRS = 2
@@ -100,10 +102,6 @@ def held_layout(storage, parts: int = 8) -> int | None:
     """The layout of the frames a root's manifest lists, from the first readable
     of its first ``parts`` parts; None if it has none (for a root whose run.json
     is lost or damaged)."""
-    from manifests.schema import MANIFEST_DIR, PART_SCHEMA, output_columns
-    from manifests.writer import ManifestError, read_part_file
-    from storage import StorageError
-
     for rel in storage.list_files(MANIFEST_DIR + "/", suffix=".parquet")[:parts]:
         try:
             table = read_part_file(storage, rel, PART_SCHEMA)

@@ -2,7 +2,7 @@
 
 Filters: domains (the selection grammar; none given: every scenario the root
 holds, whatever the catalog it was made with), split, episode, class presence,
-minimum class share and the per-frame conditions (``manifests.conditions``:
+minimum class share and the per-frame conditions (``domains.conditions``:
 a minimum or maximum of e.g. visibility_m; rows without conditions, from older
 roots, never pass one). Sampling: N frames per scenario, or N in total spread
 over scenarios in proportion to what each has. Presets give the paper's
@@ -22,11 +22,11 @@ import pyarrow as pa
 import pyarrow.compute as pc
 import pyarrow.dataset as ds
 
-from manifests.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario, weather
-from manifests.conditions import check_condition, with_visibility
-from manifests.outputs import OUTPUTS
+from domains.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario, weather
+from domains.conditions import check_condition, with_visibility
+from outputs.table import OUTPUTS
 from manifests.schema import output_columns
-from manifests.selection import parse_selection
+from domains.selection import parse_selection
 
 SPLITS = ("train", "val", "test")
 SPLIT_SHARES = (0.8, 0.1, 0.1)  # each scenario tends to these shares of episodes (pipeline.planner.SPLIT_PATTERN)
@@ -159,7 +159,7 @@ PAIR_KEY = ("town", "viewpoint", "episode", "frame")  # what a frame's paired fr
 
 def paired_frames(table: pa.Table, weathers: tuple[str, ...]) -> tuple[pa.Table, int]:
     """The rows of ``table`` (manifest rows) whose frame is present under every one of ``weathers``
-    with the same episode seed (the same scene: a paired root, manifests.spec) and in the same split,
+    with the same episode seed (the same scene: a paired root, roots.episode_spec) and in the same split,
     sorted so each group of len(weathers) rows is one frame under the weathers in the order given;
     and how many frames present under every weather were left out because their weathers lie in
     different splits (a paired root made before splits were drawn per scene: pipeline.planner)."""

@@ -18,7 +18,9 @@ import pyarrow as pa
 import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
-from manifests.catalog import scenario_pattern, split_code
+from domains.catalog import scenario_pattern, split_code
+from manifests import footer_pool  # by module: tests spy on its functions
+from manifests.part_file import ManifestError, MisfiledParts, read_part_file
 from manifests.schema import (
     INDEX_DIR,
     INDEX_EPISODES_KEY,
@@ -37,8 +39,10 @@ from manifests.schema import (
     part_stem,
     output_columns,
 )
-from manifests.outputs import OUTPUTS
+from outputs.table import OUTPUTS
 from manifests.summary import _SUMMARY_COLUMNS, PartSummary, summary_of_footer, summary_of_table  # noqa: F401 (public here too)
+from storage import Storage
+from storage.buffers import arrow_reader
 
 _INDEX_RE = re.compile("^" + INDEX_DIR + "/" + scenario_pattern() + r"\.parquet$")
 
@@ -48,8 +52,6 @@ _PARQUET = ds.ParquetFileFormat()
 
 def as_storage(root):
     """A Storage for a root given as a Storage, a local path or an s3:// URI."""
-    from storage import Storage
-
     return root if isinstance(root, Storage) else Storage.from_uri(str(root))
 
 
@@ -97,6 +99,12 @@ def episode_parts(storage, scenario: str, episode: int) -> list[str]:
         if match and match.group("scenario") == scenario and int(match.group("episode")) == episode:
             found.append(rel)
     return sorted(found, key=lambda rel: -1 if named_rows(rel) is None else named_rows(rel), reverse=True)
+
+
+def read_part(storage, scenario: str, episode: int) -> pa.Table:
+    """An episode's part, under whichever name it was written."""
+    listed = episode_parts(storage, scenario, episode)
+    return read_part_file(storage, listed[0] if listed else part_path(scenario, episode), PART_SCHEMA)
 
 
 def part_files(storage) -> dict[str, dict[int, str]]:
@@ -214,10 +222,8 @@ def _read_all(storage, read, items: list[tuple[str, int]], threads: int) -> list
     """``read(storage, rel, size)`` of every item, in order: in processes where many local
     footers are read (``manifests.footer_pool``), else in threads on S3 (hiding its
     latency) and in this thread on local disk (where threads only contend for the GIL)."""
-    from manifests.footer_pool import processes_for, read_in_processes
-
-    processes = processes_for(storage, len(items))
-    done = read_in_processes(storage, read, items, processes) if processes else None
+    processes = footer_pool.processes_for(storage, len(items))
+    done = footer_pool.read_in_processes(storage, read, items, processes) if processes else None
     if done is not None:
         return done
     if storage.is_local:
@@ -308,8 +314,6 @@ def _part_rows(storage, rel: str, size: int) -> int | None:
 def refuse_misfiled(storage, summaries: dict[tuple[str, int], PartSummary | None]) -> None:
     """MisfiledParts naming the parts whose rows belong to another scenario or
     episode (swapped or copied parts): such a root is damaged, not done."""
-    from manifests.writer import MisfiledParts
-
     wrong = sorted(key for key, s in summaries.items() if isinstance(s, PartSummary) and s.misfiled(*key))
     if wrong:
         names = ", ".join(part_stem(*key) for key in wrong[:3]) + (f" and {len(wrong) - 3} more" if len(wrong) > 3 else "")
@@ -323,8 +327,6 @@ def _refuse_misfiled_fragments(storage, part_ds: ds.Dataset, rels: list[str]) ->
     """MisfiledParts naming the parts (of those read without an index) whose rows name another
     scenario or episode than their names: a swapped or copied part would give another
     scenario's frames twice. Each footer is read once and kept for the scan that follows."""
-    from manifests.writer import MisfiledParts
-
     by_path = {storage.path(rel): rel for rel in rels}
 
     def misfiled(fragment) -> str | None:
@@ -417,28 +419,12 @@ def index_bytes(table: pa.Table) -> bytes:
     return sink.getvalue()
 
 
-def build_index(storage, scenario: str, episodes: list[int]) -> bytes:
-    """The bytes of ``scenario``'s index over ``episodes``, built from its parts."""
-    from manifests.writer import read_part_file
-
-    tables, sizes = [], {}
-    listed = part_listing(storage).get(scenario, {})
-    for e in episodes:
-        rel = listed[e][0] if e in listed else part_path(scenario, e)
-        data = storage.read_bytes(rel)
-        tables.append(read_part_file(storage, rel, PART_SCHEMA, data=data))
-        sizes[e] = len(data)
-    return index_bytes(index_table(tables, scenario, episodes, sizes))
-
-
 def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str | None) -> bytes | None:
     """``scenario``'s index over the parts ``listed``: the rows of its current
     index for every part it was built from that is unchanged, and the rows of
     the other parts, read now. The sizes recorded are those of the bytes read,
     so a part rewritten meanwhile leaves the new index stale, never wrong.
     None where a part holds another scenario's or episode's rows (never indexed)."""
-    from manifests.writer import ManifestError, arrow_reader, read_part_file
-
     kept: dict[int, tuple[pa.Table, int]] = {}
     try:
         data = storage.read_bytes(index) if index is not None else None
@@ -514,8 +500,6 @@ def compact(root, scenarios: list[str] | None = None, state: ManifestScan | None
 def _readable_files(storage, files: list[str]) -> list[str]:
     """``files`` with each unreadable index swapped for its scenario's parts;
     ManifestError naming an unreadable part."""
-    from manifests.writer import ManifestError, read_part_file
-
     parts = part_files(storage)
     out = []
     for rel in files:
@@ -535,8 +519,6 @@ def scan_manifest(root, scan):
     """``scan(dataset)`` over the manifest. If the scan fails on a damaged file,
     a damaged index is skipped (its parts are read instead) and a damaged part
     raises ManifestError naming it: never an anonymous Arrow error."""
-    from manifests.writer import ManifestError
-
     storage = as_storage(root)
     try:
         return scan(manifest_dataset(storage))

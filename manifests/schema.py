@@ -7,9 +7,21 @@ import re
 
 import pyarrow as pa
 
-from manifests.catalog import AXES, CODE_CHARS, INSTANCE_LABELS, LABELS, code_axes, scenario_pattern
-from manifests.conditions import PART_CONDITIONS, VISIBILITY
-from manifests.outputs import OUTPUTS
+from domains.catalog import AXES, CODE_CHARS, INSTANCE_LABELS, LABELS, code_axes, scenario_pattern
+from domains.conditions import PART_CONDITIONS, VISIBILITY
+from outputs.table import OUTPUTS
+
+# The root's rules for what its rows and files say (issue 32; docs/layout.md, "Rules of a root"). A new
+# root records "rules": 1 in run.json's config; a root made before, without the key, keeps OLD_RULES
+# for its life (resume, --extend, --repair and verify read it from run.json):
+#   splits: per scene (town, viewpoint, episode: pipeline.planner.scene_places), so every weather of a
+#           paired scene has one split; OLD_RULES: per scenario, from its place in the selection
+#   flow:   a motion the 16-bit encoding cannot hold is invalid (outputs.encoding.encode_flow);
+#           OLD_RULES: clamped to +-512 px and kept valid (outputs.table.OLD_RULE_ENCODERS)
+#   fog:    recorded as visibility_m (float64) and blended by shifts in the contrast it leaves
+#           (domains.fog); OLD_RULES: fog_density (float32 share per km), blended linearly
+OLD_RULES, NEW_RULES = 0, 1
+RULES = (OLD_RULES, NEW_RULES)
 
 # ---------------------------------------------------------------- plan ----
 PLAN_SCHEMA = pa.schema(
@@ -59,18 +71,18 @@ _FRAME_FIELDS = [
     ("ego_speed_mps", pa.float32(), "frame"),
     ("width", pa.int32(), "spec"),
     ("height", pa.int32(), "spec"),
-    # Calibration and poses, row-major (manifests.geometry: OpenCV camera axes, world z up, metres), as
+    # Calibration and poses, row-major (outputs.geometry: OpenCV camera axes, world z up, metres), as
     # fixed-size lists: Parquet stores them as the plain lists they were (a part's bytes are the same), and
     # readers given this schema get arrays of known shape. Null in roots written before they existed.
     ("K", MATRIX3, "frame"),  # 3x3 intrinsics in pixels, pixel centres at integers
     ("cam_to_world", MATRIX4, "frame"),  # 4x4
     ("ego_to_world", MATRIX4, "frame"),  # 4x4, the ego's reference point on the road
     ("cam_to_ego", MATRIX4, "frame"),  # 4x4, fixed per viewpoint
-    # The weather the frame was rendered under (manifests.conditions: units there and in docs/weathers.md).
+    # The weather the frame was rendered under (domains.conditions: units there and in docs/weathers.md).
     # Null in roots written before they existed; fog_density null in roots of rules (visibility_m instead).
     *((c.column, pa.float32(), "condition") for c in PART_CONDITIONS),
 ]
-# Added with rules (manifests.spec.NEW_RULES) after every other column, so no column of older parts moves.
+# Added with rules (manifests.schema.NEW_RULES) after every other column, so no column of older parts moves.
 _RULE_FIELDS = [(VISIBILITY.column, pa.float64(), "condition")]
 FIELD_SOURCE = {name: source for name, _, source in _FRAME_FIELDS + _RULE_FIELDS}
 # An output a run did not ask for has null path, size and checksum.
@@ -85,7 +97,7 @@ OBJECT_FIELDS = [(label.object_column, pa.int32()) for label in INSTANCE_LABELS]
 # Schema of a part file (one episode); the full manifest adds PARTITION_KEYS.
 OLD_PART_SCHEMA = pa.schema([(n, t) for n, t, _ in _FRAME_FIELDS] + _OUTPUT_FIELDS + PIXEL_FIELDS + OBJECT_FIELDS)
 PART_SCHEMA = pa.schema(list(OLD_PART_SCHEMA) + [(n, t) for n, t, _ in _RULE_FIELDS])  # what readers read
-# a part of a root made before rules (manifests.spec.OLD_RULES) has the columns of OLD_PART_SCHEMA only
+# a part of a root made before rules (manifests.schema.OLD_RULES) has the columns of OLD_PART_SCHEMA only
 MANIFEST_SCHEMA = pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA))
 
 
@@ -165,7 +177,7 @@ def part_path(scenario: str, episode: int, rows: int | None = None) -> str:
 
 # A part's path, old names and counted ones: groups town, weather, viewpoint,
 # scenario, episode and rows (None in an old name). Any code the catalog allows
-# (manifests.catalog: CODE_CHARS, scenario_pattern).
+# (domains.catalog: CODE_CHARS, scenario_pattern).
 PART_RE = re.compile(
     "^" + MANIFEST_DIR + "/" + "/".join(f"{axis}=(?P<{axis}>{CODE_CHARS})" for axis in AXES) + "/"
     + scenario_pattern(axes=False) + r"_e(?P<episode>\d{4})(?:_n(?P<rows>[1-9]\d*))?\.parquet$"

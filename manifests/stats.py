@@ -8,7 +8,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from manifests.catalog import LABELS
+from domains.catalog import LABELS
 
 # Bar heights of the paper's Fig. "pixeldistr" (pixel counts by class). They
 # sum to about 100x the dataset's pixels, so only their shares are meaningful.

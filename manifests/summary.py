@@ -11,6 +11,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from manifests.schema import PART_SCHEMA
+from outputs.table import file_of_path
 
 # ---------------------------------------------------------------- summaries ----
 # What resume, status and the run.json checks need of a part, read from its
@@ -57,8 +58,6 @@ _SUMMARY_AT = {name: PART_SCHEMA.get_field_index(name) for name in _SUMMARY_COLU
 
 def _summary(size: int, rows: int, bounds: dict[str, tuple]) -> PartSummary:
     """From each summary column's (min, max); (None, None) for an all-null column."""
-    from manifests.outputs import file_of_path
-
     def distinct(values) -> tuple:
         return tuple(sorted(set(v for v in values if v is not None)))
 

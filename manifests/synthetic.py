@@ -11,14 +11,15 @@ from __future__ import annotations
 import numpy as np
 import pyarrow as pa
 
-from manifests.catalog import INSTANCE_LABELS, LABELS, using, viewpoint, weather
-from manifests.conditions import FOG_DENSITY, VISIBILITY, frame_conditions
-from manifests.shifts import weather_at
-from manifests.geometry import HFOV_DEG, flat, intrinsics
-from manifests.outputs import OUTPUTS
+from domains.catalog import INSTANCE_LABELS, LABELS, using, viewpoint, weather
+from domains.conditions import FOG_DENSITY, VISIBILITY, frame_conditions
+from domains.ramps import weather_at
+from manifests.writer import write_part
+from outputs.geometry import HFOV_DEG, flat, intrinsics
+from outputs.table import OUTPUTS
 from manifests.layout import frame_path
 from manifests.schema import OLD_PART_SCHEMA, PART_SCHEMA, frame_id, output_columns
-from manifests.spec import NEW_RULES
+from manifests.schema import NEW_RULES
 from manifests.stats import PAPER_SHARES
 
 _SHARES = np.array([PAPER_SHARES[label.name] for label in LABELS])
@@ -73,7 +74,7 @@ def episode_table(spec) -> pa.Table:
 
 
 def _poses(spec, camera_height_m: float, times: np.ndarray) -> dict[str, list]:
-    """Calibration and poses of an ego driving along world +x at 10 m/s (manifests.geometry's convention)."""
+    """Calibration and poses of an ego driving along world +x at 10 m/s (outputs.geometry's convention)."""
     cam_to_ego = np.array([[0.0, 0.0, 1.0, 0.2], [-1.0, 0.0, 0.0, 0.0], [0.0, -1.0, 0.0, camera_height_m],
                            [0.0, 0.0, 0.0, 1.0]])
     ego = [np.eye(4) for _ in times]
@@ -94,7 +95,6 @@ def write_parts(storage, specs, threads: int = 16) -> int:
     (no frame files); returns how many."""
     from concurrent.futures import ThreadPoolExecutor
 
-    from manifests.writer import write_part
 
     with ThreadPoolExecutor(max_workers=threads) as pool:  # many PUTs at once on S3
         list(pool.map(lambda spec: write_part(storage, spec.scenario, spec.episode, episode_table(spec)), specs))

@@ -13,26 +13,14 @@ import pyarrow.parquet as pq
 
 import numpy as np
 
-from manifests.catalog import LABELS
+from domains.catalog import LABELS
 from manifests.layout import frame_path
-from manifests.conditions import FOG_DENSITY, VISIBILITY
+from domains.conditions import FOG_DENSITY, VISIBILITY
 from manifests.schema import (FIELD_SOURCE, OBJECT_FIELDS, OLD_PART_SCHEMA, PART_SCHEMA, frame_id, frame_uid,
-                              output_columns, part_path)
-from manifests.spec import NEW_RULES
-from manifests.outputs import OUTPUTS
+                              NEW_RULES, output_columns, part_path)
+from outputs.table import OUTPUTS
+from manifests.part_file import ManifestError
 from storage import sha256_bytes
-
-
-class ManifestError(Exception):
-    """A manifest part is missing, unreadable or inconsistent."""
-
-    exit_code = 2  # what the CLI exits with
-
-
-class MisfiledParts(ManifestError):
-    """Parts whose rows belong to another scenario or episode: damaged data."""
-
-    exit_code = 1
 
 
 def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
@@ -116,38 +104,3 @@ def write_part(storage, scenario: str, episode: int, rows: list[dict] | pa.Table
     storage.write_bytes(rel, part_bytes(table))
     storage.delete(part_path(scenario, episode))
     return rel
-
-
-def read_part(storage, scenario: str, episode: int) -> pa.Table:
-    """An episode's part, under whichever name it was written."""
-    from manifests.reader import episode_parts
-
-    listed = episode_parts(storage, scenario, episode)
-    return read_part_file(storage, listed[0] if listed else part_path(scenario, episode), PART_SCHEMA)
-
-
-def arrow_reader(data: bytes) -> pa.BufferReader:
-    """A reader of ``data`` for pyarrow over a copy Arrow owns. Given Python bytes (or a
-    Python file), Arrow keeps a reference to a Python object in what it reads, and a
-    scan may drop its last reference from one of Arrow's own threads, which then takes
-    the GIL: during the interpreter's exit that thread is made to exit, and the unwind
-    through Arrow's C++ ends in ``std::terminate`` (issue 33: ``idda verify`` aborted,
-    exit 134, "terminate called without an active exception"). A copy holds no Python object."""
-    buffer = pa.allocate_buffer(len(data))
-    memoryview(buffer).cast("B")[:] = data
-    return pa.BufferReader(buffer)
-
-
-def read_part_file(storage, rel: str, schema: pa.Schema | None = None, data: bytes | None = None) -> pa.Table:
-    """Read a whole manifest file (a part or an index; ``data`` if already read),
-    page checksums verified; ManifestError naming the file if it is damaged."""
-    try:
-        data = storage.read_bytes(rel) if data is None else data
-    except FileNotFoundError:
-        raise
-    except Exception as exc:  # a directory, a FIFO, an I/O error
-        raise ManifestError(f"manifest file {storage.join(rel)} is unreadable: {exc}") from exc
-    try:
-        return pq.read_table(arrow_reader(data), schema=schema, page_checksum_verification=True)
-    except Exception as exc:  # pyarrow raises several types for a damaged file
-        raise ManifestError(f"manifest file {storage.join(rel)} is unreadable: {exc}") from exc

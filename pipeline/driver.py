@@ -19,15 +19,20 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from typing import Callable
 
+from domains.catalog import using, weather
 from manifests.layout import record_layout
-from manifests.lease import TTL_S
 from manifests.reader import compact, episode_frames, refuse_misfiled, scan
 from manifests.schema import STATS_DIR
-from pipeline.planner import make_plan
-from pipeline.ray_task import Fatal, FrameCounter, episode_task
 from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
+from pipeline.cluster import _host_port
+from pipeline.planner import make_plan
+from pipeline.provenance import RunConfigError, for_root, prepare_root, read_run
+from pipeline.ray_task import Fatal, FrameCounter, episode_task
 from pipeline.repair import check_no_repair_running, refuse_in_the_way, repair_alone
-from pipeline.runmeta import RunConfig, RunConfigError, for_root, prepare_root, read_run
+from pipeline.settings import ProduceConfig
+from roots.contract import claim_root
+from roots.lease import new_owner, register_producer
+from storage import Storage, StorageError
 
 log = logging.getLogger(__name__)
 
@@ -41,43 +46,6 @@ _FORWARDED_ENV = ("PYOPENGL_PLATFORM", "EGL_DEVICE_ID", "IDDA_FAULT_INJECT", "LP
 # the machine (2 cores, 120 full-HD frames end to end, 4 runs each alternating:
 # median 3.44 frames/s with 2 threads, 3.21 with 1).
 LP_THREADS_WHEN_FULL = "2"
-
-
-@dataclass(frozen=True)
-class ProduceConfig:
-    run: RunConfig
-    out: str  # output root: local path or s3:// URI
-    address: str | None = None  # Ray cluster; None: RAY_ADDRESS, else a local cluster
-    workers: int | None = None  # CPUs of the local cluster (default: all cores)
-    cpus_per_task: float = 1.0
-    gpus_per_task: float = 0.0  # e.g. 0.25 to pack four renderers on one GPU
-    max_retries: int = 3  # per episode, for worker/node death and renderer errors
-    max_in_flight: int | None = None  # default: twice the cluster's task slots
-    progress_interval_s: float = 1.0  # least time between two progress reports of one task
-    extend: bool = False
-    repair: bool = False
-    lease_ttl_s: float = TTL_S  # the producer lease's time to live (the CLI reads IDDA_LEASE_TTL_S)
-    index_every_s: float = 180.0  # fold finished parts into their scenarios' indexes this often
-
-    def validate(self) -> None:
-        from render_workers.worlds.registry import check_world
-
-        self.run.plan.validate()
-        check_world(self.run.world)  # here, not in each of the Ray tasks
-        if self.workers is not None and self.workers < 1:
-            raise ValueError(f"workers must be at least 1, got {self.workers}")
-        if self.cpus_per_task <= 0:
-            raise ValueError(f"cpus per task must be positive, got {self.cpus_per_task}")
-        if not 0 <= self.gpus_per_task <= 1:
-            raise ValueError(f"gpus per task must be in [0, 1], got {self.gpus_per_task}")
-        if self.max_retries < 0:
-            raise ValueError(f"max retries must be >= 0, got {self.max_retries}")
-        if self.max_in_flight is not None and self.max_in_flight < 1:
-            raise ValueError(f"max in flight must be at least 1, got {self.max_in_flight}")
-        if not self.lease_ttl_s > 0 or not self.index_every_s > 0:
-            raise ValueError(f"lease ttl and index interval must be positive, got {self.lease_ttl_s}, {self.index_every_s}")
-        if self.progress_interval_s < 0:
-            raise ValueError(f"progress interval must be >= 0 s, got {self.progress_interval_s}")
 
 
 @dataclass(frozen=True)
@@ -281,8 +249,6 @@ class _NodeWatch:
     the head's GCS port (a ``host:port`` address) refused connections for HEAD_GONE_S."""
 
     def __init__(self, ray, every_s: float = NODE_POLL_S, address: str | None = None) -> None:
-        from pipeline.cluster import _host_port
-
         self._ray, self._every_s = ray, every_s
         self._next = time.monotonic() + every_s
         self._dead = {node["NodeID"] for node in self._nodes() if not node.get("Alive")}
@@ -378,8 +344,6 @@ def _collect(ray, ref, in_flight: dict, report: ProduceReport, max_retries: int)
     """One finished task into ``report``: its frames, or its failure. A storage
     error every retry hit means the storage is down (StorageOutage); a Fatal
     one (full disk, lease lost) stops the run; either cancels the rest."""
-    from storage import StorageError
-
     spec = in_flight.pop(ref)
     try:
         result = ray.get(ref)
@@ -508,9 +472,7 @@ def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
 def reshifted_episodes(todo, frames: dict[tuple[str, int], int]) -> list[str]:
     """The keys of the episodes in ``todo`` that hold frames already and whose weather shifts: an
     --extend renders them again whole, and as the shift runs over the episode's length
-    (manifests.shifts) their earlier frames change (docs/weathers.md)."""
-    from manifests.catalog import weather
-
+    (domains.ramps) their earlier frames change (docs/weathers.md)."""
     return [spec.key for spec in todo if frames.get((spec.scenario, spec.episode)) and weather(spec.weather).shift_from]
 
 
@@ -554,8 +516,6 @@ def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None =
     in a Ray task (default: ``pipeline.episode_job.run_episode``); the control
     plane benchmark swaps in a stand-in that writes no images. The run's user
     domain entries (``PlanConfig.catalog``) are in force meanwhile."""
-    from manifests.catalog import using
-
     with using(config.run.plan.catalog):
         config.validate()
         with _cluster_first(config):
@@ -590,10 +550,6 @@ def _cluster_first(config: ProduceConfig):
 
 def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
              episode_fn: Callable | None) -> ProduceReport:
-    from manifests.lease import new_owner, register_producer
-    from manifests.root import claim_root
-    from storage import Storage, StorageError
-
     plan = make_plan(config.run.plan)
     storage = Storage.from_uri(config.out)
     claim_root(storage)  # refuses a non-empty directory that is not ours; creates and marks the root

@@ -18,12 +18,18 @@ import time
 from dataclasses import dataclass
 from typing import Callable
 
-from manifests.deflaters import deflating_with
-from manifests.outputs import OUTPUTS, encode_outputs, file_bytes
+from outputs.deflaters import deflating_with
+from outputs.table import OUTPUTS, encode_outputs, file_bytes
 from manifests.layout import frame_path, output_dir
 from manifests.schema import STATS_DIR, frame_id, part_path, part_stem
-from manifests.spec import NEW_RULES, EpisodeSpec
+from manifests.schema import NEW_RULES
+from pipeline.planner import make_plan
+from pipeline.provenance import for_root, prepare_root
+from render_workers.render.episode import render_episode
+from roots.contract import claim_root
+from roots.episode_spec import EpisodeSpec
 from manifests.writer import frame_row, write_part
+from roots.lease import LeaseLost, check_fence
 from storage.errors import storage_error
 
 log = logging.getLogger(__name__)
@@ -102,7 +108,7 @@ FENCE_EVERY_S = 1.0
 
 
 class FrameFence:
-    """The producer's lease (``manifests.lease.Fence``, None: unfenced), checked
+    """The producer's lease (``roots.lease.Fence``, None: unfenced), checked
     before frame files are written at most once per ``every_s``, and on
     ``check(force=True)``; LeaseLost once the lease is gone or its generation moved."""
 
@@ -111,8 +117,6 @@ class FrameFence:
         self._checked = float("-inf")
 
     def check(self, force: bool = False) -> None:
-        from manifests.lease import check_fence
-
         if self._fence is None:
             return
         now = time.monotonic()
@@ -145,14 +149,12 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
 
     ``on_frame(n)``, if given, is called after each frame's files are written
     with the number of frames written so far (the driver's progress).
-    ``fence`` (``manifests.lease.Fence``): the producer's lease, checked before
+    ``fence`` (``roots.lease.Fence``): the producer's lease, checked before
     frame files are written (``FrameFence``: at most once per FENCE_EVERY_S),
     before the stats, and just before and just after the part is written;
     LeaseLost, and nothing more written, if the lease was taken over or
     released meanwhile (a repair may have deleted this episode's frames, or
     the driver gave this task up and finished)."""
-    from render_workers.render.episode import render_episode
-
     start = time.perf_counter()
     for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
         storage.remove_stale_temp(output_dir(spec.scenario, output, spec.episode, spec.layout), f"{spec.episode:04d}_")
@@ -193,8 +195,6 @@ def commit_part(storage, spec: EpisodeSpec, rows: list[dict], fence=None) -> Non
     The second check closes the window between the first and the write: a
     part written after a takeover is deleted again (the episode stays pending;
     whoever renders it next writes the same bytes)."""
-    from manifests.lease import LeaseLost, check_fence
-
     check_fence(storage, fence)
     rel = write_part(storage, spec.scenario, spec.episode, rows)  # last: the "done" marker
     try:
@@ -208,10 +208,6 @@ def render_plan(storage, config, extend: bool = False) -> None:
     """Claim ``storage`` as a root, prepare it for ``config`` (a RunConfig) and
     render every planned episode into it here, one after another, with no Ray:
     the same files produce's workers write (tests, reports). ``extend``: as --extend."""
-    from manifests.root import claim_root
-    from pipeline.planner import make_plan
-    from pipeline.runmeta import for_root, prepare_root
-
     storage.ensure_writable()
     claim_root(storage)  # as produce does: the root marker first
     record = prepare_root(storage, config, extend=extend)

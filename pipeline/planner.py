@@ -16,12 +16,21 @@ import math
 from dataclasses import asdict, dataclass, field
 
 
-from manifests.catalog import TOWN_BY_CODE, TOWNS, WEATHERS, VIEWPOINTS, Town, catalog_for, using
-from manifests.encoding import check_rgb_format
-from manifests.outputs import DEFAULT_OUTPUTS, check_outputs
-from manifests.selection import parse_selection
-from manifests.spec import (FRAME_PERIOD_S, NEW_RULES, OLD_RULES, PAIRED, UNPAIRED, EpisodeSpec, check_frame_interval,
-                            check_pairing, check_rules, episode_seed)
+from domains.catalog import TOWN_BY_CODE, TOWNS, WEATHERS, VIEWPOINTS, Town, catalog_for, using
+from outputs.encoding import check_rgb_format
+from outputs.table import DEFAULT_OUTPUTS, check_outputs
+from domains.selection import parse_selection
+from roots.episode_spec import (
+    FRAME_PERIOD_S,
+    PAIRED,
+    UNPAIRED,
+    EpisodeSpec,
+    check_frame_interval,
+    check_pairing,
+    check_rules,
+    episode_seed,
+)
+from manifests.schema import NEW_RULES, OLD_RULES
 
 PAPER_TOTAL_FRAMES = 1_006_800
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
@@ -88,14 +97,14 @@ class PlanConfig:
     width: int = 1920
     height: int = 1080
     seed: int = 0
-    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # what every frame writes (manifests.outputs)
+    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # what every frame writes (outputs.table)
     rgb_format: str = "png"  # the rgb output's file format: png (lossless) or jpg (IDDA's released format)
     catalog: str = ""  # user domain entries in force (Catalog.layer_json; a dict when read back from JSON)
     frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (3 s: the paper's sparse sampling)
-    # manifests.spec.PAIRED (new roots): episode seeds leave the weather out; UNPAIRED is what a config
+    # roots.episode_spec.PAIRED (new roots): episode seeds leave the weather out; UNPAIRED is what a config
     # recorded before pairing means (run.json or a plan file without the key: RECORDED_DEFAULTS)
     pairing: int = PAIRED
-    # manifests.spec.NEW_RULES (new roots): splits per scene, ...; OLD_RULES is what a config recorded
+    # manifests.schema.NEW_RULES (new roots): splits per scene, ...; OLD_RULES is what a config recorded
     # before them means (RECORDED_DEFAULTS)
     rules: int = NEW_RULES
 

@@ -72,8 +72,8 @@ def episode_task(spec, storage, world, counter=None, lp_threads=None, progress_i
                  fence=None):
     """Render one episode in a Ray worker (with ``episode_fn``, default ``run_episode``); a ``Fatal`` in
     place of errors retrying cannot help (a full disk, or the producer's lease lost: ``fence``)."""
-    from pipeline.episode_job import run_episode
-    from storage import StorageError
+    from pipeline.episode_job import run_episode  # deferred: the progress actor imports this module, not the renderer
+    from storage import StorageError  # deferred: (as above)
 
     if lp_threads is not None:  # read when this worker's GL context is made (its first episode)
         os.environ.setdefault("LP_NUM_THREADS", lp_threads)

@@ -5,16 +5,18 @@ symbolic links (nothing is deleted when any check refuses)."""
 from __future__ import annotations
 
 import logging
-from typing import TYPE_CHECKING
 
+from manifests.layout import NEW_ROOT_LAYOUT, frame_path, held_layout, record_layout
 from manifests.reader import episode_parts
-from manifests.layout import frame_path
 from manifests.schema import frame_id, index_path, part_path
 from pipeline.cluster import cluster_address
-from pipeline.runmeta import RunConfigError, prepare_root
-
-if TYPE_CHECKING:
-    from pipeline.driver import ProduceConfig
+from pipeline.provenance import RunConfigError, check_before_repair, prepare_root
+from pipeline.settings import ProduceConfig
+from pipeline import verify_ray  # by module: a test stands in for choose_runner
+from roots.contract import RootError
+from roots.lease import LeaseError, acquire_exclusive, describe, exclusive_holder, live_producers
+from roots.run_file import RunRecordError, read_record
+from roots.verify import Scope, verify
 
 log = logging.getLogger(__name__)
 
@@ -29,10 +31,6 @@ def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
     scenarios are verified. A symbolic link anywhere in them, or a part whose
     rows belong to another run (seed, resolution), refuses the whole repair:
     RootError or RunConfigError, and nothing deleted."""
-    from manifests.root import RootError
-    from manifests.verify import Scope, verify
-    from pipeline.runmeta import check_before_repair
-
     check_before_repair(storage, config.run, extend=config.extend)
     scope = Scope(scenarios=frozenset(plan.scenarios()))
     report = verify(storage, scope=scope, config=config.run.to_dict(), runner=verify_runner(config),
@@ -82,8 +80,6 @@ def refuse_in_the_way(storage, specs, layout: int, nothing_done: str, parts_only
     """RootError in one line naming the first thing (a folder, a link, a special file) that
     stands where rendering ``specs`` would write a file (``parts_only``: only their parts).
     Nothing of it is ever deleted: it may be a user's."""
-    from manifests.root import RootError
-
     for spec in specs:
         # parts_only: the part's path alone, not the frames' hundreds first (a resume with
         # 12,000 episodes pending spent over two minutes building paths it never looked at)
@@ -98,9 +94,6 @@ def refuse_in_the_way(storage, specs, layout: int, nothing_done: str, parts_only
 
 def _root_layout(storage) -> int:
     """The root's file layout: run.json's, else that of the frames its parts list."""
-    from manifests.layout import NEW_ROOT_LAYOUT, held_layout, record_layout
-    from manifests.runrecord import RunRecordError, read_record
-
     try:
         record = read_record(storage)
     except RunRecordError:
@@ -111,14 +104,10 @@ def _root_layout(storage) -> int:
 def verify_runner(config: ProduceConfig):
     """Repair's verify: on Ray when produce would attach to a cluster or the
     scope is large, else in this process."""
-    from pipeline.verify_ray import choose_runner
-
-    return choose_runner(address=cluster_address(config.address), workers=config.workers)
+    return verify_ray.choose_runner(address=cluster_address(config.address), workers=config.workers)
 
 
 def check_no_repair_running(storage) -> None:
-    from manifests.lease import LeaseError, describe, exclusive_holder
-
     holder = exclusive_holder(storage)
     if holder is not None and holder.get("purpose") == "repair":
         raise LeaseError(f"{storage.uri} is being repaired ({describe(holder)}); run again when it is done")
@@ -126,8 +115,6 @@ def check_no_repair_running(storage) -> None:
 
 def repair_alone(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
     """Repair under the root's exclusive lease, refusing beside another live producer."""
-    from manifests.lease import LeaseError, acquire_exclusive, describe, live_producers
-
     with acquire_exclusive(storage, "repair", owner=owner):
         others = live_producers(storage, except_owner=owner)
         if others:

@@ -5,12 +5,12 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass, field
 
-from manifests.reader import episode_frames
-from manifests.root import require_root
-from manifests.runrecord import REPAIR_HINT
+from manifests.reader import episode_frames, part_files, rows_read
+from roots.contract import require_root
+from roots.run_file import REPAIR_HINT
 from manifests.schema import STATS_DIR
 from pipeline.planner import make_plan
-from pipeline.runmeta import read_run, recorded_config
+from pipeline.provenance import read_run, recorded_config
 from storage import StorageError
 
 
@@ -84,8 +84,6 @@ def _check_names(storage, plan, held: dict[tuple[str, int], int], status: RootSt
     """A part whose name says more rows than the plan asks cannot be one this run wrote
     (a root never shrinks): its footer is read, ``held`` takes the rows it really
     holds, and ``status.misnamed`` names it. Only such parts are read."""
-    from manifests.reader import part_files, rows_read
-
     frames = {(e.scenario, e.episode): e.frames for e in plan.episodes}
     over = sorted(key for key, rows in held.items() if key in frames and rows > frames[key])
     paths = part_files(storage) if over else {}

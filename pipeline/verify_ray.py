@@ -1,4 +1,4 @@
-"""Verify on Ray: ``manifests.verify.check_unit`` as one task per scenario.
+"""Verify on Ray: ``roots.verify.check_unit`` as one task per scenario.
 
 The driver plans the units (a listing of the parts, never their rows) and
 gathers each unit's small result; the workers list, read and hash. At most
@@ -15,6 +15,9 @@ import os
 from collections import deque
 from typing import Callable, Iterator
 
+from pipeline.cluster import _import_ray, attach
+from roots.verify import check_unit, plain_runner
+
 log = logging.getLogger(__name__)
 
 # Below this many parts in scope (and with no cluster to attach to), starting a
@@ -23,11 +26,9 @@ RAY_MIN_PARTS = 256
 
 
 def choose_runner(address: str | None = None, workers: int | None = None, use_ray: bool | None = None) -> Callable[..., Iterator]:
-    """The runner for ``manifests.verify.verify``: ``use_ray`` True forces Ray,
+    """The runner for ``roots.verify.verify``: ``use_ray`` True forces Ray,
     False this process; None (auto) uses Ray with an address, an initialised
     Ray, or at least RAY_MIN_PARTS parts in scope."""
-    from manifests.verify import plain_runner
-
     address = address or os.environ.get("RAY_ADDRESS") or None
 
     def run(storage, units, config, threads, on_files):
@@ -53,9 +54,6 @@ def _ray_initialized() -> bool:
 def ray_units(storage, units: list, config: dict | None, threads: int, address: str | None,
               workers: int | None) -> Iterator:
     """Run ``check_unit`` for each unit as a Ray task; yields results as they finish."""
-    from manifests.verify import check_unit
-    from pipeline.cluster import _import_ray, attach
-
     ray = _import_ray()
     started = not ray.is_initialized()
     reaper = None

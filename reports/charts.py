@@ -7,8 +7,10 @@ from pathlib import Path
 
 import numpy as np
 
+from domains.catalog import LABELS, NAME2LABEL, TOWNS, VIEWPOINTS, WEATHERS
+from outputs.encoding import decode_png
+from render_workers.render.preview import contact_sheet
 from reports.sample import LARGE, span, urban_towns
-
 
 CELL_WIDTH = 320  # contact sheet cell width (px)
 TOWN_SHEET_CELL = 480  # the one-frame-per-town sheet's cell width (px)
@@ -27,7 +29,6 @@ def presence_png(stats: dict) -> bytes:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from manifests.catalog import LABELS
 
     idx = [label.id for label in LABELS if label.evaluated]
     names = [LABELS[i].name for i in idx]
@@ -55,7 +56,6 @@ def town_share_png(stats: dict) -> bytes:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from manifests.catalog import LABELS, NAME2LABEL
 
     towns = list(stats["share_by_town"])
     fig, ax = plt.subplots(figsize=(9, 4), dpi=100)
@@ -109,8 +109,6 @@ def town_sheet(root: str, table, out_dir: Path, cell_width: int = TOWN_SHEET_CEL
     import cv2
     import pyarrow.compute as pc
 
-    from manifests.catalog import TOWNS
-    from manifests.encoding import decode_png
 
     frames = sorted(set(table.column("frame").to_pylist()))
     middle = frames[len(frames) // 2]
@@ -141,9 +139,6 @@ def contact_sheets(root: str, table, out_dir: Path, cell_width: int) -> list[str
     import cv2
     import pyarrow.compute as pc
 
-    from manifests.catalog import TOWNS, VIEWPOINTS, WEATHERS
-    from manifests.encoding import decode_png
-    from render_workers.render.preview import contact_sheet
 
     first = table.filter(pc.and_(pc.equal(table.column("episode"), 0), pc.equal(table.column("frame"), 0)))
     paths = dict(zip(first.column("scenario").to_pylist(), first.column("rgb_path").to_pylist()))

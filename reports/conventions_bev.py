@@ -2,7 +2,7 @@
 
 A short episode is rendered (``tests.roots``-style: the worker function, no cluster)
 into a scratch root; every frame's planar depth is back-projected into the world with
-the row's ``K`` and ``cam_to_world`` (``manifests.geometry.depth_to_world``), the
+the row's ``K`` and ``cam_to_world`` (``outputs.geometry.depth_to_world``), the
 points coloured by their semantic class, and the camera centres and optical axes
 drawn on top, seen from above (world x right, world y up). Where the frames' clouds
 agree the calibration and poses agree; run ``python -m reports.conventions_bev``.
@@ -16,6 +16,15 @@ import shutil
 from pathlib import Path
 
 import numpy as np
+
+from domains.catalog import LABELS
+from manifests.reader import read_manifest
+from outputs.encoding import decode_depth_raw, decode_png
+from outputs.geometry import depth_to_world, unflat
+from pipeline.episode_job import render_plan
+from pipeline.planner import PlanConfig
+from pipeline.settings import RunConfig
+from storage import Storage
 
 DOMAIN = "T01_CS_A"
 FRAMES = 8
@@ -33,11 +42,6 @@ log = logging.getLogger(__name__)
 def render_episode(root: str, domain: str = DOMAIN, frames: int = FRAMES, width: int = WIDTH,
                    height: int = HEIGHT, interval_s: float = INTERVAL_S, world: str = WORLD) -> None:
     """Render the planned episodes of ``domain`` into a fresh ``root`` with the worker function."""
-    from pipeline.episode_job import render_plan
-    from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
-    from storage import Storage
-
     shutil.rmtree(root, ignore_errors=True)
     plan = PlanConfig(domains=domain, frames_per_scenario=frames, width=width, height=height, seed=SEED,
                       frame_interval_s=interval_s)
@@ -46,11 +50,6 @@ def render_episode(root: str, domain: str = DOMAIN, frames: int = FRAMES, width:
 
 def episode_points(root: str) -> tuple[list[dict], np.ndarray, np.ndarray]:
     """The first episode's rows (frame order), its world points (N, 3) and their class ids (N,)."""
-    from manifests.encoding import decode_depth_raw, decode_png
-    from manifests.geometry import depth_to_world
-    from manifests.reader import read_manifest
-    from storage import Storage
-
     storage = Storage.from_uri(root)
     rows = read_manifest(root).to_pylist()
     first = min((r["scenario"], r["episode"]) for r in rows)
@@ -73,8 +72,6 @@ def bev_png(rows: list[dict], points: np.ndarray, classes: np.ndarray) -> bytes:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from manifests.catalog import LABELS
-    from manifests.geometry import unflat
 
     colors = np.zeros((256, 3))
     for label in LABELS:

@@ -1,7 +1,7 @@
 """The sample ``make report`` renders: its size, how it is produced, and which towns are urban.
 
 One short episode per scenario at reduced resolution (``pipeline.driver.produce``),
-rebuilt on every run in ``SAMPLE_ROOT``; ``reports.shifts`` renders its five domains
+rebuilt on every run in ``SAMPLE_ROOT``; ``reports.shift_section`` renders its five domains
 the same way.
 """
 
@@ -12,6 +12,12 @@ import logging
 import shutil
 from pathlib import Path
 
+from domains.catalog import TOWNS
+from pipeline.driver import produce
+from pipeline.planner import PlanConfig
+from pipeline.settings import ProduceConfig, RunConfig
+from render_workers.render.episode import DEFAULT_WORLD
+from render_workers.worlds.styles import is_urban
 
 SAMPLE_ROOT = "/tmp/idda-worlds-sample"  # outside git; rebuilt on every run
 FRAMES = 8  # per scenario: one episode of 8 frames (21 s of driving)
@@ -25,11 +31,6 @@ log = logging.getLogger(__name__)
 
 
 def produce_sample(root: str, frames: int, width: int, height: int, workers: int, domains: str = "all") -> dict:
-    from pipeline.driver import ProduceConfig, produce
-    from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
-    from render_workers.render.episode import DEFAULT_WORLD
-
     shutil.rmtree(root, ignore_errors=True)  # a stale root would be resumed, not re-rendered
     plan = PlanConfig(domains=domains, frames_per_scenario=frames, width=width, height=height, seed=SEED)
     config = ProduceConfig(run=RunConfig(plan=plan, world=DEFAULT_WORLD), out=root, workers=workers)
@@ -59,16 +60,11 @@ def episode_stats(root: str) -> list[dict]:
 
 def urban_towns() -> tuple[str, ...]:
     """Towns with sidewalks and buildings (``render_workers.worlds.styles.urban``): the rare-class presence target's frames."""
-    from manifests.catalog import TOWNS
-    from render_workers.worlds.styles import is_urban
-
     return tuple(t.code for t in TOWNS if is_urban(t))
 
 
 def span(codes: tuple[str, ...]) -> str:
     """Town codes as a range when they are consecutive in the catalog (T01-T06), else listed."""
-    from manifests.catalog import TOWNS
-
     order = [t.code for t in TOWNS]
     at = [order.index(c) for c in codes]
     if len(codes) > 2 and at == list(range(at[0], at[0] + len(at))):

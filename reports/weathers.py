@@ -1,6 +1,6 @@
 """The pictures of docs/weathers.md: the weathers beyond the paper, and a shift inside an episode.
 
-* A contact sheet: one paired episode (the same scene, manifests.spec PAIRED) of
+* A contact sheet: one paired episode (the same scene, roots.episode_spec PAIRED) of
   ``TOWN``/``VIEWPOINT`` under each weather of ``SHEET_WEATHERS``, one column per
   frame picked, one row per weather, each labelled.
 * A strip: the frames of one shifting episode (``SHIFT``, e.g. CNtoNT) side by
@@ -17,6 +17,11 @@ import logging
 from pathlib import Path
 
 import numpy as np
+
+from domains.catalog import format_code, scenario
+from render_workers.render import episode
+from render_workers.render.renderer import Renderer
+from roots.episode_spec import PAIRED, EpisodeSpec, episode_seed
 
 TOWN, VIEWPOINT = "T01", "A"
 SHEET_WEATHERS = ("CN", "FG", "NT", "SN")
@@ -35,10 +40,6 @@ def episode_frames(weather: str, frames: int, *, width: int = WIDTH, height: int
                    interval_s: float = INTERVAL_S, renderer=None) -> list:
     """The rendered frames (``render_workers.worlds.scene.Frame``) of episode 0 of TOWN_weather_VIEWPOINT,
     seeded as a new (paired) root seeds it."""
-    from manifests.catalog import format_code, scenario
-    from manifests.spec import PAIRED, EpisodeSpec, episode_seed
-    from render_workers.render import episode
-
     code = format_code(TOWN, weather, VIEWPOINT)
     spec = EpisodeSpec(code, 0, episode_seed(SEED, scenario(code), 0, PAIRED), frames, width, height, "train",
                        SEED, frame_interval_s=interval_s)
@@ -85,8 +86,6 @@ def png(image: np.ndarray) -> bytes:
 
 def write_pictures(out_dir: str, **render) -> tuple[str, str]:
     """Render and write weathers_sheet.png and weathers_shift.png into ``out_dir``; returns their paths."""
-    from render_workers.render.renderer import Renderer
-
     frames = max(SHEET_FRAMES) + 1
     with Renderer() as renderer:
         rows = {w: episode_frames(w, frames, renderer=renderer, **render) for w in SHEET_WEATHERS}

@@ -11,9 +11,9 @@ episode per scenario at reduced resolution, frames 3 s apart), then writes
   urban towns T01-T06;
 * the paper's three domain distances (``analysis.distances``) and a 2-D
   embedding of all domains;
-* the paper's domain-shift table (``reports.shifts``: ``idda shifts``
+* the paper's domain-shift table (``reports.shift_section``: ``idda shifts``
   on its five domains, 150 frames each);
-* synthetic to real on CamVid at two seeds (``reports.camvid``: ``idda shifts
+* synthetic to real on CamVid at two seeds (``reports.camvid_section``: ``idda shifts
   --camvid``; the folder from ``$IDDA_CAMVID``, else the section says it was skipped);
 * one contact sheet per weather (7 towns x 5 viewpoints): frame 0 of episode 0
   of every scenario, i.e. exactly what ``render_workers.render.preview.write_preview``
@@ -31,12 +31,20 @@ from pathlib import Path
 
 import numpy as np
 
-from manifests.catalog import split_code
-from reports.camvid import measure as measure_camvid
-from reports.shifts import measure as measure_shifts
+from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table
+from domains.catalog import LABELS, TOWNS, split_code
+from manifests.reader import read_manifest
+from manifests.stats import PAPER_SHARES, bar_chart_png, class_pixels, class_presence, share_table
+from pipeline.planner import EPISODE_FRAMES
+from render_workers.render.episode import WORLDS
+from render_workers.worlds import traffic, world
+from render_workers.worlds.styles import look
+from reports.camvid_section import measure as measure_camvid
+from reports.shift_section import measure as measure_shifts
 from reports.charts import CELL_WIDTH, MAX_PNG_BYTES, contact_sheets, presence_png, town_share_png, town_sheet
 from reports.sample import FRAMES, HEIGHT, LARGE, RARE, SAMPLE_ROOT, SEED, WIDTH, WORKERS, episode_stats, produce_sample, urban_towns
 from reports.worlds_md import markdown
+from roots.episode_spec import town_seed
 
 log = logging.getLogger(__name__)
 
@@ -49,8 +57,6 @@ def class_tables(table) -> dict:
     import pyarrow as pa
     import pyarrow.compute as pc
 
-    from manifests.catalog import LABELS, TOWNS
-    from manifests.stats import PAPER_SHARES, class_pixels, class_presence
 
     towns = pc.utf8_slice_codeunits(table.column("scenario"), 0, 3)
     urban = table.filter(pc.is_in(towns, value_set=pa.array(urban_towns())))
@@ -87,8 +93,6 @@ def checks(stats: dict) -> dict:
 
 
 def distances(root: str, images: Path) -> dict:
-    from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table
-
     report = domain_distances(DistanceConfig(root=root, samples=500, threads=2))
     (images / "worlds_domain_embedding.png").write_bytes(embedding_png(report))
     pairs = [{"case": p.case, "source": p.source, "target": p.target, "euclidean": p.euclidean,
@@ -123,11 +127,6 @@ def distances(root: str, images: Path) -> dict:
 
 def world_timings(stats: list[dict]) -> dict:
     """Fresh build_world and populate times per town (this process), and the sample's render times."""
-    from manifests.catalog import TOWNS
-    from manifests.spec import town_seed
-    from pipeline.planner import EPISODE_FRAMES
-    from render_workers.worlds import traffic, world
-
     out = {}
     for t in TOWNS:
         world.plan.cache_clear()
@@ -167,9 +166,6 @@ def bench_render(docs: Path) -> dict | None:
 
 
 def _styles() -> dict:
-    from manifests.catalog import TOWNS
-    from render_workers.worlds.styles import look
-
     def row(s) -> dict:
         return {"name": s.name, "architecture": s.architecture, "road": s.asphalt, "road_edge": s.road_edge,
                 "edge_surfaces": list(s.paving) if s.sidewalks else [s.verge], "lane_w_m": s.lane_w_m,
@@ -183,7 +179,6 @@ def _bench_summary(bench: dict | None) -> str | None:
     """One line of whole-frame seconds per world from bench_render.json, whatever its exact layout."""
     if not bench:
         return None
-    from render_workers.render.episode import WORLDS
 
     parts = []
     for world in WORLDS:
@@ -199,9 +194,6 @@ def _bench_summary(bench: dict | None) -> str | None:
 
 def main(out_dir: str = "docs", frames: int = FRAMES, width: int = WIDTH, height: int = HEIGHT,
          root: str = SAMPLE_ROOT, workers: int = WORKERS, domains: str = "all", camvid: str | None = None) -> dict:
-    from manifests.reader import read_manifest
-    from manifests.stats import bar_chart_png, share_table
-
     docs = Path(out_dir)
     images = docs / "images"
     images.mkdir(parents=True, exist_ok=True)

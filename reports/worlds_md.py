@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import json
+import logging
+import sys
 from pathlib import Path
 
-from reports.camvid import markdown as camvid_markdown
-from reports.shifts import markdown as shifts_markdown
+from reports.camvid_section import markdown as camvid_markdown, measure as measure_camvid
+from reports.shift_section import markdown as shifts_markdown, measure as measure_shifts
 from reports.sample import LARGE, SEED, span, urban_towns
 
 
@@ -241,3 +244,29 @@ def _distance_notes(order: list[str], d: dict) -> list[str]:
         "",
     ]
     return lines
+
+
+# a section measured again on its own: python -m reports.worlds_md shifts|camvid
+SECTIONS = {"shifts": measure_shifts, "camvid": measure_camvid}
+
+
+def put_section(docs: str, key: str, result: dict) -> None:
+    """Set ``key`` of docs/worlds.json to ``result`` and write docs/worlds.md from that JSON as the
+    generator does (:func:`markdown`), so the page is always what the generator writes."""
+    js = Path(docs, "worlds.json")
+    data = json.loads(js.read_text())
+    data[key] = result
+    js.write_text(json.dumps(data, indent=1, default=float) + "\n")
+    Path(docs, "worlds.md").write_text(markdown(data))
+
+
+def update_docs(key: str, result: dict, docs: str = "docs") -> None:
+    """Put one section into an existing docs/worlds.md (and worlds.json) without re-running the whole report."""
+    put_section(docs, key, result)
+
+
+if __name__ == "__main__":
+    logging.basicConfig(level=logging.INFO, format="%(message)s")
+    if len(sys.argv) != 2 or sys.argv[1] not in SECTIONS:
+        raise SystemExit(f"usage: python -m reports.worlds_md {{{','.join(SECTIONS)}}}")
+    update_docs(sys.argv[1], SECTIONS[sys.argv[1]]())

@@ -15,6 +15,7 @@ import pyarrow.fs as pafs
 from storage import atomic
 from storage.checksum import sha256_bytes, sha256_stream
 from storage.errors import StorageError, describe, storage_error
+from storage import s3get  # by module: tests stand in for its client
 from storage.uri import Location, S3Config, clean_rel, parse_root
 
 # Arrow's S3 output stream (with allow_delayed_open) sends objects below 10 MiB
@@ -225,12 +226,11 @@ class Storage:
         rel = clean_rel(rel)
         if self.is_local:
             return self.read_bytes(rel)
-        from storage.s3get import client_for, get_object
 
-        client = client_for(self._s3)
+        client = s3get.client_for(self._s3)
         if client is None:
             return self.read_bytes(rel)
-        return self._guard("read", rel, lambda: get_object(client, self.path(rel)))
+        return self._guard("read", rel, lambda: s3get.get_object(client, self.path(rel)))
 
     def sha256(self, rel: str) -> str:
         """Hex SHA-256 of ``rel``, streamed in 1 MiB chunks."""

@@ -28,7 +28,7 @@ def reference(tmp_path_factory):
     """The plan of ``tests.test_produce`` (PLAN) rendered once per session, without
     Ray, indexes included: what every produce, resume and repair of it must equal,
     byte for byte. Read-only: tests copy it before they change anything."""
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
     from tests.test_produce import PLAN
 

@@ -34,31 +34,31 @@ from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[1]
 WORK = REPO / ".mutants"
-PACKAGES = ("storage", "manifests", "pipeline", "exports", "render_workers", "analysis")
+PACKAGES = ("storage", "domains", "outputs", "manifests", "roots", "pipeline", "exports", "render_workers", "analysis")
 # Fixtures that start Ray (a local cluster) or the local S3 server: those tests are left out.
 LEFT_OUT_FIXTURES = {"ray_local", "ray_cluster", "cluster", "s3_server"}
 
 # The modules that keep data safe (atomic writes, checksums, the root's contract, leases, the run
 # record, the manifest writer and reader, verify, repair, export, the episode commit, run.json's rules).
-DATA_PROTECTING = ("storage/atomic.py", "storage/checksum.py", "manifests/root.py", "manifests/lease.py",
-                   "manifests/runrecord.py", "manifests/writer.py", "manifests/reader.py", "manifests/verify.py",
-                   "pipeline/repair.py", "exports/export.py", "pipeline/episode_job.py", "pipeline/runmeta.py")
+DATA_PROTECTING = ("storage/atomic.py", "storage/checksum.py", "roots/contract.py", "roots/lease.py",
+                   "roots/run_file.py", "manifests/writer.py", "manifests/reader.py", "roots/verify.py",
+                   "pipeline/repair.py", "exports/export.py", "pipeline/episode_job.py", "pipeline/provenance.py")
 # The tests written against mutants (issue 33's hand-made bugs, then mutmut's survivors): run for every module.
 ALWAYS = ("tests/test_caught_bugs.py", "tests/test_mutant_kills.py")
 # module -> the fast tests that exercise it (besides ALWAYS); modules in the order they are worth running
 MODULES: dict[str, tuple[str, ...]] = {
     "storage/atomic.py": ("tests/test_storage.py", "tests/test_durability.py"),
-    "manifests/lease.py": ("tests/test_control_plane.py",),
-    "manifests/runrecord.py": ("tests/test_layout.py",),
-    "pipeline/runmeta.py": ("tests/test_layout.py", "tests/test_pairing.py"),
+    "roots/lease.py": ("tests/test_control_plane.py",),
+    "roots/run_file.py": ("tests/test_layout.py",),
+    "pipeline/provenance.py": ("tests/test_layout.py", "tests/test_pairing.py"),
     "pipeline/repair.py": (),
     "exports/export.py": ("tests/test_export.py", "tests/test_durability.py"),
     "pipeline/episode_job.py": ("tests/test_episode.py", "tests/test_control_plane.py", "tests/test_durability.py"),
     "manifests/writer.py": ("tests/test_part_names.py", "tests/test_manifest_query.py"),
     "manifests/reader.py": ("tests/test_manifest_query.py", "tests/test_part_names.py", "tests/test_control_plane.py",
                             "tests/test_footer_pool.py"),
-    "manifests/verify.py": ("tests/test_part_names.py", "tests/test_layout.py", "tests/test_outputs_subsets.py"),
-    "manifests/root.py": ("tests/test_export.py", "tests/test_layout.py", "tests/test_control_plane.py"),
+    "roots/verify.py": ("tests/test_part_names.py", "tests/test_layout.py", "tests/test_outputs_subsets.py"),
+    "roots/contract.py": ("tests/test_export.py", "tests/test_layout.py", "tests/test_control_plane.py"),
     "storage/checksum.py": ("tests/test_storage.py",),
 }
 STATUS = {1: "killed", 3: "killed", 37: "killed", 0: "survived", 5: "no tests", 33: "no tests", 34: "skipped",

@@ -49,7 +49,7 @@ def to_old_names(storage) -> int:
 def as_made_before(storage, key: str) -> None:
     """Drop the config ``key`` from ``storage``'s run.json (its config and history), as a root made
     before that key existed records it (e.g. "pairing", "rules")."""
-    from manifests.runrecord import read_record, record_bytes
+    from roots.run_file import read_record, record_bytes
     from manifests.schema import RUN_FILE
 
     record = read_record(storage)

@@ -10,7 +10,7 @@ from benchmarks import bench_outputs as bench
 
 
 def test_sets_add_each_opt_in_output_to_the_default():
-    from manifests.outputs import DEFAULT_OUTPUTS
+    from outputs.table import DEFAULT_OUTPUTS
 
     assert bench._outputs("default") == DEFAULT_OUTPUTS
     assert bench._outputs("+flow") == (*DEFAULT_OUTPUTS, "flow")

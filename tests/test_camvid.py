@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from analysis.camvid import CAMVID_TO_INDEX, OURS_TO_INDEX, camvid_pairs, is_camvid, load_synthetic
+from analysis.camvid import CAMVID_TO_INDEX, OURS_TO_INDEX, load_synthetic
+from analysis.camvid_layout import camvid_pairs, is_camvid
 from analysis.metrics import IGNORE
-from manifests.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID, LABELS, class_id
+from domains.catalog import CAMVID_CLASSES, CAMVID_LUT, CAMVID_VOID, LABELS, class_id
 from tests.test_export import cli_app
 
 DOMAINS = "T01_CN_V"  # no hood: the frames are the same on both sides
@@ -27,7 +28,7 @@ def twins(tmp_path_factory):
     from analysis.loaders import FrameDataset
     from manifests.query import Query
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     base = tmp_path_factory.mktemp("camvid")
@@ -79,7 +80,8 @@ def test_not_camvid_layout_says_what_is_missing(tmp_path):
 
 
 def test_a_camvid_folder_is_a_real_domain_for_distances_not_for_pairs(twins):
-    from analysis.real import RealFolder, load_real
+    from analysis.real import RealFolder
+    from analysis.shift_table import load_real
 
     _, folder = twins
     images = RealFolder(str(folder), ("train", "val")).images()
@@ -111,7 +113,7 @@ def test_the_same_frames_on_both_sides_keep_everything(twins, tmp_path):
 
 def test_the_hood_is_cropped_before_mapping(twins):
     from analysis.camvid import crop_hood
-    from manifests.catalog import viewpoint
+    from domains.catalog import viewpoint
 
     rgb, ids = np.zeros((100, 8, 3), np.uint8), np.zeros((100, 8), np.uint8)
     cut = crop_hood(rgb, ids, "A")
@@ -144,7 +146,7 @@ def test_config_is_checked_before_training(twins):
 
 
 def test_report_section_says_why_it_is_skipped(monkeypatch, tmp_path):
-    from reports.camvid import ENV, SECTION_TITLE, markdown, measure
+    from reports.camvid_section import ENV, SECTION_TITLE, markdown, measure
 
     monkeypatch.delenv(ENV, raising=False)
     skipped = measure(docs=str(tmp_path))

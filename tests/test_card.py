@@ -14,12 +14,12 @@ import pytest
 from PIL import Image
 from typer.testing import CliRunner
 
-from manifests.catalog import LABELS
+from domains.catalog import LABELS
 from manifests.reader import read_manifest
 from tests.roots import part_of
 from manifests.stats import share_table
 from exports import card as card_mod
-from manifests.encoding import decode_depth_raw
+from outputs.encoding import decode_depth_raw
 from tests.test_export import cli_app, make_tiny_root
 
 
@@ -175,7 +175,7 @@ def test_card_command_errors(tmp_path):
 def test_documented_output_table_is_the_output_table():
     from pathlib import Path
 
-    from manifests.outputs import markdown_table
+    from outputs.table import markdown_table
 
     layout = (Path(__file__).resolve().parents[1] / "docs" / "layout.md").read_text()
     assert "\n".join(markdown_table()) in layout

@@ -1,9 +1,9 @@
 import numpy as np
 import pytest
 
-from manifests import catalog
-from manifests.catalog import ALL_SCENARIOS, LABELS, PALETTE, TOWNS, VIEWPOINTS, WEATHERS
-from manifests.fog import contrast_at
+from domains import catalog
+from domains.catalog import ALL_SCENARIOS, LABELS, PALETTE, TOWNS, VIEWPOINTS, WEATHERS
+from domains.fog import contrast_at
 
 
 def test_class_ids_are_unique_and_dense():
@@ -113,7 +113,7 @@ def test_weathers_follow_carla_096():
 
 
 def test_the_scenario_code_is_parsed_and_formatted_in_one_place():
-    from manifests.catalog import AXES, code_axes, format_code, split_code
+    from domains.catalog import AXES, code_axes, format_code, split_code
     from manifests.schema import PARTITION_KEYS, part_path
 
     assert AXES == PARTITION_KEYS == ("town", "weather", "viewpoint")

@@ -14,7 +14,7 @@ import os
 import pyarrow.parquet as pq
 import pytest
 
-from manifests.lease import (
+from roots.lease import (
     LeaseLost,
     bump_generation,
     check_fence,
@@ -23,13 +23,15 @@ from manifests.lease import (
     register_producer,
 )
 from manifests.reader import done_episodes, episode_parts
-from manifests.root import RootError, claim_root, export_tree
-from manifests.runrecord import RunRecordError, read_record, record_bytes
+from roots.contract import RootError, claim_root, export_tree
+from roots.run_file import RunRecordError, read_record, record_bytes
 from manifests.schema import RUN_FILE, part_path
 from manifests.synthetic import episode_table
-from manifests.writer import ManifestError, part_bytes, read_part_file
+from manifests.part_file import ManifestError, read_part_file
+from manifests.writer import part_bytes
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.runmeta import RunConfig, RunConfigError, check_before_repair, prepare_root
+from pipeline.settings import RunConfig
+from pipeline.provenance import RunConfigError, check_before_repair, prepare_root
 from storage import Storage
 
 TINY = PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36, seed=5)
@@ -174,7 +176,7 @@ def test_repair_deletes_every_part_name_of_a_damaged_episode(tmp_path):
     killed between writing the counted name and removing the old one leaves
     both; if the episode is damaged, both must go, or the stale one marks the
     episode done again with rows that list the damaged files."""
-    from pipeline.driver import ProduceConfig
+    from pipeline.settings import ProduceConfig
     from pipeline.repair import _repair
     from tests.roots import render_root
 

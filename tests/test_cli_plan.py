@@ -2,7 +2,7 @@ import pyarrow.parquet as pq
 from typer.testing import CliRunner
 
 from pipeline.cli import app
-from pipeline.planio import read_plan
+from pipeline.plan_file import read_plan
 
 runner = CliRunner()
 

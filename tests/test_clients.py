@@ -26,7 +26,7 @@ from typer.testing import CliRunner
 
 from exports import cityscapes as cs_layout
 from exports import export as ex
-from manifests.catalog import EVALUATED_IDS
+from domains.catalog import EVALUATED_IDS
 from manifests.reader import read_manifest
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")  # no hub access here; everything is local
@@ -41,7 +41,7 @@ WIDTH, HEIGHT = 64, 36
 def root(tmp_path_factory) -> Path:
     """A real small run: episodes rendered by the worker function, then compacted as produce does."""
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     path = tmp_path_factory.mktemp("clients") / "run"

@@ -16,9 +16,10 @@ from pathlib import Path
 
 import pytest
 
-from pipeline.driver import ProduceConfig, produce
+from pipeline.settings import ProduceConfig
+from pipeline.driver import produce
 from pipeline.planner import PlanConfig
-from pipeline.runmeta import RunConfig
+from pipeline.settings import RunConfig
 from tests.test_produce import tree_digest
 
 pytestmark = pytest.mark.slow

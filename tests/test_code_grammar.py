@@ -11,8 +11,8 @@ from pathlib import Path
 
 import pytest
 
-from manifests.catalog import SCENARIO_RE, format_code, split_code
-from manifests.domainfile import CODE_PATTERN
+from domains.catalog import SCENARIO_RE, format_code, split_code
+from domains.catalog_file import CODE_PATTERN
 from manifests.layout import LAYOUTS, frame_path, match_frame_file
 from manifests.reader import _INDEX_RE
 from manifests.schema import PART_RE, index_path, part_path
@@ -172,10 +172,10 @@ def test_declared_codes_of_every_shape_end_to_end(ray_local, tmp_path):
 def held_root(tmp_path_factory):
     """A root of one frame each of T01_NT_A (built in, beyond the paper's 105) and two declared
     scenarios with codes longer than the tables' old column, rendered without Ray."""
-    from manifests.catalog import BUILTIN
-    from manifests.domainfile import with_file
+    from domains.catalog import BUILTIN
+    from domains.catalog_file import with_file
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     layer = with_file(BUILTIN, DECLARED.replace('"mist"', '"mistyMorning2"'), "codes.toml").layer_json()

@@ -1,4 +1,4 @@
-"""Per-frame condition columns (manifests.conditions): in every manifest row, null in older
+"""Per-frame condition columns (domains.conditions): in every manifest row, null in older
 parts, and filtered on by `idda query --min-condition / --max-condition`."""
 
 import pyarrow as pa
@@ -6,8 +6,8 @@ import pytest
 from typer.testing import CliRunner
 
 from manifests import query as q
-from manifests.catalog import weather
-from manifests.conditions import CONDITION_COLUMNS, CONDITIONS, frame_conditions
+from domains.catalog import weather
+from domains.conditions import CONDITION_COLUMNS, CONDITIONS, frame_conditions
 from manifests.reader import read_manifest
 from manifests.schema import MANIFEST_SCHEMA, part_path
 from manifests.synthetic import episode_rows
@@ -91,7 +91,7 @@ def test_a_root_made_before_rules_keeps_fog_density_and_queries_read_its_visibil
     import pyarrow.parquet as pq
 
     from manifests.schema import OLD_PART_SCHEMA
-    from manifests.spec import OLD_RULES
+    from manifests.schema import OLD_RULES
 
     storage = Storage.from_uri(str(tmp_path))
     plan = make_plan(PlanConfig(domains="towns=T01 weathers=CN,FG viewpoints=A", frames_per_scenario=2, width=64,

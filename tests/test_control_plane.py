@@ -17,7 +17,7 @@ from dataclasses import replace
 
 import pytest
 
-from manifests.lease import (
+from roots.lease import (
     EXCLUSIVE,
     PRODUCER_PREFIX,
     LeaseLost,
@@ -34,13 +34,14 @@ from manifests.reader import (
     read_manifest,
     scan,
 )
-from manifests.root import ROOT_MARKER, claim_root
+from roots.contract import ROOT_MARKER, claim_root
 from manifests.schema import index_path
 from tests.roots import part_of, to_old_names
 from manifests.synthetic import episode_table, write_parts
 from manifests.writer import write_part
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.runmeta import RunConfig, check_rows, prepare_root
+from pipeline.settings import RunConfig
+from pipeline.provenance import check_rows, prepare_root
 from pipeline.status import root_status
 from storage import Storage
 
@@ -113,7 +114,7 @@ def test_a_swapped_part_is_misfiled_not_done_from_its_footer_or_its_index(tmp_pa
     import shutil
 
     from manifests.reader import PartSummary, refuse_misfiled
-    from manifests.writer import MisfiledParts
+    from manifests.part_file import MisfiledParts
 
     storage = synthetic_root(str(tmp_path / "root"))
     a, b = make_plan(PLAN).episodes[0], make_plan(PLAN).episodes[-1]
@@ -181,7 +182,8 @@ def test_fold_reads_only_new_parts_and_equals_a_full_rebuild(tmp_path):
 def test_produce_folds_indexes_while_it_runs(ray_local, tmp_path):
     """A run keeps its indexes current as it goes (every index_every_s), not
     only at the end: a killed run leaves them at most that stale."""
-    from pipeline.driver import ProduceConfig, produce
+    from pipeline.settings import ProduceConfig
+    from pipeline.driver import produce
 
     plan = PlanConfig(domains="towns=T01 weathers=CN viewpoints=A,M", frames_per_scenario=3, width=64, height=36, seed=5)
     out = tmp_path / "root"
@@ -319,8 +321,9 @@ def test_fence_holds_when_the_lease_is_revived_by_a_racing_refresh(tmp_path):
 
 
 def test_produce_stops_and_says_so_when_its_lease_is_lost(ray_local, tmp_path):
-    from manifests.lease import bump_generation
-    from pipeline.driver import ProduceConfig, produce
+    from roots.lease import bump_generation
+    from pipeline.settings import ProduceConfig
+    from pipeline.driver import produce
     from storage import StorageError
 
     plan = PlanConfig(domains="T01_CN_A", frames_per_scenario=4, width=64, height=36, seed=5)
@@ -359,7 +362,7 @@ def test_lease_of_a_process_gone_from_this_host_is_taken_over_at_once(tmp_path, 
     pid = _dead_pid()
     storage.write_bytes(EXCLUSIVE, _lease_of(pid, "compaction"))
     storage.write_bytes(f"{PRODUCER_PREFIX}gone-{pid}.json", _lease_of(pid, "produce"))
-    caplog.set_level(logging.WARNING, logger="manifests.lease")
+    caplog.set_level(logging.WARNING, logger="roots.lease")
     start = time.monotonic()
     with acquire_exclusive(storage, "repair", wait_s=0):
         assert live_producers(storage) == []
@@ -371,7 +374,7 @@ def test_lease_of_a_process_gone_from_this_host_is_taken_over_at_once(tmp_path, 
 
 
 def test_lease_of_a_live_process_is_not_taken_over(tmp_path):
-    from manifests.lease import LeaseError
+    from roots.lease import LeaseError
 
     storage = Storage.from_uri(str(tmp_path / "root"))
     claim_root(storage)
@@ -387,7 +390,7 @@ def _killed_driver_lease(root) -> str:
     """Register a producer on ``root`` in a child process and SIGKILL it: its lease stays; returns its path."""
     import signal
 
-    code = ("import sys, time\nfrom manifests.lease import register_producer\nfrom storage import Storage\n"
+    code = ("import sys, time\nfrom roots.lease import register_producer\nfrom storage import Storage\n"
             "lease = register_producer(Storage.from_uri(sys.argv[1]))\nprint(lease.rel, flush=True)\ntime.sleep(300)\n")
     env = {**os.environ, "PYTHONPATH": os.path.dirname(os.path.dirname(os.path.abspath(__file__)))}
     child = subprocess.Popen([sys.executable, "-c", code, str(root)], stdout=subprocess.PIPE, text=True, env=env)
@@ -429,7 +432,8 @@ def test_verify_leaves_a_dead_drivers_lease_and_a_rerun_removes_it(small_root, t
     from typer.testing import CliRunner
 
     from pipeline.cli import app
-    from pipeline.driver import ProduceConfig, produce
+    from pipeline.settings import ProduceConfig
+    from pipeline.driver import produce
 
     root = tmp_path / "root"
     shutil.copytree(small_root, root)
@@ -481,7 +485,7 @@ def test_verify_lists_foreign_files_and_fails_on_them_only_with_strict(small_roo
 def test_a_root_that_holds_no_frame_says_so_when_the_size_differs(tmp_path):
     """Issue 38: a run that wrote only the marker and run.json (killed at once) made a
     later run of another size say the root "holds frames made with a different width"."""
-    from pipeline.runmeta import RunConfigError
+    from pipeline.provenance import RunConfigError
 
     storage = Storage.from_uri(str(tmp_path / "root"))
     claim_root(storage)

@@ -12,13 +12,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from manifests import encoding as enc
-from manifests.deflaters import DEFLATERS, deflater, deflater_named_by, deflating_with
+from outputs import encoding as enc
+from outputs.deflaters import DEFLATERS, deflater, deflater_named_by, deflating_with
 from manifests.reader import read_manifest
-from manifests.runrecord import record_bytes
+from roots.run_file import record_bytes
 from pipeline.episode_job import run_episode
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.runmeta import RunConfig, RunConfigError, check_encoder, prepare_root, root_deflater
+from pipeline.settings import RunConfig
+from pipeline.provenance import RunConfigError, check_encoder, prepare_root, root_deflater
 from storage import Storage
 
 PLAN = PlanConfig(domains="T01_CN_A,T01_HRN_A", frames_per_scenario=2, width=64, height=36, seed=5)

@@ -9,9 +9,9 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from manifests import catalog
-from manifests.catalog import class_id, town as town_row
-from manifests.domainfile import CatalogError, with_file
+from domains import catalog
+from domains.catalog import class_id, town as town_row
+from domains.catalog_file import CatalogError, with_file
 from render_workers.worlds import world as W
 from render_workers.worlds.traffic import populate
 

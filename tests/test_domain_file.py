@@ -1,4 +1,4 @@
-"""Issue 25.1: the domain file. The paper's catalog is data (manifests/catalog.toml),
+"""Issue 25.1: the domain file. The paper's catalog is data (domains/catalog.toml),
 loaded into the same rows, bit for bit; user files derive, override and append
 entries; bad files give one line naming file, entry and key."""
 
@@ -12,18 +12,19 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from manifests import catalog
-from manifests.catalog import ALL_SCENARIOS, BUILTIN, TOWNS, VIEWPOINTS, WEATHERS, scenario, using
-from manifests.domainfile import CatalogError, catalog_from_text, catalog_toml, with_file
-from manifests.selection import parse_selection
-from manifests.fog import visibility_of_share
-from manifests.spec import OLD_RULES, PAIRED, UNPAIRED, episode_seed, town_seed
+from domains import catalog
+from domains.catalog import ALL_SCENARIOS, BUILTIN, TOWNS, VIEWPOINTS, WEATHERS, scenario, using
+from domains.catalog_file import CatalogError, catalog_from_text, catalog_toml, with_file
+from domains.selection import parse_selection
+from domains.fog import visibility_of_share
+from manifests.schema import OLD_RULES
+from roots.episode_spec import PAIRED, UNPAIRED, episode_seed, town_seed
 from pipeline.cli import app
 from pipeline.planner import PlanConfig, make_plan
 
 runner = CliRunner()
 
-# The values manifests/catalog.py held as Python tables before they moved to catalog.toml.
+# The values domains/catalog.py held as Python tables before they moved to catalog.toml.
 # Written out here, not derived, so a change on either side fails.
 TOWNS_REF = (
     ('T01', 'Town01', 2.9, 'european old town', 1, 80.0, (6.0, 14.0), 0.7, 0.45, 0.7, False, True, False, False, False),
@@ -103,7 +104,7 @@ def test_plan_and_seeds_are_those_of_the_python_tables():
 
 def test_the_package_ships_the_file():
     pyproject = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())
-    assert "*.toml" in pyproject["tool"]["setuptools"]["package-data"]["manifests"]
+    assert "*.toml" in pyproject["tool"]["setuptools"]["package-data"]["domains"]
     assert (Path(catalog.__file__).parent / catalog.BUILTIN_FILE).is_file()
 
 
@@ -180,7 +181,7 @@ def test_plan_takes_a_catalog(tmp_path):
     result = runner.invoke(app, ["plan", "--catalog", str(path), "--domains", "weathers=FG1 towns=T01",
                                  "--frames-per-scenario", "2", "--out", str(tmp_path / "plan.parquet")])
     assert result.exit_code == 0 and "T01_FG1_B" in result.output and "T01_CN_A" not in result.output, result.output
-    from pipeline.planio import read_plan
+    from pipeline.plan_file import read_plan
 
     plan = read_plan(tmp_path / "plan.parquet")  # the plan file carries the entries: read back without the file
     assert plan.scenarios()[0] == "T01_FG1_A" and '"visibility_m":3000.0' in plan.config.catalog

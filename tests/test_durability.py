@@ -139,11 +139,12 @@ def test_a_file_system_that_refuses_to_sync_a_directory_is_skipped(tmp_path, mon
 def test_a_produced_episode_syncs_its_frame_folders_once_before_its_part(tmp_path, calls):
     """Every control file, part and index has its directory synced after its rename;
     each frame folder is synced once, after its last frame and before the part."""
-    from manifests.outputs import DEFAULT_OUTPUTS
+    from outputs.table import DEFAULT_OUTPUTS
     from manifests.reader import index_path
-    from manifests.root import ROOT_MARKER
+    from roots.contract import ROOT_MARKER
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RUN_FILE, RunConfig
+    from pipeline.provenance import RUN_FILE
+    from pipeline.settings import RunConfig
     from tests.roots import part_of, render_root
 
     root = tmp_path / "root"
@@ -170,7 +171,7 @@ def test_a_produced_episode_syncs_its_frame_folders_once_before_its_part(tmp_pat
 
 
 def test_leases_and_the_generation_are_synced(tmp_path, calls):
-    from manifests.lease import GENERATION, acquire_exclusive, bump_generation, register_producer
+    from roots.lease import GENERATION, acquire_exclusive, bump_generation, register_producer
 
     storage = Storage.from_uri(str(tmp_path))
     with acquire_exclusive(storage, "repair") as lease:
@@ -188,7 +189,7 @@ def test_leases_and_the_generation_are_synced(tmp_path, calls):
 def test_an_export_commit_is_synced_into_the_targets_folder(tmp_path, monkeypatch, replacing):
     from exports import export as ex
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     root = tmp_path / "root"

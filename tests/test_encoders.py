@@ -8,10 +8,10 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from manifests.catalog import NUM_CLASSES, PALETTE
-from manifests import encoding as enc
-from manifests import outputs as out_table
-from manifests.outputs import OUTPUTS, SEED_OUTPUTS
+from domains.catalog import NUM_CLASSES, PALETTE
+from outputs import encoding as enc
+from outputs import table as out_table
+from outputs.table import OUTPUTS, SEED_OUTPUTS
 
 depths = hnp.arrays(
     np.float32, hnp.array_shapes(min_dims=2, max_dims=2, min_side=1, max_side=12),
@@ -165,7 +165,7 @@ def test_semantic_trainid_is_the_cityscapes_export_table():
     """The opt-in trainId output maps through the catalog's one table (the Cityscapes export's
     labelTrainIds too): road 0, sky 10, vehicle 13, unlabeled and excluded classes 255."""
     from exports.cityscapes import cityscapes_targets
-    from manifests.catalog import class_id
+    from domains.catalog import class_id
 
     names = ("road", "sky", "vehicle", "unlabeled", "road line", "pedestrian", "terrain")
     classes = np.array([[class_id(n) for n in names]], dtype=np.uint8)

@@ -5,14 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from manifests.catalog import NUM_CLASSES, PALETTE
-from manifests.outputs import DEFAULT_OUTPUTS as OUTPUTS, IMAGE_OUTPUTS, read_output
-from manifests.spec import EpisodeSpec
-from manifests.spec import FRAME_PERIOD_S
+from domains.catalog import NUM_CLASSES, PALETTE
+from outputs.table import DEFAULT_OUTPUTS as OUTPUTS, IMAGE_OUTPUTS, read_output
+from roots.episode_spec import EpisodeSpec
+from roots.episode_spec import FRAME_PERIOD_S
 from pipeline.episode_job import frame_files, frame_outputs
 from render_workers.render import episode
+from render_workers.worlds.registry import WORLDS
 from render_workers.worlds import testworld
-from manifests.encoding import decode_depth_raw
+from outputs.encoding import decode_depth_raw
 from render_workers.render.renderer import Renderer
 
 W, H = 160, 90
@@ -119,6 +120,7 @@ def test_world_registry_is_lazy_and_validated():
         episode.world_builder("nope")
     builder = episode.world_builder("test")
     assert builder.build_world is testworld.build_world and builder.populate is testworld.populate
+    assert tuple(episode.BUILDERS) == WORLDS  # the light registry (driver, CLI) names the builders bound here
     assert episode.cached_world("test", "T01", 5) is episode.cached_world("test", "T01", 5)
 
 

@@ -16,8 +16,8 @@ from typer.testing import CliRunner
 
 from exports import cityscapes as cs_layout, idda
 from exports import export as ex
-from exports.placing import Layout, per_frame
-from manifests.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
+from exports.shared import Layout, per_frame
+from domains.catalog import CITYSCAPES_ID_LUT, LABELS, TRAIN_ID_LUT
 from manifests.query import Query
 from manifests.reader import read_manifest
 from tests.s3_server import s3_server  # noqa: F401  (fixture)
@@ -31,7 +31,7 @@ def make_tiny_root(tmp_path_factory) -> Path:
     """A small rendered root (test world, 64x36), built once per test session
     and shared by the export, loader, distance and card tests (read-only)."""
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.getbasetemp() / "tiny_root"
@@ -238,7 +238,7 @@ def test_refuses_non_empty_target_and_force_replaces(root, tmp_path):
 def test_export_never_touches_an_output_root(root, tmp_path):
     """Issue 10.1: a target inside a root (its manifest/, a scenario folder, an
     empty new folder) or holding one is refused, with or without --force."""
-    from manifests.verify import verify
+    from roots.verify import verify
 
     copy = tmp_path / "root"
     shutil.copytree(root, copy)
@@ -311,7 +311,6 @@ def test_export_from_s3_root_downloads(root, manifest, tmp_path, s3_server):  # 
 
 def test_a_new_format_is_one_module_and_one_registry_line(root, tmp_path, monkeypatch):
     """A format module only provides LAYOUT (its outputs and builder); FORMATS names it; the rest is shared."""
-    import sys
     import types
 
     def frame(storage, f, tmp, place):
@@ -320,8 +319,7 @@ def test_a_new_format_is_one_module_and_one_registry_line(root, tmp_path, monkey
         return {"image": rel}
 
     module = types.SimpleNamespace(LAYOUT=Layout(("rgb",), per_frame(frame, lambda frames: {f.scenario for f in frames})))
-    monkeypatch.setitem(sys.modules, "tests_toy_format", module)
-    monkeypatch.setitem(ex.FORMATS, "toy", "tests_toy_format")
+    monkeypatch.setitem(ex.FORMATS, "toy", module)  # registered by import: the module object itself
     report = ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "toy"), format="toy", threads=1))
     assert report.frames > 0 and ex.is_complete(str(tmp_path / "toy"))
     assert len(list((tmp_path / "toy").glob("T*/*.png"))) == report.frames
@@ -348,7 +346,7 @@ def _listing(path: Path) -> dict[str, str]:
 def test_force_deletes_only_what_an_earlier_export_wrote(root, tmp_path):
     """Issue 21.4: --force deleted an output root nested two levels below --to.
     It may replace only an export holding exactly what it wrote; symlinks are never followed."""
-    from manifests.root import RootError
+    from roots.contract import RootError
 
     target = tmp_path / "exp"
     config = ex.ExportConfig(root=str(root), to=str(target), format="idda", query=Query(domains="T07_*_*"))

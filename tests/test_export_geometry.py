@@ -17,7 +17,7 @@ import pytest
 
 from exports import cityscapes as cs_layout
 from exports import export as ex
-from manifests.geometry import project, unflat
+from outputs.geometry import project, unflat
 from manifests.reader import read_manifest
 
 DOMAINS = "T01_CS_A"
@@ -27,7 +27,7 @@ FRAMES = 3
 @pytest.fixture(scope="module")
 def root(tmp_path_factory) -> Path:
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     path = tmp_path_factory.mktemp("geometry_exports") / "run"

@@ -22,7 +22,7 @@ from pathlib import Path
 import pytest
 
 from tests.roots import part_of
-from manifests.verify import verify
+from roots.verify import verify
 from tests import faultkit
 
 pytestmark = pytest.mark.slow
@@ -34,7 +34,7 @@ PRODUCE = ["--domains", DOMAINS, "--frames-per-scenario", "2", "--width", "64", 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory) -> Path:
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("matrix") / "root"
@@ -354,7 +354,8 @@ def test_repair_never_follows_a_scenario_symlink_into_a_neighbour(world):
 
 def test_repair_refuses_a_run_json_of_another_run(world):
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig, prepare_root
+    from pipeline.settings import RunConfig
+    from pipeline.provenance import prepare_root
     from storage import Storage
 
     other = RunConfig(plan=PlanConfig(domains=DOMAINS, frames_per_scenario=2, width=64, height=36, seed=8), world="test")
@@ -544,10 +545,11 @@ def test_an_isal_root_extended_keeps_isal(world, tmp_path):
     two deflaters. Now the extended root keeps ISA-L for every frame, old and new."""
     from dataclasses import replace
 
-    from manifests.runrecord import record_bytes
+    from roots.run_file import record_bytes
     from pipeline.episode_job import run_episode
     from pipeline.planner import PlanConfig, make_plan
-    from pipeline.runmeta import RunConfig, prepare_root
+    from pipeline.settings import RunConfig
+    from pipeline.provenance import prepare_root
     from storage import Storage
     from tests.test_deflaters import ISAL_IDENTITY, _isal_pngs
 

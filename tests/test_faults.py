@@ -11,10 +11,10 @@ from pathlib import Path
 import pyarrow.compute as pc
 import pytest
 
-from manifests.outputs import DEFAULT_OUTPUTS as OUTPUTS
+from outputs.table import DEFAULT_OUTPUTS as OUTPUTS
 from manifests.reader import read_manifest
 from manifests.schema import index_path, part_path
-from manifests.verify import verify
+from roots.verify import verify
 from pipeline.driver import produce
 from tests.roots import part_of
 from tests.test_produce import config, ray_local  # noqa: F401 (fixtures)

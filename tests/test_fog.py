@@ -1,4 +1,4 @@
-"""Issue 32: fog is a physical quantity, meteorological visibility in metres (manifests.fog), recorded
+"""Issue 32: fog is a physical quantity, meteorological visibility in metres (domains.fog), recorded
 as float64; a shift thickens it evenly; the weathers declared before render as they did, and roots
 made before rules keep recording and blending the old share per km."""
 
@@ -9,10 +9,10 @@ import math
 import numpy as np
 import pytest
 
-from manifests.catalog import BUILTIN, weather
-from manifests.domainfile import CatalogError, current_layer, with_file, with_layer_json
-from manifests.fog import blend_share, contrast_at, share_of_visibility, visibility_of_share
-from manifests.shifts import weather_at
+from domains.catalog import BUILTIN, weather
+from domains.catalog_file import CatalogError, current_layer, with_file, with_layer_json
+from domains.fog import blend_share, contrast_at, share_of_visibility, visibility_of_share
+from domains.ramps import weather_at
 from render_workers.render import postfx
 from tests.test_postfx import H, W, context
 
@@ -91,7 +91,7 @@ def test_domain_files_declare_visibility_and_old_records_still_load():
 
 
 def _row(code: str) -> dict:
-    from manifests.domains import row_dict
+    from domains.rows import row_dict
 
     return row_dict(weather(code))
 

@@ -5,11 +5,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from manifests.catalog import class_id
-from manifests.encoding import decode_depth_raw, decode_png
-from manifests.geometry import CV_FROM_GL, HFOV_DEG, as_matrix, depth_to_world, intrinsics, project, world_to_camera
-from manifests.spec import EpisodeSpec
-from manifests.writer import read_part
+from domains.catalog import class_id
+from outputs.encoding import decode_depth_raw, decode_png
+from outputs.geometry import CV_FROM_GL, HFOV_DEG, as_matrix, depth_to_world, intrinsics, project, world_to_camera
+from roots.episode_spec import EpisodeSpec
+from manifests.reader import read_part
 from render_workers.render.camera import camera_rig
 
 W, H = 160, 90
@@ -116,7 +116,7 @@ def test_depth_reprojects_between_frames_with_the_manifest_poses(tmp_path, inter
 
 def test_the_docs_depth_snippet_gives_the_world_points(tmp_path):
     """docs/conventions.md's numpy snippet, run as written on a rendered frame and its manifest row,
-    gives manifests.geometry.depth_to_world's points; and they are where the renderer put the road."""
+    gives outputs.geometry.depth_to_world's points; and they are where the renderer put the road."""
     import re
     from pathlib import Path
 
@@ -145,7 +145,7 @@ def test_the_docs_depth_snippet_gives_the_world_points(tmp_path):
 def test_normals_face_up_on_the_road_and_sideways_on_walls(tmp_path):
     """The opt-in normals output, taken to the world with cam_to_world: the road's point up,
     buildings' and walls' lie flat; unit length wherever there is a surface, zero in the sky."""
-    from manifests.outputs import output, read_output
+    from outputs.table import output, read_output
     from pipeline.episode_job import run_episode
     from storage import Storage
 
@@ -170,7 +170,7 @@ def test_flow_is_the_reprojection_on_static_pixels_and_follows_moving_objects(tm
     reprojection of depth with the manifest's K and poses (median end-point error <= 0.5 px);
     on vehicles, following it into frame t+1 finds the same object more often than zero flow;
     the last frame's flow is all invalid."""
-    from manifests.outputs import output, read_output
+    from outputs.table import output, read_output
     from pipeline.episode_job import run_episode
     from storage import Storage
 
@@ -209,8 +209,8 @@ def test_flow_beyond_the_encodings_range_is_invalid_in_a_full_hd_wide_render(tmp
     other pixel is stored as before, and what is valid is the reprojection."""
     from dataclasses import replace
 
-    from manifests.outputs import output, read_output
-    from manifests.spec import OLD_RULES
+    from outputs.table import output, read_output
+    from manifests.schema import OLD_RULES
     from pipeline.episode_job import run_episode
     from storage import Storage
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from manifests.catalog import INSTANCE_LABELS
-from manifests.outputs import read_output
+from domains.catalog import INSTANCE_LABELS
+from outputs.table import read_output
 from manifests.reader import read_manifest
 from tests.test_export import make_tiny_root
 from exports import cityscapes as cs_layout

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from manifests.catalog import INSTANCE_LABELS, LABELS, class_id
-from manifests.objects import box_corners, object_counts
-from manifests.spec import FRAME_PERIOD_S, EpisodeSpec
+from domains.catalog import INSTANCE_LABELS, LABELS, class_id
+from outputs.objects import box_corners, object_counts
+from roots.episode_spec import FRAME_PERIOD_S, EpisodeSpec
 from pipeline.episode_job import frame_outputs
 from render_workers.render import episode
 from render_workers.render.camera import CameraRig
@@ -78,7 +78,7 @@ def test_instance_ids_are_stable_across_the_episode(town):
 
 
 def scene_viewpoint(spec):
-    from manifests.catalog import scenario
+    from domains.catalog import scenario
 
     return scenario(spec.scenario).viewpoint
 

@@ -19,11 +19,11 @@ from typer.testing import CliRunner
 
 from manifests.reader import done_episodes, read_manifest
 from manifests.schema import index_path
-from manifests.verify import verify
+from roots.verify import verify
 from pipeline.cli import app
 from pipeline.driver import produce
 from pipeline.planner import PlanConfig
-from pipeline.runmeta import RunConfigError
+from pipeline.provenance import RunConfigError
 from storage import Storage, StorageError
 from tests import faultkit
 from tests.roots import part_of
@@ -119,7 +119,7 @@ def test_status_counts_only_the_frames_a_part_holds(reference, tmp_path):
     root = tmp_path / "short"
     shutil.copytree(reference, root)
     record = json.loads((root / "run.json").read_text())
-    from manifests.runrecord import record_bytes
+    from roots.run_file import record_bytes
 
     record["config"]["frames_per_scenario"] = 6  # as an --extend run that was killed at once leaves it
     (root / "run.json").write_bytes(record_bytes(record))
@@ -130,7 +130,7 @@ def test_status_counts_only_the_frames_a_part_holds(reference, tmp_path):
 
 # -- 4. a lease for destructive operations ---------------------------------------------
 def test_repair_refuses_beside_a_running_producer(ray_local, copy):
-    from manifests.lease import register_producer
+    from roots.lease import register_producer
 
     storage = Storage.from_uri(str(copy))
     producer = register_producer(storage)
@@ -168,7 +168,7 @@ def test_repair_beside_a_real_producer_deletes_nothing(reference, tmp_path):
 
 
 def test_exclusive_lease_one_holder_local_and_s3(tmp_path):
-    from manifests.lease import LeaseError, acquire_exclusive
+    from roots.lease import LeaseError, acquire_exclusive
 
     from tests.s3_server import local_s3_server
 
@@ -422,8 +422,8 @@ def test_verify_finds_a_part_from_a_run_with_another_seed(copy):
     import pyarrow as pa
     import pyarrow.parquet as pq
 
-    from manifests.catalog import SCENARIO_BY_CODE
-    from manifests.spec import episode_seed
+    from domains.catalog import SCENARIO_BY_CODE
+    from roots.episode_spec import episode_seed
     from manifests.writer import part_bytes
 
     part = _first_part(copy)

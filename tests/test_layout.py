@@ -22,12 +22,13 @@ from manifests.layout import (
     record_layout,
 )
 from manifests.reader import read_manifest
-from manifests.root import claim_root
-from manifests.runrecord import RunRecordError, check_record, read_record, record_bytes
+from roots.contract import claim_root
+from roots.run_file import RunRecordError, check_record, read_record, record_bytes
 from manifests.schema import RUN_FILE
-from manifests.verify import verify
+from roots.verify import verify
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.runmeta import RunConfig, _fresh_record, prepare_root
+from pipeline.settings import RunConfig
+from pipeline.provenance import _fresh_record, prepare_root
 from storage import Storage
 from tests.roots import render_root
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from manifests.catalog import TRAIN_ID_LUT
-from manifests.outputs import SEED_OUTPUTS as OUTPUTS
+from domains.catalog import TRAIN_ID_LUT
+from outputs.table import SEED_OUTPUTS as OUTPUTS
 from analysis.loaders import DECODERS, META_COLUMNS, FrameDataset, ray_dataset
 from manifests.query import Query, run_query
 from manifests.reader import read_manifest

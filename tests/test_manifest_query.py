@@ -8,13 +8,14 @@ import pyarrow.parquet as pq
 import pytest
 
 from manifests import query as q
-from manifests.catalog import LABELS, split_code
+from domains.catalog import LABELS, split_code
 from manifests.reader import done_episodes, manifest_dataset, read_manifest
 from manifests.schema import MANIFEST_SCHEMA, PART_SCHEMA, part_path, with_uids
 from tests.roots import part_of
 from manifests.stats import PAPER_SHARES, bar_chart_png, class_pixels, share_table
 from manifests.synthetic import episode_rows
-from manifests.writer import ManifestError, part_bytes, part_table, write_part
+from manifests.part_file import ManifestError
+from manifests.writer import part_bytes, part_table, write_part
 from pipeline.planner import PlanConfig, make_plan
 from storage import Storage
 
@@ -245,7 +246,7 @@ EMPTY_SELECTIONS = ["", "   ", ",", " , ;", ";;"]
 @pytest.mark.parametrize("text", EMPTY_SELECTIONS)
 def test_an_empty_selection_is_an_error_not_everything(text):
     """Issue 21.6: an empty --domains selected all 105 scenarios."""
-    from manifests.selection import parse_selection
+    from domains.selection import parse_selection
 
     with pytest.raises(ValueError, match="empty selection"):
         parse_selection(text)

@@ -78,7 +78,7 @@ def test_written_files_get_the_usual_mode_never_executable(tmp_path, how):
 
 
 def test_lease_ttl_from_the_environment():
-    from manifests.lease import TTL_ENV, TTL_S, ttl_from_env
+    from roots.lease import TTL_ENV, TTL_S, ttl_from_env
 
     assert ttl_from_env({}) == TTL_S
     assert ttl_from_env({TTL_ENV: "2.5"}) == 2.5
@@ -91,7 +91,7 @@ def test_lease_ttl_from_the_environment():
 def test_a_lease_is_described_by_purpose_owner_and_time_left():
     import time
 
-    from manifests.lease import describe
+    from roots.lease import describe
 
     line = describe({"purpose": "repair", "owner": "host-7-ab12", "expires": time.time() + 3600})
     assert line in {f"repair by host-7-ab12 (lease expires in {s} s unless renewed)" for s in (3598, 3599, 3600)}
@@ -102,7 +102,7 @@ def _this_host_lease(pid) -> dict:
     import socket
     import time
 
-    from manifests.lease import _pid_namespace
+    from roots.lease import _pid_namespace
 
     return {"owner": "o", "host": socket.gethostname(), "pidns": _pid_namespace(), "pid": pid,
             "purpose": "produce", "expires": time.time() + 60}
@@ -111,14 +111,14 @@ def _this_host_lease(pid) -> dict:
 @pytest.mark.parametrize("pid", [0, -1, "1234", None])
 def test_a_lease_whose_pid_is_odd_is_judged_by_its_expiry_alone(pid):
     """Only a real pid that is gone makes a live lease dead: an odd one proves nothing."""
-    from manifests.lease import is_live
+    from roots.lease import is_live
 
     assert is_live(_this_host_lease(pid))
 
 
 def test_a_lease_of_another_users_process_on_this_host_is_live(monkeypatch):
     """os.kill(pid, 0) refused (EPERM): the process exists, so its lease is live."""
-    from manifests import lease
+    from roots import lease
 
     def refused(pid, sig):
         raise PermissionError(errno.EPERM, "not yours")
@@ -138,7 +138,7 @@ def test_a_lease_of_another_users_process_on_this_host_is_live(monkeypatch):
 def test_a_lease_of_another_pid_namespace_or_host_is_judged_by_its_expiry_alone(monkeypatch, other):
     """A pid means nothing outside its own namespace (a container) or host: such a
     lease is live until it expires, even where no process of that pid runs here."""
-    from manifests import lease
+    from roots import lease
 
     assert lease.is_live(_this_host_lease(os.getpid()))  # our own process, really running
 
@@ -158,7 +158,7 @@ def test_taking_over_a_lease_warns_only_where_its_process_is_gone(tmp_path, capl
     import logging
     import time
 
-    from manifests.lease import EXCLUSIVE, acquire_exclusive, exclusive_holder
+    from roots.lease import EXCLUSIVE, acquire_exclusive, exclusive_holder
     from storage import Storage
 
     storage = Storage.from_uri(str(tmp_path))
@@ -167,7 +167,7 @@ def test_taking_over_a_lease_warns_only_where_its_process_is_gone(tmp_path, capl
                          (json.dumps({**dead, "pid": 2 ** 22 + 17}).encode(), True)):
         storage.write_bytes(EXCLUSIVE, body)
         caplog.clear()
-        with caplog.at_level(logging.WARNING, logger="manifests.lease"):
+        with caplog.at_level(logging.WARNING, logger="roots.lease"):
             with acquire_exclusive(storage, "repair", owner="me") as held:
                 assert exclusive_holder(storage)["owner"] == "me" == held.owner
         assert exclusive_holder(storage) is None
@@ -177,7 +177,7 @@ def test_taking_over_a_lease_warns_only_where_its_process_is_gone(tmp_path, capl
 
 
 def test_a_refreshed_producer_lease_keeps_the_generation_it_registered_under(tmp_path):
-    from manifests.lease import bump_generation, read_lease, register_producer
+    from roots.lease import bump_generation, read_lease, register_producer
     from storage import Storage
 
     storage = Storage.from_uri(str(tmp_path))
@@ -197,7 +197,7 @@ def test_a_lease_is_kept_alive_by_a_daemon_thread_and_released_for_good(tmp_path
     removes the lease file, which then stays gone."""
     import time
 
-    from manifests.lease import read_lease, register_producer
+    from roots.lease import read_lease, register_producer
     from storage import Storage
 
     storage = Storage.from_uri(str(tmp_path))
@@ -218,7 +218,7 @@ def test_release_waits_for_a_refresh_under_way(tmp_path):
     """A refresh still writing after release returned could bring the lease back."""
     import time
 
-    from manifests.lease import register_producer
+    from roots.lease import register_producer
     from storage import Storage
 
     producer = register_producer(Storage.from_uri(str(tmp_path)), owner="p", ttl_s=0.2)
@@ -236,7 +236,7 @@ def test_release_waits_for_a_refresh_under_way(tmp_path):
 
 
 def test_release_leaves_a_lease_that_is_no_longer_ours(tmp_path):
-    from manifests.lease import EXCLUSIVE, _body, acquire_exclusive, read_lease
+    from roots.lease import EXCLUSIVE, _body, acquire_exclusive, read_lease
     from storage import Storage
 
     storage = Storage.from_uri(str(tmp_path))
@@ -247,7 +247,7 @@ def test_release_leaves_a_lease_that_is_no_longer_ours(tmp_path):
 
 
 def test_a_locked_root_is_refused_at_once_unless_asked_to_wait(monkeypatch, tmp_path):
-    from manifests import lease
+    from roots import lease
     from storage import Storage
 
     storage = Storage.from_uri(str(tmp_path))
@@ -264,7 +264,7 @@ def test_an_owner_names_its_host_and_process():
     import re
     import socket
 
-    from manifests.lease import new_owner
+    from roots.lease import new_owner
 
     assert re.fullmatch(f"{re.escape(socket.gethostname())}-{os.getpid()}-[0-9a-f]{{8}}", new_owner())
     assert new_owner() != new_owner()
@@ -285,7 +285,7 @@ class _NotLocal:
 def test_an_s3_exclusive_lease_is_won_by_the_writer_that_reads_itself_back(monkeypatch, tmp_path):
     """S3 has no exclusive create: the holder writes its lease, waits, reads it back;
     of two writers only the last one's lease reads back as its own."""
-    from manifests import lease
+    from roots import lease
     from storage import Storage
 
     storage = _NotLocal(Storage.from_uri(str(tmp_path)))
@@ -309,7 +309,7 @@ def test_an_s3_exclusive_lease_is_won_by_the_writer_that_reads_itself_back(monke
 
 def _record(**config_changes) -> dict:
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
 
     config = RunConfig(plan=PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36),
                        world="test").to_dict()
@@ -341,7 +341,7 @@ _DROP = object()
     ({**_record(), "layout": True}, "unknown file layout True"),
 ])
 def test_a_run_record_of_the_wrong_shape_is_refused_naming_what(record, says):
-    from manifests.runrecord import RunRecordError, check_record
+    from roots.run_file import RunRecordError, check_record
 
     with pytest.raises(RunRecordError) as raised:
         check_record(record, "root/run.json")
@@ -349,7 +349,7 @@ def test_a_run_record_of_the_wrong_shape_is_refused_naming_what(record, says):
 
 
 def test_a_run_record_without_optional_keys_or_checksum_reads_as_an_old_root():
-    from manifests.runrecord import OPTIONAL_CONFIG, check_record
+    from roots.run_file import OPTIONAL_CONFIG, check_record
 
     old = _record(**{key: _DROP for key in OPTIONAL_CONFIG}, scale=_DROP, frames_per_scenario=_DROP)
     assert check_record(old, "root/run.json") is old
@@ -358,7 +358,7 @@ def test_a_run_record_without_optional_keys_or_checksum_reads_as_an_old_root():
 
 
 def test_run_json_that_is_not_a_file_or_not_json_is_damaged(tmp_path):
-    from manifests.runrecord import RunRecordError, read_record
+    from roots.run_file import RunRecordError, read_record
     from manifests.schema import RUN_FILE
     from storage import Storage
 
@@ -386,7 +386,7 @@ REPAIR_PLAN = dict(domains="T01_CN_A", frames_per_scenario=3, width=64, height=3
 def tiny_root(tmp_path_factory):
     """One 3-frame episode at 64x36, rendered without Ray, its index written: copied by each test."""
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("tiny") / "root"
@@ -404,9 +404,9 @@ def _copy_of(tiny_root, tmp_path):
 
 
 def _produce_config(root, **plan_changes):
-    from pipeline.driver import ProduceConfig
+    from pipeline.settings import ProduceConfig
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
 
     return ProduceConfig(run=RunConfig(plan=PlanConfig(**{**REPAIR_PLAN, **plan_changes}), world="test"),
                          out=str(root), workers=1)
@@ -416,7 +416,7 @@ def test_repair_drops_the_damaged_episode_strays_and_a_bad_index_and_rewrites_ru
     import logging
 
     from manifests.reader import done_episodes, episode_parts
-    from manifests.runrecord import read_record
+    from roots.run_file import read_record
     from manifests.schema import RUN_FILE, index_path
     from pipeline.planner import make_plan
     from pipeline.repair import repair_alone
@@ -433,7 +433,7 @@ def test_repair_drops_the_damaged_episode_strays_and_a_bad_index_and_rewrites_ru
     from dataclasses import replace
 
     unplanned = type(plan)(plan.config, (replace(plan.episodes[0], episode=1),))  # its scenario, another episode
-    from manifests.lease import register_producer
+    from roots.lease import register_producer
 
     me = register_producer(storage, owner="me")  # produce --repair: our own producer lease is live
     try:
@@ -465,12 +465,13 @@ def test_repair_drops_a_bad_index_alone_and_names_it(tiny_root, tmp_path):
 
 def test_repair_refuses_a_link_or_another_runs_part_and_deletes_nothing(tiny_root, tmp_path):
     from manifests.reader import episode_parts
-    from manifests.root import RootError
+    from roots.contract import RootError
     from manifests.schema import PART_SCHEMA
-    from manifests.writer import read_part_file, write_part
+    from manifests.part_file import read_part_file
+    from manifests.writer import write_part
     from pipeline.planner import make_plan
     from pipeline.repair import _repair
-    from pipeline.runmeta import RunConfigError
+    from pipeline.provenance import RunConfigError
 
     root, storage = _copy_of(tiny_root, tmp_path)
     config = _produce_config(root)
@@ -511,7 +512,7 @@ def _files(root) -> dict[str, bytes]:
 
 
 def test_repair_waits_for_other_producers_and_nobody_starts_beside_a_repair(tiny_root, tmp_path):
-    from manifests.lease import LeaseError, acquire_exclusive, register_producer
+    from roots.lease import LeaseError, acquire_exclusive, register_producer
     from pipeline.planner import make_plan
     from pipeline.repair import check_no_repair_running, repair_alone
 
@@ -552,7 +553,7 @@ KEPT_RUN_JSON = b"""{
 def test_a_kept_run_json_still_reads_and_is_written_again_byte_for_byte(tmp_path):
     import json
 
-    from manifests.runrecord import RunRecordError, read_record, record_bytes
+    from roots.run_file import RunRecordError, read_record, record_bytes
     from manifests.schema import RUN_FILE
     from storage import Storage
 
@@ -577,7 +578,7 @@ def test_repair_needs_extend_for_another_config_and_verifies_only_its_plans_scen
     from manifests.reader import done_episodes
     from pipeline.planner import make_plan
     from pipeline.repair import _repair
-    from pipeline.runmeta import RunConfigError
+    from pipeline.provenance import RunConfigError
 
     root, storage = _copy_of(tiny_root, tmp_path)
     frame = sorted((root / "T01_CN_A").rglob("*.png"))[0]
@@ -610,7 +611,7 @@ def test_repairs_verify_goes_to_the_cluster_and_workers_produce_was_given(monkey
 def test_repair_holds_the_exclusive_lease_as_a_repair_under_its_own_name(monkeypatch, tiny_root, tmp_path):
     """While it deletes, repair's lease says "repair" by its owner: producers starting meanwhile
     refuse (check_no_repair_running), and the lease is the one its owner releases."""
-    from manifests.lease import LeaseError, exclusive_holder
+    from roots.lease import LeaseError, exclusive_holder
     from pipeline import repair
     from pipeline.planner import make_plan
 
@@ -631,7 +632,7 @@ def test_repair_holds_the_exclusive_lease_as_a_repair_under_its_own_name(monkeyp
 
 
 def test_repair_with_extend_records_the_extended_config(monkeypatch, tiny_root, tmp_path):
-    from manifests.runrecord import read_record
+    from roots.run_file import read_record
     from pipeline import repair
     from pipeline.planner import make_plan
 
@@ -652,7 +653,7 @@ def test_repair_with_extend_records_the_extended_config(monkeypatch, tiny_root, 
 def test_a_producer_that_lost_its_lease_never_writes_the_part(monkeypatch, tmp_path):
     """The check before the write: a producer whose lease was taken over writes no
     part at all (not one that appears, then is deleted again)."""
-    from manifests.lease import LeaseLost, bump_generation, register_producer
+    from roots.lease import LeaseLost, bump_generation, register_producer
     from manifests.synthetic import episode_table
     from pipeline import episode_job
     from storage import Storage
@@ -695,8 +696,9 @@ class _AnyFrame:
 def test_a_frame_row_refuses_unknown_outputs_and_wrong_class_counts_naming_the_frame():
     import re
 
-    from manifests.catalog import LABELS
-    from manifests.writer import ManifestError, frame_row
+    from domains.catalog import LABELS
+    from manifests.part_file import ManifestError
+    from manifests.writer import frame_row
     from tests.test_caught_bugs import tiny_spec
 
     spec = tiny_spec()
@@ -709,7 +711,7 @@ def test_a_frame_row_refuses_unknown_outputs_and_wrong_class_counts_naming_the_f
 
 
 def test_a_frame_row_names_the_frame_and_its_files():
-    from manifests.catalog import LABELS
+    from domains.catalog import LABELS
     from manifests.writer import frame_row
     from storage import sha256_bytes
     from tests.test_caught_bugs import tiny_spec
@@ -725,7 +727,8 @@ def test_a_frame_row_names_the_frame_and_its_files():
 def test_read_part_reads_an_episodes_part_under_whichever_name(tmp_path):
     from manifests.schema import part_path
     from manifests.synthetic import episode_table
-    from manifests.writer import part_bytes, read_part, write_part
+    from manifests.writer import part_bytes, write_part
+    from manifests.reader import read_part
     from storage import Storage
     from tests.test_caught_bugs import tiny_spec
 

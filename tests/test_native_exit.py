@@ -9,7 +9,7 @@ to that Python object, in one of Arrow's own threads, which then takes the GIL
 (``arrow::py::PyBuffer::~PyBuffer`` -> ``PyGILState_Ensure``). While the
 interpreter finalizes, such a thread is made to exit (``pthread_exit``) and the
 forced unwind through Arrow's C++ frames ends in ``std::terminate``. Bytes in
-memory now go to Arrow as a copy it owns (``manifests.writer.arrow_reader``):
+memory now go to Arrow as a copy it owns (``storage.buffers.arrow_reader``):
 no Arrow thread ever touches a Python object.
 """
 
@@ -22,7 +22,7 @@ import sys
 import pyarrow as pa
 import pytest
 
-from manifests.runrecord import record_bytes
+from roots.run_file import record_bytes
 from tests.faultkit import REPO
 from tests.test_control_plane import MANY, synthetic_root
 
@@ -58,7 +58,7 @@ def test_verify_refuses_a_flipped_pairing_flag_without_a_native_crash(tmp_path):
 def test_arrow_reads_hold_no_python_object():
     """What manifest reads give pyarrow owns its memory: ``pa.BufferReader(data)`` keeps
     ``data`` alive from Arrow's side (the reference a worker thread dropped at exit)."""
-    from manifests.writer import arrow_reader
+    from storage.buffers import arrow_reader
 
     data = b"PAR1" * 1000
     before = sys.getrefcount(data)

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from manifests.catalog import INSTANCE_LABELS
-from manifests.outputs import OUTPUTS, read_output
+from domains.catalog import INSTANCE_LABELS
+from outputs.table import OUTPUTS, read_output
 from manifests.reader import read_manifest
 from manifests.schema import output_columns
-from manifests.verify import verify
+from roots.verify import verify
 from tests.test_export import make_tiny_root
 
 runner = CliRunner()
@@ -46,7 +46,7 @@ def plan_config(outputs):
 def subset_root(tmp_path_factory):
     """A root produced with --outputs rgb,semantic_raw (test world, 64x36, 2 frames)."""
     from pipeline.planner import make_plan
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("subset") / "root"
@@ -129,9 +129,9 @@ OPT_IN = ("semantic_raw", "semantic_trainid", "normals", "flow")
 def test_an_opt_in_output_follows_through_verify_query_and_loaders(tmp_path):
     """semantic_trainid is not a default output; asked for, it is written, verified, listed and loaded."""
     from analysis.loaders import FrameDataset
-    from manifests.catalog import TRAIN_ID_LUT
-    from manifests.outputs import DEFAULT_OUTPUTS
-    from pipeline.runmeta import RunConfig
+    from domains.catalog import TRAIN_ID_LUT
+    from outputs.table import DEFAULT_OUTPUTS
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     assert "semantic_trainid" not in DEFAULT_OUTPUTS

@@ -12,15 +12,16 @@ import pyarrow.csv as pv
 import pytest
 from typer.testing import CliRunner
 
-from manifests.catalog import scenario
-from manifests.outputs import read_output
+from domains.catalog import scenario
+from outputs.table import read_output
 from manifests.reader import read_manifest
 from manifests.schema import part_path
-from manifests.spec import NEW_RULES, OLD_RULES, PAIRED, UNPAIRED, episode_seed
+from manifests.schema import NEW_RULES, OLD_RULES
+from roots.episode_spec import PAIRED, UNPAIRED, episode_seed
 from pipeline.cli import app
-from pipeline.cli.domains import root_pairing, root_rules
+from pipeline.cli.domain_files import root_pairing, root_rules
 from pipeline.planner import PlanConfig
-from pipeline.runmeta import RunConfig
+from pipeline.settings import RunConfig
 from tests.roots import as_made_before, render_root
 
 runner = CliRunner()

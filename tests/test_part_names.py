@@ -9,7 +9,7 @@ import manifests.reader as reader
 from manifests.reader import compact, episode_frames, episode_parts, part_listing, read_manifest
 from manifests.schema import PART_RE, named_rows, part_path
 from manifests.synthetic import episode_table
-from manifests.verify import verify
+from roots.verify import verify
 from manifests.writer import part_bytes, write_part
 from pipeline.planner import make_plan
 from pipeline.status import root_status
@@ -156,7 +156,7 @@ def test_verify_on_s3_reads_each_file_in_one_get_and_finds_damage(reference, mon
     """Verify on S3 reads each frame file with one GET (no HEAD before it: the listing gave
     its size), one request per file fewer than pyarrow's HEAD + GET, and still finds a file
     changed in place and one deleted."""
-    from manifests.verify import verify
+    from roots.verify import verify
     from storage import Storage
     from tests.s3_counter import counting_s3_server
 

@@ -4,9 +4,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from manifests.catalog import ALL_SCENARIOS, TOWNS
-from manifests.selection import parse_selection
-from manifests.spec import NEW_RULES, OLD_RULES, RULES
+from domains.catalog import ALL_SCENARIOS, TOWNS
+from domains.selection import parse_selection
+from manifests.schema import NEW_RULES, OLD_RULES, RULES
 from pipeline.planner import (
     PAPER_TOTAL_FRAMES,
     PlanConfig,
@@ -176,7 +176,7 @@ def test_every_weather_of_a_scene_shares_its_split_and_old_rules_stay():
     old = make_plan(PlanConfig(domains="T01_CN_A,T01_FG_A,T01_NT_A", frames_per_scenario=2, rules=OLD_RULES))
     assert [e.split for e in old.episodes] == ["train", "val", "test"]  # the old rule, unchanged
     assert PlanConfig().rules == NEW_RULES and PlanConfig().to_dict()["rules"] == 1
-    # a root's later selections keep the places of the scenes it had (pipeline.runmeta.for_root)
+    # a root's later selections keep the places of the scenes it had (pipeline.provenance.for_root)
     first = scene_places(["T02_CN_M"])
     later = scene_places(["T02_CN_M", "towns=T01,T02 weathers=FG viewpoints=A,M"])
     assert later[("T02", "M")] == first[("T02", "M")] == 0 and set(later.values()) == {0, 1, 2, 3}

@@ -4,7 +4,7 @@ and when it should, and the chain is deterministic."""
 import numpy as np
 import pytest
 
-from manifests.catalog import class_id, weather
+from domains.catalog import class_id, weather
 from render_workers.render import postfx
 from render_workers.render.camera import camera_rig
 

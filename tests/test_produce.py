@@ -16,14 +16,16 @@ from pathlib import Path
 import pytest
 from typer.testing import CliRunner
 
-from manifests.outputs import DEFAULT_OUTPUTS as OUTPUTS
+from outputs.table import DEFAULT_OUTPUTS as OUTPUTS
 from manifests.reader import done_episodes, read_manifest
 from manifests.schema import output_columns
-from manifests.verify import verify
+from roots.verify import verify
 from pipeline.cli import app
-from pipeline.driver import ProduceConfig, produce
+from pipeline.settings import ProduceConfig
+from pipeline.driver import produce
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.runmeta import RunConfig, RunConfigError
+from pipeline.settings import RunConfig
+from pipeline.provenance import RunConfigError
 from storage import Storage, StorageError
 from tests.faultkit import descendants as _descendants  # every process below a pid (Ray starts its own sessions)
 
@@ -222,8 +224,8 @@ def test_changed_config_is_refused_unless_extended(ray_local, reference, tmp_pat
 
 
 def test_resume_refuses_to_mix_encoders(ray_local, reference, tmp_path):
-    from manifests.encoding import encoder_identity
-    from manifests.runrecord import read_record, record_bytes
+    from outputs.encoding import encoder_identity
+    from roots.run_file import read_record, record_bytes
     from manifests.schema import RUN_FILE
     from tests.roots import part_of
 

@@ -14,10 +14,11 @@ import time
 import pytest
 
 from pipeline.cli.progress import RATE_WINDOW, ProgressDisplay, RateWindow, format_progress
-from pipeline.driver import ProduceConfig, Progress, produce
+from pipeline.settings import ProduceConfig
+from pipeline.driver import Progress, produce
 from pipeline.ray_task import FrameCounter, FrameReporter
 from pipeline.planner import PlanConfig
-from pipeline.runmeta import RunConfig
+from pipeline.settings import RunConfig
 
 FRAMES = 4  # per scenario: one episode each
 WINDOW = 3  # frames: small, so this short run shows a rate

@@ -10,8 +10,9 @@ import pytest
 from typer.testing import CliRunner
 
 from analysis.metrics import EVAL_CLASSES, IGNORE, TRAIN_INDEX_LUT
-from analysis.real import CITYSCAPES_TO_INDEX, OTHER_VEHICLES, REAL, RealFolder, load_real
-from manifests.catalog import LABELS, class_id
+from analysis.real import CITYSCAPES_TO_INDEX, OTHER_VEHICLES, REAL, RealFolder
+from analysis.shift_table import load_real
+from domains.catalog import LABELS, class_id
 from tests.test_export import cli_app, make_tiny_root
 
 STANDIN = "T07_HRN_A,T01_CN_A"  # the stand-in "real" root's domains: 3 frames each
@@ -27,7 +28,7 @@ def export(root, to, *options) -> None:
 def standin(tmp_path_factory):
     """(another root, its Cityscapes export): two domains, 3 frames each, 64x36, test world."""
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     base = tmp_path_factory.mktemp("real")
@@ -74,7 +75,7 @@ def test_not_cityscapes_layout_says_what_is_missing(tmp_path):
 
 
 def test_an_export_reads_back_as_the_frames_it_came_from(standin):
-    from analysis.shifts import load_domain
+    from analysis.shift_table import load_domain
 
     root, folder = standin
     real = load_real(RealFolder(str(folder)), 64, 32)

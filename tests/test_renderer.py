@@ -6,10 +6,10 @@ import numpy as np
 import pytest
 import trimesh
 
-from manifests.catalog import NUM_CLASSES, VIEWPOINTS, viewpoint, weather
+from domains.catalog import NUM_CLASSES, VIEWPOINTS, viewpoint, weather
 from render_workers.render import camera
 from render_workers.render.renderer import Renderer
-from render_workers.render.soups import look
+from render_workers.render.part_meshes import look
 from render_workers.worlds.scene import Actor, EpisodeScene, Part, Path, World
 
 W, H = 160, 90
@@ -143,7 +143,7 @@ def test_render_before_load_raises():
 
 
 def test_framebuffer_patch_is_per_renderer_and_multisampling_still_works(renderer):
-    from render_workers.render import compat
+    from render_workers.render import pyrender_setup as compat
 
     pr = compat.import_pyrender()
     plain = render(renderer, flat_scene(), "V")

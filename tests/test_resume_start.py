@@ -11,7 +11,8 @@ import pipeline.driver as driver
 from manifests.reader import ManifestScan, index_files
 from manifests.synthetic import write_parts
 from pipeline.planner import PlanConfig, make_plan
-from pipeline.runmeta import RunConfig, prepare_root
+from pipeline.settings import RunConfig
+from pipeline.provenance import prepare_root
 from storage import Storage
 
 PLAN = PlanConfig(domains="T01_CN_A,T01_CN_M", frames_per_scenario=150, seed=3)
@@ -19,7 +20,7 @@ PLAN = PlanConfig(domains="T01_CN_A,T01_CN_M", frames_per_scenario=150, seed=3)
 
 def _parts_only_root(path, leave_out: int) -> Storage:
     """A root holding synthetic parts of PLAN's episodes but the last ``leave_out``, and no index."""
-    from manifests.root import claim_root
+    from roots.contract import claim_root
 
     storage = Storage.from_uri(str(path))
     claim_root(storage)

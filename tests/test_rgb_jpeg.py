@@ -10,11 +10,11 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from manifests import encoding as enc
-from manifests.outputs import extension, file_bytes, markdown_table, read_output
+from outputs import encoding as enc
+from outputs.table import extension, file_bytes, markdown_table, read_output
 from manifests.reader import read_manifest
 from manifests.layout import EPISODE_DIRS, FLAT, frame_path
-from manifests.verify import verify
+from roots.verify import verify
 from storage import Storage
 from tests.roots import render_root
 
@@ -32,7 +32,7 @@ def cli_app():
 
 def run_config(rgb_format: str, frames: int = 2):
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
 
     return RunConfig(plan=PlanConfig(domains=DOMAINS, frames_per_scenario=frames, width=64, height=36, seed=4,
                                      rgb_format=rgb_format), world="test")
@@ -94,14 +94,14 @@ def test_the_same_spec_gives_the_same_jpeg_bytes(jpeg_root, tmp_path):
 
 
 def test_resume_or_extend_never_mixes_rgb_formats(jpeg_root, tmp_path):
-    from pipeline.runmeta import RunConfigError, prepare_root
+    from pipeline.provenance import RunConfigError, prepare_root
 
     storage = Storage.from_uri(str(jpeg_root))
     for fmt, extend in (("png", False), ("png", True)):
         with pytest.raises(RunConfigError, match="another encoder"):
             prepare_root(storage, run_config(fmt, frames=3), extend=extend)
     prepare_root(storage, run_config("jpg"))  # the same format resumes
-    from pipeline.runmeta import check_rows
+    from pipeline.provenance import check_rows
 
     with pytest.raises(RunConfigError, match="holds jpg rgb files, this run asks for png"):
         check_rows(storage, run_config("png"))  # the rows say so too, whatever run.json says

@@ -1,6 +1,6 @@
 import pytest
 
-from manifests.selection import parse_selection
+from domains.selection import parse_selection
 
 
 def codes(text):

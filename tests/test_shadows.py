@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from manifests.catalog import weather
-from manifests.spec import EpisodeSpec
+from domains.catalog import weather
+from roots.episode_spec import EpisodeSpec
 from pipeline.episode_job import frame_files
 from render_workers.render import episode
 from render_workers.render.camera import CameraRig, sun_direction
@@ -18,7 +18,7 @@ from render_workers.render.renderer import (
 )
 from render_workers.worlds.scene import Part
 from tests.test_renderer import flat_scene
-from manifests.catalog import viewpoint
+from domains.catalog import viewpoint
 
 W, H = 480, 270
 WALL = 11

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from manifests.catalog import EVALUATED_IDS, LABELS, class_id
+from domains.catalog import EVALUATED_IDS, LABELS, class_id
 from tests.test_export import cli_app
 from analysis.metrics import EVAL_CLASSES, IGNORE, NUM_EVAL, TRAIN_INDEX_LUT, class_iou, confusion, mean_iou
-from analysis.shifts import CASES, ShiftConfig, held_out_mask
+from analysis.shift_table import CASES, ShiftConfig, held_out_mask
 
 SHIFT_DOMAINS = "T01_CS_A,T01_CS_J,T01_HRN_J,T01_HRN_A,T07_HRN_A"
 
@@ -83,7 +83,7 @@ def test_config_is_checked_and_cases_come_from_the_paper():
         ("viewpoint", "T01_CS_A", "T01_CS_J"), ("weather", "T01_CS_J", "T01_HRN_J"), ("city", "T01_HRN_A", "T07_HRN_A")]
     assert [round(c.paper_kept, 2) for c in CASES] == [0.79, 0.51, 0.28]
     from analysis.segnet import STRIDE
-    from analysis.shifts import INPUT_MULTIPLE
+    from analysis.shift_table import INPUT_MULTIPLE
 
     assert INPUT_MULTIPLE == STRIDE
     assert ShiftConfig(root="x", cases=("city",)).domains == ["T01_HRN_A", "T07_HRN_A"]
@@ -105,7 +105,7 @@ def test_pipeline_and_renderers_never_import_torch():
 def shift_root(tmp_path_factory):
     """The paper's five domains, 10 frames each (one episode) at 64x36, test world."""
     from pipeline.planner import PlanConfig
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("shifts") / "root"

@@ -6,11 +6,11 @@ from __future__ import annotations
 import cv2
 import pytest
 
-from manifests.catalog import BUILTIN, weather
-from manifests.domainfile import CatalogError, catalog_toml, catalog_from_text, with_file, with_layer_json
-from manifests.fog import contrast_at
-from manifests.shifts import weather_at
-from manifests.spec import EpisodeSpec
+from domains.catalog import BUILTIN, weather
+from domains.catalog_file import CatalogError, catalog_toml, catalog_from_text, with_file, with_layer_json
+from domains.fog import contrast_at
+from domains.ramps import weather_at
+from roots.episode_spec import EpisodeSpec
 from manifests.synthetic import episode_rows
 from render_workers.render import episode
 from render_workers.render.renderer import Renderer
@@ -88,7 +88,7 @@ def test_extending_a_shifting_episode_renders_it_again_whole_and_says_so(tmp_pat
     from pipeline.cli.progress import format_produce_report
     from pipeline.driver import ProduceReport, pending_episodes, reshifted_episodes
     from pipeline.planner import PlanConfig, make_plan
-    from pipeline.runmeta import RunConfig
+    from pipeline.settings import RunConfig
     from tests.roots import render_root
 
     small = RunConfig(plan=PlanConfig(domains="T01_CNtoNT_A,T01_CN_A", frames_per_scenario=2, width=32, height=32,

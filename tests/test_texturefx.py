@@ -10,7 +10,7 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from manifests.catalog import class_id
+from domains.catalog import class_id
 from render_workers.render import postfx, texturefx
 from tests.test_postfx import BUILDING, H, ROAD, SKY, W, context
 

@@ -15,7 +15,7 @@ from itertools import combinations
 import numpy as np
 import pytest
 
-from manifests.catalog import class_id, town as town_row
+from domains.catalog import class_id, town as town_row
 from render_workers.worlds import world as W
 from render_workers.worlds.styles import FURNITURES, STYLES, look, style
 
@@ -53,7 +53,7 @@ def test_kerbed_towns_keep_their_own_street_furniture(albedo):
 
 def test_class_albedo_follows_the_furniture_row():
     """The statistic sees a style change: the old town built with the farm's furniture has its timber poles."""
-    from render_workers.worlds.kit import Kit
+    from render_workers.worlds.builder import Kit
     from render_workers.worlds.scene import World
     from render_workers.worlds.town_plan import plan
 
@@ -100,7 +100,7 @@ def test_the_farmland_is_in_late_autumn_no_green_crown_hedge_or_verge_left():
 
 def _street_world(code: str, **style_change):
     from render_workers.worlds import streets
-    from render_workers.worlds.kit import Kit
+    from render_workers.worlds.builder import Kit
     from render_workers.worlds.scene import World
     from render_workers.worlds.town_plan import plan
 

@@ -16,9 +16,9 @@ import pytest
 from typer.testing import CliRunner
 
 from manifests.reader import read_manifest
-from manifests.runrecord import read_record, record_bytes
+from roots.run_file import read_record, record_bytes
 from manifests.schema import RUN_FILE, index_path
-from manifests.verify import Scope, verify
+from roots.verify import Scope, verify
 from pipeline.cli import app
 from pipeline.driver import produce
 from storage import Storage
@@ -94,7 +94,7 @@ def test_verify_cli_on_a_ray_cluster_of_its_own(copy):
 def test_progress_lines_when_not_on_a_terminal():
     import io
 
-    from manifests.verify import VerifyProgress
+    from roots.verify import VerifyProgress
     from pipeline.cli.app import VerifyDisplay
 
     stream = io.StringIO()
@@ -213,7 +213,7 @@ def test_repair_still_fixes_a_root_whose_run_json_is_its_own(ray_local, referenc
 
 # -- 21.10: a live producer's frames are in progress, not damage ------------------------
 def test_verify_beside_a_live_producer_reports_in_progress(copy):
-    from manifests.lease import register_producer
+    from roots.lease import register_producer
 
     (copy / part_of(copy, "T01_CN_A", 0)).unlink()  # its frames are on disk, its part not yet
     (copy / index_path("T01_CN_A")).unlink()  # as produce does before it renders an episode again
@@ -275,10 +275,10 @@ def test_an_old_flat_root_resumes_extends_verifies_and_repairs(ray_local, refere
     from dataclasses import replace
 
     from manifests.layout import FLAT, LAYOUT_KEY, layout_of_path
-    from manifests.outputs import OUTPUTS
-    from manifests.root import claim_root
+    from outputs.table import OUTPUTS
+    from roots.contract import claim_root
     from manifests.schema import output_columns
-    from pipeline.runmeta import _fresh_record
+    from pipeline.provenance import _fresh_record
     from tests.test_produce import PLAN, config
 
     root = tmp_path / "old"

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from manifests.geometry import as_matrix, depth_to_world
+from outputs.geometry import as_matrix, depth_to_world
 from tests.test_export import cli_app, make_tiny_root
 
 SCENARIO = "T01_CS_A"
@@ -63,10 +63,10 @@ def test_the_camera_pose_and_pinhole_are_the_manifests(recording, rows):
 
 
 def test_labels_depth_points_boxes_and_series(recording, rows, root):
-    from manifests.catalog import LABELS
-    from manifests.encoding import decode_depth_raw
-    from manifests.objects import read_objects
-    from manifests.outputs import read_output
+    from domains.catalog import LABELS
+    from outputs.encoding import decode_depth_raw
+    from outputs.objects import read_objects
+    from outputs.table import read_output
 
     context = recording["/world"]["AnnotationContext:context"][0][1][0]
     got = [(c["class_id"], c["class_description"]["info"]["label"], c["class_description"]["info"]["color"])
@@ -91,7 +91,7 @@ def test_labels_depth_points_boxes_and_series(recording, rows, root):
 
 def test_box_rotation_matches_the_objects_corners():
     from analysis.viewer import box_rotation
-    from manifests.objects import box_corners
+    from outputs.objects import box_corners
 
     for yaw in (0.0, 0.7, -np.pi / 2, 3.0):
         R = box_rotation(yaw)

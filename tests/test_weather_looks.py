@@ -17,8 +17,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from manifests.catalog import class_id, town as town_row, weather
-from manifests.spec import town_seed
+from domains.catalog import class_id, town as town_row, weather
+from roots.episode_spec import town_seed
 from render_workers.render import episode, weatherfx
 from render_workers.worlds.scene import World
 from reports.weathers import SEED, TOWN, episode_frames

@@ -7,11 +7,11 @@ import cv2
 import numpy as np
 import pytest
 
-from manifests.catalog import ALL_SCENARIOS, BUILTIN, EXTRA_WEATHERS, class_id, weather
-from manifests.conditions import frame_conditions
-from manifests.domainfile import with_file
-from manifests.selection import parse_selection
-from manifests.spec import EpisodeSpec
+from domains.catalog import ALL_SCENARIOS, BUILTIN, EXTRA_WEATHERS, class_id, weather
+from domains.conditions import frame_conditions
+from domains.catalog_file import with_file
+from domains.selection import parse_selection
+from roots.episode_spec import EpisodeSpec
 from render_workers.render import episode
 from render_workers.render.renderer import Renderer
 
@@ -126,8 +126,8 @@ def _lane_offset(xy: np.ndarray, lanes) -> np.ndarray:
 def test_snow_covers_the_road_but_for_darker_wheel_tracks(frames):
     """Issue 34.3: the road under snow is mostly white (luminance over 200), the lanes' wheel tracks (0.8 m either
     side of a lane's centre line) are grey slush, darker than the snow between them."""
-    from manifests.catalog import town as town_row
-    from manifests.spec import town_seed
+    from domains.catalog import town as town_row
+    from roots.episode_spec import town_seed
 
     frame = frames["SN"]
     lum = _luminance(frame)

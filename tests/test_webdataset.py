@@ -20,7 +20,7 @@ from exports import export as ex
 from exports import webdataset as wd
 from manifests.query import Query
 from manifests.reader import read_manifest
-from manifests.root import RootError
+from roots.contract import RootError
 from manifests.schema import output_columns
 from tests.s3_server import s3_server  # noqa: F401  (fixture)
 from tests.test_export import cli_app, make_tiny_root, upload_root
@@ -57,7 +57,7 @@ def expected_sample(root: Path, row: dict) -> dict[str, bytes]:
 
 
 def ex_outputs(row: dict) -> list[str]:
-    from manifests.outputs import OUTPUTS
+    from outputs.table import OUTPUTS
 
     return [o for o in OUTPUTS if row.get(output_columns(o)[0])]
 
@@ -274,7 +274,7 @@ def test_bench_export_end_to_end_tiny(tmp_path):
 def test_a_damaged_root_file_refuses_the_export(root, rows, tmp_path):
     import shutil
 
-    from exports.placing import DamagedFile
+    from exports.shared import DamagedFile
 
     copy = tmp_path / "root"
     shutil.copytree(root, copy)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from manifests.catalog import TOWNS, VIEWPOINTS, class_id, town as town_row
+from domains.catalog import TOWNS, VIEWPOINTS, class_id, town as town_row
 from render_workers.worlds import world as W
 from render_workers.worlds.scene import MATERIALS
 from render_workers.worlds.styles import is_urban
@@ -364,7 +364,7 @@ def test_field_boundaries_follow_the_style():
     from dataclasses import replace
 
     from render_workers.worlds.countryside import boundary
-    from render_workers.worlds.kit import Kit
+    from render_workers.worlds.builder import Kit
     from render_workers.worlds.styles import look
     from render_workers.worlds.town_plan import plan
 
@@ -387,7 +387,7 @@ def test_field_boundaries_follow_the_style():
 def test_unknown_surface_style_and_kit_are_rejected():
     from dataclasses import replace
 
-    from manifests.catalog import Town
+    from domains.catalog import Town
     from render_workers.worlds.styles import STYLES, look, style, surface
 
     with pytest.raises(ValueError, match="unknown surface 'marble'; valid surfaces: asphalt dark, "):
@@ -417,7 +417,7 @@ def test_builder_never_reads_town_codes():
     from pathlib import Path
 
     root = Path(W.__file__).parent
-    modules = ["world", "town_plan", "kit", "roadway", "streets", "buildings", "countryside", "freeway", "river", "railway"]
+    modules = ["world", "town_plan", "builder", "roadway", "streets", "buildings", "countryside", "freeway", "river", "railway"]
     for name in modules:
         text = (root / f"{name}.py").read_text()
         assert not re.search(r"T0\d", text), f"{name}.py mentions a town code"

@@ -10,8 +10,12 @@ from typing import Optional
 
 import typer
 
-from pipeline.cli import data as cli_data, domains as cli_domains
-from pipeline.cli.domains import CatalogFile, domain_file, root_catalog, root_pairing, root_rules
+from domains.catalog import using
+from domains.selection import parse_selection
+from manifests import query as q
+from manifests.stats import bar_chart_png, format_share_table, share_table
+from pipeline.cli import data as cli_data, domain_files as cli_domains
+from pipeline.cli.domain_files import CatalogFile, domain_file, root_catalog, root_pairing, root_rules
 from pipeline.cli.progress import (
     ProgressDisplay, VerifyDisplay, format_head_lost, format_interrupted, format_outage, format_produce_report,
     stop_signals,
@@ -21,9 +25,17 @@ from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MaxCondition, MinCondition, MinShare, OneLineUsageErrors, PerScenario,
     Preset, SampleSeed, Splits, Total, build_query, count, of_held, output_root, user_errors, write_local,
 )
-from manifests.outputs import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
-from manifests.reader import require_outputs
+from outputs.table import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
+from manifests.reader import read_manifest, require_outputs, scan_manifest
+from pipeline.driver import HeadLost, ProduceInterrupted, RendererCrashes, StorageOutage, produce as run_produce
+from pipeline.plan_file import write_plan
 from pipeline.planner import PlanConfig, make_plan
+from pipeline.settings import ProduceConfig, RunConfig
+from pipeline.status import format_duration, root_status
+from pipeline.verify_ray import choose_runner
+from render_workers.worlds.registry import check_world
+from roots.lease import ttl_from_env as lease_ttl_from_env
+from roots.verify import Scope, parse_since, verify as run_verify
 
 app = typer.Typer(
     cls=OneLineUsageErrors,
@@ -108,8 +120,6 @@ def plan(
                                         height=height, seed=seed, catalog=domain_file(catalog).layer_json()))
         typer.echo(format_plan_table(the_plan))
         if out is not None:
-            from pipeline.planio import write_plan
-
             write_plan(the_plan, out)
             typer.echo(f"wrote {len(the_plan.episodes):,} episodes to {out}")
 
@@ -140,11 +150,6 @@ def produce(
     Re-running the same command skips finished episodes: kill it at any time
     and run it again. Full scale is --scale 1 (1,006,800 frames at 1920x1080).
     """
-    from manifests.lease import ttl_from_env as lease_ttl_from_env
-    from pipeline.driver import (HeadLost, ProduceConfig, ProduceInterrupted, RendererCrashes, StorageOutage,
-                                 produce as run_produce)
-    from pipeline.runmeta import RunConfig
-
     with user_errors():
         if scale is None and frames_per_scenario is None:
             frames_per_scenario = 2
@@ -201,8 +206,6 @@ def produce(
 @app.command()
 def status(root: str = typer.Argument(..., help=ROOT_HELP)) -> None:
     """Done / pending episodes and frames per scenario, and the time left."""
-    from pipeline.status import format_duration, root_status
-
     with user_errors():
         st = root_status(output_root(root))
         for part in st.misnamed:
@@ -243,12 +246,6 @@ def verify(
     the root's layout are listed as foreign (left alone; --strict fails on them).
     Verify never changes the root.
     """
-    from manifests.selection import parse_selection
-    from manifests.verify import Scope, parse_since, verify as run_verify
-    from pipeline.verify_ray import choose_runner
-
-    from manifests.catalog import using
-
     with user_errors():
         with using(root_catalog(root, catalog)):
             chosen = None if domains is None else frozenset(s.code for s in parse_selection(_non_empty(domains)))
@@ -315,10 +312,6 @@ def query(
     catalog: CatalogFile = None,
 ) -> None:
     """Filter frames and draw seeded stratified samples, e.g. --preset best-case."""
-    from manifests import query as q
-    from manifests.catalog import using
-    from manifests.reader import scan_manifest
-
     with user_errors(), using(root_catalog(root, catalog)):
         the_query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed, tuple(episode),
                                 min_condition, max_condition)
@@ -365,11 +358,6 @@ def stats(
     catalog: CatalogFile = None,
 ) -> None:
     """Class pixel shares as a table and a log-scale bar chart (paper's Fig. pixeldistr)."""
-    from manifests import query as q
-    from manifests.catalog import using
-    from manifests.reader import read_manifest
-    from manifests.stats import bar_chart_png, format_share_table, share_table
-
     with user_errors(), using(root_catalog(root, catalog)):
         storage = output_root(root)
         if storage.is_local and chart.resolve().is_relative_to(Path(storage.path()).resolve()):
@@ -397,10 +385,7 @@ def preview(
 ) -> None:
     """Render one frame per scenario into a contact sheet (rows = viewpoints,
     columns = towns, one sheet per weather) plus one frame's six outputs."""
-    from manifests.selection import parse_selection
-    from render_workers.worlds.registry import check_world
-    from manifests.catalog import using
-    from render_workers.render.preview import write_preview
+    from render_workers.render.preview import write_preview  # deferred: the renderer (trimesh, scipy) only to render
 
     with user_errors(), using(domain_file(catalog)) as in_force:
         PlanConfig(domains=domains, width=width, height=height, seed=seed, frames_per_scenario=1,

@@ -13,15 +13,19 @@ from typing import Annotated, Iterator, Optional
 import typer
 from typer.core import TyperGroup
 
+from manifests import query as q
+from roots.contract import require_root
+from storage import Storage
+
 try:  # typer 0.2x vendors click; its exceptions are that copy's
     from typer._click import exceptions as click_errors
 except ImportError:  # older typer: click itself
     from click import exceptions as click_errors
 
-from manifests.lease import LeaseError
-from manifests.selection import SELECTION_HELP
-from manifests.writer import ManifestError
-from pipeline.runmeta import RunConfigError
+from roots.lease import LeaseError
+from domains.selection import SELECTION_HELP
+from manifests.part_file import ManifestError
+from pipeline.provenance import RunConfigError
 from storage import StorageError
 
 ROOT_HELP = "Output root (path or s3:// URI)."
@@ -94,10 +98,7 @@ class OneLineUsageErrors(TyperGroup):
 
 def output_root(root: str):
     """The storage of an output root; for any other path the one sentence every
-    command gives (``manifests.root.require_root``)."""
-    from manifests.root import require_root
-    from storage import Storage
-
+    command gives (``roots.contract.require_root``)."""
     storage = Storage.from_uri(root)
     require_root(storage)
     return storage
@@ -153,8 +154,6 @@ def build_query(
     max_condition: list[str] = (),
 ):
     """A validated Query from the shared query options (as in `idda query`)."""
-    from manifests import query as q
-
     shares = _pairs(min_share, "--min-share", "CLASS=SHARE", "SHARE a number in [0, 1]")
     lows = _pairs(min_condition, "--min-condition", "NAME=VALUE", "VALUE a number")
     highs = _pairs(max_condition, "--max-condition", "NAME=VALUE", "VALUE a number")

@@ -13,11 +13,19 @@ from typing import Annotated, Optional
 
 import typer
 
+from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
+from analysis.evaluate import EvaluateConfig, evaluate as run_evaluate, format_report
+from analysis.viewer import ViewConfig, view as run_view
+from domains.catalog import using
+from exports.card import CardConfig, write_card
+from exports.export import ExportConfig, export as run_export
+from exports.webdataset import SHARD_SIZE, parse_size
+from outputs.table import parse_outputs
 from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
     build_query, count, of_held, output_root, user_errors, write_local,
 )
-from pipeline.cli.domains import CatalogFile, root_catalog
+from pipeline.cli.domain_files import CatalogFile, root_catalog
 
 Real = Annotated[Optional[Path], typer.Option(
     "--real", help="A real dataset folder in Cityscapes layout (leftImg8bit/, gtFine/ labelIds for shifts): "
@@ -59,11 +67,6 @@ def export(
     manifest row as JSON), resumable. Splits are the manifest's, by episode
     (--as-split puts every frame in one split).
     """
-    from exports.export import ExportConfig, export as run_export
-    from exports.webdataset import SHARD_SIZE, parse_size
-    from manifests.catalog import using
-    from manifests.outputs import parse_outputs
-
     with user_errors(), using(root_catalog(root, catalog)):
         if copy and symlink:
             raise ValueError("give at most one of --copy and --symlink")
@@ -99,8 +102,6 @@ def evaluate(
 ) -> None:
     """Score predictions on a Cityscapes export with cityscapesScripts' pixel-level
     evaluation (its instance part, broken on numpy 2.4, is off)."""
-    from analysis.evaluate import EvaluateConfig, evaluate as run_evaluate, format_report
-
     with user_errors():
         config = EvaluateConfig(export=str(export), predictions=str(predictions), split=split,
                                 json_out=str(json_out) if json_out else None)
@@ -126,9 +127,6 @@ def distances(
     means and per-feature Bhattacharyya distance, next to the paper's values.
     With --real, a Cityscapes-layout folder is the domain 'real' (no pair
     naming it: every sampled domain is compared with it)."""
-    from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
-    from manifests.catalog import using
-
     with user_errors(), using(root_catalog(root, catalog)):
         output_root(root)
         config = DistanceConfig(
@@ -151,9 +149,6 @@ def card(
     """Write a dataset card (README.md and class_shares.png) into the root.
 
     Exits 1 when the root fails verification (the card says so too)."""
-    from exports.card import CardConfig, write_card
-    from manifests.catalog import using
-
     with user_errors(), using(root_catalog(root, None)):  # the root's declared domains: its scenarios
         output_root(root)
         result = write_card(CardConfig(root=root, contact_sheet=contact_sheet, verify=check))
@@ -197,11 +192,10 @@ def shifts(
     Needs PyTorch: pip install -e '.[analysis]'."""
     import json
 
-    from manifests.catalog import using
 
     with user_errors(), using(root_catalog(root, catalog)):
         from analysis.distances import parse_pairs
-        from analysis.shifts import CASE_BY_NAME, ShiftConfig, format_shift_table, require_torch, run_shifts
+        from analysis.shift_table import CASE_BY_NAME, ShiftConfig, format_shift_table, require_torch, run_shifts
 
         require_torch()  # the analysis extra: say so before reading any data
         output_root(root)
@@ -253,9 +247,6 @@ def view(
     """Look at an episode in rerun: per frame the RGB, the semantic labels, the depth as a
     point cloud in world coordinates, the camera pose and frustum, the 3D boxes and the
     condition columns as time series (needs rerun-sdk: pip install -e '.[view]')."""
-    from analysis.viewer import ViewConfig, view as run_view
-    from manifests.catalog import using
-
     with user_errors(), using(root_catalog(root, catalog)):
         if picture is not None and out is None:
             raise ValueError("--picture draws from the recording: give --out FILE.rrd too")

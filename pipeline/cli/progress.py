@@ -8,7 +8,7 @@ from __future__ import annotations
 import contextlib
 
 from pipeline.cli.common import count
-
+from pipeline.status import format_duration
 
 RATE_WINDOW = 20  # frames: the rate shown is over the last this many frames, "estimating" until there are that many
 
@@ -47,8 +47,6 @@ class RateWindow:
 
 def format_progress(p, rate: float | None) -> str:
     """One progress line: frames, the window's rate and ETA ("estimating" without a rate), episodes."""
-    from pipeline.status import format_duration
-
     share = 100 * p.frames_done / p.frames_total if p.frames_total else 100.0
     if rate is None:
         speed = "estimating rate and ETA"
@@ -157,8 +155,6 @@ def format_head_lost(lost) -> str:
 
 
 def format_produce_report(report) -> str:
-    from pipeline.status import format_duration
-
     lines = []
     if report.repaired:
         lines.append(f"repair: re-rendering {len(report.repaired)} damaged episode(s): {', '.join(report.repaired[:10])}"

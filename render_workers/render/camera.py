@@ -28,8 +28,8 @@ from functools import cached_property
 import numpy as np
 import trimesh
 
-from manifests.catalog import Viewpoint, viewpoint as lookup_viewpoint
-from manifests.geometry import CV_FROM_GL, HFOV_DEG, intrinsics
+from domains.catalog import Viewpoint, viewpoint as lookup_viewpoint
+from outputs.geometry import CV_FROM_GL, HFOV_DEG, intrinsics
 
 CAMERA_FORWARD_M = 0.2  # camera position ahead of the ego's centre (rear-view mirror)
 HOOD_SEGMENTS = 96  # segments along the hood's top edge (chord error ~1e-5 of the image)
@@ -100,7 +100,7 @@ class CameraRig:
 
     @property
     def K(self) -> np.ndarray:
-        """3x3 intrinsics in the manifest's convention (``manifests.geometry``: OpenCV, pixel centres at integers)."""
+        """3x3 intrinsics in the manifest's convention (``outputs.geometry``: OpenCV, pixel centres at integers)."""
         return intrinsics(self.width, self.height, HFOV_DEG)
 
     @cached_property

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import atexit
 import functools
-import importlib
 import logging
 import time
 from collections import deque
@@ -30,15 +29,16 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using, weather as lookup_weather
-from manifests.shifts import weather_at
-from manifests.conditions import frame_conditions
-from manifests.geometry import CV_FROM_GL, normals_from_depth, pose_cells
-from manifests.objects import object_counts
-from manifests.spec import NEW_RULES, EpisodeSpec
-from manifests.spec import town_seed
+from domains.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using, weather as lookup_weather
+from domains.ramps import weather_at
+from domains.conditions import frame_conditions
+from outputs.geometry import CV_FROM_GL, normals_from_depth, pose_cells
+from outputs.objects import object_counts
+from manifests.schema import NEW_RULES
+from roots.episode_spec import EpisodeSpec
+from roots.episode_spec import town_seed
 from render_workers.render import postfx
-from render_workers.worlds import worldcache
+from render_workers.worlds import testworld, traffic, worldcache, world as procedural_world
 from render_workers.render.camera import measured_hood_fraction
 from render_workers.render.flow import episode_flow
 from render_workers.render.instances import frame_objects, instance_classes
@@ -63,31 +63,24 @@ class WorldBuilder:
     populate: Callable[[World, str, int], EpisodeScene]
 
 
-def _function(module_name: str, fn: str, world: str) -> Callable:
-    try:
-        module = importlib.import_module(module_name)
-    except ModuleNotFoundError as exc:
-        if exc.name != module_name:
-            raise
-        raise ImportError(f"world {world!r} needs module {module_name}, which is not available") from exc
-    function = getattr(module, fn, None)
-    if not callable(function):
-        raise ImportError(f"world {world!r}: module {module_name} has no {fn}() function")
-    return function
+# The worlds by name (render_workers.worlds.registry.WORLDS names the same ones).
+BUILDERS: dict[str, WorldBuilder] = {
+    "procedural": WorldBuilder(procedural_world.build_world, traffic.populate),
+    "test": WorldBuilder(testworld.build_world, testworld.populate),
+}
 
 
 def world_builder(name: str) -> WorldBuilder:
-    """The world registered as ``name``; ValueError for unknown names, ImportError if missing."""
+    """The world registered as ``name``; ValueError naming the valid ones for unknown names."""
     check_world(name)
-    build_module, populate_module = WORLDS[name]
-    return WorldBuilder(_function(build_module, "build_world", name), _function(populate_module, "populate", name))
+    return BUILDERS[name]
 
 
 @functools.lru_cache(maxsize=8)
 def cached_world(world: str, town_code: str, seed: int, variant: str = "") -> World:
     """A town's static world, loaded (or built) once per process and reused across its episodes.
 
-    ``variant`` (``manifests.catalog.town_variant``) tells a town a domain file
+    ``variant`` (``domains.catalog.town_variant``) tells a town a domain file
     declares or changes from the built-in town of its code; the catalog that
     declares it must be in force while it is built.
 

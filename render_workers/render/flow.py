@@ -14,8 +14,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.geometry import CV_FROM_GL, depth_to_world, project, world_to_camera
-from manifests.objects import HOOD_ID
+from outputs.geometry import CV_FROM_GL, depth_to_world, project, world_to_camera
+from outputs.objects import HOOD_ID
 
 
 def forward_flow(depth: np.ndarray, instance: np.ndarray, K: np.ndarray, cam_now: np.ndarray,

@@ -12,7 +12,7 @@ fixed order (by class and position), then the actors' objects in scene order.
 They are stable over the episode's frames.
 
 :func:`frame_objects` turns a frame's instance ids into the ``objects`` sidecar
-(``manifests.objects``): tight 2D boxes, visible pixels, occlusion against the
+(``outputs.objects``): tight 2D boxes, visible pixels, occlusion against the
 object's own silhouette (rasterised from its triangles), truncation of its
 projected 3D box, and the 3D box in OpenCV camera coordinates.
 """
@@ -23,8 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from manifests.catalog import LABELS
-from manifests.objects import HOOD_ID, INSTANCE_CLASS_IDS, object_table
+from domains.catalog import LABELS
+from outputs.objects import HOOD_ID, INSTANCE_CLASS_IDS, box_corners, object_table
 from render_workers.worlds.scene import EpisodeScene, Part
 
 MAX_ID = 2**16 - 1
@@ -241,8 +241,6 @@ def frame_objects(instance: np.ndarray, instances: list[Instance], poses: list[n
 
 def _truncation(centre, size, forward, focal, cx, cy, w, h) -> float:
     """Share of the projected 3D box's 2D extent outside the image."""
-    from manifests.objects import box_corners
-
     corners = box_corners(centre, size, float(np.arctan2(-forward[2], forward[0])))
     edges = [(i, j) for i in range(8) for j in range(i + 1, 8) if bin(i ^ j).count("1") == 1]
     pts = [corners[i] for i in range(8) if corners[i][2] >= NEAR_M]

@@ -56,7 +56,7 @@ from typing import Callable
 
 import numpy as np
 
-from render_workers.render.compat import import_pyrender
+from render_workers.render.pyrender_setup import import_pyrender
 
 MSAA_CHOICES = (0, 2, 4, 8)
 

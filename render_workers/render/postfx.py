@@ -24,8 +24,8 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import Weather, class_id
-from manifests.fog import extinction
+from domains.catalog import Weather, class_id
+from domains.fog import extinction
 from render_workers.render import texturefx, weatherfx
 from render_workers.render.camera import CameraRig
 from render_workers.worlds.scene import World
@@ -176,7 +176,7 @@ def wet_road(img: np.ndarray, ctx: FxContext) -> np.ndarray:
 
 def fog(img: np.ndarray, ctx: FxContext) -> np.ndarray:
     """Blend towards the horizon colour with transmittance exp(-beta * depth), beta = ln(20) / visibility
-    (manifests.fog; a weather declared as a share per km before renders as it did)."""
+    (domains.fog; a weather declared as a share per km before renders as it did)."""
     beta = extinction(ctx.weather.visibility_m)
     if beta <= 0:
         return img

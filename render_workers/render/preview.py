@@ -16,11 +16,11 @@ from pathlib import Path
 
 import numpy as np
 
-from manifests.catalog import active, scenario as lookup_scenario
-from manifests.outputs import SEED_OUTPUTS, encode_outputs
-from manifests.spec import EpisodeSpec
-from manifests.spec import PAIRED, episode_seed
-from manifests.encoding import encode_png
+from domains.catalog import active, scenario as lookup_scenario
+from outputs.table import SEED_OUTPUTS, encode_outputs
+from roots.episode_spec import EpisodeSpec
+from roots.episode_spec import PAIRED, episode_seed
+from outputs.encoding import encode_png
 from render_workers.render.episode import DEFAULT_WORLD, render_episode
 from render_workers.render.renderer import Renderer
 from render_workers.worlds.scene import Frame

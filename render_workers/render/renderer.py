@@ -45,7 +45,7 @@ The class pass is untouched (no shadow pass, no lights), so class ids and
 depth are identical with shadows on or off. See ``render_workers.render.passes`` for
 the pyrender internals this overrides.
 
-pyrender rules this module follows are listed in ``render_workers.render.compat``.
+pyrender rules this module follows are listed in ``render_workers.render.pyrender_setup``.
 """
 
 from __future__ import annotations
@@ -60,14 +60,14 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import Viewpoint, Weather, class_id, lookup
-from render_workers.render import compat, passes
+from domains.catalog import Viewpoint, Weather, class_id, lookup
+from render_workers.render import pyrender_setup as compat, passes
 from render_workers.render.camera import CameraRig, hood_mesh, sun_direction
 from render_workers.render.sky import cloud_texture, composite_sky, sky_image
 from render_workers.render.instances import HOOD_ID, episode_instances, split_static
 from render_workers.worlds.scene import EpisodeScene
 from render_workers.render.shaders import FAST_MESH_FRAG
-from render_workers.render.soups import _pyrender_mesh, _Soup, _sphere, _triangles, part_groups, static_groups
+from render_workers.render.part_meshes import _pyrender_mesh, _Soup, _sphere, _triangles, part_groups, static_groups
 
 log = logging.getLogger(__name__)
 

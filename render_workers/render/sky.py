@@ -6,7 +6,7 @@ import math
 
 import numpy as np
 
-from manifests.catalog import Weather
+from domains.catalog import Weather
 from render_workers.render.camera import CameraRig, sun_direction
 
 SKY_DOWNSCALE = 4  # the sky is smooth: compute it at 1/4 size and upscale

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.catalog import class_id
+from domains.catalog import class_id
 from render_workers.render.weatherfx import _camera_points, _world
 
 TEXTURE_STREAM = 36  # a class's pattern: np.random.default_rng([episode_seed, TEXTURE_STREAM, class id])

@@ -34,8 +34,8 @@ from statistics import NormalDist
 
 import numpy as np
 
-from manifests.catalog import Weather, class_id
-from manifests.geometry import CV_FROM_GL, normals_from_depth
+from domains.catalog import Weather, class_id
+from outputs.geometry import CV_FROM_GL, normals_from_depth
 
 NIGHT_SUN_DEG = 12.0  # full night once the sun is this far below the horizon
 NIGHT_FLOOR = 0.1  # what remains of the flat-lit image at full night (moonlight)

@@ -1,1 +1,1 @@
-"""The worlds: towns as scenes of parts (layout, feature modules, kit, meshes, textures, styles), traffic, the world cache. Imports no GL."""
+"""The worlds: towns as scenes of parts (layout, feature modules on a shared builder, meshes, textures, styles), traffic, the world cache. Imports no GL."""

@@ -10,7 +10,7 @@ from functools import lru_cache
 import numpy as np
 import trimesh
 
-from manifests.catalog import class_id
+from domains.catalog import class_id
 from render_workers.worlds import meshes as M
 from render_workers.worlds.scene import Part
 

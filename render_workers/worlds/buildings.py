@@ -20,10 +20,10 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import lookup
+from domains.catalog import lookup
 from render_workers.worlds.styles import surface, is_urban
 from render_workers.worlds import meshes as M
-from render_workers.worlds.kit import PALETTE, Kit
+from render_workers.worlds.builder import PALETTE, Kit
 from render_workers.worlds.town_plan import OUTER_Z
 
 FLOOR_M = 3.2

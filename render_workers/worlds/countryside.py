@@ -16,7 +16,7 @@ import numpy as np
 
 from render_workers.worlds.styles import surface, is_urban
 from render_workers.worlds import meshes as M
-from render_workers.worlds.kit import Kit, rect_distance
+from render_workers.worlds.builder import Kit, rect_distance
 
 TALL_CROP_M = 2.6  # height of a maize stand
 HEADLAND_M = 1.5  # bare soil between a tall crop and its field's edge

@@ -8,7 +8,7 @@ import numpy as np
 
 from render_workers.worlds.styles import surface
 from render_workers.worlds import meshes as M
-from render_workers.worlds.kit import PALETTE, Kit, split_span
+from render_workers.worlds.builder import PALETTE, Kit, split_span
 from render_workers.worlds.roadway import asphalt, markings
 from render_workers.worlds.town_plan import FREEWAY_LANE_W, FREEWAY_MEDIAN, MARK_Z, OUTER_Z
 

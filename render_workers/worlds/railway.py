@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from render_workers.worlds import meshes as M
-from render_workers.worlds.kit import PALETTE, Kit
+from render_workers.worlds.builder import PALETTE, Kit
 from render_workers.worlds.town_plan import OUTER_Z
 
 

@@ -1,14 +1,12 @@
-"""The world builders by name, in a module light enough for the driver to
-validate ``--world`` without importing the renderer, trimesh or scipy."""
+"""The world builders' names, in a module light enough for the driver and the CLI to
+validate ``--world`` without importing the builders (trimesh, scipy). The builders
+themselves are bound by import in ``render_workers.render.episode`` (``BUILDERS``:
+``build_world(town_code, seed)`` and ``populate(world, viewpoint_code, episode_seed)``
+per name); a test checks that both name the same worlds."""
 
 from __future__ import annotations
 
-# World builders by name: the modules providing build_world(town_code, seed) and
-# populate(world, viewpoint_code, episode_seed). Imported on first use.
-WORLDS: dict[str, tuple[str, str]] = {
-    "procedural": ("render_workers.worlds.world", "render_workers.worlds.traffic"),
-    "test": ("render_workers.worlds.testworld", "render_workers.worlds.testworld"),
-}
+WORLDS: tuple[str, ...] = ("procedural", "test")
 DEFAULT_WORLD = "procedural"
 
 

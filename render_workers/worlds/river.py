@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from render_workers.worlds import meshes as M
-from render_workers.worlds.kit import PALETTE, Kit
+from render_workers.worlds.builder import PALETTE, Kit
 from render_workers.worlds.town_plan import CURB_H, OUTER_Z, RIVER_BANK_M
 
 WATER_Z = -1.6  # water level

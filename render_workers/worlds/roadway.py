@@ -7,7 +7,7 @@ import numpy as np
 
 from render_workers.worlds.styles import surface
 from render_workers.worlds import meshes as M
-from render_workers.worlds.kit import Kit
+from render_workers.worlds.builder import Kit
 from render_workers.worlds.town_plan import MARK_Z
 
 

@@ -183,9 +183,9 @@ class Frame:
     ego_speed_mps: float
     n_vehicles: int  # the episode's traffic
     n_pedestrians: int
-    # Calibration and poses, flat row-major (manifests.geometry: OpenCV camera axes, world z up, metres)
+    # Calibration and poses, flat row-major (outputs.geometry: OpenCV camera axes, world z up, metres)
     K: list  # 9 values, 3x3 intrinsics in pixels
     cam_to_world: list  # 16 values, 4x4
     ego_to_world: list  # 16 values, 4x4
     cam_to_ego: list  # 16 values, 4x4, fixed per viewpoint
-    conditions: dict  # condition column -> value (manifests.conditions): the weather this frame was rendered under
+    conditions: dict  # condition column -> value (domains.conditions): the weather this frame was rendered under

@@ -11,7 +11,7 @@ from __future__ import annotations
 import numpy as np
 
 from render_workers.worlds import meshes as M
-from render_workers.worlds.kit import PALETTE, Kit, split_span
+from render_workers.worlds.builder import PALETTE, Kit, split_span
 from render_workers.worlds.roadway import asphalt, markings, road_marks, track
 from render_workers.worlds.styles import is_urban
 from render_workers.worlds.town_plan import CURB_H, MARK_Z, OUTER_Z, ZEBRA_FROM, ZEBRA_LEN, corner_offset

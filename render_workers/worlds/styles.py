@@ -1,8 +1,8 @@
 """How towns look: the world kit's surfaces and each town's style row, as data.
 
-A town's catalog row (``manifests.catalog.TOWNS``) names its style; everything
+A town's catalog row (``domains.catalog.TOWNS``) names its style; everything
 the world builder needs to dress it (materials, road dress, buildings, plants,
-relief) is here, so the dataset's vocabulary in ``manifests/`` carries no
+relief) is here, so the dataset's vocabulary in ``domains/`` carries no
 render detail. Every name is checked against its table when a row is made.
 """
 
@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from manifests.catalog import RGB, TOWNS, Town, lookup
+from domains.catalog import RGB, TOWNS, Town, lookup
 
 
 # --------------------------------------------------------------------------
@@ -119,7 +119,7 @@ def surface(name: str) -> Surface:
 ROAD_EDGES = ("kerb", "gravel", "dirt")  # kerb = raised sidewalks; the others are verges
 MARKINGS = ("full", "centre", "none")  # centre + lane + edge lines / centre line only / none
 ARCHITECTURES = ("european", "modern", "alpine", "suburban", "farm")  # render_workers.worlds.buildings kits
-TREE_SPECIES = ("broadleaf", "conifer", "poplar", "birch", "bush")  # render_workers.worlds.kit meshes
+TREE_SPECIES = ("broadleaf", "conifer", "poplar", "birch", "bush")  # render_workers.worlds.builder meshes
 FIELD_BOUNDS = ("hedge", "fence", "wall")  # what may line a countryside block (render_workers.worlds.countryside)
 
 

@@ -21,7 +21,7 @@ import math
 import numpy as np
 import trimesh
 
-from manifests.catalog import CLASS_IDS, town as lookup_town, viewpoint as lookup_viewpoint
+from domains.catalog import CLASS_IDS, town as lookup_town, viewpoint as lookup_viewpoint
 from render_workers.worlds.scene import Actor, EpisodeScene, Part, Path, World
 
 MODULE_M = 40.0  # length of the repeated roadside module

@@ -21,7 +21,7 @@ from typing import Callable
 
 import numpy as np
 
-from manifests.catalog import lookup
+from domains.catalog import lookup
 from render_workers.worlds.styles import SURFACES, TEXTURE_NAMES, Style
 
 TEXTURE_PX = 256

@@ -1,7 +1,7 @@
 """A town's plan: its street grid, features and the paths traffic uses; no meshes.
 
 ``plan(town, seed)`` reads the town's row (and its style's lane width and road
-edge) from ``manifests.catalog`` and lays out, deterministically from the seed:
+edge) from ``domains.catalog`` and lays out, deterministically from the seed:
 
 * a grid of streets (blocks of about ``Town.block_m``, ``Town.lanes`` lanes per
   direction) sized so the drivable centre-line length matches ``Town.road_km``;
@@ -24,7 +24,7 @@ from functools import lru_cache
 
 import numpy as np
 
-from manifests.catalog import Town, town as town_row
+from domains.catalog import Town, town as town_row
 from render_workers.worlds.scene import Crosswalk, Loop, Path
 from render_workers.worlds.styles import look, is_urban
 

@@ -30,7 +30,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from manifests.catalog import viewpoint as viewpoint_row
+from domains.catalog import viewpoint as viewpoint_row
 from render_workers.worlds.actors import PAINTS, VEHICLE_KINDS, pedestrian_parts, rider_parts, vehicle_parts
 from render_workers.worlds.crossings import CROSSING_SHARE, CrossingPlanner, footprint
 from render_workers.worlds.scene import Actor, EpisodeScene, Loop, World

@@ -1,9 +1,9 @@
 """Procedural towns: one data-driven builder for all seven IDDA towns.
 
 ``build_world(town_code, seed)`` reads the town's row in
-``manifests.catalog.TOWNS`` and its style row in ``STYLES``, lays out the plan
+``domains.catalog.TOWNS`` and its style row in ``STYLES``, lays out the plan
 (``render_workers.worlds.town_plan``) and runs the features in :data:`FEATURES` over
-one :class:`~render_workers.worlds.kit.Kit`. Each feature is a function of the kit in
+one :class:`~render_workers.worlds.builder.Kit`. Each feature is a function of the kit in
 its own module and decides from the plan and the style whether it applies
 (a freeway only where the plan has one, farmland only without sidewalks...);
 nothing here or there reads a town's code. A new town is a catalog row (and
@@ -19,9 +19,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.catalog import Town, town as town_row
+from domains.catalog import Town, town as town_row
 from render_workers.worlds import buildings, countryside, freeway, railway, river, streets
-from render_workers.worlds.kit import Kit
+from render_workers.worlds.builder import Kit
 from render_workers.worlds.scene import World
 from render_workers.worlds.styles import look
 from render_workers.worlds.textures import TEXTURE_MEAN, town_textures

@@ -6,7 +6,7 @@ outside: the builders know nothing about it.
 
 An entry is keyed by the world's name, the town code, the town seed and
 :func:`code_digest`, a digest of every module the builders could read
-(``render_workers/*.py``, ``manifests/*.py`` and the built-in catalog ``manifests/catalog.toml``) and of the Python, numpy and
+(``render_workers/worlds/*.py``, ``domains/*.py`` and the built-in catalog ``domains/catalog.toml``) and of the Python, numpy and
 trimesh versions. Any edit to that code makes new keys, so a stale world is
 never loaded. Entries unused for ``KEEP_DAYS`` days are deleted when a new one
 is written (not every other digest: two checkouts sharing the cache would
@@ -47,7 +47,7 @@ MAX_ENV = "IDDA_WORLD_CACHE_MAX"
 DEFAULT_MAX_BYTES = 2 * 1024**3
 STALE_TEMP_S = 3600  # a temp file this old is a killed writer's, not one still writing
 _UNITS = {"": 1, "B": 1, "K": 1024, "M": 1024**2, "G": 1024**3, "T": 1024**4}
-_PACKAGES = ("render_workers/worlds", "manifests")  # the code a world can depend on (worlds/ imports no GL)
+_PACKAGES = ("render_workers/worlds", "domains")  # the code a world can depend on (worlds/ imports no GL, and only domains/ of ours)
 KEEP_DAYS = 14  # an entry not loaded for this long is dropped
 W = TypeVar("W")
 
@@ -169,7 +169,7 @@ def prune(directory: Path, keep: Path | None = None, limit: int | None = None) -
 
 def load_or_build(world: str, town_code: str, seed: int, build: Callable[[str, int], W], variant: str = "") -> W:
     """``build(town_code, seed)``, from the disk cache when an entry for this code (and variant:
-    ``manifests.catalog.town_variant``) exists."""
+    ``domains.catalog.town_variant``) exists."""
     directory = cache_dir()
     if directory is None:
         return build(town_code, seed)

@@ -1,7 +1,7 @@
 """The dataset's vocabulary: classes, towns, weathers and viewpoints.
 
 Each axis is one table of frozen rows (towns, weathers and viewpoints are
-loaded from the domain file ``manifests/catalog.toml``). Everything else (palettes, lookup
+loaded from the domain file ``domains/catalog.toml``). Everything else (palettes, lookup
 tables, Cityscapes maps, scenario codes, the manifest's column names) is
 derived from these tables, so nothing else in the code base hard-codes an id.
 
@@ -24,11 +24,11 @@ from typing import Iterable, Iterator
 
 import numpy as np
 
-from manifests.domainfile import catalog_from_text, with_layer_json
-from manifests.domains import (AXES, CODE_CHARS, CODE_SEPARATOR, RGB, Catalog, Town, Viewpoint,  # noqa: F401
+from domains.catalog_file import catalog_from_text, with_layer_json
+from domains.rows import (AXES, CODE_CHARS, CODE_SEPARATOR, RGB, Catalog, Town, Viewpoint,  # noqa: F401
                                Weather)  # (re-exported)
 
-# AXES (manifests.domains): the axes of a scenario, in the order of its code ``<town>_<weather>_<viewpoint>``
+# AXES (domains.rows): the axes of a scenario, in the order of its code ``<town>_<weather>_<viewpoint>``
 # (e.g. T01_CS_A) and of the manifest's hive partitions. The code is parsed by
 # split_code and formatted by format_code; the parsers of paths and part names
 # (manifests.layout, manifests.schema, manifests.reader) take their patterns
@@ -134,8 +134,8 @@ def class_id(name: str) -> int:
 
 
 # --------------------------------------------------------------------------
-# Towns, weathers, viewpoints: rows declared in manifests/domains.py, values in
-# manifests/catalog.toml (the paper's 105 domains). A run may put a user's
+# Towns, weathers, viewpoints: rows declared in domains/rows.py, values in
+# domains/catalog.toml (the paper's 105 domains). A run may put a user's
 # domain file in force (``using``); the lookups below and every seed then see
 # it, while these module constants stay the built-in catalog.
 # --------------------------------------------------------------------------
@@ -143,7 +143,7 @@ BUILTIN_FILE = "catalog.toml"
 
 
 def _load_builtin() -> Catalog:
-    text = resources.files("manifests").joinpath(BUILTIN_FILE).read_text(encoding="utf-8")
+    text = resources.files("domains").joinpath(BUILTIN_FILE).read_text(encoding="utf-8")
     return catalog_from_text(text, f"manifests/{BUILTIN_FILE}")
 
 

@@ -3,7 +3,7 @@
 The file records the run config (with the user domain entries in force, so
 the root is resumed, extended and verified without the domain file), package
 versions, the git revision, the file encoder
-(``manifests.encoding.encoder_identity``) and the root's file layout
+(``outputs.encoding.encoder_identity``) and the root's file layout
 (``manifests.layout``: a new root's, kept for the root's life). A later run into the
 same root must ask for the same config, or pass --extend; settings that decide
 what a frame looks like (seed, resolution, world) can never change within one
@@ -18,16 +18,25 @@ import logging
 import os
 import platform
 import subprocess
-from dataclasses import dataclass
 from importlib import metadata
 from pathlib import Path
 
+from domains.catalog import scenario as lookup_scenario, using
+from domains.catalog_file import current_layer
 from manifests.layout import LAYOUT_KEY, NEW_ROOT_LAYOUT, held_layout, record_layout
-from manifests.outputs import SEED_OUTPUTS
-from manifests.runrecord import REPAIR_HINT, RunRecordError, read_record, record_bytes
-from manifests.schema import RUN_FILE
-from manifests.spec import FRAME_PERIOD_S
-from pipeline.planner import RECORDED_DEFAULTS, PlanConfig
+from manifests.part_file import ManifestError, read_part_file
+from manifests.reader import done_episodes, part_summaries
+from manifests.schema import MANIFEST_DIR, NEW_RULES, OLD_RULES, PART_SCHEMA, RUN_FILE, output_columns
+from outputs.deflaters import DEFAULT_DEFLATER, deflater_named_by, deflater_of_png
+from outputs.encoding import encoder_identity
+from outputs.table import OUTPUTS, SEED_OUTPUTS
+from pipeline.planner import RECORDED_DEFAULTS, PlanConfig, scene_places, scene_split
+from pipeline.settings import RunConfig
+from roots.contract import own_top_names, root_entries
+from roots.episode_spec import FRAME_PERIOD_S, episode_seed
+from roots.run_file import REPAIR_HINT, RunRecordError, read_record, record_bytes
+from storage import StorageError
+
 
 # Changing these would make new frames inconsistent with the ones on disk.
 FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s", "pairing", "rules")
@@ -39,17 +48,6 @@ log = logging.getLogger(__name__)
 
 class RunConfigError(Exception):
     """The output root was produced with a different config."""
-
-
-@dataclass(frozen=True)
-class RunConfig:
-    """What defines the dataset in one output root."""
-
-    plan: PlanConfig
-    world: str = "procedural"
-
-    def to_dict(self) -> dict:
-        return {**self.plan.to_dict(), "world": self.world}
 
 
 def package_versions() -> dict[str, str]:
@@ -99,10 +97,6 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
     Checked from each part's summary (its footer's statistics, or its
     scenario's index): O(parts), no row is decoded. ``summaries``: from
     ``manifests.reader.part_summaries`` if the caller has them already."""
-    from manifests.catalog import scenario as lookup_scenario, using
-    from manifests.reader import part_summaries
-    from manifests.spec import episode_seed
-
     held = {key: s for key, s in (part_summaries(storage) if summaries is None else summaries).items() if s and s.rows}
     if not held:
         return
@@ -134,10 +128,8 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
 def _with_outputs(config: dict) -> dict:
     """A recorded config; roots from before ``--outputs`` hold the six seed outputs, roots
     from before ``--rgb-format`` PNG rgb files, roots from before ``--frame-interval`` one frame every 3 s,
-    roots from before pairing per-weather episode seeds, roots from before rules the old ones (manifests.spec);
-    user weathers recorded with a fog share in today's keys (manifests.domainfile.current_layer)."""
-    from manifests.domainfile import current_layer
-
+    roots from before pairing per-weather episode seeds, roots from before rules the old ones (roots.episode_spec);
+    user weathers recorded with a fog share in today's keys (domains.catalog_file.current_layer)."""
     config = {**config, "catalog": current_layer(config["catalog"])} if "catalog" in config else config
     return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", "frame_interval_s": FRAME_PERIOD_S,
             **RECORDED_DEFAULTS, **config}
@@ -146,8 +138,6 @@ def _with_outputs(config: dict) -> dict:
 def _fresh_record(new: dict, history: list[dict] | None = None, layout: int = NEW_ROOT_LAYOUT,
                   encoder: str | None = None) -> dict:
     """A run record of ``new``; ``encoder``: the root's own (an older root keeps its deflater), else this one's."""
-    from manifests.encoding import encoder_identity
-
     return {
         "config": new,
         "history": (history or []) + [new],
@@ -161,13 +151,6 @@ def _fresh_record(new: dict, history: list[dict] | None = None, layout: int = NE
 def _encoder_held(storage, rgb_format: str) -> str:
     """The encoder for a record written afresh (run.json lost or damaged): with the
     deflater of the PNG files the manifest lists (an ISA-L root keeps ISA-L), else a new root's."""
-    from manifests.deflaters import DEFAULT_DEFLATER, deflater_of_png
-    from manifests.encoding import encoder_identity
-    from manifests.outputs import OUTPUTS
-    from manifests.schema import MANIFEST_DIR, PART_SCHEMA, output_columns
-    from manifests.writer import ManifestError, read_part_file
-    from storage import StorageError
-
     for rel in storage.list_files(MANIFEST_DIR + "/", suffix=".parquet")[:8]:
         try:
             table = read_part_file(storage, rel, PART_SCHEMA)
@@ -193,8 +176,6 @@ UNRECORDED_ENCODER = "not recorded (OpenCV's PNG encoder, before encoders were r
 def root_deflater(record: dict | None) -> str:
     """The PNG deflater of a root's frames: the one its run.json names where that is
     installed here (an older root keeps its own), else the default (a new root's)."""
-    from manifests.deflaters import DEFAULT_DEFLATER, deflater_named_by
-
     encoder = (record or {}).get("encoder", "")
     return deflater_named_by(encoder.split("; rgb ", 1)[0]) or DEFAULT_DEFLATER
 
@@ -206,10 +187,6 @@ def for_root(specs, record: dict) -> list:
     asked for keeps its place, so its weathers and longer episodes keep its split)."""
     from dataclasses import replace
 
-    from manifests.catalog import scenario as lookup_scenario, using
-    from manifests.layout import record_layout
-    from manifests.spec import NEW_RULES, OLD_RULES
-    from pipeline.planner import scene_places, scene_split
 
     layout, deflater = record_layout(record), root_deflater(record)
     specs = [replace(spec, layout=layout, png_deflater=deflater) for spec in specs]
@@ -223,17 +200,12 @@ def for_root(specs, record: dict) -> list:
 def _same_encoder(theirs: str, rgb_format: str) -> bool:
     """True if frames encoded as ``theirs`` can be written here: by the default deflater or the
     root's own older one, with the same JPEG settings."""
-    from manifests.encoding import encoder_identity
-
     return theirs == encoder_identity(rgb_format, root_deflater({"encoder": theirs}))
 
 
 def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
     """Refuse to add frames encoded otherwise than the root's; records the encoder in an empty root.
     A root written with an older PNG deflater that is still installed keeps it (``root_deflater``)."""
-    from manifests.encoding import encoder_identity
-    from manifests.reader import done_episodes
-
     ours, theirs = encoder_identity(rgb_format), record.get("encoder", UNRECORDED_ENCODER)
     if theirs == ours:
         return record
@@ -264,9 +236,6 @@ def changed_entries(old: dict | None, new: dict | None) -> list[str]:
 def holds_frames(storage) -> bool:
     """Whether the root holds a part or anything beside its own bookkeeping (a scenario
     folder, say): False for a root whose run wrote nothing but its marker and run.json."""
-    from manifests.root import own_top_names, root_entries
-    from manifests.schema import MANIFEST_DIR
-
     if storage.list_files(MANIFEST_DIR + "/", suffix=".parquet"):
         return True
     return bool(set(root_entries(storage)) - own_top_names(()))
@@ -311,8 +280,6 @@ def check_before_repair(storage, config: RunConfig, extend: bool = False) -> Non
     and the same config unless ``extend``), and the encoder must be the
     root's. Reads only. A damaged or missing run.json passes: the manifest
     rows are then checked against this command's options instead."""
-    from manifests.reader import done_episodes
-
     try:
         record = read_record(storage)
     except RunRecordError:

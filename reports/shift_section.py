@@ -2,11 +2,11 @@
 
 Renders the paper's five domains (T01_CS_A, T01_CS_J, T01_HRN_J, T01_HRN_A,
 T07_HRN_A; 150 frames each at 320x180, procedural world, run seed 0) into
-``SHIFT_ROOT``, runs ``analysis.shifts`` on them (the same as
+``SHIFT_ROOT``, runs ``analysis.shift_table`` on them (the same as
 ``idda shifts SHIFT_ROOT``) and returns the table and the per-case figures.
 :func:`markdown` turns them into the report's "Domain shift" section.
 
-``.venv/bin/python -m reports.shifts`` does only this part and
+``.venv/bin/python -m reports.worlds_md shifts`` does only this part and
 replaces the section in an existing docs/worlds.md (and ``shifts`` in
 docs/worlds.json).
 """
@@ -14,6 +14,8 @@ docs/worlds.json).
 from __future__ import annotations
 
 import logging
+
+from reports.sample import produce_sample
 
 SHIFT_ROOT = "/tmp/idda-shifts-sample"  # outside git; rebuilt on every run
 SHIFT_DOMAINS = "T01_CS_A,T01_CS_J,T01_HRN_J,T01_HRN_A,T07_HRN_A"
@@ -27,10 +29,8 @@ log = logging.getLogger(__name__)
 def measure(root: str = SHIFT_ROOT, frames: int = FRAMES, width: int = WIDTH, height: int = HEIGHT,
             workers: int = 2) -> dict:
     """Render the five domains and run the shift table on them; an error dict if torch is missing."""
-    from reports.sample import produce_sample
-
     try:
-        from analysis.shifts import ShiftConfig, format_shift_table, require_torch, run_shifts
+        from analysis.shift_table import ShiftConfig, format_shift_table, require_torch, run_shifts
 
         require_torch()
     except ImportError as exc:
@@ -67,7 +67,7 @@ def markdown(result: dict) -> list[str]:
         return lines + [f"Not computed: {result['error']}", ""]
     s, cfg = result["sample"], result["config"]
     lines += [
-        f"`idda shifts` (analysis/shifts.py) on the paper's five domains, {s['frames_per_scenario']} frames each at "
+        f"`idda shifts` (analysis/shift_table.py) on the paper's five domains, {s['frames_per_scenario']} frames each at "
         f"{s['width']}x{s['height']} (procedural world, run seed 0). For each case a small encoder-decoder "
         f"({result['parameters']:,} parameters, trained from scratch at {cfg['width']}x{cfg['height']}, "
         f"{cfg['steps']} steps of {cfg['batch_size']} frames) learns the source domain and is scored on the "
@@ -87,28 +87,3 @@ def markdown(result: dict) -> list[str]:
     lines += ["Reproduce: `idda produce --domains " + SHIFT_DOMAINS + f" --frames-per-scenario {s['frames_per_scenario']} "
               f"--width {s['width']} --height {s['height']} --out {s['root']}` then `idda shifts {s['root']}`.", ""]
     return lines
-
-
-def put_section(docs: str, key: str, result: dict) -> None:
-    """Set ``key`` of docs/worlds.json to ``result`` and write docs/worlds.md from that JSON as the
-    generator does (``reports.worlds_md.markdown``), so the page is always what the generator writes."""
-    import json
-    from pathlib import Path
-
-    from reports.worlds_md import markdown as page
-
-    js = Path(docs, "worlds.json")
-    data = json.loads(js.read_text())
-    data[key] = result
-    js.write_text(json.dumps(data, indent=1, default=float) + "\n")
-    Path(docs, "worlds.md").write_text(page(data))
-
-
-def update_docs(result: dict, docs: str = "docs") -> None:
-    """Put the section into an existing docs/worlds.md (and worlds.json) without re-running the whole report."""
-    put_section(docs, "shifts", result)
-
-
-if __name__ == "__main__":
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    update_docs(measure())

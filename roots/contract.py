@@ -22,7 +22,7 @@ import hashlib
 import json
 import os
 
-from manifests.lease import LEASE_DIR
+from roots.lease import LEASE_DIR
 from manifests.schema import INDEX_DIR, MANIFEST_DIR, RUN_FILE, STATS_DIR
 
 ROOT_MARKER = "idda-root.json"  # <root>/idda-root.json: "this directory is an idda output root"

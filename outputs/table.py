@@ -8,7 +8,7 @@ _sha256``), file paths, verification, queries and exports all iterate this
 table.
 
 Adding an output is one row here plus its encoder (a function in
-``manifests.encoding``, or a buffer the renderer does not make yet in
+``outputs.encoding``, or a buffer the renderer does not make yet in
 ``render_workers.render.episode.render_frame``).
 """
 
@@ -19,8 +19,8 @@ from typing import Any, Callable
 
 import numpy as np
 
-from manifests.catalog import lookup
-from manifests.encoding import (
+from domains.catalog import lookup
+from outputs.encoding import (
     RGB_FORMATS,
     check_rgb_format,
     decode_depth_raw,
@@ -48,7 +48,7 @@ from manifests.encoding import (
     encode_semantic_raw,
     encode_semantic_trainid,
 )
-from manifests.objects import encode_objects, objects_as_arrays, read_objects, write_objects
+from outputs.objects import encode_objects, objects_as_arrays, read_objects, write_objects
 
 # The named buffers the renderer hands over per frame.
 BUFFERS: dict[str, str] = {
@@ -56,9 +56,9 @@ BUFFERS: dict[str, str] = {
     "depth": "HxW float32 planar depth in metres, sky = 1000",
     "classes": "HxW uint8 class ids",
     "instance": "HxW uint16 per-episode instance ids (0 = static geometry and sky)",
-    "objects": "pyarrow table of the visible objects (manifests.objects.OBJECT_SCHEMA)",
+    "objects": "pyarrow table of the visible objects (outputs.objects.OBJECT_SCHEMA)",
     "flow": "HxWx3 float32 forward flow to the next frame in pixels (u, v) and valid (1/0) (render_workers.render.flow)",
-    "normals": "HxWx3 float32 unit surface normals, OpenCV camera frame, 0 for the sky (manifests.geometry)",
+    "normals": "HxWx3 float32 unit surface normals, OpenCV camera frame, 0 for the sky (outputs.geometry)",
 }
 
 
@@ -155,7 +155,7 @@ OUTPUT_TABLE: tuple[Output, ...] = (
            "motion, `u = (R - 2**15) / 64`, `v = (G - 2**15) / 64`, B = 1 where valid (0 for the last frame, the sky, "
            "points whose next position is out of view and motion beyond the encoding's +-512 px)"),
 )
-# The encoders of roots made before rules (manifests.spec.OLD_RULES) where they differ, so such a root
+# The encoders of roots made before rules (manifests.schema.OLD_RULES) where they differ, so such a root
 # keeps writing what it holds: docs/layout.md, "Rules of a root".
 OLD_RULE_ENCODERS: dict[str, Callable] = {"flow": encode_flow_clamped}
 OUTPUT_BY_NAME: dict[str, Output] = {o.name: o for o in OUTPUT_TABLE}

@@ -34,17 +34,20 @@ from typing import Callable, Iterable, Iterator
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from manifests.catalog import all_scenarios, scenario as lookup_scenario, using
-from manifests.encoding import RGB_FORMATS
-from manifests.outputs import OUTPUTS
+from domains.catalog import all_scenarios, scenario as lookup_scenario, using
+from outputs.encoding import RGB_FORMATS
+from outputs.table import OUTPUTS
 from manifests.reader import as_storage, filed_where_named, index_bytes, index_episodes, index_files, index_summaries, index_table
 from manifests.layout import LAYOUTS, frame_path, held_layout, match_frame_file, record_layout
-from manifests.root import own_top_names, root_entries
-from manifests.runrecord import RunRecordError, read_record
+from roots.contract import own_top_names, root_entries
+from roots.lease import live_producers
+from roots.run_file import RunRecordError, read_record
 from manifests.schema import (MANIFEST_DIR, PART_RE, PART_SCHEMA, RUN_FILE, as_plain_lists, frame_id, named_rows,
                               newer_part, output_columns, part_path)
-from manifests.spec import UNPAIRED, episode_seed
-from manifests.writer import ManifestError, arrow_reader, part_bytes, read_part_file
+from roots.episode_spec import UNPAIRED, episode_seed
+from manifests.part_file import ManifestError, read_part_file
+from storage.buffers import arrow_reader
+from manifests.writer import part_bytes
 from storage import StorageError, sha256_bytes
 
 # Problem kinds: missing | corrupt | extra (frame files), bad-part | bad-index | bad-run (the manifest),
@@ -411,8 +414,6 @@ def _part_listing(storage, report: VerifyReport) -> tuple[dict[str, dict[int, tu
 
 
 def _producer_live(storage, except_owner: str | None) -> bool:
-    from manifests.lease import live_producers
-
     try:  # only looks: verify never changes the root (dead leases stay for the next producer to remove)
         return bool(live_producers(storage, except_owner=except_owner, take_over=False))
     except (StorageError, OSError):  # leases that cannot be listed: no producer known to be live

@@ -9,7 +9,7 @@ A selection is a list of clauses separated by spaces or semicolons:
   variable that came out empty must not turn a run into all 105 scenarios.
 * Scenario codes, comma-separated, e.g. ``T01_CS_A,T01_CS_J``. Any part may be
   ``*``: ``T07_HRN_*`` is the five viewpoints of T07 in hard rain.
-* The built-in weathers beyond the paper (``manifests.catalog.EXTRA_WEATHERS``:
+* The built-in weathers beyond the paper (``domains.catalog.EXTRA_WEATHERS``:
   FG, NT, SN, ...) are selected only when named (``T01_FG_A``, ``weathers=NT``)
   or by ``catalog``: a ``*`` or an axis left open covers the paper's weathers and
   a domain file's, so selections written before they existed choose the same.
@@ -27,7 +27,7 @@ from __future__ import annotations
 
 import re
 
-from manifests.catalog import ALL_SCENARIOS, AXES, CODE_SEPARATOR, EXTRA_WEATHERS, Scenario, active, all_scenarios
+from domains.catalog import ALL_SCENARIOS, AXES, CODE_SEPARATOR, EXTRA_WEATHERS, Scenario, active, all_scenarios
 
 # One-line help for --domains, shared by every command.
 SELECTION_HELP = (

@@ -2,7 +2,7 @@
 
 A file holds arrays of tables, one per axis: ``[[town]]``, ``[[weather]]``,
 ``[[viewpoint]]``. Each entry has a ``code`` and the row's parameters
-(``manifests.domains``). ``like = "CN"`` starts from another entry's
+(``domains.rows``). ``like = "CN"`` starts from another entry's
 parameters (a built-in one, or one earlier in the same file) and the keys
 given override them; an entry whose code exists already overrides only the
 keys it gives. Every other entry gives every parameter.
@@ -22,11 +22,11 @@ import typing
 from dataclasses import MISSING, fields
 from functools import lru_cache
 
-from manifests.domains import AXES, CODE_CHARS, ROW_TYPES, Catalog, row_dict
-from manifests.fog import visibility_of_share
-from manifests.shifts import check_shift
+from domains.rows import AXES, CODE_CHARS, ROW_TYPES, Catalog, row_dict
+from domains.fog import visibility_of_share
+from domains.ramps import check_shift
 
-CODE_PATTERN = re.compile(CODE_CHARS)  # manifests.domains: the one grammar of codes
+CODE_PATTERN = re.compile(CODE_CHARS)  # domains.rows: the one grammar of codes
 HEADER = """\
 # IDDA domain catalog: towns, weathers and viewpoints (docs/catalog.md).
 # Each [[town]], [[weather]] or [[viewpoint]] entry has a code and its parameters;
@@ -120,7 +120,7 @@ def resolve_entry(axis: str, entry: dict, base: dict, where: str, record: bool =
     if not record:
         entry = _file_entry(entry, where)
     hints, by_name = _hints(cls), {f.name: f for f in fields(cls)}
-    if axis == "weather" and "fog" in entry:  # the key of catalogs before fog was a visibility (manifests.fog)
+    if axis == "weather" and "fog" in entry:  # the key of catalogs before fog was a visibility (domains.fog)
         fog = entry["fog"]
         hint = f" = {visibility_of_share(fog):.6g}" if isinstance(fog, (int, float)) and 0 <= fog <= 1 else ""
         raise CatalogError(f"{where}: key 'fog': fog is declared as visibility_m now (metres at which 5 % of "
@@ -211,7 +211,7 @@ def with_layer_json(base: Catalog, layer: str, source: str = "the run's catalog"
 
 def current_layer(layer):
     """A recorded user layer (run.json's "catalog", a dict) in today's keys: a weather's ``fog`` share per
-    km, as runs recorded it before fog was a visibility, becomes its ``visibility_m`` (manifests.fog)."""
+    km, as runs recorded it before fog was a visibility, becomes its ``visibility_m`` (domains.fog)."""
     if not isinstance(layer, dict) or not isinstance(layer.get("weather"), list):
         return layer
     weathers = [{("visibility_m" if k == "fog" else k): (visibility_of_share(v) if k == "fog" else v)

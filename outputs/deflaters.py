@@ -18,7 +18,7 @@ more CPU per frame, on the episode's second thread); zlib level 1 194 ms and
 2.204 MB.
 
 An old root keeps its deflater (its ``run.json`` names it, see
-``manifests.encoding.encoder_identity``): its workers deflate with ISA-L as
+``outputs.encoding.encoder_identity``): its workers deflate with ISA-L as
 before, so resuming, extending and repairing it mix nothing. The deflater in
 force is a context variable, set per frame around the encoding
 (:func:`deflating_with`), so two threads may encode for two roots at once.
@@ -32,7 +32,7 @@ from contextvars import ContextVar
 from dataclasses import dataclass
 from functools import cache
 
-from manifests.catalog import lookup
+from domains.catalog import lookup
 
 LIBDEFLATE_LEVEL = 2  # libdeflate 1..12: level 2 was the fastest of 1-5 here, and smaller than ISA-L's level 1
 ISAL_LEVEL = 1  # what roots written with ISA-L used

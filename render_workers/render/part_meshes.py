@@ -9,8 +9,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from manifests.catalog import lookup
-from render_workers.render import compat
+from domains.catalog import lookup
+from render_workers.render import pyrender_setup as compat
 from render_workers.worlds.scene import MATERIALS, Part
 from render_workers.worlds.textures import box_uv, texture_kind
 

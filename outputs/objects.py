@@ -8,7 +8,7 @@ Columns (``OBJECT_SCHEMA``):
 
 * ``instance_id``: the object's id in the frame's ``instance`` PNG, stable over
   the episode's frames;
-* ``class_id`` / ``class_name``: its class (``manifests.catalog.LABELS``);
+* ``class_id`` / ``class_name``: its class (``domains.catalog.LABELS``);
 * ``x0, y0, x1, y1``: the tight 2D box of its visible pixels, ``x0 <= x < x1``
   and ``y0 <= y < y1`` (pixel indices, so width = x1 - x0);
 * ``pixels``: visible pixel count;
@@ -39,7 +39,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
-from manifests.catalog import INSTANCE_LABELS, LABELS
+from domains.catalog import INSTANCE_LABELS
+from storage.buffers import arrow_reader
 
 OBJECT_SCHEMA = pa.schema(
     [
@@ -90,8 +91,6 @@ def write_objects(table: pa.Table, name: str = "objects") -> bytes:
 
 
 def read_objects(data: bytes, name: str = "objects") -> pa.Table:
-    from manifests.writer import arrow_reader  # (writer imports this module's neighbours)
-
     try:
         table = pq.read_table(arrow_reader(data))
     except (pa.ArrowException, OSError) as exc:
@@ -127,7 +126,3 @@ def box_corners(centre, size, yaw: float) -> np.ndarray:
     half = np.asarray(size, np.float64) / 2
     signs = np.array([[a, b, d] for a in (-1, 1) for b in (-1, 1) for d in (-1, 1)], np.float64)
     return np.asarray(centre, np.float64) + (signs * half) @ np.stack([forward, left, up])
-
-
-def class_name(class_id: int) -> str:
-    return LABELS[class_id].name

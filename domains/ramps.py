@@ -4,10 +4,10 @@ A weather entry with ``from`` and ``to`` (fields ``shift_from``, ``shift_to``)
 and an ``easing`` renders frame ``i`` of ``n`` under the parameters of
 ``from`` blended towards ``to`` by ``easing(i / (n - 1))``: numbers and colours
 linearly (sRGB colours rounded), so the sun sets and the sky darkens; fog thickens
-evenly in the contrast it leaves (manifests.fog.blend_visibility).
+evenly in the contrast it leaves (domains.fog.blend_visibility).
 Its own code, name and marker stay. Built in: CNtoNT, CNtoFG, CNtoHRN. The
 renderer takes each frame's weather (light, sky, post effects), and the
-frame's condition columns carry its values (``manifests.conditions``).
+frame's condition columns carry its values (``domains.conditions``).
 """
 
 from __future__ import annotations
@@ -15,8 +15,8 @@ from __future__ import annotations
 import typing
 from dataclasses import fields, replace
 
-from manifests.domains import Weather
-from manifests.fog import blend_share, blend_visibility
+from domains.rows import Weather
+from domains.fog import blend_share, blend_visibility
 
 EASINGS: dict[str, typing.Callable[[float], float]] = {
     "linear": lambda x: x,
@@ -53,7 +53,7 @@ def _blend(a, b, s: float, kind):
 
 def blend(row: Weather, start: Weather, end: Weather, s: float, old_rules: bool = False) -> Weather:
     """``row`` with every parameter (but its own code, name, marker and shift) at ``s`` from start to end:
-    visibility in the contrast it leaves (manifests.fog.blend_visibility); ``old_rules`` (a root made
+    visibility in the contrast it leaves (domains.fog.blend_visibility); ``old_rules`` (a root made
     before rules) as its fog share per km, linearly (blend_share)."""
     changes = {f.name: _blend(getattr(start, f.name), getattr(end, f.name), s, _HINTS[f.name])
                for f in fields(Weather) if f.name not in _KEPT}

@@ -1,14 +1,14 @@
 """Domain rows (towns, weathers, viewpoints) and the catalogs they form.
 
 Every parameter of a row is declared once, here, with its meaning, unit and
-accepted range (``param``); the domain file loader (``manifests.domainfile``)
+accepted range (``param``); the domain file loader (``domains.catalog_file``)
 checks values against them and ``idda catalog show`` prints them as comments.
 The rows themselves live in data: the paper's 7 towns, 3 weathers and 5
-viewpoints are ``manifests/catalog.toml``; a user's file adds or overrides
+viewpoints are ``domains/catalog.toml``; a user's file adds or overrides
 entries (docs/catalog.md).
 
 A ``Catalog`` is the three tables in order. A row's place in its table is
-part of every seed derived from it (``manifests.catalog.Scenario.key``), so
+part of every seed derived from it (``domains.catalog.Scenario.key``), so
 user entries are appended after the built-in ones and an override keeps the
 place of the entry it replaces.
 """
@@ -23,7 +23,7 @@ from functools import cached_property
 
 RGB = tuple[int, int, int]
 AXES: tuple[str, ...] = ("town", "weather", "viewpoint")  # the order of a scenario code's parts
-# The grammar of codes (manifests.catalog derives every parser of scenario codes, paths and parts from it):
+# The grammar of codes (domains.catalog derives every parser of scenario codes, paths and parts from it):
 # a code is letters and digits, any case, any length; no "_" (joins a scenario code's parts), no "-"
 # (ranges), no "*" (wildcards).
 CODE_CHARS = "[A-Za-z0-9]+"
@@ -85,7 +85,7 @@ class Weather:
     rain: float = param("rain streak intensity", "share", 0.0, 1.0)
     wetness: float = param("darkening and specular sheen of the road", "share", 0.0, 1.0)
     puddles: float = param("share of road covered by reflective puddles", "share", 0.0, 1.0)
-    # Fog as meteorological visibility (manifests.fog): the distance at which 5 % of contrast is left.
+    # Fog as meteorological visibility (domains.fog): the distance at which 5 % of contrast is left.
     visibility_m: float = param("meteorological visibility: the distance at which fog leaves 5 % of a dark object's "
                                 "contrast against the horizon (inf: no fog)", "m", 1.0, math.inf)
     grading: tuple[float, float, float] = param("per-channel colour grading gain", "gain", 0.0, 2.0)
@@ -96,7 +96,7 @@ class Weather:
     street_lights: float = param("street lamps and lit windows (0 = off)", "share", 0.0, 1.0, default=0.0)
     car_lights: float = param("headlights and tail lights of the ego and other cars (0 = off)", "share",
                               0.0, 1.0, default=0.0)
-    # A shift inside an episode (manifests.shifts): frame i is rendered under the parameters of
+    # A shift inside an episode (domains.ramps): frame i is rendered under the parameters of
     # shift_from blended towards shift_to by easing(i / (frames - 1)). Written `from` and `to` in files.
     shift_from: str = param("weather the episode starts in (\"\" = no shift)", default="")
     shift_to: str = param("weather the episode ends in", default="")

@@ -2,12 +2,12 @@
 
 Every manifest row carries six numbers (``CONDITIONS``), for every weather,
 shifting or not, taken from the weather parameters the renderer used for that
-frame (``manifests.domains.Weather``; a shifting weather's are interpolated per
+frame (``domains.rows.Weather``; a shifting weather's are interpolated per
 frame). ``idda query --min-condition/--max-condition NAME=VALUE`` filters on
 them. Rows of roots written before the columns existed read them as null.
 
-Fog is ``visibility_m`` (float64, manifests.fog). Roots made before rules
-(manifests.spec.OLD_RULES) record ``fog_density`` instead, the float32 share of
+Fog is ``visibility_m`` (float64, domains.fog). Roots made before rules
+(manifests.schema.OLD_RULES) record ``fog_density`` instead, the float32 share of
 contrast lost per km they always had, and no ``visibility_m``; a query reads
 their visibility from it (``with_visibility``), and a new root's fog_density is
 null.
@@ -18,8 +18,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Callable
 
-from manifests.domains import Weather
-from manifests.fog import share_of_visibility, visibility_of_share
+from domains.rows import Weather
+from domains.fog import share_of_visibility, visibility_of_share
 
 
 @dataclass(frozen=True)

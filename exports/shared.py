@@ -12,14 +12,16 @@ import io
 import json
 import os
 from concurrent.futures import ThreadPoolExecutor
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Callable, Mapping
 
 import numpy as np
 import pyarrow as pa
 
-from manifests.outputs import OUTPUTS, file_of_path, read_output
 from manifests.schema import output_columns, with_uids
+from outputs.table import OUTPUTS, file_of_path, read_output
+from storage import sha256_bytes
+
 
 # ------------------------------------------------------------ the frames ----
 _META = ("frame_id", "uid", "scenario", "episode", "frame", "split", "width", "height", "K", "cam_to_world",
@@ -87,8 +89,6 @@ class CheckedSource:
         return getattr(self._storage, name)
 
     def read_bytes(self, rel: str) -> bytes:
-        from storage import sha256_bytes
-
         data = self._storage.read_bytes(rel)
         size, sha = self._expected.get(rel, (None, None))
         if sha is not None and (len(data) != size or sha256_bytes(data) != sha):
@@ -224,3 +224,29 @@ class Layout:
     # a format that writes its target itself (webdataset: in place, resumable, local or s3): the whole export,
     # ExportConfig -> ExportReport; None for the others, which ``exports.export.export`` builds in a temp folder
     run: Callable | None = None
+
+
+@dataclass
+class ExportReport:
+    target: str
+    format: str
+    frames: int
+    held: int  # frames the root holds (the query chose ``frames`` of them)
+    files: int
+    per_split: dict[str, int]
+    shortfall: dict[str, int]
+    seconds: float
+    damaged: list[str] = field(default_factory=list)  # files found damaged (--skip-damaged: their frames left out)
+    skipped: int = 0  # frames left out for them
+    resumed: int = 0  # webdataset: shards an interrupted export had written and verified, kept
+
+
+def listed_files(table) -> dict[str, tuple[int, str]]:
+    """Every file the manifest rows of ``table`` list: {path: (bytes, sha256)}."""
+    listed = {}
+    for name in OUTPUTS:
+        path, size, sha = output_columns(name)
+        if path in table.column_names:
+            rows = zip(*(table.column(c).to_pylist() for c in (path, size, sha)))
+            listed.update((p, (n, h)) for p, n, h in rows if p is not None)
+    return listed

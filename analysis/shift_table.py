@@ -49,9 +49,16 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from manifests.catalog import lookup
 from analysis.distances import PAPER_PAIRS, PaperPair
+from analysis.loaders import FrameDataset
 from analysis.metrics import EVAL_CLASSES, IGNORE, NUM_EVAL, TRAIN_INDEX_LUT, class_iou, confusion, mean_iou
+from analysis.real import (
+    CITYSCAPES_TO_INDEX, REAL, RealFolder, check_real_pairs, read_label_ids, read_rgb, scored_images,
+)
+from analysis.segnet import SegNet
+from domains.catalog import lookup
+from manifests.query import Query
+from manifests.reader import as_storage, read_manifest
 
 log = logging.getLogger(__name__)
 
@@ -106,8 +113,6 @@ class ShiftConfig:
     device: str = "auto"  # auto: cuda when available, else cpu
 
     def validate(self) -> None:
-        from analysis.real import check_real_pairs
-
         if not self.cases and not self.pairs:
             raise ValueError(f"give at least one case or pair; valid cases: {', '.join(CASE_BY_NAME)}")
         for name in self.cases:
@@ -217,9 +222,6 @@ def prepare(rgb: np.ndarray, ids: np.ndarray, lut: np.ndarray, width: int, heigh
 
 def load_domain(root, code: str, width: int, height: int, max_frames: int | None = None) -> Frames:
     """The domain's frames (the first ``max_frames`` in manifest order), resized for the network."""
-    from analysis.loaders import FrameDataset
-    from manifests.query import Query
-
     data = FrameDataset(root, Query(domains=code), outputs=("rgb", "semantic_raw"))
     n = len(data) if max_frames is None else min(len(data), max_frames)
     images, labels, meta = [], [], []
@@ -255,9 +257,6 @@ def check_domains(root, codes: list[str]) -> None:
     """Raise ValueError naming the domains that have no frames under ``root``."""
     import pyarrow.compute as pc
 
-    from manifests.reader import as_storage, read_manifest
-
-    from analysis.real import REAL
 
     storage = as_storage(root)
     present = set(pc.unique(read_manifest(storage, columns=["scenario"]).column("scenario")).to_pylist())
@@ -315,8 +314,6 @@ def _learning_rate(step: int, steps: int, peak: float) -> float:
 def train(torch, data: Frames, config: ShiftConfig, device: str, seed: int, num_classes: int = NUM_EVAL):
     """A fresh SegNet trained on ``data``; returns (model, mean loss of the last tenth of the steps).
     ``config`` gives steps, batch_size and lr."""
-    from analysis.segnet import SegNet
-
     torch.manual_seed(seed)
     model = SegNet(num_classes).to(device)
     optimiser = torch.optim.AdamW(model.parameters(), lr=config.lr, weight_decay=1e-4)
@@ -441,8 +438,6 @@ def run_case(torch, case: ShiftCase, domains: dict[str, Frames], models: dict[st
 
 def run_shifts(config: ShiftConfig) -> ShiftReport:
     """Train and score every chosen case on the frames under ``config.root``."""
-    from analysis.real import REAL, RealFolder, load_real, scored_images
-
     config.validate()
     check_domains(config.root, config.domains)
     real = RealFolder(config.real, config.real_splits) if config.real else None
@@ -494,3 +489,21 @@ def format_shift_table(report: ShiftReport) -> str:
             order = sorted(ours, key=lambda r: -getattr(r, key))
             lines.append(f"{label}: {' > '.join(r.case for r in order)} (paper: {paper})")
     return "\n".join(lines)
+
+
+def load_real(folder: RealFolder, width: int, height: int, max_frames: int | None = None):
+    """The folder's frames for ``analysis.shift_table`` (``Frames``): cities as episodes, labels as training indices."""
+    images = scored_images(folder)
+    images = images if max_frames is None else images[:max_frames]
+    cities = {key: i for i, key in enumerate(dict.fromkeys((im.split, im.city) for im in images))}
+    arrays, labels, episodes, frames = [], [], [], []
+    seen = [0] * len(cities)  # images so far per city: the frame number
+    for im in images:
+        image, label = prepare(read_rgb(im.image), read_label_ids(im.label), CITYSCAPES_TO_INDEX, width, height)
+        arrays.append(image)
+        labels.append(label)
+        episodes.append(cities[(im.split, im.city)])
+        frames.append(seen[episodes[-1]])
+        seen[episodes[-1]] += 1
+    return Frames(np.stack(arrays), np.stack(labels), np.array(episodes), np.array(frames),
+                  np.array([im.split for im in images]))

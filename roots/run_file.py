@@ -2,7 +2,7 @@
 
 The record carries a ``checksum`` of its own canonical JSON (without that
 field), so verify notices a flipped byte anywhere in it. Records written
-before the checksum existed are accepted without one. ``pipeline.runmeta``
+before the checksum existed are accepted without one. ``pipeline.provenance``
 decides what goes into a record; this module only reads and writes it.
 """
 
@@ -29,8 +29,8 @@ CONFIG_TYPES: dict[str, tuple[type, ...]] = {
     "rgb_format": (str,),  # absent in roots from before --rgb-format: png
     "catalog": (dict,),  # the user domain entries in force (docs/catalog.md); absent: the built-in catalog only
     "frame_interval_s": (float, int),  # absent in roots from before --frame-interval: 3.0
-    "pairing": (int,),  # 1: episode seeds leave the weather out (manifests.spec); absent in roots from before: 0
-    "rules": (int,),  # 1: the rules of manifests.spec (splits per scene, ...); absent in roots from before: 0
+    "pairing": (int,),  # 1: episode seeds leave the weather out (roots.episode_spec); absent in roots from before: 0
+    "rules": (int,),  # 1: the rules of roots.episode_spec (splits per scene, ...); absent in roots from before: 0
 }
 # keys older records (and built-in runs, for the catalog) lack
 OPTIONAL_CONFIG = ("world", "outputs", "rgb_format", "catalog", "frame_interval_s", "pairing", "rules")

@@ -1,6 +1,6 @@
 """Per-frame output encodings (CARLA conventions) and PNG bytes, in numpy + libdeflate (cv2 decodes).
 
-Each output in ``manifests.outputs.OUTPUT_TABLE`` names one of these encoders,
+Each output in ``outputs.table.OUTPUT_TABLE`` names one of these encoders,
 which turns one of the renderer's buffers into the array its file holds:
 
 * ``rgb``: the post-processed colour image, passed through;
@@ -23,7 +23,7 @@ exports, loaders and verification decode with it.
 
 PNG files are written here, not by a codec library: every row gets PNG filter
 1 (Sub, in numpy) and the image is one IDAT deflated by libdeflate
-(``manifests.deflaters``; roots written before keep ISA-L, which they were
+(``outputs.deflaters``; roots written before keep ISA-L, which they were
 made with). Skipping libpng's adaptive per-row filter choice, most of its
 cost, makes this several times faster than OpenCV's PNG writer. Any PNG reader
 decodes the files; a different deflater (or version) gives different bytes,
@@ -45,8 +45,8 @@ from functools import cache
 
 import numpy as np
 
-from manifests.catalog import NUM_CLASSES, PALETTE, TRAIN_ID_LUT
-from manifests.deflaters import DEFAULT_DEFLATER, deflate_png_data, deflater
+from domains.catalog import NUM_CLASSES, PALETTE, TRAIN_ID_LUT
+from outputs.deflaters import DEFAULT_DEFLATER, deflate_png_data, deflater
 
 FAR_M = 1000.0  # depth far limit; sky and background count as this
 DEPTH_LEVELS = 256**3 - 1
@@ -157,7 +157,7 @@ def _sub_filtered(rows: np.ndarray, bpp: int) -> np.ndarray:
 
 def png_bytes(image: np.ndarray, name: str = "image") -> bytes:
     """Lossless, deterministic PNG bytes of an HxW (grey), HxWx3 (RGB) or HxWx4 (RGBA) image, uint8 or uint16,
-    deflated by the deflater in force (``manifests.deflaters.deflating_with``)."""
+    deflated by the deflater in force (``outputs.deflaters.deflating_with``)."""
     if not isinstance(image, np.ndarray) or image.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"{name}: expected a uint8 or uint16 numpy array, got {getattr(image, 'dtype', type(image))}")
     channels = 1 if image.ndim == 2 else (image.shape[2] if image.ndim == 3 else 0)
@@ -282,7 +282,7 @@ def encode_flow(flow: np.ndarray) -> np.ndarray:
 
 
 def encode_flow_clamped(flow: np.ndarray) -> np.ndarray:
-    """``encode_flow`` as roots made before rules (manifests.spec.OLD_RULES) keep it: a motion beyond
+    """``encode_flow`` as roots made before rules (manifests.schema.OLD_RULES) keep it: a motion beyond
     the 16-bit range is clamped to +-512 px and stays valid."""
     _check("flow", flow, np.float32, 3)
     valid = flow[..., 2] > 0

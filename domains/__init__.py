@@ -1,0 +1,1 @@
+"""The domain vocabulary: classes, towns, weathers and viewpoints (the catalog, its rows and its TOML file), the selection grammar, per-frame conditions, weather ramps and fog. Imports only storage of ours."""
