@@ -16,6 +16,7 @@ import typer
 from analysis.distances import DistanceConfig, domain_distances, embedding_png, format_distance_table, parse_pairs
 from analysis.evaluate import EvaluateConfig, evaluate as run_evaluate, format_report
 from analysis.viewer import ViewConfig, view as run_view
+from analysis.view_picture import picture_png, read_recording
 from domains.catalog import using
 from exports.card import CardConfig, write_card
 from exports.export import ExportConfig, export as run_export
@@ -256,8 +257,6 @@ def view(
         where = f" to {report.out}" if report.out else ""
         typer.echo(f"recorded {count(report.frames, 'frame')} of {scenario} episode {episode}{where}")
         if picture is not None:
-            from analysis.view_picture import picture_png, read_recording
-
             write_local(picture, picture_png(read_recording(report.out), frame))
             typer.echo(f"drew {picture}")
 
