@@ -254,7 +254,8 @@ def _make_produce(*assignments: str) -> list[str]:
     (("PRODUCE_ARGS=--frames-per-scenario 3 --width 64",), 315, (64, 270)),
 ])
 def test_make_produce_builds_a_command_the_cli_accepts(monkeypatch, assignments, frames, size):
-    import pipeline.driver
+    import sys
+
     from pipeline.planner import make_plan
 
     seen = []
@@ -263,7 +264,9 @@ def test_make_produce_builds_a_command_the_cli_accepts(monkeypatch, assignments,
         seen.append(config)
         raise SystemExit(0)  # the plan is all this test wants
 
-    monkeypatch.setattr(pipeline.driver, "produce", fake_produce)
+    # the CLI's own binding (imported at the top of pipeline.cli.app): patching pipeline.driver.produce would
+    # leave the real one in place and start a full-scale run
+    monkeypatch.setattr(sys.modules["pipeline.cli.app"], "run_produce", fake_produce)
     result = runner.invoke(app, ["produce", *_make_produce(*assignments)])
     assert result.exit_code == 0 and seen, result.output
     plan = seen[0].run.plan
