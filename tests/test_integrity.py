@@ -329,7 +329,7 @@ def test_stats_and_card_on_a_read_only_root(copy, tmp_path, monkeypatch):
     register(app)
     before = tree_digest(copy)
 
-    def read_only(self, rel, data):
+    def read_only(self, rel, data, durable=True):
         raise StorageError(f"cannot write {rel}: read-only file system (EROFS)", cause="read-only file system (EROFS)", fatal=True)
 
     monkeypatch.setattr(Storage, "write_bytes", read_only)

@@ -260,7 +260,7 @@ def test_full_disk_marks_nothing_done(tmp_path, monkeypatch):
     real = Storage.write_bytes
     calls = {"n": 0}
 
-    def failing(self, rel, data):
+    def failing(self, rel, data, durable=True):
         calls["n"] += 1
         if calls["n"] > 7:  # the second frame's first image
             raise StorageError(f"cannot write {rel}: no space left on device (ENOSPC)")
