@@ -16,17 +16,21 @@ import json
 import math
 from collections import Counter
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
-import pyarrow.dataset as ds
 
 from domains.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario, weather
 from domains.conditions import check_condition, with_visibility
 from outputs.table import OUTPUTS
+from manifests.reader import datasets
 from manifests.schema import output_columns
 from domains.selection import parse_selection
+
+if TYPE_CHECKING:
+    import pyarrow.dataset as ds
 
 SPLITS = ("train", "val", "test")
 SPLIT_SHARES = (0.8, 0.1, 0.1)  # each scenario tends to these shares of episodes (pipeline.planner.SPLIT_PATTERN)
@@ -99,6 +103,7 @@ class QueryResult:
 
 
 def _partition_filter(query: Query) -> ds.Expression:
+    ds = datasets()
     expr = ds.scalar(True)
     if query.domains is not None:
         chosen = parse_selection(query.domains)

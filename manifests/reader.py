@@ -13,9 +13,10 @@ import re
 from collections import defaultdict
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
+from functools import cache
+from typing import TYPE_CHECKING
 
 import pyarrow as pa
-import pyarrow.dataset as ds
 import pyarrow.parquet as pq
 
 from domains.catalog import scenario_pattern, split_code
@@ -44,10 +45,26 @@ from manifests.summary import _SUMMARY_COLUMNS, PartSummary, summary_of_footer, 
 from storage import Storage
 from storage.buffers import arrow_reader
 
+if TYPE_CHECKING:
+    import pyarrow.dataset as ds
+
 _INDEX_RE = re.compile("^" + INDEX_DIR + "/" + scenario_pattern() + r"\.parquet$")
 
 log = logging.getLogger(__name__)
-_PARQUET = ds.ParquetFileFormat()
+
+
+@cache
+def datasets():
+    """``pyarrow.dataset``, imported on first use: importing it imports pandas (which ray[data] installs),
+    about a second of every process's start (each CLI command, each Ray worker) that reads no dataset."""
+    import pyarrow.dataset
+
+    return pyarrow.dataset
+
+
+@cache
+def _parquet_format():
+    return datasets().ParquetFileFormat()
 
 
 def as_storage(root):
@@ -148,7 +165,7 @@ def _footer(storage, rel: str, size: int | None = None) -> pq.FileMetaData | Non
     not two requests); a file changed since it was listed is read again the usual way."""
     if size is not None and not storage.is_local:
         try:
-            return _PARQUET.make_fragment(storage.path(rel), storage.filesystem, file_size=size).metadata
+            return _parquet_format().make_fragment(storage.path(rel), storage.filesystem, file_size=size).metadata
         except Exception:  # rewritten since the listing, or damaged: as below
             pass
     try:
@@ -381,6 +398,7 @@ def _dataset(storage, files: list[str]) -> ds.Dataset:
     parts = [storage.path(rel) for rel in files if rel.startswith(MANIFEST_DIR + "/")]
     indexes = [storage.path(rel) for rel in files if rel.startswith(INDEX_DIR + "/")]
     common = dict(filesystem=storage.filesystem, format="parquet", schema=MANIFEST_SCHEMA)
+    ds = datasets()
     part_ds = ds.dataset(
         parts,
         partitioning=ds.partitioning(PARTITION_SCHEMA, flavor="hive"),
