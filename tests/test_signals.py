@@ -83,7 +83,8 @@ def test_signal_stops_like_ctrl_c(reference, tmp_path, ray_tmpdir, sig, code):
     assert processes_using(ray_tmpdir) == [], "processes of the run's Ray cluster outlived it"
     done = len(done_episodes(storage))
     assert 1 <= done < len(make_plan(PLAN).episodes)
-
+    if sig != signal.SIGTERM:  # both stop through the same handler; one rerun shows that what a stop leaves resumes
+        return
     result = subprocess.run(_cmd(out), env=_env(ray_tmpdir), capture_output=True, text=True, timeout=600)
     assert result.returncode == 0, result.stderr[-3000:]
     assert f"{done} of 4 episodes were already done" in result.stdout
