@@ -432,12 +432,19 @@ def _fmt(value: float | None, digits: int) -> str:
     return "-" if value is None else f"{value:.{digits}f}"
 
 
+def pair_table_start(rows, columns: str) -> tuple[int, list[str]]:
+    """The width of the source/target columns of ``rows`` (each with .source and .target; declared codes
+    have any length) and the table's first lines: the head (case, source, target, then ``columns``) and
+    its rule."""
+    w = max([10, *(len(code) for r in rows for code in (r.source, r.target))])
+    head = f"{'case':<10} {'source':<{w}} {'target':<{w}} {columns}"
+    return w, [head, "-" * len(head)]
+
+
 def format_distance_table(report: DistanceReport) -> str:
     """One line per pair: our three distances next to the paper's."""
-    w = max([10, *(len(code) for r in report.pairs for code in (r.source, r.target))])  # declared codes: any length
-    head = (f"{'case':<10} {'source':<{w}} {'target':<{w}} {'euclidean':>9} {'paper':>7} {'cosine':>7} {'paper':>7} "
-            f"{'bhattach.':>9} {'paper':>7}")
-    lines = [head, "-" * len(head)]
+    w, lines = pair_table_start(report.pairs, f"{'euclidean':>9} {'paper':>7} {'cosine':>7} {'paper':>7} "
+                                              f"{'bhattach.':>9} {'paper':>7}")
     for r in report.pairs:
         p = r.paper
         line = (

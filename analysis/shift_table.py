@@ -49,7 +49,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from analysis.distances import PAPER_PAIRS, PaperPair
+from analysis.distances import PAPER_PAIRS, PaperPair, pair_table_start
 from analysis.loaders import FrameDataset
 from analysis.metrics import EVAL_CLASSES, IGNORE, NUM_EVAL, TRAIN_INDEX_LUT, class_iou, confusion, mean_iou
 from analysis.real import (
@@ -464,10 +464,8 @@ def run_shifts(config: ShiftConfig) -> ShiftReport:
 # ------------------------------------------------------------ output --------
 def format_shift_table(report: ShiftReport) -> str:
     """One line per case: held-out source and target mIoU, kept fraction, the paper's."""
-    w = max([10, *(len(code) for r in report.results for code in (r.source, r.target))])  # declared codes: any length
-    head = (f"{'case':<10} {'source':<{w}} {'target':<{w}} {'source mIoU':>11} {'target mIoU':>11} "
-            f"{'kept':>6} {'target* mIoU':>12} {'oracle mIoU':>11} {'kept*':>6} {'paper kept':>10}")
-    lines = [head, "-" * len(head)]
+    w, lines = pair_table_start(report.results, f"{'source mIoU':>11} {'target mIoU':>11} {'kept':>6} "
+                                                f"{'target* mIoU':>12} {'oracle mIoU':>11} {'kept*':>6} {'paper kept':>10}")
     for r in report.results:
         lines.append(f"{r.case:<10} {r.source:<{w}} {r.target:<{w}} {r.source_miou:>11.3f} {r.target_miou:>11.3f} "
                      f"{r.kept:>6.2f} {r.target_held_out_miou:>12.3f} {r.oracle_miou:>11.3f} {r.oracle_kept:>6.2f} "
