@@ -97,7 +97,7 @@ def test_shards_stream_into_a_torch_dataloader_byte_for_byte(shards, root, rows)
 def test_ray_read_webdataset_gives_the_same_bytes(shards, root, rows):
     import ray
 
-    ray.init(num_cpus=1, include_dashboard=False, ignore_reinit_error=True)
+    ray.init(address="local", num_cpus=1, include_dashboard=False, ignore_reinit_error=True)
     try:
         samples = []
         for split in sorted(p.name for p in shards.iterdir() if p.is_dir() and p.name != wd.STATS):
