@@ -11,7 +11,7 @@ from manifests.reader import episode_parts
 from manifests.schema import frame_id, index_path, part_path
 from pipeline.cluster import cluster_address
 from pipeline.provenance import RunConfigError, check_before_repair, prepare_root
-from pipeline.settings import ProduceConfig
+from pipeline.settings import CONFIG_SHAPE, ProduceConfig
 from pipeline import verify_ray  # by module: a test stands in for choose_runner
 from roots.contract import RootError
 from roots.lease import LeaseError, acquire_exclusive, describe, exclusive_holder, live_producers
@@ -34,7 +34,7 @@ def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
     check_before_repair(storage, config.run, extend=config.extend)
     scope = Scope(scenarios=frozenset(plan.scenarios()))
     report = verify(storage, scope=scope, config=config.run.to_dict(), runner=verify_runner(config),
-                    except_owner=owner)  # our own lease: no other producer is live (checked)
+                    except_owner=owner, shape=CONFIG_SHAPE)  # our own lease: no other producer is live (checked)
     links = [p for p in report.problems if p.kind == "link"]
     if links:
         raise RootError(
@@ -95,7 +95,7 @@ def refuse_in_the_way(storage, specs, layout: int, nothing_done: str, parts_only
 def _root_layout(storage) -> int:
     """The root's file layout: run.json's, else that of the frames its parts list."""
     try:
-        record = read_record(storage)
+        record = read_record(storage, CONFIG_SHAPE)
     except RunRecordError:
         record = None
     return record_layout(record) if record else held_layout(storage) or NEW_ROOT_LAYOUT

@@ -174,7 +174,7 @@ def held_root(tmp_path_factory):
     scenarios with codes longer than the tables' old column, rendered without Ray."""
     from domains.catalog import BUILTIN
     from domains.catalog_file import with_file
-    from pipeline.planner import PlanConfig
+    from pipeline.settings import PlanConfig
     from pipeline.settings import RunConfig
     from tests.roots import render_root
 

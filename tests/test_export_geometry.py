@@ -26,7 +26,7 @@ FRAMES = 3
 
 @pytest.fixture(scope="module")
 def root(tmp_path_factory) -> Path:
-    from pipeline.planner import PlanConfig
+    from pipeline.settings import PlanConfig
     from pipeline.settings import RunConfig
     from tests.roots import render_root
 

@@ -23,7 +23,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 CHILD = r"""
 import hashlib, json, os, sys, time
-from pipeline.planner import PlanConfig, make_plan
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig
 from pipeline.episode_job import frame_files
 from render_workers.render.episode import render_episode
 

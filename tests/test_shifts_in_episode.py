@@ -87,7 +87,8 @@ def test_extending_a_shifting_episode_renders_it_again_whole_and_says_so(tmp_pat
     from manifests.reader import read_manifest
     from pipeline.cli.progress import format_produce_report
     from pipeline.driver import ProduceReport, pending_episodes, reshifted_episodes
-    from pipeline.planner import PlanConfig, make_plan
+    from pipeline.planner import make_plan
+    from pipeline.settings import PlanConfig
     from pipeline.settings import RunConfig
     from tests.roots import render_root
 
