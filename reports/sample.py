@@ -14,8 +14,7 @@ from pathlib import Path
 
 from domains.catalog import TOWNS
 from pipeline.driver import produce
-from pipeline.planner import PlanConfig
-from pipeline.settings import ProduceConfig, RunConfig
+from pipeline.settings import PlanConfig, ProduceConfig, RunConfig
 from render_workers.render.episode import DEFAULT_WORLD
 from render_workers.worlds.styles import is_urban
 

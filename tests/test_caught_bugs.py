@@ -30,8 +30,7 @@ from manifests.synthetic import episode_table
 from manifests.part_file import ManifestError, read_part_file
 from manifests.writer import part_bytes
 from pipeline.planner import make_plan
-from pipeline.settings import PlanConfig
-from pipeline.settings import RunConfig
+from pipeline.settings import PlanConfig, RunConfig
 from pipeline.provenance import RunConfigError, check_before_repair, prepare_root
 from storage import Storage
 

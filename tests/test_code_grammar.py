@@ -174,8 +174,7 @@ def held_root(tmp_path_factory):
     scenarios with codes longer than the tables' old column, rendered without Ray."""
     from domains.catalog import BUILTIN
     from domains.catalog_file import with_file
-    from pipeline.settings import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     layer = with_file(BUILTIN, DECLARED.replace('"mist"', '"mistyMorning2"'), "codes.toml").layer_json()

@@ -188,8 +188,7 @@ def test_leases_and_the_generation_are_synced(tmp_path, calls):
 @pytest.mark.parametrize("replacing", [False, True])
 def test_an_export_commit_is_synced_into_the_targets_folder(tmp_path, monkeypatch, replacing):
     from exports import export as ex
-    from pipeline.settings import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     root = tmp_path / "root"

@@ -308,8 +308,7 @@ def test_an_s3_exclusive_lease_is_won_by_the_writer_that_reads_itself_back(monke
 
 
 def _record(**config_changes) -> dict:
-    from pipeline.settings import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
 
     config = RunConfig(plan=PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36),
                        world="test").to_dict()
@@ -387,8 +386,7 @@ REPAIR_PLAN = dict(domains="T01_CN_A", frames_per_scenario=3, width=64, height=3
 @pytest.fixture(scope="module")
 def tiny_root(tmp_path_factory):
     """One 3-frame episode at 64x36, rendered without Ray, its index written: copied by each test."""
-    from pipeline.settings import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("tiny") / "root"
@@ -406,9 +404,7 @@ def _copy_of(tiny_root, tmp_path):
 
 
 def _produce_config(root, **plan_changes):
-    from pipeline.settings import ProduceConfig
-    from pipeline.settings import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, ProduceConfig, RunConfig
 
     return ProduceConfig(run=RunConfig(plan=PlanConfig(**{**REPAIR_PLAN, **plan_changes}), world="test"),
                          out=str(root), workers=1)

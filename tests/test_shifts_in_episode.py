@@ -88,8 +88,7 @@ def test_extending_a_shifting_episode_renders_it_again_whole_and_says_so(tmp_pat
     from pipeline.cli.progress import format_produce_report
     from pipeline.driver import ProduceReport, pending_episodes, reshifted_episodes
     from pipeline.planner import make_plan
-    from pipeline.settings import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     small = RunConfig(plan=PlanConfig(domains="T01_CNtoNT_A,T01_CN_A", frames_per_scenario=2, width=32, height=32,
