@@ -155,6 +155,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     LeaseLost, and nothing more written, if the lease was taken over or
     released meanwhile (a repair may have deleted this episode's frames, or
     the driver gave this task up and finished)."""
+    spec.check_outputs()  # the writer's fields (outputs, rgb format, layout): the renderer checks the rest
     start = time.perf_counter()
     for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
         storage.remove_stale_temp(output_dir(spec.scenario, output, spec.episode, spec.layout), f"{spec.episode:04d}_")
@@ -174,7 +175,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
             os._exit(17)
 
     # The process keeps one renderer alive across episodes (render_workers.render.episode).
-    info = render_episode(spec, sink, world=world)
+    info = render_episode(spec.drawing, sink, world=world)  # the renderer takes only what it draws
     if len(rows) != spec.frames:
         raise RuntimeError(f"{spec.key}: rendered {len(rows)} frames, expected {spec.frames}")
     seconds = time.perf_counter() - start

@@ -40,7 +40,7 @@ for spec in plan.episodes:
         for name, data in frame_files(spec, frame).items():
             digests[f"{scenario}/{frame.index}/{name}"] = hashlib.sha256(data).hexdigest()
 
-    render_episode(spec, sink, world="test")
+    render_episode(spec.drawing, sink, world="test")
 print(json.dumps({k: v for k, v in digests.items() if k.startswith(sys.argv[-1] + "/")}, sort_keys=True))
 """
 

@@ -69,7 +69,7 @@ def test_a_shifting_episode_moves_monotonically():
     got = []
     with Renderer() as renderer:
         spec = EpisodeSpec("T01_CNtoNT_A", 0, 3, 4, 160, 90, "train", 0, frame_interval_s=0.5)
-        episode.render_episode(spec, got.append, world="test", renderer=renderer)
+        episode.render_episode(spec.drawing, got.append, world="test", renderer=renderer)
     suns = [f.conditions["sun_altitude_deg"] for f in got]
     luminance = [float(cv2.cvtColor(f.buffers["rgb"], cv2.COLOR_RGB2GRAY).mean()) for f in got]
     print("CNtoNT sun altitude", [round(s, 1) for s in suns], "mean luminance", [round(v, 1) for v in luminance])
