@@ -21,7 +21,7 @@ from typing import Callable
 from outputs.deflaters import deflating_with
 from outputs.table import OUTPUTS, encode_outputs, file_bytes
 from manifests.layout import frame_path, output_dir
-from manifests.schema import STATS_DIR, frame_id, part_path, part_stem
+from manifests.schema import frame_id, part_path, part_stem, stats_path
 from manifests.schema import NEW_RULES
 from pipeline.planner import make_plan
 from pipeline.provenance import for_root, prepare_root
@@ -182,7 +182,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     result = EpisodeResult(spec.scenario, spec.episode, len(rows), seconds, socket.gethostname(), os.getpid())
     stats = {"frames": len(rows), "seconds": round(seconds, 3), "node": result.node, "stages": info.timings}
     frame_fence.check(force=True)
-    storage.write_bytes(f"{STATS_DIR}/{spec.scenario}_e{spec.episode:04d}.json", json.dumps(stats).encode())
+    storage.write_bytes(stats_path(spec.scenario, spec.episode), json.dumps(stats).encode())
     sync_frame_dirs(storage, spec)
     _stop_before_commit()
     commit_part(storage, spec, rows, fence)

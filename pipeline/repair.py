@@ -8,12 +8,13 @@ import logging
 
 from manifests.layout import NEW_ROOT_LAYOUT, frame_path, held_layout, record_layout
 from manifests.reader import episode_parts
-from manifests.schema import frame_id, index_path, part_path
+from manifests.schema import frame_id, index_path, part_path, part_stem
 from pipeline.cluster import cluster_address
 from pipeline.provenance import RunConfigError, check_before_repair, prepare_root
 from pipeline.settings import CONFIG_SHAPE, ProduceConfig
 from pipeline import verify_ray  # by module: a test stands in for choose_runner
 from roots.contract import RootError
+from roots.episode_spec import episode_key
 from roots.lease import LeaseError, acquire_exclusive, describe, exclusive_holder, live_producers
 from roots.run_file import RunRecordError, read_record
 from roots.verify import Scope, verify
@@ -57,8 +58,8 @@ def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
             storage.delete(rel)
         storage.delete(index_path(scenario))
         if (scenario, episode) not in planned:
-            log.warning("%s_e%04d is damaged but not in the current plan; it stays pending", scenario, episode)
-        touched.append(f"{scenario}/e{episode:04d}")
+            log.warning("%s is damaged but not in the current plan; it stays pending", part_stem(scenario, episode))
+        touched.append(episode_key(scenario, episode))
     for problem in report.problems:
         if problem.kind in ("extra", "bad-index"):
             storage.delete(problem.path)
