@@ -91,7 +91,7 @@ def _episode(renderer, world: str, outputs: tuple[str, ...], frames: int, width:
             written[name] = written.get(name, 0) + len(data)
 
     cpu, start = time.process_time(), time.perf_counter()
-    info = render_episode(spec, sink, world=world, renderer=renderer)
+    info = render_episode(getattr(spec, "drawing", spec), sink, world=world, renderer=renderer)  # older trees: the spec
     return {"frame": time.perf_counter() - start, "frame_cpu": time.process_time() - cpu,
             "outputs": info.timings.get("outputs", 0.0), "sink": info.timings.get("sink", 0.0),
             "bytes": {name: n // frames for name, n in written.items()}}

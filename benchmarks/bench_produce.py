@@ -25,6 +25,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from manifests.schema import STATS_DIR, STATS_RE
 from outputs.table import SEED_OUTPUTS  # the paper's six
 from render_workers.render.episode import DEFAULT_WORLD
 
@@ -111,7 +112,7 @@ def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...]
     reported = json.loads((stats / "driver.json").read_text())["frames_per_s"]
     totals: dict[str, float] = {}
     frames = 0
-    for path in stats.glob("T*.json"):
+    for path in (p for p in stats.glob("*.json") if STATS_RE.match(f"{STATS_DIR}/{p.name}")):  # not driver.json
         data = json.loads(path.read_text())
         frames += data["frames"]
         for stage, seconds in data["stages"].items():

@@ -55,6 +55,12 @@ def tree_module(new: str, old: str):
     return importlib.import_module(name) if base.joinpath(*name.split(".")).with_suffix(".py").exists() else None
 
 
+def drawn(spec):
+    """What the measured tree's renderer takes of ``spec``: its drawing inputs (``EpisodeSpec.drawing``),
+    or the whole spec in a tree from before the renderer took only those."""
+    return getattr(spec, "drawing", spec)
+
+
 def _spec(code: str, frames: int, seed: int = 1):
     """An episode spec with the paper's six outputs (trees before the Output table write exactly those)."""
     episode_spec = tree_module("roots.episode_spec", "manifests.spec")  # house: old name
@@ -107,15 +113,15 @@ def probe(world: str) -> dict:
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:
         for code in SCENARIOS:
             spec = _spec(code, FRAMES + 1)
-            scene, load = episode.load_episode(spec, renderer, world)
+            scene, load = episode.load_episode(drawn(spec), renderer, world)
             start = time.perf_counter()
-            episode.render_frame(renderer, scene, spec, 0)  # warm-up: shader compile on the first, uploads
+            episode.render_frame(renderer, scene, drawn(spec), 0)  # warm-up: shader compile on the first, uploads
             if not startup:
                 startup = {"world_build_s": load["world"], "first_frame_s": time.perf_counter() - start}
             for index in range(1, FRAMES + 1):
                 fx.clear()
                 cpu, start = time.process_time(), time.perf_counter()
-                frame, timings = episode.render_frame(renderer, scene, spec, index)
+                frame, timings = episode.render_frame(renderer, scene, drawn(spec), index)
                 t0 = time.perf_counter()
                 data = _frame_files(frame)
                 timings["png_encode"] = time.perf_counter() - t0
@@ -132,7 +138,7 @@ def probe(world: str) -> dict:
         # production's loop: render_episode with a sink that encodes and writes
         spec = _spec(SCENARIOS[0], EPISODE_FRAMES)
         cpu, start = time.process_time(), time.perf_counter()
-        info = episode.render_episode(spec, lambda f: _encode_and_write(f, Path(tmp)), world=world, renderer=renderer)
+        info = episode.render_episode(drawn(spec), lambda f: _encode_and_write(f, Path(tmp)), world=world, renderer=renderer)
         loading = sum(info.timings[k] for k in ("world", "populate", "load"))  # the episode's set-up, not frames
         samples["episode_frame"] = [(time.perf_counter() - start - loading) / EPISODE_FRAMES]
         samples["episode_frame_cpu"] = [(time.process_time() - cpu - loading) / EPISODE_FRAMES]
@@ -188,11 +194,11 @@ def _worker(world: str, code: str, seed: int, barrier, lp_threads: str | None, q
 
     spec = _spec(code, THROUGHPUT_FRAMES, seed)
     with Renderer() as renderer, tempfile.TemporaryDirectory() as tmp:
-        scene, _ = load_episode(spec, renderer, world)
-        render_frame(renderer, scene, spec, 0)  # warm-up outside the timed window
+        scene, _ = load_episode(drawn(spec), renderer, world)
+        render_frame(renderer, scene, drawn(spec), 0)  # warm-up outside the timed window
         barrier.wait()
         start = time.monotonic()
-        render_episode(spec, lambda f: _encode_and_write(f, Path(tmp)), world=world, renderer=renderer)
+        render_episode(drawn(spec), lambda f: _encode_and_write(f, Path(tmp)), world=world, renderer=renderer)
         queue.put((start, time.monotonic()))
 
 

@@ -88,7 +88,7 @@ def main() -> dict:
                 timed("second thread: sink: manifest row", writer.frame_row)(spec, frame, files)
 
             before, cpu, wall = _threads_cpu(), time.process_time(), time.perf_counter()
-            info = ep.render_episode(spec, timed("second thread: sink (all)", sink), renderer=renderer)
+            info = ep.render_episode(spec.drawing, timed("second thread: sink (all)", sink), renderer=renderer)
             return info, time.perf_counter() - wall, time.process_time() - cpu, before, _threads_cpu()
 
         episode(2)  # warm-up: shaders, uploads, caches

@@ -27,7 +27,7 @@ from manifests.schema import PART_SCHEMA, output_columns, part_path
 from exports.hf import HF_SPLITS, card_header, citation_section
 from manifests.query import SPLITS
 from roots.contract import CARD_FILE, CHART_FILE, PREVIEW_DIR  # the root's own names (verify knows them)
-from roots.run_file import REPAIR_HINT, RunRecordError, read_record
+from roots.run_file import REPAIR_HINT, ConfigShape, RunRecordError, read_record
 from roots.verify import verify
 from storage import Storage
 
@@ -46,6 +46,7 @@ class CardConfig:
     root: str  # output root: local path or s3:// URI
     contact_sheet: bool = False  # render a contact sheet into <root>/preview/ first
     verify: bool = True  # verify the root first; the card says what verify found
+    shape: ConfigShape | None = None  # what run.json's config may hold (pipeline.settings.CONFIG_SHAPE)
 
 
 @dataclass
@@ -326,7 +327,7 @@ def write_card(config: CardConfig) -> CardResult:
     if len(table) == 0:
         raise ValueError(f"{storage.uri} has no frames yet; produce some before writing its card")
     try:
-        record = read_record(storage)
+        record = read_record(storage, config.shape)
     except RunRecordError as exc:
         raise ValueError(f"{exc}; {REPAIR_HINT}") from None
     if config.contact_sheet:
@@ -334,7 +335,7 @@ def write_card(config: CardConfig) -> CardResult:
     previews = find_previews(storage)
     verified = None
     if config.verify:
-        verified = verify(storage)
+        verified = verify(storage, shape=config.shape)
     # Local cards say "." (run the commands in the root, which may move); s3 cards the URI.
     text = card_markdown(table, record, "." if storage.is_local else storage.uri, previews, part_files(storage), verified)
     storage.write_bytes(CHART_FILE, bar_chart_png(share_table(table), title=f"Class pixel shares, {len(table):,} frames"))

@@ -162,6 +162,15 @@ def part_stem(scenario: str, episode: int) -> str:
     return f"{scenario}_e{episode:04d}"
 
 
+def stats_path(scenario: str, episode: int) -> str:
+    """Where a worker writes an episode's timings: ``_stats/<scenario>_e<episode:04d>.json``."""
+    return f"{STATS_DIR}/{part_stem(scenario, episode)}.json"
+
+
+# An episode's stats file (stats_path): groups scenario and episode; any code the catalog allows.
+STATS_RE = re.compile("^" + STATS_DIR + "/" + scenario_pattern(axes=False) + r"_e(?P<episode>\d{4})\.json$")
+
+
 def part_path(scenario: str, episode: int, rows: int | None = None) -> str:
     """Relative path of an episode's manifest part (its "done" marker).
 

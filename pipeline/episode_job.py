@@ -21,7 +21,7 @@ from typing import Callable
 from outputs.deflaters import deflating_with
 from outputs.table import OUTPUTS, encode_outputs, file_bytes
 from manifests.layout import frame_path, output_dir
-from manifests.schema import STATS_DIR, frame_id, part_path, part_stem
+from manifests.schema import frame_id, part_path, part_stem, stats_path
 from manifests.schema import NEW_RULES
 from pipeline.planner import make_plan
 from pipeline.provenance import for_root, prepare_root
@@ -155,6 +155,7 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     LeaseLost, and nothing more written, if the lease was taken over or
     released meanwhile (a repair may have deleted this episode's frames, or
     the driver gave this task up and finished)."""
+    spec.check_outputs()  # the writer's fields (outputs, rgb format, layout): the renderer checks the rest
     start = time.perf_counter()
     for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
         storage.remove_stale_temp(output_dir(spec.scenario, output, spec.episode, spec.layout), f"{spec.episode:04d}_")
@@ -174,14 +175,14 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
             os._exit(17)
 
     # The process keeps one renderer alive across episodes (render_workers.render.episode).
-    info = render_episode(spec, sink, world=world)
+    info = render_episode(spec.drawing, sink, world=world)  # the renderer takes only what it draws
     if len(rows) != spec.frames:
         raise RuntimeError(f"{spec.key}: rendered {len(rows)} frames, expected {spec.frames}")
     seconds = time.perf_counter() - start
     result = EpisodeResult(spec.scenario, spec.episode, len(rows), seconds, socket.gethostname(), os.getpid())
     stats = {"frames": len(rows), "seconds": round(seconds, 3), "node": result.node, "stages": info.timings}
     frame_fence.check(force=True)
-    storage.write_bytes(f"{STATS_DIR}/{spec.scenario}_e{spec.episode:04d}.json", json.dumps(stats).encode())
+    storage.write_bytes(stats_path(spec.scenario, spec.episode), json.dumps(stats).encode())
     sync_frame_dirs(storage, spec)
     _stop_before_commit()
     commit_part(storage, spec, rows, fence)

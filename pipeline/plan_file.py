@@ -10,7 +10,8 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from manifests.schema import PLAN_CONFIG_KEY, PLAN_SCHEMA
-from pipeline.planner import RECORDED_DEFAULTS, Plan, PlanConfig, make_plan
+from pipeline.planner import Plan, make_plan
+from pipeline.settings import PlanConfig, recorded
 
 
 def plan_table(plan: Plan) -> pa.Table:
@@ -53,7 +54,7 @@ def read_plan(path: str | os.PathLike) -> Plan:
     meta = table.schema.metadata or {}
     if PLAN_CONFIG_KEY not in meta:
         raise ValueError(f"{path} is not an idda plan (no {PLAN_CONFIG_KEY.decode()} metadata)")
-    plan = make_plan(PlanConfig(**{**RECORDED_DEFAULTS, **json.loads(meta[PLAN_CONFIG_KEY])}))
+    plan = make_plan(PlanConfig(**recorded(json.loads(meta[PLAN_CONFIG_KEY]))))
     if not plan_table(plan).equals(table.replace_schema_metadata(plan_table(plan).schema.metadata)):
         raise ValueError(f"{path}: rows do not match the plan its config describes")
     return plan

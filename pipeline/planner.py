@@ -11,61 +11,16 @@ A plan holds episodes, never frames, so it stays small at any scale.
 
 from __future__ import annotations
 
-import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import dataclass, field
 
-
-from domains.catalog import TOWN_BY_CODE, TOWNS, WEATHERS, VIEWPOINTS, Town, catalog_for, using
-from outputs.encoding import check_rgb_format
-from outputs.table import DEFAULT_OUTPUTS, check_outputs
+from domains.catalog import TOWNS, Town, catalog_for, using
 from domains.selection import parse_selection
-from roots.episode_spec import (
-    FRAME_PERIOD_S,
-    PAIRED,
-    UNPAIRED,
-    EpisodeSpec,
-    check_frame_interval,
-    check_pairing,
-    check_rules,
-    episode_seed,
-)
-from manifests.schema import NEW_RULES, OLD_RULES
+from manifests.schema import NEW_RULES
+from pipeline.settings import PlanConfig, full_scale_frames
+from roots.episode_spec import EpisodeSpec, episode_seed
 
-PAPER_TOTAL_FRAMES = 1_006_800
 EPISODE_FRAMES = (60, 80)  # 3-4 simulated minutes
-MIN_SIZE, MAX_SIZE = 32, 8192  # accepted image width / height in pixels
-
-# Upper bound on --frames-per-scenario: 100 times the paper's largest scenario
-# (T01 at full scale). A plan holds one small record per episode, so this
-# keeps a typo such as 10**10 from exhausting memory; real runs are far below.
-MAX_SCALE_FACTOR = 100
-
-def _largest_remainder(total: int, weights: list[float]) -> list[int]:
-    exact = [total * w / sum(weights) for w in weights]
-    counts = [math.floor(x) for x in exact]
-    by_remainder = sorted(range(len(weights)), key=lambda i: exact[i] - counts[i], reverse=True)
-    for i in by_remainder[: total - sum(counts)]:
-        counts[i] += 1
-    return counts
-
-
-def full_scale_frames(town: Town) -> int:
-    """Frames per scenario of ``town`` at full scale (paper total, by road length).
-
-    A town of the paper's (with its road length) gets its share of the paper's
-    total; any other town the same frames per km of road."""
-    per_town_column = PAPER_TOTAL_FRAMES // (len(WEATHERS) * len(VIEWPOINTS))
-    counts = _largest_remainder(per_town_column, [t.road_km for t in TOWNS])
-    builtin = TOWN_BY_CODE.get(town.code)
-    if builtin is not None and builtin.road_km == town.road_km:
-        return counts[TOWNS.index(builtin)]
-    return max(1, round(per_town_column * town.road_km / sum(t.road_km for t in TOWNS)))
-
-
-def max_frames_per_scenario() -> int:
-    """The largest --frames-per-scenario accepted (see MAX_SCALE_FACTOR)."""
-    return MAX_SCALE_FACTOR * max(full_scale_frames(t) for t in TOWNS)
 
 
 def episode_target(town: Town) -> int:
@@ -81,73 +36,6 @@ def split_episodes(frames: int, target: int) -> list[int]:
     n = max(1, round(frames / target), math.ceil(frames / EPISODE_FRAMES[1]))
     base, extra = divmod(frames, n)
     return [base + (1 if i < extra else 0) for i in range(n)]
-
-
-# What a recorded config (run.json, a plan file) that lacks a key meant when it was written.
-RECORDED_DEFAULTS = {"pairing": UNPAIRED, "rules": OLD_RULES}
-
-
-@dataclass(frozen=True)
-class PlanConfig:
-    """What the user asked for; validated before any work starts."""
-
-    domains: str = "all"
-    scale: float | None = None
-    frames_per_scenario: int | None = None
-    width: int = 1920
-    height: int = 1080
-    seed: int = 0
-    outputs: tuple[str, ...] = DEFAULT_OUTPUTS  # what every frame writes (outputs.table)
-    rgb_format: str = "png"  # the rgb output's file format: png (lossless) or jpg (IDDA's released format)
-    catalog: str = ""  # user domain entries in force (Catalog.layer_json; a dict when read back from JSON)
-    frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (3 s: the paper's sparse sampling)
-    # roots.episode_spec.PAIRED (new roots): episode seeds leave the weather out; UNPAIRED is what a config
-    # recorded before pairing means (run.json or a plan file without the key: RECORDED_DEFAULTS)
-    pairing: int = PAIRED
-    # manifests.schema.NEW_RULES (new roots): splits per scene, ...; OLD_RULES is what a config recorded
-    # before them means (RECORDED_DEFAULTS)
-    rules: int = NEW_RULES
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
-        if isinstance(self.catalog, dict):
-            object.__setattr__(self, "catalog", json.dumps(self.catalog, separators=(",", ":")) if self.catalog else "")
-
-    def validate(self) -> None:
-        if self.scale is not None and self.frames_per_scenario is not None:
-            raise ValueError("give either --scale or --frames-per-scenario, not both")
-        if self.scale is not None and not (0.0 < self.scale <= 1.0):
-            raise ValueError(f"scale must be in (0, 1], got {self.scale}")
-        if self.frames_per_scenario is not None and self.frames_per_scenario < 1:
-            raise ValueError(
-                f"frames per scenario must be at least 1, got {self.frames_per_scenario}"
-            )
-        if self.frames_per_scenario is not None and self.frames_per_scenario > max_frames_per_scenario():
-            raise ValueError(
-                f"frames per scenario must be at most {max_frames_per_scenario():,} "
-                f"({MAX_SCALE_FACTOR} times the paper's largest scenario), got {self.frames_per_scenario:,}"
-            )
-        for name, value in (("width", self.width), ("height", self.height)):
-            if not (MIN_SIZE <= value <= MAX_SIZE):
-                raise ValueError(
-                    f"{name} must be between {MIN_SIZE} and {MAX_SIZE} pixels, got {value}"
-                )
-        if self.seed < 0:
-            raise ValueError(f"seed must be a non-negative integer, got {self.seed}")
-        with using(catalog_for(self.catalog)):
-            parse_selection(self.domains)
-        if check_outputs(self.outputs) != self.outputs:
-            raise ValueError(f"outputs must be listed once each in table order, got {', '.join(self.outputs)}")
-        check_rgb_format(self.rgb_format)
-        check_frame_interval(self.frame_interval_s)
-        check_pairing(self.pairing)
-        check_rules(self.rules)
-
-    def to_dict(self) -> dict:
-        """As JSON holds it (run.json, plan files); the catalog only where user entries are in force."""
-        out = {**asdict(self), "outputs": list(self.outputs)}
-        del out["catalog"]
-        return out | ({"catalog": json.loads(self.catalog)} if self.catalog else {})
 
 
 @dataclass(frozen=True)

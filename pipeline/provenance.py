@@ -26,20 +26,18 @@ from domains.catalog_file import current_layer
 from manifests.layout import LAYOUT_KEY, NEW_ROOT_LAYOUT, held_layout, record_layout
 from manifests.part_file import ManifestError, read_part_file
 from manifests.reader import done_episodes, part_summaries
-from manifests.schema import MANIFEST_DIR, NEW_RULES, OLD_RULES, PART_SCHEMA, RUN_FILE, output_columns
+from manifests.schema import MANIFEST_DIR, NEW_RULES, PART_SCHEMA, RUN_FILE, output_columns
 from outputs.deflaters import DEFAULT_DEFLATER, deflater_named_by, deflater_of_png
 from outputs.encoding import encoder_identity
-from outputs.table import OUTPUTS, SEED_OUTPUTS
-from pipeline.planner import RECORDED_DEFAULTS, PlanConfig, scene_places, scene_split
-from pipeline.settings import RunConfig
+from outputs.table import OUTPUTS
+from pipeline.planner import scene_places, scene_split
+from pipeline.settings import CONFIG_SHAPE, FRAME_DEFINING, PlanConfig, RunConfig, recorded
 from roots.contract import own_top_names, root_entries
-from roots.episode_spec import FRAME_PERIOD_S, episode_seed
+from roots.episode_spec import episode_seed
 from roots.run_file import REPAIR_HINT, RunRecordError, read_record, record_bytes
 from storage import StorageError
 
 
-# Changing these would make new frames inconsistent with the ones on disk.
-FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s", "pairing", "rules")
 _PACKAGES = ("idda-pipeline", "numpy", "pyrender", "PyOpenGL", "trimesh", "ray", "pyarrow", "opencv-python-headless")
 
 
@@ -77,7 +75,7 @@ def git_revision() -> str:
 def read_run(storage) -> dict | None:
     """The root's run record, None if it has none; RunConfigError if it is damaged."""
     try:
-        return read_record(storage)
+        return read_record(storage, CONFIG_SHAPE)
     except RunRecordError as exc:
         raise RunConfigError(f"{exc}; {REPAIR_HINT}") from None
 
@@ -126,13 +124,12 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
 
 
 def _with_outputs(config: dict) -> dict:
-    """A recorded config; roots from before ``--outputs`` hold the six seed outputs, roots
-    from before ``--rgb-format`` PNG rgb files, roots from before ``--frame-interval`` one frame every 3 s,
-    roots from before pairing per-weather episode seeds, roots from before rules the old ones (roots.episode_spec);
-    user weathers recorded with a fog share in today's keys (domains.catalog_file.current_layer)."""
+    """A recorded config as today's settings read it: a key a root from before its setting lacks holds
+    what it meant then (``pipeline.settings.RECORDED_DEFAULTS``: the six seed outputs, PNG rgb files, one
+    frame every 3 s, per-weather episode seeds, the old rules); user weathers recorded with a fog share
+    in today's keys (domains.catalog_file.current_layer)."""
     config = {**config, "catalog": current_layer(config["catalog"])} if "catalog" in config else config
-    return {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", "frame_interval_s": FRAME_PERIOD_S,
-            **RECORDED_DEFAULTS, **config}
+    return recorded(config)
 
 
 def _fresh_record(new: dict, history: list[dict] | None = None, layout: int = NEW_ROOT_LAYOUT,
@@ -190,7 +187,7 @@ def for_root(specs, record: dict) -> list:
 
     layout, deflater = record_layout(record), root_deflater(record)
     specs = [replace(spec, layout=layout, png_deflater=deflater) for spec in specs]
-    if record["config"].get("rules", OLD_RULES) < NEW_RULES:
+    if recorded(record["config"])["rules"] < NEW_RULES:
         return specs
     with using(record["config"].get("catalog")):  # the root's domain entries, whoever calls
         places = scene_places([h["domains"] for h in record.get("history", [])] + [record["config"]["domains"]])
@@ -219,7 +216,7 @@ def check_encoder(storage, record: dict, rgb_format: str = "png") -> dict:
         )
     record = {**record, "encoder": ours}
     storage.write_bytes(RUN_FILE, record_bytes(record))
-    return read_record(storage)
+    return read_record(storage, CONFIG_SHAPE)
 
 
 def changed_entries(old: dict | None, new: dict | None) -> list[str]:
@@ -281,7 +278,7 @@ def check_before_repair(storage, config: RunConfig, extend: bool = False) -> Non
     root's. Reads only. A damaged or missing run.json passes: the manifest
     rows are then checked against this command's options instead."""
     try:
-        record = read_record(storage)
+        record = read_record(storage, CONFIG_SHAPE)
     except RunRecordError:
         return
     if record is None:
@@ -306,7 +303,7 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
     """
     new = config.to_dict()
     try:
-        record = read_record(storage)
+        record = read_record(storage, CONFIG_SHAPE)
     except RunRecordError as exc:
         if not repair:
             raise RunConfigError(f"{exc}; {REPAIR_HINT}") from None
@@ -316,12 +313,12 @@ def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool 
         check_rows(storage, config, summaries)
         storage.write_bytes(RUN_FILE, record_bytes(_fresh_record(new, layout=_layout_held(storage),
                                                                  encoder=_encoder_held(storage, new["rgb_format"]))))
-        return read_record(storage)
+        return read_record(storage, CONFIG_SHAPE)
     if record is None:
         check_rows(storage, config, summaries)
         fresh = _fresh_record(new, layout=_layout_held(storage), encoder=_encoder_held(storage, new["rgb_format"]))
         if storage.create_exclusive(RUN_FILE, record_bytes(fresh)):
-            return read_record(storage)
+            return read_record(storage, CONFIG_SHAPE)
         record = read_run(storage)  # another driver was first: compare with its record
         if record is None:
             raise RunConfigError(f"cannot create {storage.join(RUN_FILE)}")

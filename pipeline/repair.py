@@ -8,12 +8,13 @@ import logging
 
 from manifests.layout import NEW_ROOT_LAYOUT, frame_path, held_layout, record_layout
 from manifests.reader import episode_parts
-from manifests.schema import frame_id, index_path, part_path
+from manifests.schema import frame_id, index_path, part_path, part_stem
 from pipeline.cluster import cluster_address
 from pipeline.provenance import RunConfigError, check_before_repair, prepare_root
-from pipeline.settings import ProduceConfig
+from pipeline.settings import CONFIG_SHAPE, ProduceConfig
 from pipeline import verify_ray  # by module: a test stands in for choose_runner
 from roots.contract import RootError
+from roots.episode_spec import episode_key
 from roots.lease import LeaseError, acquire_exclusive, describe, exclusive_holder, live_producers
 from roots.run_file import RunRecordError, read_record
 from roots.verify import Scope, verify
@@ -34,7 +35,7 @@ def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
     check_before_repair(storage, config.run, extend=config.extend)
     scope = Scope(scenarios=frozenset(plan.scenarios()))
     report = verify(storage, scope=scope, config=config.run.to_dict(), runner=verify_runner(config),
-                    except_owner=owner)  # our own lease: no other producer is live (checked)
+                    except_owner=owner, shape=CONFIG_SHAPE)  # our own lease: no other producer is live (checked)
     links = [p for p in report.problems if p.kind == "link"]
     if links:
         raise RootError(
@@ -57,8 +58,8 @@ def _repair(storage, config: ProduceConfig, plan, owner: str) -> list[str]:
             storage.delete(rel)
         storage.delete(index_path(scenario))
         if (scenario, episode) not in planned:
-            log.warning("%s_e%04d is damaged but not in the current plan; it stays pending", scenario, episode)
-        touched.append(f"{scenario}/e{episode:04d}")
+            log.warning("%s is damaged but not in the current plan; it stays pending", part_stem(scenario, episode))
+        touched.append(episode_key(scenario, episode))
     for problem in report.problems:
         if problem.kind in ("extra", "bad-index"):
             storage.delete(problem.path)
@@ -95,7 +96,7 @@ def refuse_in_the_way(storage, specs, layout: int, nothing_done: str, parts_only
 def _root_layout(storage) -> int:
     """The root's file layout: run.json's, else that of the frames its parts list."""
     try:
-        record = read_record(storage)
+        record = read_record(storage, CONFIG_SHAPE)
     except RunRecordError:
         record = None
     return record_layout(record) if record else held_layout(storage) or NEW_ROOT_LAYOUT

@@ -22,8 +22,7 @@ from manifests.reader import read_manifest
 from outputs.encoding import decode_depth_raw, decode_png
 from outputs.geometry import depth_to_world, unflat
 from pipeline.episode_job import render_plan
-from pipeline.planner import PlanConfig
-from pipeline.settings import RunConfig
+from pipeline.settings import PlanConfig, RunConfig
 from storage import Storage
 
 DOMAIN = "T01_CS_A"

@@ -29,7 +29,8 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("outputs", "the output table and its encoders: PNG deflaters, the objects sidecar, camera geometry"),
     ("manifests", "the Parquet manifest: schema and the root's rules, file layout, part files, writer, reader, "
                   "summaries, query, stats, synthetic rows"),
-    ("roots", "the root's contract: what marks a root, leases, the run record (run.json), the job spec, verify"),
+    ("roots", "the root's contract: what marks a root, leases, the run record (run.json; its config's shape "
+              "handed in), the job spec and what the renderer takes of it (DrawSpec), verify"),
     ("render_workers.worlds", "towns as data and meshes: town plan, feature modules on a shared builder, "
                               "textures, styles, traffic, world cache; no GL"),
     ("render_workers.render", "pyrender off-screen: its set-up and patches, shaders, part meshes, camera, sky, "
@@ -37,8 +38,9 @@ STAGES: tuple[tuple[str, str], ...] = (
     ("exports", "one module per output format over what they share; the dataset card"),
     ("analysis", "loaders, metrics, the small segmentation net, distances, the domain-shift table, real "
                  "folders, evaluate (torch extra)"),
-    ("pipeline", "planner, a run's settings, provenance, the Ray distributor and cluster attach, the episode job "
-                 "(buffers -> files -> manifest part), repair, verify on Ray"),
+    ("pipeline", "planner, a run's settings (one module; run.json's config tables read from its fields), "
+                 "provenance, the Ray distributor and cluster attach, the episode job (buffers -> files -> manifest "
+                 "part), repair, verify on Ray"),
     ("pipeline.cli", "the Typer app and its shared options"),
     ("reports", "make report's generators (docs/worlds.md, this page)"),
 )

@@ -13,9 +13,9 @@ import shutil
 from pathlib import Path
 
 from domains.catalog import TOWNS
+from manifests.schema import STATS_DIR, STATS_RE
 from pipeline.driver import produce
-from pipeline.planner import PlanConfig
-from pipeline.settings import ProduceConfig, RunConfig
+from pipeline.settings import PlanConfig, ProduceConfig, RunConfig
 from render_workers.render.episode import DEFAULT_WORLD
 from render_workers.worlds.styles import is_urban
 
@@ -49,12 +49,12 @@ def produce_sample(root: str, frames: int, width: int, height: int, workers: int
 
 
 def episode_stats(root: str) -> list[dict]:
-    """The per-episode stats files the workers wrote (timings per stage)."""
+    """The per-episode stats files the workers wrote (timings per stage), each with its scenario: any
+    code the catalog allows (manifests.schema.STATS_RE), not the driver's own stats."""
     out = []
-    for path in sorted(Path(root, "_stats").glob("T*_e*.json")):
-        data = json.loads(path.read_text())
-        data["scenario"] = path.stem.split("_e")[0]
-        out.append(data)
+    for path in sorted(Path(root, STATS_DIR).glob("*.json")):
+        if (match := STATS_RE.match(f"{STATS_DIR}/{path.name}")) is not None:
+            out.append({**json.loads(path.read_text()), "scenario": match["scenario"]})
     return out
 
 

@@ -44,7 +44,7 @@ def episode_frames(weather: str, frames: int, *, width: int = WIDTH, height: int
     spec = EpisodeSpec(code, 0, episode_seed(SEED, scenario(code), 0, PAIRED), frames, width, height, "train",
                        SEED, frame_interval_s=interval_s)
     got: list = []
-    episode.render_episode(spec, got.append, world=world, renderer=renderer)
+    episode.render_episode(spec.drawing, got.append, world=world, renderer=renderer)
     return got
 
 

@@ -69,8 +69,41 @@ def check_rules(rules) -> int:
 
 
 @dataclass(frozen=True)
+class DrawSpec:
+    """What the renderer draws an episode from (``EpisodeSpec.drawing``): the scene, its seeds, size and
+    timing, and the named buffers to make. How the frames are encoded and where they go is the writer's."""
+
+    scenario: str  # scenario code, e.g. T01_CS_A
+    episode: int  # episode index within the scenario (names the episode in messages)
+    seed: int  # episode seed (traffic, spawn point, pedestrians, sky, post effects)
+    frames: int  # frames to render, one every frame_interval_s
+    width: int
+    height: int
+    run_seed: int  # the run's seed; the town's world derives from it
+    buffers: frozenset[str]  # the renderer's named buffers to make (the outputs' sources: outputs.table)
+    catalog: str = ""  # the run's user domain entries (domains.rows.Catalog.layer_json); "" = built-in only
+    frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (--frame-interval)
+    rules: int = NEW_RULES  # the root's rules: OLD_RULES draws a weather shift's ramp as roots made before them
+
+    def frame_time(self, index: int) -> float:
+        """Simulated time of frame ``index`` in seconds (frame 0 at 0)."""
+        return index * self.frame_interval_s
+
+    @property
+    def key(self) -> str:
+        """Unique name of the episode within a run."""
+        return episode_key(self.scenario, self.episode)
+
+
+def episode_key(scenario: str, episode: int) -> str:
+    """An episode's name within a run: ``T01_CS_A/e0003``."""
+    return f"{scenario}/e{episode:04d}"
+
+
+@dataclass(frozen=True)
 class EpisodeSpec:
-    """A small, serialisable job: everything a worker needs to render an episode."""
+    """A small, serialisable job: everything a worker needs to render an episode (``drawing``: what the
+    renderer takes of it) and write its files (outputs, rgb format, layout, PNG deflater, split)."""
 
     scenario: str  # scenario code, e.g. T01_CS_A
     episode: int  # episode index within the scenario
@@ -88,9 +121,12 @@ class EpisodeSpec:
     png_deflater: str = DEFAULT_DEFLATER  # the root's PNG deflater (outputs.deflaters): an older root keeps its own
     rules: int = NEW_RULES  # the root's rules (OLD_RULES in roots made before them: run.json without "rules")
 
-    def frame_time(self, index: int) -> float:
-        """Simulated time of frame ``index`` in seconds (frame 0 at 0)."""
-        return index * self.frame_interval_s
+    @property
+    def drawing(self) -> DrawSpec:
+        """What the renderer takes of this job: nothing of how its frames are encoded or filed."""
+        return DrawSpec(scenario=self.scenario, episode=self.episode, seed=self.seed, frames=self.frames,
+                        width=self.width, height=self.height, run_seed=self.run_seed, buffers=self.buffers,
+                        catalog=self.catalog, frame_interval_s=self.frame_interval_s, rules=self.rules)
 
     @property
     def town(self) -> str:
@@ -120,4 +156,4 @@ class EpisodeSpec:
     @property
     def key(self) -> str:
         """Unique name of the episode within a run."""
-        return f"{self.scenario}/e{self.episode:04d}"
+        return episode_key(self.scenario, self.episode)

@@ -11,29 +11,24 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from dataclasses import dataclass
+from typing import Mapping
 
 from manifests.layout import LAYOUT_KEY, LAYOUTS
 from manifests.schema import RUN_FILE
 
 CHECKSUM_KEY = "checksum"
-# config key -> accepted types; a record whose config lacks one, or has another type, is damaged
-CONFIG_TYPES: dict[str, tuple[type, ...]] = {
-    "domains": (str,),
-    "scale": (float, int, type(None)),
-    "frames_per_scenario": (int, type(None)),
-    "width": (int,),
-    "height": (int,),
-    "seed": (int,),
-    "world": (str,),
-    "outputs": (list,),  # absent in roots from before --outputs: the six seed outputs
-    "rgb_format": (str,),  # absent in roots from before --rgb-format: png
-    "catalog": (dict,),  # the user domain entries in force (docs/catalog.md); absent: the built-in catalog only
-    "frame_interval_s": (float, int),  # absent in roots from before --frame-interval: 3.0
-    "pairing": (int,),  # 1: episode seeds leave the weather out (roots.episode_spec); absent in roots from before: 0
-    "rules": (int,),  # 1: the rules of roots.episode_spec (splits per scene, ...); absent in roots from before: 0
-}
-# keys older records (and built-in runs, for the catalog) lack
-OPTIONAL_CONFIG = ("world", "outputs", "rgb_format", "catalog", "frame_interval_s", "pairing", "rules")
+
+
+@dataclass(frozen=True)
+class ConfigShape:
+    """What a record's config may hold: key -> accepted JSON types (``None`` among them: the key may be
+    left out), and the keys older records may lack. The run's settings declare it
+    (``pipeline.settings.CONFIG_SHAPE``, read from their fields); the readers here take it from their
+    callers, since this floor does not import the pipeline."""
+
+    types: Mapping[str, tuple[type, ...]]
+    optional: tuple[str, ...] = ()
 
 
 REPAIR_HINT = "`idda produce --repair` with the run's options rewrites it"  # said with every RunRecordError
@@ -54,18 +49,19 @@ def record_bytes(record: dict) -> bytes:
     return (json.dumps(sealed, indent=2, sort_keys=True) + "\n").encode()
 
 
-def check_record(record, where: str) -> dict:
-    """``record`` if it has the shape of a run record; RunRecordError naming ``where`` otherwise."""
+def check_record(record, where: str, shape: ConfigShape | None = None) -> dict:
+    """``record`` if it has the shape of a run record, its config that of ``shape`` (None: any keys,
+    for readers of the record's other parts); RunRecordError naming ``where`` otherwise."""
     if not isinstance(record, dict) or not isinstance(record.get("config"), dict):
         raise RunRecordError(f"{where} is not a run record (expected an object with a 'config' object)")
     config = record["config"]
-    for key, types in CONFIG_TYPES.items():
-        if key not in config and type(None) not in types and key not in OPTIONAL_CONFIG:
+    for key, types in (shape.types if shape is not None else {}).items():
+        if key not in config and type(None) not in types and key not in shape.optional:
             raise RunRecordError(f"{where} is damaged: its config lacks {key!r}")
         value = config.get(key)
         if key in config and (not isinstance(value, types) or isinstance(value, bool)):
             raise RunRecordError(f"{where} is damaged: config {key!r} is {value!r}")
-    unknown = sorted(set(config) - set(CONFIG_TYPES))
+    unknown = sorted(set(config) - set(shape.types)) if shape is not None else []
     if unknown:
         raise RunRecordError(f"{where} is damaged: unknown config keys {', '.join(unknown)}")
     history = record.get("history", [])
@@ -79,8 +75,9 @@ def check_record(record, where: str) -> dict:
     return record
 
 
-def read_record(storage) -> dict | None:
-    """The root's run record, None if there is none; RunRecordError if it is damaged."""
+def read_record(storage, shape: ConfigShape | None = None) -> dict | None:
+    """The root's run record, None if there is none; RunRecordError if it is damaged (its config
+    checked against ``shape``, ``check_record``)."""
     where = storage.join(RUN_FILE)
     if storage.is_local and os.path.lexists(storage.path(RUN_FILE)) and not os.path.isfile(storage.path(RUN_FILE)):
         raise RunRecordError(f"{where} is not a regular file")
@@ -90,4 +87,4 @@ def read_record(storage) -> dict | None:
         record = json.loads(storage.read_bytes(RUN_FILE))
     except (ValueError, UnicodeDecodeError) as exc:
         raise RunRecordError(f"{where} is not valid JSON: {exc}") from None
-    return check_record(record, where)
+    return check_record(record, where, shape)

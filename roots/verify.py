@@ -41,7 +41,7 @@ from manifests.reader import as_storage, filed_where_named, index_bytes, index_e
 from manifests.layout import LAYOUTS, frame_path, held_layout, match_frame_file, record_layout
 from roots.contract import own_top_names, root_entries
 from roots.lease import live_producers
-from roots.run_file import RunRecordError, read_record
+from roots.run_file import ConfigShape, RunRecordError, read_record
 from manifests.schema import (MANIFEST_DIR, PART_RE, PART_SCHEMA, RUN_FILE, as_plain_lists, frame_id, named_rows,
                               newer_part, output_columns, part_path)
 from roots.episode_spec import UNPAIRED, episode_seed
@@ -448,7 +448,7 @@ def plan_units(storage, scope: Scope, report: VerifyReport, producer_live: bool,
 
 def verify(root, threads: int = 8, progress: Callable[[VerifyProgress], None] | None = None,
            scope: Scope | None = None, config: dict | None = None, runner: Runner | None = None,
-           except_owner: str | None = None) -> VerifyReport:
+           except_owner: str | None = None, shape: ConfigShape | None = None) -> VerifyReport:
     """Check the manifest itself, recompute every checksum it lists, look for strays.
 
     ``scope`` limits the check to some scenarios and recent episodes;
@@ -457,7 +457,8 @@ def verify(root, threads: int = 8, progress: Callable[[VerifyProgress], None] | 
     process; ``pipeline.verify_ray.choose_runner`` gives one for Ray).
     Frames without a part while a producer's lease (other than
     ``except_owner``'s) is live are in progress, not strays.
-    ``progress(VerifyProgress)`` is called as files are checked.
+    ``progress(VerifyProgress)`` is called as files are checked. ``shape``: what run.json's config
+    may hold (``pipeline.settings.CONFIG_SHAPE``); None checks only the record's frame and checksum.
     """
     storage = as_storage(root)
     start, wall_start = time.perf_counter(), time.time()
@@ -466,7 +467,7 @@ def verify(root, threads: int = 8, progress: Callable[[VerifyProgress], None] | 
 
     recorded, damaged, layouts = None, False, None
     try:
-        record = read_record(storage)
+        record = read_record(storage, shape)
         recorded = record["config"] if record else None
         layouts = (record_layout(record),) if record else None
     except RunRecordError as exc:

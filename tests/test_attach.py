@@ -32,8 +32,7 @@ REPO = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module")
 def reference(tmp_path_factory) -> Path:
     """ARGS's plan rendered without Ray: what an attached run must equal, byte for byte."""
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("attach-reference") / "root"

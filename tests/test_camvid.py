@@ -27,8 +27,7 @@ def twins(tmp_path_factory):
 
     from analysis.loaders import FrameDataset
     from manifests.query import Query
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     base = tmp_path_factory.mktemp("camvid")

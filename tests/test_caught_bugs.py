@@ -29,8 +29,8 @@ from manifests.schema import RUN_FILE, part_path
 from manifests.synthetic import episode_table
 from manifests.part_file import ManifestError, read_part_file
 from manifests.writer import part_bytes
-from pipeline.planner import PlanConfig, make_plan
-from pipeline.settings import RunConfig
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig, RunConfig
 from pipeline.provenance import RunConfigError, check_before_repair, prepare_root
 from storage import Storage
 

@@ -13,7 +13,8 @@ from typer.testing import CliRunner
 from manifests.synthetic import episode_rows
 from manifests.writer import write_part
 from pipeline.cli import app
-from pipeline.planner import PlanConfig, make_plan
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig
 from storage import Storage
 
 runner = CliRunner()

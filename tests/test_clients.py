@@ -40,8 +40,7 @@ WIDTH, HEIGHT = 64, 36
 @pytest.fixture(scope="module")
 def root(tmp_path_factory) -> Path:
     """A real small run: episodes rendered by the worker function, then compacted as produce does."""
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     path = tmp_path_factory.mktemp("clients") / "run"

@@ -18,8 +18,7 @@ import pytest
 
 from pipeline.settings import ProduceConfig
 from pipeline.driver import produce
-from pipeline.planner import PlanConfig
-from pipeline.settings import RunConfig
+from pipeline.settings import PlanConfig, RunConfig
 from tests.test_produce import tree_digest
 
 pytestmark = pytest.mark.slow

@@ -5,6 +5,8 @@ parts and indexes of such codes are seen by status, query, verify, repair, expor
 
 from __future__ import annotations
 
+import ast
+import json
 import re
 import shutil
 from pathlib import Path
@@ -15,7 +17,7 @@ from domains.catalog import SCENARIO_RE, format_code, split_code
 from domains.catalog_file import CODE_PATTERN
 from manifests.layout import LAYOUTS, frame_path, match_frame_file
 from manifests.reader import _INDEX_RE
-from manifests.schema import PART_RE, index_path, part_path
+from manifests.schema import PART_RE, STATS_RE, index_path, part_path, stats_path
 
 # one code of every legal shape per axis: the paper's, digits, lower case, long and mixed case
 TOWNS = ("T01", "Oslo", "t7", "42", "TownWithALongName9")
@@ -35,6 +37,8 @@ def test_every_parser_reads_every_legal_code(code):
         assert (match["scenario"], match["town"], match["weather"], match["viewpoint"], int(match["episode"])) == (
             code, town, weather, view, 12)
     assert _INDEX_RE.match(index_path(code))["scenario"] == code
+    assert (STATS_RE.match(stats_path(code, 12))["scenario"], STATS_RE.match(stats_path(code, 12))["episode"]) == (
+        code, "0012")
     for layout in LAYOUTS:
         for output, fmt in (("rgb", "png"), ("rgb", "jpg"), ("instance", "png"), ("objects", "png")):
             rel = frame_path(code, output, "0012_003", fmt, layout)
@@ -49,6 +53,62 @@ def test_what_the_grammar_refuses(bad):
     assert SCENARIO_RE.fullmatch(bad) is None
     with pytest.raises(ValueError, match="malformed scenario code"):
         split_code(bad)
+
+
+def test_episode_stats_of_every_legal_code_are_read(tmp_path):
+    """The report's per-episode timings: a stats file of any code (one whose weather starts with "e" too:
+    its name holds "_e" twice), never the driver's own; globbing "T*_e*" and splitting at "_e" read
+    only towns like T01, and cut "Oslo_eve_B2_e0000" at its weather."""
+    from reports.sample import episode_stats
+
+    codes = [*SHAPES, "Oslo_eve_B2"]
+    (tmp_path / "_stats").mkdir()
+    for code in codes:
+        (tmp_path / stats_path(code, 3)).write_text(json.dumps({"frames": 2}))
+    (tmp_path / "_stats" / "driver.json").write_text(json.dumps({"frames_per_s": 1.0}))
+    assert sorted(s["scenario"] for s in episode_stats(str(tmp_path))) == sorted(codes)
+
+
+# Written-out patterns that would be a second grammar of codes (domains.catalog's is the one): globs
+# and classes of letters (T*, T\d, [A-Z...]), and cutting a name at a code's separator.
+RESTATED = re.compile(r"T\*|T\\d|T\[|\[A-Z|\[A-Za-z|\[a-zA-Z|_e\*|\*_e")
+# (file, what) that are not about codes: URIs' and buckets' grammars, a terminal colour code, a frame
+# file's extension, a frame id ("0003_012"), CamVid's own file names
+NOT_CODES = {("storage/errors.py", "[A-Za-z][A-Za-z0-9+.-]*"), ("storage/uri.py", "[a-z0-9]"),
+             ("pipeline/cluster.py", "[A-Za-z]"), ("manifests/layout.py", "[a-z0-9]+$"),
+             ("manifests/layout.py", "fid.partition('_')"), ("analysis/camvid_layout.py", "split('_')")}
+
+
+def _restated(path: Path) -> list[str]:
+    found = []
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Constant) and isinstance(node.value, str) and RESTATED.search(node.value):
+            found.append(node.value)
+        elif (isinstance(node, ast.Call) and isinstance(node.func, ast.Attribute)
+              and node.func.attr in ("split", "rsplit", "partition", "rpartition") and node.args
+              and isinstance(node.args[0], ast.Constant) and node.args[0].value in ("_", "_e")):
+            found.append(ast.unparse(node))
+    return found
+
+
+def test_no_second_grammar_of_codes_in_the_source():
+    """Every pattern over codes or names made of them takes its grammar from the catalog (scenario_pattern,
+    split_code, CODE_CHARS); only domains/ writes one out."""
+    root = Path(__file__).resolve().parents[1]
+    wrong = []
+    for path in sorted(p for top in root.iterdir() if (top / "__init__.py").is_file() and top.name not in (
+            "tests", "domains") for p in top.rglob("*.py")):
+        rel = path.relative_to(root).as_posix()
+        wrong += [f"{rel}: {what!r}" for what in _restated(path)
+                  if not any(rel == file and part in what for file, part in NOT_CODES)]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_the_grammar_check_sees_a_second_grammar(tmp_path):
+    path = tmp_path / "m.py"
+    path.write_text('import re\nPAT = re.compile(r"T\\d+_[A-Z]+_[A-Z]")\n'
+                    'def f(p):\n    return p.glob("T*_e*.json"), p.stem.split("_e")[0]\n')
+    assert _restated(path) == ["T\\d+_[A-Z]+_[A-Z]", "T*_e*.json", "p.stem.split('_e')"]
 
 
 def test_names_that_are_not_ours_stay_unmatched():
@@ -174,8 +234,7 @@ def held_root(tmp_path_factory):
     scenarios with codes longer than the tables' old column, rendered without Ray."""
     from domains.catalog import BUILTIN
     from domains.catalog_file import with_file
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     layer = with_file(BUILTIN, DECLARED.replace('"mist"', '"mistyMorning2"'), "codes.toml").layer_json()

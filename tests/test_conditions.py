@@ -13,7 +13,8 @@ from manifests.schema import MANIFEST_SCHEMA, part_path
 from manifests.synthetic import episode_rows
 from manifests.writer import part_bytes, part_table, write_part
 from pipeline.cli import app
-from pipeline.planner import PlanConfig, make_plan
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig
 from storage import Storage
 
 

@@ -39,8 +39,8 @@ from manifests.schema import index_path
 from tests.roots import part_of, to_old_names
 from manifests.synthetic import episode_table, write_parts
 from manifests.writer import write_part
-from pipeline.planner import PlanConfig, make_plan
-from pipeline.settings import RunConfig
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig, RunConfig
 from pipeline.provenance import check_rows, prepare_root
 from pipeline.status import root_status
 from storage import Storage

@@ -17,8 +17,8 @@ from outputs.deflaters import DEFLATERS, deflater, deflater_named_by, deflating_
 from manifests.reader import read_manifest
 from roots.run_file import record_bytes
 from pipeline.episode_job import run_episode
-from pipeline.planner import PlanConfig, make_plan
-from pipeline.settings import RunConfig
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig, RunConfig
 from pipeline.provenance import RunConfigError, check_encoder, prepare_root, root_deflater
 from storage import Storage
 

@@ -20,7 +20,8 @@ from domains.fog import visibility_of_share
 from manifests.schema import OLD_RULES
 from roots.episode_spec import PAIRED, UNPAIRED, episode_seed, town_seed
 from pipeline.cli import app
-from pipeline.planner import PlanConfig, make_plan
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig
 
 runner = CliRunner()
 
@@ -193,7 +194,8 @@ TOWN = '[[town]]\ncode = "T09"\nlike = "T01"\nroad_km = 5.8\nbuilding_height_m =
 
 
 def test_a_user_town_is_planned_and_built_under_its_own_cache_key(tmp_path, monkeypatch):
-    from pipeline.planner import episode_target, full_scale_frames
+    from pipeline.planner import episode_target
+    from pipeline.settings import full_scale_frames
     from render_workers.render.episode import cached_world
     from render_workers.worlds import worldcache
 

@@ -142,7 +142,7 @@ def test_a_produced_episode_syncs_its_frame_folders_once_before_its_part(tmp_pat
     from outputs.table import DEFAULT_OUTPUTS
     from manifests.reader import index_path
     from roots.contract import ROOT_MARKER
-    from pipeline.planner import PlanConfig
+    from pipeline.settings import PlanConfig
     from pipeline.provenance import RUN_FILE
     from pipeline.settings import RunConfig
     from tests.roots import part_of, render_root
@@ -188,8 +188,7 @@ def test_leases_and_the_generation_are_synced(tmp_path, calls):
 @pytest.mark.parametrize("replacing", [False, True])
 def test_an_export_commit_is_synced_into_the_targets_folder(tmp_path, monkeypatch, replacing):
     from exports import export as ex
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     root = tmp_path / "root"

@@ -10,8 +10,7 @@ import trimesh
 
 from domains.catalog import NUM_CLASSES, PALETTE
 from outputs.table import DEFAULT_OUTPUTS as OUTPUTS, IMAGE_OUTPUTS, read_output
-from roots.episode_spec import EpisodeSpec
-from roots.episode_spec import FRAME_PERIOD_S
+from roots.episode_spec import FRAME_PERIOD_S, DrawSpec, EpisodeSpec
 from pipeline.episode_job import frame_files, frame_outputs
 from render_workers.render import episode
 from render_workers.worlds.registry import WORLDS
@@ -34,7 +33,7 @@ def renderer():
 
 def run(s: EpisodeSpec, renderer: Renderer):
     frames = []
-    info = episode.render_episode(s, frames.append, world="test", renderer=renderer)
+    info = episode.render_episode(s.drawing, frames.append, world="test", renderer=renderer)
     return info, frames
 
 
@@ -129,16 +128,38 @@ def test_world_registry_is_lazy_and_validated():
 
 def test_bad_spec_raises_before_rendering(renderer):
     with pytest.raises(ValueError, match="frames"):
-        episode.render_episode(spec(frames=0), lambda f: None, world="test", renderer=renderer)
+        episode.render_episode(spec(frames=0).drawing, lambda f: None, world="test", renderer=renderer)
     with pytest.raises(ValueError, match="unknown town"):
-        episode.render_episode(spec("T99_CN_A"), lambda f: None, world="test", renderer=renderer)
+        episode.render_episode(spec("T99_CN_A").drawing, lambda f: None, world="test", renderer=renderer)
+
+
+# what only the writer needs of a job: how frames are encoded and where they are filed
+WRITER_FIELDS = {"outputs", "rgb_format", "layout", "png_deflater", "split"}
+
+
+def test_the_renderer_takes_only_what_it_draws():
+    """Issue 36: the render functions take a DrawSpec, which holds none of the writer's fields; every
+    other field of the job reaches the renderer (a new job field must be placed on one side)."""
+    import dataclasses
+    import inspect
+
+    drawn = {f.name for f in dataclasses.fields(DrawSpec)}
+    assert not drawn & WRITER_FIELDS
+    assert {f.name for f in dataclasses.fields(EpisodeSpec)} - WRITER_FIELDS == drawn - {"buffers"}
+    for function in (episode.render_episode, episode.load_episode, episode.render_frame, episode.finish_frame,
+                     episode.frame_weathers, episode.validate_spec):
+        assert inspect.signature(function).parameters["spec"].annotation == "DrawSpec", function.__name__
+    job = spec(frames=3)
+    assert job.drawing == DrawSpec(job.scenario, 0, job.seed, 3, W, H, 0, job.buffers)
+    with pytest.raises(ValueError, match="unknown buffers"):
+        episode.validate_spec(dataclasses.replace(job.drawing, buffers=frozenset({"rgb", "sparkle"})))
 
 
 def test_sink_runs_in_frame_order_off_the_render_thread(renderer):
     import threading
 
     seen = []
-    episode.render_episode(spec(frames=4), lambda f: seen.append((f.index, threading.current_thread())),
+    episode.render_episode(spec(frames=4).drawing, lambda f: seen.append((f.index, threading.current_thread())),
                            world="test", renderer=renderer)
     assert [i for i, _ in seen] == [0, 1, 2, 3]
     assert all(t is not threading.main_thread() for _, t in seen)
@@ -161,10 +182,10 @@ def test_the_render_thread_only_draws(renderer, monkeypatch):
     monkeypatch.setattr(renderer_module, "sky_image", sky_image)
     _, frames = run(spec(frames=3), renderer)
     assert len(skies) == 3 and all(t is not threading.main_thread() for t in skies)
-    scene, _ = episode.load_episode(spec(frames=3), renderer, "test")
+    scene, _ = episode.load_episode(spec(frames=3).drawing, renderer, "test")
     result = renderer.render(0.0)
     assert len(skies) == 3  # drawn, not resolved yet
-    frame, _ = episode.finish_frame(result, renderer, scene, spec(frames=3), 0)
+    frame, _ = episode.finish_frame(result, renderer, scene, spec(frames=3).drawing, 0)
     assert result.buffers is result.buffers and len(skies) == 4  # resolved once, then kept
     assert frame_files(spec(frames=3), frame) == frame_files(spec(frames=3), frames[0])
 
@@ -178,7 +199,7 @@ def test_a_sink_error_stops_the_episode_and_is_raised(renderer):
             raise OSError("disk full")
 
     with pytest.raises(OSError, match="disk full"):
-        episode.render_episode(spec(frames=6), sink, world="test", renderer=renderer)
+        episode.render_episode(spec(frames=6).drawing, sink, world="test", renderer=renderer)
     assert seen[:2] == [0, 1] and len(seen) <= 1 + episode.SINK_AHEAD + 1
 
 

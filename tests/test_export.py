@@ -30,8 +30,7 @@ TINY_FRAMES = 2
 def make_tiny_root(tmp_path_factory) -> Path:
     """A small rendered root (test world, 64x36), built once per test session
     and shared by the export, loader, distance and card tests (read-only)."""
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.getbasetemp() / "tiny_root"

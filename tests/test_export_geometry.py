@@ -26,8 +26,7 @@ FRAMES = 3
 
 @pytest.fixture(scope="module")
 def root(tmp_path_factory) -> Path:
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     path = tmp_path_factory.mktemp("geometry_exports") / "run"

@@ -33,8 +33,7 @@ PRODUCE = ["--domains", DOMAINS, "--frames-per-scenario", "2", "--width", "64", 
 
 @pytest.fixture(scope="module")
 def tiny(tmp_path_factory) -> Path:
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("matrix") / "root"
@@ -353,8 +352,7 @@ def test_repair_never_follows_a_scenario_symlink_into_a_neighbour(world):
 
 
 def test_repair_refuses_a_run_json_of_another_run(world):
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from pipeline.provenance import prepare_root
     from storage import Storage
 
@@ -547,8 +545,8 @@ def test_an_isal_root_extended_keeps_isal(world, tmp_path):
 
     from roots.run_file import record_bytes
     from pipeline.episode_job import run_episode
-    from pipeline.planner import PlanConfig, make_plan
-    from pipeline.settings import RunConfig
+    from pipeline.planner import make_plan
+    from pipeline.settings import PlanConfig, RunConfig
     from pipeline.provenance import prepare_root
     from storage import Storage
     from tests.test_deflaters import ISAL_IDENTITY, _isal_pngs

@@ -104,7 +104,8 @@ def test_the_docs_condition_examples_select_what_they_say():
 
     from manifests import query as q
     from manifests.synthetic import episode_table
-    from pipeline.planner import PlanConfig, make_plan
+    from pipeline.planner import make_plan
+    from pipeline.settings import PlanConfig
 
     plan = make_plan(PlanConfig(domains="towns=T01 weathers=CN,FG,CNtoFG,HRN,SN,CNtoHRN,NT viewpoints=A",
                                 frames_per_scenario=12, width=64, height=36))

@@ -29,9 +29,9 @@ def town(renderer):
     """Four frames of a procedural town (traffic, lights and signs), and the renderer's instances."""
     spec = EpisodeSpec("T01_CN_A", 0, 5, 4, W, H, "train", 0)
     frames = []
-    scene, _ = episode.load_episode(spec, renderer)
+    scene, _ = episode.load_episode(spec.drawing, renderer)
     for index in range(spec.frames):
-        frames.append(episode.render_frame(renderer, scene, spec, index)[0])
+        frames.append(episode.render_frame(renderer, scene, spec.drawing, index)[0])
     return spec, scene, list(renderer.instances), frames
 
 

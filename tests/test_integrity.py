@@ -22,7 +22,7 @@ from manifests.schema import index_path
 from roots.verify import verify
 from pipeline.cli import app
 from pipeline.driver import produce
-from pipeline.planner import PlanConfig
+from pipeline.settings import PlanConfig
 from pipeline.provenance import RunConfigError
 from storage import Storage, StorageError
 from tests import faultkit

@@ -26,8 +26,8 @@ from roots.contract import claim_root
 from roots.run_file import RunRecordError, check_record, read_record, record_bytes
 from manifests.schema import RUN_FILE
 from roots.verify import verify
-from pipeline.planner import PlanConfig, make_plan
-from pipeline.settings import RunConfig
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig, RunConfig
 from pipeline.provenance import _fresh_record, prepare_root
 from storage import Storage
 from tests.roots import render_root

@@ -16,7 +16,8 @@ from manifests.stats import PAPER_SHARES, bar_chart_png, class_pixels, share_tab
 from manifests.synthetic import episode_rows
 from manifests.part_file import ManifestError
 from manifests.writer import part_bytes, part_table, write_part
-from pipeline.planner import PlanConfig, make_plan
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig
 from storage import Storage
 
 

@@ -308,8 +308,7 @@ def test_an_s3_exclusive_lease_is_won_by_the_writer_that_reads_itself_back(monke
 
 
 def _record(**config_changes) -> dict:
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
 
     config = RunConfig(plan=PlanConfig(domains="T01_CN_A", frames_per_scenario=3, width=64, height=36),
                        world="test").to_dict()
@@ -341,20 +340,22 @@ _DROP = object()
     ({**_record(), "layout": True}, "unknown file layout True"),
 ])
 def test_a_run_record_of_the_wrong_shape_is_refused_naming_what(record, says):
+    from pipeline.settings import CONFIG_SHAPE
     from roots.run_file import RunRecordError, check_record
 
     with pytest.raises(RunRecordError) as raised:
-        check_record(record, "root/run.json")
+        check_record(record, "root/run.json", CONFIG_SHAPE)
     assert str(raised.value).startswith("root/run.json ") and says in str(raised.value)
 
 
 def test_a_run_record_without_optional_keys_or_checksum_reads_as_an_old_root():
-    from roots.run_file import OPTIONAL_CONFIG, check_record
+    from pipeline.settings import CONFIG_SHAPE, OPTIONAL_CONFIG
+    from roots.run_file import check_record
 
     old = _record(**{key: _DROP for key in OPTIONAL_CONFIG}, scale=_DROP, frames_per_scenario=_DROP)
-    assert check_record(old, "root/run.json") is old
+    assert check_record(old, "root/run.json", CONFIG_SHAPE) is old
     with_history = {**_record(), "history": [{"seed": 1}], "layout": 2}
-    assert check_record(with_history, "root/run.json") is with_history
+    assert check_record(with_history, "root/run.json", CONFIG_SHAPE) is with_history
 
 
 def test_run_json_that_is_not_a_file_or_not_json_is_damaged(tmp_path):
@@ -385,8 +386,7 @@ REPAIR_PLAN = dict(domains="T01_CN_A", frames_per_scenario=3, width=64, height=3
 @pytest.fixture(scope="module")
 def tiny_root(tmp_path_factory):
     """One 3-frame episode at 64x36, rendered without Ray, its index written: copied by each test."""
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("tiny") / "root"
@@ -404,9 +404,7 @@ def _copy_of(tiny_root, tmp_path):
 
 
 def _produce_config(root, **plan_changes):
-    from pipeline.settings import ProduceConfig
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, ProduceConfig, RunConfig
 
     return ProduceConfig(run=RunConfig(plan=PlanConfig(**{**REPAIR_PLAN, **plan_changes}), world="test"),
                          out=str(root), workers=1)

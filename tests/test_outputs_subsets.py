@@ -37,7 +37,7 @@ def one_line_error(result) -> str:
 
 
 def plan_config(outputs):
-    from pipeline.planner import PlanConfig
+    from pipeline.settings import PlanConfig
 
     return PlanConfig(domains=DOMAINS, frames_per_scenario=2, width=64, height=36, seed=4, outputs=outputs)
 

@@ -20,8 +20,7 @@ from manifests.schema import NEW_RULES, OLD_RULES
 from roots.episode_spec import PAIRED, UNPAIRED, episode_seed
 from pipeline.cli import app
 from pipeline.cli.domain_files import root_pairing, root_rules
-from pipeline.planner import PlanConfig
-from pipeline.settings import RunConfig
+from pipeline.settings import PlanConfig, RunConfig
 from tests.roots import as_made_before, render_root
 
 runner = CliRunner()

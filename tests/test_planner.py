@@ -7,14 +7,8 @@ from hypothesis import strategies as st
 from domains.catalog import ALL_SCENARIOS, TOWNS
 from domains.selection import parse_selection
 from manifests.schema import NEW_RULES, OLD_RULES, RULES
-from pipeline.planner import (
-    PAPER_TOTAL_FRAMES,
-    PlanConfig,
-    episode_target,
-    full_scale_frames,
-    make_plan,
-    scene_places,
-)
+from pipeline.planner import episode_target, make_plan, scene_places
+from pipeline.settings import PAPER_TOTAL_FRAMES, PlanConfig, full_scale_frames
 
 
 @pytest.fixture(scope="module")

@@ -23,8 +23,8 @@ from roots.verify import verify
 from pipeline.cli import app
 from pipeline.settings import ProduceConfig
 from pipeline.driver import produce
-from pipeline.planner import PlanConfig, make_plan
-from pipeline.settings import RunConfig
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig, RunConfig
 from pipeline.provenance import RunConfigError
 from storage import Storage, StorageError
 from tests.faultkit import descendants as _descendants  # every process below a pid (Ray starts its own sessions)

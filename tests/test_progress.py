@@ -17,8 +17,7 @@ from pipeline.cli.progress import RATE_WINDOW, ProgressDisplay, RateWindow, form
 from pipeline.settings import ProduceConfig
 from pipeline.driver import Progress, produce
 from pipeline.ray_task import FrameCounter, FrameReporter
-from pipeline.planner import PlanConfig
-from pipeline.settings import RunConfig
+from pipeline.settings import PlanConfig, RunConfig
 
 FRAMES = 4  # per scenario: one episode each
 WINDOW = 3  # frames: small, so this short run shows a rate

@@ -27,8 +27,7 @@ def export(root, to, *options) -> None:
 @pytest.fixture(scope="module")
 def standin(tmp_path_factory):
     """(another root, its Cityscapes export): two domains, 3 frames each, 64x36, test world."""
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     base = tmp_path_factory.mktemp("real")

@@ -23,7 +23,8 @@ REPO = Path(__file__).resolve().parents[1]
 
 CHILD = r"""
 import hashlib, json, os, sys, time
-from pipeline.planner import PlanConfig, make_plan
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig
 from pipeline.episode_job import frame_files
 from render_workers.render.episode import render_episode
 
@@ -39,7 +40,7 @@ for spec in plan.episodes:
         for name, data in frame_files(spec, frame).items():
             digests[f"{scenario}/{frame.index}/{name}"] = hashlib.sha256(data).hexdigest()
 
-    render_episode(spec, sink, world="test")
+    render_episode(spec.drawing, sink, world="test")
 print(json.dumps({k: v for k, v in digests.items() if k.startswith(sys.argv[-1] + "/")}, sort_keys=True))
 """
 

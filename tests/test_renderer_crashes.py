@@ -12,9 +12,7 @@ import pytest
 
 from benchmarks.bench_control import standin_episode
 from pipeline.driver import CRASHES_TO_STOP, RendererCrashes, gl_settings, produce
-from pipeline.settings import ProduceConfig
-from pipeline.planner import PlanConfig
-from pipeline.settings import RunConfig
+from pipeline.settings import PlanConfig, ProduceConfig, RunConfig
 
 PLAN = PlanConfig(domains="towns=T01,T02 weathers=CN viewpoints=A,B", frames_per_scenario=2, width=64, height=36)
 

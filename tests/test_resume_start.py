@@ -10,8 +10,8 @@ import pytest
 import pipeline.driver as driver
 from manifests.reader import ManifestScan, index_files
 from manifests.synthetic import write_parts
-from pipeline.planner import PlanConfig, make_plan
-from pipeline.settings import RunConfig
+from pipeline.planner import make_plan
+from pipeline.settings import PlanConfig, RunConfig
 from pipeline.provenance import prepare_root
 from storage import Storage
 

@@ -31,8 +31,7 @@ def cli_app():
 
 
 def run_config(rgb_format: str, frames: int = 2):
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
 
     return RunConfig(plan=PlanConfig(domains=DOMAINS, frames_per_scenario=frames, width=64, height=36, seed=4,
                                      rgb_format=rgb_format), world="test")

@@ -133,9 +133,9 @@ def test_same_spec_gives_identical_pngs_with_shadows(renderer):
         frames: list = []
         if r is None:
             with Renderer() as fresh:
-                episode.render_episode(spec, frames.append, world="test", renderer=fresh)
+                episode.render_episode(spec.drawing, frames.append, world="test", renderer=fresh)
         else:
-            episode.render_episode(spec, frames.append, world="test", renderer=r)
+            episode.render_episode(spec.drawing, frames.append, world="test", renderer=r)
         runs.append([frame_files(spec, f) for f in frames])
     assert runs[0] == runs[1]
 
@@ -166,7 +166,7 @@ def test_forward_pass_patch_draws_pyrenders_pixels(code):
     """passes.install_forward_pass sets per-pass uniforms once per program; colour, classes,
     instances and depth stay byte for byte what pyrender's own forward pass draws (test world,
     actors and traffic lights included, shadows on where the weather has them)."""
-    spec = EpisodeSpec(f"T01_{code}_A", 0, 5, 1, 320, 180, "train", 0)
+    spec = EpisodeSpec(f"T01_{code}_A", 0, 5, 1, 320, 180, "train", 0).drawing
     with Renderer() as r:
         scene, _ = episode.load_episode(spec, r, world="test")
         patched = r.render(3.0)

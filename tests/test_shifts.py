@@ -104,8 +104,7 @@ def test_pipeline_and_renderers_never_import_torch():
 @pytest.fixture(scope="module")
 def shift_root(tmp_path_factory):
     """The paper's five domains, 10 frames each (one episode) at 64x36, test world."""
-    from pipeline.planner import PlanConfig
-    from pipeline.settings import RunConfig
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     root = tmp_path_factory.mktemp("shifts") / "root"

@@ -69,7 +69,7 @@ def test_a_shifting_episode_moves_monotonically():
     got = []
     with Renderer() as renderer:
         spec = EpisodeSpec("T01_CNtoNT_A", 0, 3, 4, 160, 90, "train", 0, frame_interval_s=0.5)
-        episode.render_episode(spec, got.append, world="test", renderer=renderer)
+        episode.render_episode(spec.drawing, got.append, world="test", renderer=renderer)
     suns = [f.conditions["sun_altitude_deg"] for f in got]
     luminance = [float(cv2.cvtColor(f.buffers["rgb"], cv2.COLOR_RGB2GRAY).mean()) for f in got]
     print("CNtoNT sun altitude", [round(s, 1) for s in suns], "mean luminance", [round(v, 1) for v in luminance])
@@ -87,8 +87,8 @@ def test_extending_a_shifting_episode_renders_it_again_whole_and_says_so(tmp_pat
     from manifests.reader import read_manifest
     from pipeline.cli.progress import format_produce_report
     from pipeline.driver import ProduceReport, pending_episodes, reshifted_episodes
-    from pipeline.planner import PlanConfig, make_plan
-    from pipeline.settings import RunConfig
+    from pipeline.planner import make_plan
+    from pipeline.settings import PlanConfig, RunConfig
     from tests.roots import render_root
 
     small = RunConfig(plan=PlanConfig(domains="T01_CNtoNT_A,T01_CN_A", frames_per_scenario=2, width=32, height=32,

@@ -34,7 +34,7 @@ def frames():
         for code in ("CN", "FG", "FG2", "NT", "SN"):
             got = []
             spec = EpisodeSpec(f"T01_{code}_A", 0, 3, 2, W, H, "train", 0, catalog=layer)
-            episode.render_episode(spec, got.append, world="test", renderer=renderer)
+            episode.render_episode(spec.drawing, got.append, world="test", renderer=renderer)
             out[code] = got[-1]
     return out
 

@@ -29,8 +29,8 @@ from outputs.table import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import read_manifest, require_outputs, scan_manifest
 from pipeline.driver import HeadLost, ProduceInterrupted, RendererCrashes, StorageOutage, produce as run_produce
 from pipeline.plan_file import write_plan
-from pipeline.planner import PlanConfig, make_plan
-from pipeline.settings import ProduceConfig, RunConfig
+from pipeline.planner import make_plan
+from pipeline.settings import CONFIG_SHAPE, PlanConfig, ProduceConfig, RunConfig
 from pipeline.status import format_duration, root_status
 from pipeline.verify_ray import choose_runner
 from render_workers.worlds.registry import check_world
@@ -254,7 +254,8 @@ def verify(
         runner = choose_runner(address=address, workers=workers, use_ray=use_ray)
         display = VerifyDisplay()
         try:
-            report = run_verify(storage, threads=threads, progress=display.update, scope=scope, runner=runner)
+            report = run_verify(storage, threads=threads, progress=display.update, scope=scope, runner=runner,
+                                shape=CONFIG_SHAPE)
         finally:
             display.close()
         for p in report.problems[:50]:

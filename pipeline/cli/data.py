@@ -27,6 +27,7 @@ from pipeline.cli.common import (
     build_query, count, of_held, output_root, user_errors, write_local,
 )
 from pipeline.cli.domain_files import CatalogFile, root_catalog
+from pipeline.settings import CONFIG_SHAPE
 
 Real = Annotated[Optional[Path], typer.Option(
     "--real", help="A real dataset folder in Cityscapes layout (leftImg8bit/, gtFine/ labelIds for shifts): "
@@ -152,7 +153,7 @@ def card(
     Exits 1 when the root fails verification (the card says so too)."""
     with user_errors(), using(root_catalog(root, None)):  # the root's declared domains: its scenarios
         output_root(root)
-        result = write_card(CardConfig(root=root, contact_sheet=contact_sheet, verify=check))
+        result = write_card(CardConfig(root=root, contact_sheet=contact_sheet, verify=check, shape=CONFIG_SHAPE))
         typer.echo(f"wrote {result.card} ({of_held(result.frames, result.frames)}) and {result.chart}")
         if result.problems:
             found = ", ".join(f"{n} {kind}" for kind, n in sorted(result.problems.items()))

@@ -17,7 +17,7 @@ import typer
 from domains.catalog import BUILTIN, catalog_for
 from domains.catalog_file import CatalogError, catalog_toml, with_file
 from pipeline.cli.common import user_errors
-from pipeline.planner import RECORDED_DEFAULTS, PlanConfig
+from pipeline.settings import CONFIG_SHAPE, RECORDED_DEFAULTS, PlanConfig
 from render_workers.worlds.styles import STYLE_BY_NAME
 from roots.run_file import RunRecordError, read_record
 from storage import Storage, StorageError
@@ -50,7 +50,7 @@ def recorded_layer(root: str) -> dict | None:
     """The user domain entries a root's run.json records; None where it has no (readable) record:
     the command itself then reports what is wrong with the root."""
     try:
-        record = read_record(Storage.from_uri(root))
+        record = read_record(Storage.from_uri(root), CONFIG_SHAPE)
     except (RunRecordError, StorageError, OSError, ValueError):
         return None
     return (record or {}).get("config", {}).get("catalog")
@@ -62,7 +62,7 @@ def root_recorded(root: str, key: str):
     (PlanConfig's default) where it has no record, or one that cannot be read (the command then reports
     what is wrong with it)."""
     try:
-        record = read_record(Storage.from_uri(root))
+        record = read_record(Storage.from_uri(root), CONFIG_SHAPE)
     except (RunRecordError, StorageError, OSError, ValueError):
         record = None
     return getattr(PlanConfig(), key) if record is None else record["config"].get(key, RECORDED_DEFAULTS[key])

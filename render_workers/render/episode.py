@@ -35,8 +35,8 @@ from domains.conditions import frame_conditions
 from outputs.geometry import CV_FROM_GL, normals_from_depth, pose_cells
 from outputs.objects import object_counts
 from manifests.schema import NEW_RULES
-from roots.episode_spec import EpisodeSpec
-from roots.episode_spec import town_seed
+from outputs.table import BUFFERS
+from roots.episode_spec import DrawSpec, check_frame_interval, check_rules, town_seed
 from render_workers.render import postfx
 from render_workers.worlds import testworld, traffic, worldcache, world as procedural_world
 from render_workers.render.camera import measured_hood_fraction
@@ -110,7 +110,7 @@ class EpisodeInfo:
     timings: dict = field(default_factory=dict)  # stage -> total seconds over the episode
 
 
-def validate_spec(spec: EpisodeSpec) -> None:
+def validate_spec(spec: DrawSpec) -> None:
     """Raise ValueError for a spec no frame could be rendered from."""
     lookup_scenario(spec.scenario)
     if spec.frames < 1:
@@ -119,10 +119,13 @@ def validate_spec(spec: EpisodeSpec) -> None:
         raise ValueError(f"{spec.key}: image size must be positive, got {spec.width}x{spec.height}")
     if spec.seed < 0 or spec.run_seed < 0:
         raise ValueError(f"{spec.key}: seeds must be non-negative")
-    spec.check_outputs()
+    if unknown := sorted(set(spec.buffers) - set(BUFFERS)):
+        raise ValueError(f"{spec.key}: unknown buffers {', '.join(unknown)}; valid buffers: {', '.join(BUFFERS)}")
+    check_frame_interval(spec.frame_interval_s)
+    check_rules(spec.rules)
 
 
-def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WORLD) -> tuple[EpisodeScene, dict]:
+def load_episode(spec: DrawSpec, renderer: Renderer, world: str = DEFAULT_WORLD) -> tuple[EpisodeScene, dict]:
     """Build/reuse the world, populate it and load it into ``renderer``; returns scene and timings.
 
     The spec's user domain entries (``spec.catalog``) are in force meanwhile:
@@ -131,7 +134,7 @@ def load_episode(spec: EpisodeSpec, renderer: Renderer, world: str = DEFAULT_WOR
         return _load_episode(spec, renderer, world)
 
 
-def _load_episode(spec: EpisodeSpec, renderer: Renderer, world: str) -> tuple[EpisodeScene, dict]:
+def _load_episode(spec: DrawSpec, renderer: Renderer, world: str) -> tuple[EpisodeScene, dict]:
     validate_spec(spec)
     scen = lookup_scenario(spec.scenario)
     timings = {}
@@ -147,21 +150,21 @@ def _load_episode(spec: EpisodeSpec, renderer: Renderer, world: str) -> tuple[Ep
     return scene, timings
 
 
-def frame_weathers(spec: EpisodeSpec) -> list:
+def frame_weathers(spec: DrawSpec) -> list:
     """The weather each frame of ``spec`` is rendered under: its scenario's, or a shift's at that frame."""
     with using(spec.catalog):
         row = lookup_scenario(spec.scenario).weather
         return [weather_at(row, i, spec.frames, lookup_weather, spec.rules < NEW_RULES) for i in range(spec.frames)]
 
 
-def render_frame(renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec, index: int) -> tuple[Frame, dict]:
+def render_frame(renderer: Renderer, scene: EpisodeScene, spec: DrawSpec, index: int) -> tuple[Frame, dict]:
     """Render frame ``index`` of a loaded episode; returns the frame and its stage timings."""
     result = renderer.render(spec.frame_time(index), frame_weathers(spec)[index])
     frame, timings = finish_frame(result, renderer, scene, spec, index)
     return frame, {**result.timings, **timings}
 
 
-def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, spec: EpisodeSpec,
+def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, spec: DrawSpec,
                  index: int) -> tuple[Frame, dict]:
     """Frame ``index`` from its rendered buffers: post effects, the objects table (when asked), counts.
 
@@ -207,7 +210,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
 
 
 def _finish_and_sink(sink: Callable[[Frame], None], result: RenderResult, renderer: Renderer, scene: EpisodeScene,
-                     spec: EpisodeSpec, index: int) -> dict:
+                     spec: DrawSpec, index: int) -> dict:
     """The back half of a frame, on the sink thread: finish it, then hand it to ``sink``; returns its timings."""
     frame, timings = finish_frame(result, renderer, scene, spec, index)
     start = time.perf_counter()
@@ -216,7 +219,7 @@ def _finish_and_sink(sink: Callable[[Frame], None], result: RenderResult, render
     return timings
 
 
-def render_episode(spec: EpisodeSpec, sink: Callable[[Frame], None], *, world: str = DEFAULT_WORLD,
+def render_episode(spec: DrawSpec, sink: Callable[[Frame], None], *, world: str = DEFAULT_WORLD,
                    renderer: Renderer | None = None) -> EpisodeInfo:
     """Render every frame of ``spec`` and pass each to ``sink``; returns counts and timings.
 

@@ -88,7 +88,7 @@ def render_first_frame(code: str, width: int, height: int, seed: int, world: str
                        width=width, height=height, split="train", run_seed=seed, outputs=SEED_OUTPUTS,
                        catalog=active().layer_json())  # a --catalog file's entries
     frames: list[Frame] = []
-    render_episode(spec, frames.append, world=world, renderer=renderer)
+    render_episode(spec.drawing, frames.append, world=world, renderer=renderer)
     return frames[0]
 
 
