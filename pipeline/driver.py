@@ -476,7 +476,6 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         watch = None if local else _NodeWatch(ray, address=_address(config))
         queue, in_flight, given_up = deque(todo), {}, []
         frames_total, episodes_total = sum(e.frames for e in todo), len(todo)
-        gate = None
         if late is not None:
             gate = ray.remote(ChecksGate).options(num_cpus=0).remote()
             gated = GatedFence.of(fence, gate.wait.remote())
@@ -501,9 +500,12 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                 try:
                     more = late.result()
                 except BaseException:
-                    gate.open.remote(False)
-                    for other in in_flight:
+                    for other in in_flight:  # at the gate, or rendering towards it: nothing of theirs is committed
                         ray.cancel(other, force=True)
+                    try:
+                        gate.open.remote(False)  # and any that outlive their cancel commit nothing either
+                    except Exception as exc:  # Ray going down: so are they
+                        log.debug("could not close the checks' gate: %s", exc)
                     raise
                 gate.open.remote(True)
                 queue.extend(more)
