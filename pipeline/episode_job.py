@@ -25,7 +25,6 @@ from manifests.schema import STATS_DIR, frame_id, part_path, part_stem
 from manifests.schema import NEW_RULES
 from pipeline.planner import make_plan
 from pipeline.provenance import for_root, prepare_root
-from pipeline.ray_task import GatedFence
 from render_workers.render.episode import render_episode
 from roots.contract import claim_root
 from roots.episode_spec import EpisodeSpec
@@ -195,10 +194,12 @@ def commit_part(storage, spec: EpisodeSpec, rows: list[dict], fence=None) -> Non
 
     The second check closes the window between the first and the write: a
     part written after a takeover is deleted again (the episode stays pending;
-    whoever renders it next writes the same bytes). A ``GatedFence`` first waits for the
-    driver's checks of the root, which run beside the first episodes of a resume."""
-    if isinstance(fence, GatedFence):
-        fence.wait_for_checks()
+    whoever renders it next writes the same bytes). A ``pipeline.ray_task.GatedFence`` first
+    waits for the driver's checks of the root, which run beside the first episodes of a resume
+    (asked by its method: ray_task imports this module, not the other way)."""
+    wait_for_checks = getattr(fence, "wait_for_checks", None)
+    if wait_for_checks is not None:
+        wait_for_checks()
     check_fence(storage, fence)
     rel = write_part(storage, spec.scenario, spec.episode, rows)  # last: the "done" marker
     try:
