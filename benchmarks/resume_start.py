@@ -1,10 +1,12 @@
 """When a resume starts rendering: ``python -m benchmarks.resume_start ROOT``.
 
-Deletes ROOT's ``_index/`` (a root without indexes), then runs ``produce()`` of the full plan on
+Deletes ROOT's ``_index/`` (a root without indexes; ``PROBE_KEEP_INDEX=1`` keeps it), then runs ``produce()`` of the full plan on
 it with a stand-in episode function that only notes when it starts, and stops the run as soon as
 one has. Prints JSON: seconds from the call to the end of each step before the first episode
 (listing, footers and the misfiled check, run.json checks, the in-the-way check, Ray attached,
-the first progress report, the first episode's start). ``PROBE_NO_RAY=1`` stops before Ray.
+the first progress report, which comes just before the first episode is submitted, the first
+episode's start; on a root without indexes, this tree reads the footers beside it:
+``summaries_and_misfiled_done`` may then come after it). ``PROBE_NO_RAY=1`` stops before Ray.
 ROOT: e.g. ``benchmarks.bench_control_root``'s synthetic full-scale root with a few parts removed
 (docs/bench_control_root.md).
 """
@@ -34,7 +36,8 @@ def main(root: str) -> None:
     import pipeline.driver as driver
     from pipeline.planner import PlanConfig
     from pipeline.settings import RunConfig
-    shutil.rmtree(os.path.join(root, "_index"), ignore_errors=True)
+    if not os.environ.get("PROBE_KEEP_INDEX"):
+        shutil.rmtree(os.path.join(root, "_index"), ignore_errors=True)
     mark = os.environ["PROBE_MARK"] = os.path.join(tempfile.gettempdir(), f"idda-resume-start.{os.getpid()}")
     marks = {}
     t0 = time.perf_counter()

@@ -22,12 +22,12 @@ from typing import Callable
 from domains.catalog import using, weather
 from manifests.layout import record_layout
 from manifests.reader import compact, episode_frames, refuse_misfiled, scan
-from manifests.schema import STATS_DIR
+from manifests.schema import STATS_DIR, named_rows
 from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
 from pipeline.cluster import _host_port
 from pipeline.planner import make_plan
-from pipeline.provenance import RunConfigError, for_root, prepare_root, read_run
-from pipeline.ray_task import Fatal, FrameCounter, episode_task
+from pipeline.provenance import RunConfigError, check_rows, for_root, prepare_root, read_run, recorded_as_asked
+from pipeline.ray_task import ChecksGate, Fatal, FrameCounter, GatedFence, episode_task
 from pipeline.repair import check_no_repair_running, refuse_in_the_way, repair_alone
 from pipeline.settings import ProduceConfig
 from roots.contract import claim_root
@@ -371,10 +371,88 @@ def _collect(ray, ref, in_flight: dict, report: ProduceReport, max_retries: int)
     row["seconds"] += result.seconds
 
 
+# A resume with at least this many parts outside a current index (a root made before indexes, or
+# whose _index/ was deleted: 14,355 at full scale) renders first the episodes the listing alone shows
+# pending, and reads the parts' footers beside them (below this, their footers take under a second).
+LATE_CHECK_PARTS = 2000
+LATE_POLL_S = 0.5  # while those checks run, the driver looks whether they are done this often
+
+
+class _LateChecks:
+    """The checks of a resume that need every part's footer, run on a thread beside its first
+    episodes: misfiled parts, the rows' seeds, resolutions and rgb formats (``check_rows``), and
+    the rows each part holds. ``first``, the episodes rendered meanwhile, have no part at all, so
+    the listing alone shows them pending and no frame of a done episode is written before the
+    checks pass; their part commits wait for the checks (``pipeline.ray_task.ChecksGate``), so a
+    root the checks refuse gets no part from this run."""
+
+    def __init__(self, storage, state, config: ProduceConfig, plan, record: dict, first: list,
+                 report: ProduceReport) -> None:
+        self.storage, self.state, self.config, self.plan = storage, state, config, plan
+        self.record, self.first, self.report = record, first, report
+        self._more: list | None = None
+        self._error: BaseException | None = None
+        self._thread = threading.Thread(target=self._run, name="root-checks", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def finished(self, timeout: float = 0.0) -> bool:
+        """Whether the checks are done (waiting at most ``timeout``)."""
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    def result(self) -> list:
+        """The further episodes to render (pending by the rows their parts hold: a part shorter
+        than planned, or unreadable), in the root's layout; raises what a check refused."""
+        if self._error is not None:
+            raise self._error
+        return self._more
+
+    def _run(self) -> None:
+        try:
+            summaries = self.state.summaries(self.storage)  # O(parts): footers, or the indexes where current
+            refuse_misfiled(self.storage, summaries)
+            check_rows(self.storage, self.config.run, summaries)
+            held = episode_frames(self.storage, summaries)
+            todo = pending_episodes(self.plan, held)
+            first = {spec.key for spec in self.first}
+            more = for_root([spec for spec in todo if spec.key not in first], self.record)
+            refuse_in_the_way(self.storage, more, record_layout(self.record), "nothing more rendered", parts_only=True)
+            self.report.reshifted = reshifted_episodes(todo, held)
+            self.report.skipped_episodes -= len(more)
+            self._more = more
+        except BaseException as exc:  # raised in the driver's loop, which stops the run
+            self._error = exc
+
+
+def _late_checks(config: ProduceConfig, plan, storage, state, report: ProduceReport,
+                 fence) -> _LateChecks | None:
+    """The checks to run beside the first episodes when that pays and is safe: a root with
+    LATE_CHECK_PARTS parts or more outside a current index, each under a name that counts its
+    rows, whose run.json records exactly this run (nothing to write before rendering), and
+    with episodes that have no part yet. None: check everything first, as usual."""
+    if config.repair or fence is None:
+        return None
+    unindexed = [rel for scenario, episodes in state.parts.items() if scenario not in state.current
+                 for rel, _ in episodes.values()]
+    if len(unindexed) < LATE_CHECK_PARTS or any(named_rows(rel) is None for rel in unindexed):
+        return None
+    record = recorded_as_asked(storage, config.run)
+    if record is None:
+        return None
+    first = [spec for spec in plan.episodes if spec.episode not in state.parts.get(spec.scenario, {})]
+    if not first:
+        return None
+    return _LateChecks(storage, state, config, plan, record, for_root(first, record), report)
+
+
 def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
                    progress: Callable[[Progress], None] | None, start: float, episode_fn=None,
-                   fence=None) -> None:
-    """Run one task per pending episode, at most ``limit`` in flight; fills ``report``."""
+                   fence=None, late: _LateChecks | None = None) -> None:
+    """Run one task per pending episode, at most ``limit`` in flight; fills ``report``.
+    ``late``: the root's checks still to run (started here, once Ray is up); until they pass, the
+    tasks' part commits wait (``ChecksGate``), and the episodes they find pending join the queue."""
     ray = _import_ray()
     started = not ray.is_initialized()
     reaper = None
@@ -397,7 +475,11 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         live = _LiveFrames(ray, counter)
         watch = None if local else _NodeWatch(ray, address=_address(config))
         queue, in_flight, given_up = deque(todo), {}, []
-        frames_total = sum(e.frames for e in todo)
+        frames_total, episodes_total = sum(e.frames for e in todo), len(todo)
+        if late is not None:
+            gate = ray.remote(ChecksGate).options(num_cpus=0).remote()
+            gated = GatedFence.of(fence, gate.wait.remote())
+            late.start()
 
         def report_progress() -> None:
             if progress is not None:
@@ -406,24 +488,44 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                         frames_done=live.frames(report.rendered_frames, in_flight.values()),
                         frames_total=frames_total,
                         episodes_done=report.rendered_episodes,
-                        episodes_total=len(todo),
+                        episodes_total=episodes_total,
                         failed=len(report.failed),
                         elapsed_s=time.perf_counter() - start,
                     )
                 )
 
         report_progress()  # at once: the display starts with the work, not after an episode
-        while queue or in_flight:
+        while queue or in_flight or late is not None:
+            if late is not None and late.finished():
+                try:
+                    more = late.result()
+                except BaseException:
+                    for other in in_flight:  # at the gate, or rendering towards it: nothing of theirs is committed
+                        ray.cancel(other, force=True)
+                    try:
+                        gate.open.remote(False)  # and any that outlive their cancel commit nothing either
+                    except Exception as exc:  # Ray going down: so are they
+                        log.debug("could not close the checks' gate: %s", exc)
+                    raise
+                gate.open.remote(True)
+                queue.extend(more)
+                frames_total, episodes_total = frames_total + sum(e.frames for e in more), episodes_total + len(more)
+                late = None
             while queue and len(in_flight) < limit:
                 spec = queue.popleft()
                 ref = task.remote(spec, storage_ref, config.run.world, counter, lp_threads,
-                                  config.progress_interval_s, episode_fn, fence)
+                                  config.progress_interval_s, episode_fn, fence if late is None else gated)
                 in_flight[ref] = spec
+            if late is not None and not in_flight:  # the first episodes failed: wait for the checks
+                late.finished(LATE_POLL_S)
+                continue
             live.ask([spec.key for spec in in_flight.values()])
             watched = [live.watch] if live.watch is not None else []
             timeout = live.wait_s()
             if watch is not None:  # a hung node's tasks never finish: look at the nodes every NODE_POLL_S
                 timeout = NODE_POLL_S if timeout is None else min(timeout, NODE_POLL_S)
+            if late is not None:  # the checks' end opens the gate
+                timeout = LATE_POLL_S if timeout is None else min(timeout, LATE_POLL_S)
             ready, _ = ray.wait(list(in_flight) + watched, num_returns=1, timeout=timeout)
             if live.watch is not None and live.watch in ready:
                 ready = [ref for ref in ready if ref != live.watch]
@@ -548,6 +650,22 @@ def _cluster_first(config: ProduceConfig):
             ray.shutdown()
 
 
+def _checked_todo(storage, config: ProduceConfig, plan, state, report: ProduceReport) -> tuple[list, dict]:
+    """The pending episodes in the root's layout, and the run record, once every check of the
+    root passed: misfiled parts, run.json, the rows' seeds and resolutions (from the parts'
+    summaries: footers, or the indexes where current)."""
+    summaries = state.summaries(storage)  # O(parts): footers, or the indexes where current
+    refuse_misfiled(storage, summaries)  # a swapped part is damage, never "done"
+    held = episode_frames(storage, summaries)
+    todo = pending_episodes(plan, held)
+    report.reshifted = reshifted_episodes(todo, held)
+    if not config.repair:
+        record = prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
+    else:
+        record = read_run(storage)  # repair_alone prepared it
+    return for_root(todo, record), record  # the root's layout, PNG deflater and scenes' splits
+
+
 def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
              episode_fn: Callable | None) -> ProduceReport:
     plan = make_plan(config.run.plan)
@@ -571,27 +689,20 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
     try:
         check_no_repair_running(storage)
         state = scan(storage)
-        summaries = state.summaries(storage)  # O(parts): footers, or the indexes where current
-        refuse_misfiled(storage, summaries)  # a swapped part is damage, never "done"
-        held = episode_frames(storage, summaries)
-        todo = pending_episodes(plan, held)
-        report.reshifted = reshifted_episodes(todo, held)
-        if not config.repair:
-            record = prepare_root(storage, config.run, extend=config.extend, summaries=summaries)
-        else:
-            record = read_run(storage)  # repair_alone prepared it
-        todo = for_root(todo, record)  # the root's layout, PNG deflater and scenes' splits
+        # a big root without indexes: its footers are read beside the episodes the listing shows pending
+        late = _late_checks(config, plan, storage, state, report, producer.fence)
+        todo, record = (late.first, late.record) if late else _checked_todo(storage, config, plan, state, report)
         # a folder where a part goes fails every write of it: said before any rendering (frame files in the
         # way stop the run at their first write, in one line too)
         refuse_in_the_way(storage, todo, record_layout(record), "nothing rendered", parts_only=True)
-        del summaries
         state = None if todo else state  # nothing to render: the final fold needs no second scan
         report.skipped_episodes = len(plan.episodes) - len(todo)
         start = time.perf_counter()
         try:
             if todo:
                 with _folding(storage, producer, config.index_every_s):
-                    _render_on_ray(config, storage, todo, report, progress, start, episode_fn, fence=producer.fence)
+                    _render_on_ray(config, storage, todo, report, progress, start, episode_fn, fence=producer.fence,
+                                   late=late)
         except KeyboardInterrupt:
             raise ProduceInterrupted(report) from None
         _fold_indexes(storage, producer, state)  # also scenarios an earlier (killed) run finished

@@ -195,7 +195,12 @@ def commit_part(storage, spec: EpisodeSpec, rows: list[dict], fence=None) -> Non
 
     The second check closes the window between the first and the write: a
     part written after a takeover is deleted again (the episode stays pending;
-    whoever renders it next writes the same bytes)."""
+    whoever renders it next writes the same bytes). A ``pipeline.ray_task.GatedFence`` first
+    waits for the driver's checks of the root, which run beside the first episodes of a resume
+    (asked by its method: ray_task imports this module, not the other way)."""
+    wait_for_checks = getattr(fence, "wait_for_checks", None)
+    if wait_for_checks is not None:
+        wait_for_checks()
     check_fence(storage, fence)
     rel = write_part(storage, spec.scenario, spec.episode, rows)  # last: the "done" marker
     try:

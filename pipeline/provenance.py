@@ -292,6 +292,22 @@ def check_before_repair(storage, config: RunConfig, extend: bool = False) -> Non
         )
 
 
+def recorded_as_asked(storage, config: RunConfig) -> dict | None:
+    """The root's record when its run.json records exactly ``config`` with an encoder this run
+    may write: then ``prepare_root`` writes nothing and only checks the rows (``check_rows``),
+    which a resume may do beside its first episodes. None otherwise (prepare_root decides)."""
+    try:
+        record = read_record(storage)
+    except RunRecordError:
+        return None
+    if record is None or _with_outputs(record["config"]) != config.to_dict():
+        return None
+    theirs, rgb_format = record.get("encoder", UNRECORDED_ENCODER), config.plan.rgb_format
+    if theirs != encoder_identity(rgb_format) and not (_same_encoder(theirs, rgb_format) and done_episodes(storage)):
+        return None
+    return record
+
+
 def prepare_root(storage, config: RunConfig, extend: bool = False, repair: bool = False,
                  summaries: dict | None = None) -> dict:
     """Record the run in ``run.json``, or check it matches the recorded one.

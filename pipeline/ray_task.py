@@ -135,3 +135,52 @@ class FrameCounter:
             except asyncio.TimeoutError:
                 pass
         return self._version, dict(self._done), dict(self._nodes)
+
+
+class ChecksGate:
+    """Ray actor that holds back the part commits of the first episodes of a resume while the
+    driver still checks the root's parts (their footers: misfiled parts, seeds, resolutions),
+    so a root the checks refuse gets no part from this run. ``wait`` answers once ``open`` was
+    called: True if the checks passed. Its answer is one object every waiting task reads, and
+    outlives the actor once given."""
+
+    def __init__(self) -> None:
+        import asyncio
+
+        self._opened = asyncio.Event()
+        self._passed = False
+
+    async def wait(self) -> bool:
+        await self._opened.wait()
+        return self._passed
+
+    async def open(self, passed: bool) -> None:
+        self._passed = passed
+        self._opened.set()
+
+
+@dataclass(frozen=True)
+class GatedFence:
+    """The producer's lease, as ``roots.lease.Fence`` (its fields, so ``check_fence`` takes it;
+    not a subclass, which would load the storage code into the progress actor), and in ``gate``
+    the answer of ``ChecksGate.wait`` (an ObjectRef): a part is committed only once the
+    driver's checks of the root passed (``pipeline.episode_job.commit_part``)."""
+
+    rel: str
+    owner: str
+    generation: int
+    gate: object
+
+    @classmethod
+    def of(cls, fence, gate) -> "GatedFence":
+        return cls(fence.rel, fence.owner, fence.generation, gate)
+
+    def wait_for_checks(self) -> None:
+        """Block until the driver's checks of the root are done; a fatal StorageError if they
+        refused it (nothing is committed: the driver says why)."""
+        import ray
+
+        from storage import StorageError
+
+        if not ray.get(self.gate):
+            raise StorageError("the root's checks refused it; nothing committed", fatal=True)

@@ -337,3 +337,28 @@ def test_shrink_guard_refuses_even_one_frame_fewer(held, pending):
             pending_episodes(plan, frames)
     else:
         assert pending_episodes(plan, frames) == ([spec] if pending else [])
+
+
+def test_a_resume_checking_its_footers_beside_its_first_episodes_gives_the_same_bytes(ray_local, reference, tmp_path,
+                                                                                    monkeypatch):
+    """Issue 35 item 5: a root without indexes, two episodes' parts and frames removed, resumed with
+    its footer checks beside the first episodes (driver.LATE_CHECK_PARTS lowered to 1): the same
+    files as a run in one go, its indexes included, and verify passes."""
+    import pipeline.driver as driver
+    from manifests.reader import part_files
+
+    out = tmp_path / "late"
+    shutil.copytree(reference, out)
+    shutil.rmtree(out / "_index")
+    for scenario in ("T01_CN_A", "T07_HRN_A"):
+        (out / part_files(Storage.from_uri(str(out)))[scenario][0]).unlink()
+        shutil.rmtree(out / scenario)
+    late = []
+    real = driver._late_checks
+    monkeypatch.setattr(driver, "_late_checks", lambda *a, **k: late.append(real(*a, **k)) or late[-1])
+    monkeypatch.setattr(driver, "LATE_CHECK_PARTS", 1)
+    report = produce(config(out))
+    assert late and late[0] is not None and [s.key for s in late[0].first] == ["T01_CN_A/e0000", "T07_HRN_A/e0000"]
+    assert report.ok and report.rendered_episodes == 2 and report.skipped_episodes == 2
+    assert tree_digest(out) == tree_digest(reference)
+    assert verify(str(out)).ok
