@@ -19,6 +19,7 @@ from dataclasses import asdict, dataclass, field
 from domains.catalog import TOWN_BY_CODE, TOWNS, WEATHERS, VIEWPOINTS, Town, catalog_for, using
 from outputs.encoding import check_rgb_format
 from outputs.table import DEFAULT_OUTPUTS, check_outputs
+from domains.rigs import DEFAULT_RIG, rig_named
 from domains.selection import parse_selection
 from roots.episode_spec import (
     FRAME_PERIOD_S,
@@ -84,7 +85,7 @@ def split_episodes(frames: int, target: int) -> list[int]:
 
 
 # What a recorded config (run.json, a plan file) that lacks a key meant when it was written.
-RECORDED_DEFAULTS = {"pairing": UNPAIRED, "rules": OLD_RULES}
+RECORDED_DEFAULTS = {"pairing": UNPAIRED, "rules": OLD_RULES, "rig": DEFAULT_RIG}
 
 
 @dataclass(frozen=True)
@@ -107,6 +108,7 @@ class PlanConfig:
     # manifests.schema.NEW_RULES (new roots): splits per scene, ...; OLD_RULES is what a config recorded
     # before them means (RECORDED_DEFAULTS)
     rules: int = NEW_RULES
+    rig: str = DEFAULT_RIG  # the sensor rig every frame is seen by (domains.rigs: a built-in rig's name)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
@@ -114,6 +116,7 @@ class PlanConfig:
             object.__setattr__(self, "catalog", json.dumps(self.catalog, separators=(",", ":")) if self.catalog else "")
 
     def validate(self) -> None:
+        rig_named(self.rig)
         if self.scale is not None and self.frames_per_scenario is not None:
             raise ValueError("give either --scale or --frames-per-scenario, not both")
         if self.scale is not None and not (0.0 < self.scale <= 1.0):
@@ -228,6 +231,7 @@ def make_plan(config: PlanConfig) -> Plan:
 def _plan(config: PlanConfig) -> Plan:
     episodes: list[EpisodeSpec] = []
     scenes = scene_places([config.domains]) if config.rules >= NEW_RULES else None  # a new root's
+    rig = rig_named(config.rig)
     for place, scenario in enumerate(parse_selection(config.domains)):
         lengths = split_episodes(scenario_frames(config, scenario.town), episode_target(scenario.town))
         for index, frames in enumerate(lengths):
@@ -246,6 +250,7 @@ def _plan(config: PlanConfig) -> Plan:
                     catalog=config.catalog,
                     frame_interval_s=float(config.frame_interval_s),
                     rules=config.rules,
+                    rig="" if rig.is_default else rig.as_json(),
                 )
             )
     return Plan(config=config, episodes=tuple(episodes))

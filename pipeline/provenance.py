@@ -39,7 +39,8 @@ from storage import StorageError
 
 
 # Changing these would make new frames inconsistent with the ones on disk.
-FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s", "pairing", "rules")
+FRAME_DEFINING = ("seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s", "pairing", "rules",
+                  "rig")
 _PACKAGES = ("idda-pipeline", "numpy", "pyrender", "PyOpenGL", "trimesh", "ray", "pyarrow", "opencv-python-headless")
 
 

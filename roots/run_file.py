@@ -31,9 +31,10 @@ CONFIG_TYPES: dict[str, tuple[type, ...]] = {
     "frame_interval_s": (float, int),  # absent in roots from before --frame-interval: 3.0
     "pairing": (int,),  # 1: episode seeds leave the weather out (roots.episode_spec); absent in roots from before: 0
     "rules": (int,),  # 1: the rules of roots.episode_spec (splits per scene, ...); absent in roots from before: 0
+    "rig": (str,),  # the sensor rig (domains.rigs); absent in roots from before rigs: front
 }
 # keys older records (and built-in runs, for the catalog) lack
-OPTIONAL_CONFIG = ("world", "outputs", "rgb_format", "catalog", "frame_interval_s", "pairing", "rules")
+OPTIONAL_CONFIG = ("world", "outputs", "rgb_format", "catalog", "frame_interval_s", "pairing", "rules", "rig")
 
 
 REPAIR_HINT = "`idda produce --repair` with the run's options rewrites it"  # said with every RunRecordError
