@@ -176,11 +176,23 @@ def builtin_rigs() -> dict[str, Rig]:
 
 
 def rig_named(name: str, declared: dict[str, Rig] | None = None) -> Rig:
-    """The rig called ``name`` among the built-in ones and ``declared``; RigError listing the valid names."""
+    """The rig called ``name`` among the built-in ones and ``declared`` (a domain file's); or the rig
+    whose JSON ``name`` is (a declared rig as run.json records it). RigError listing the valid names."""
+    if name.startswith("{"):
+        return rig_from_json(name)
     known = {**builtin_rigs(), **(declared or {})}
     if name not in known:
         raise RigError(f"unknown rig {name!r}; valid rigs: {', '.join(known)}")
     return known[name]
+
+
+def run_rig(name: str, file_text: str | None = None, source: str = "") -> str:
+    """What a run records as its rig (``PlanConfig.rig``): a built-in rig's name, or a domain file's
+    declared rig as JSON (resume, verify and workers need no file)."""
+    declared = rigs_from_text(file_text, source) if file_text else {}
+    if name in builtin_rigs() and name not in declared:
+        return name
+    return rig_named(name, declared).as_json()
 
 
 def rig_from_json(text: str) -> Rig:

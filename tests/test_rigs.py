@@ -262,3 +262,27 @@ def test_lidar_points_land_on_the_front_camera_pixels_of_their_depth_and_class(t
     # the ranges stay inside the sensor's limit, and the instance ids ride in the high 16 bits
     assert np.linalg.norm(points[:, :3], axis=1).max() <= 120.0 + 1e-3
     assert set(np.unique(labels >> 16)) <= set(range(2**16))
+
+
+def test_a_domain_file_declares_a_rig_that_travels_in_run_json(tmp_path):
+    """A [[rig]] of a --catalog file: recorded whole in run.json, so resume, verify and workers need no file."""
+    from domains.catalog import BUILTIN
+    from domains.catalog_file import CatalogError, with_file
+    from domains.rigs import run_rig
+    from roots.run_file import read_record
+    from storage import Storage
+
+    text = ('[[rig]]\nname = "rear"\nsensor = [{ name = "back", kind = "camera", yaw = 180.0, hfov_deg = 60.0 }]\n'
+            '[[weather]]\ncode = "FG1"\nlike = "CN"\n')
+    assert with_file(BUILTIN, text, "f.toml").weathers[-1].code == "FG1"  # the domain tables still load
+    with pytest.raises(CatalogError, match="valid tables: .*\\[\\[rig\\]\\]"):
+        with_file(BUILTIN, "[[bogus]]\n", "f.toml")
+    assert run_rig("stereo", text, "f.toml") == "stereo"
+    recorded = run_rig("rear", text, "f.toml")
+    assert json.loads(recorded)["name"] == "rear"
+    root = tmp_path / "rear"
+    render_root(root, RunConfig(plan=_plan(recorded, width=64, height=36), world="test"))
+    (row,) = _rows(root)
+    assert row["sensor"] == "back" and row["rgb_path"].startswith("T01_CN_A/e0000/back/rgb/")
+    assert as_matrix(row["K"], 3)[0, 0] == pytest.approx(32 / math.tan(math.radians(30)))
+    assert read_record(Storage.from_uri(str(root)))["config"]["rig"] == recorded

@@ -15,7 +15,7 @@ from domains.selection import parse_selection
 from manifests import query as q
 from manifests.stats import bar_chart_png, format_share_table, share_table
 from pipeline.cli import data as cli_data, domain_files as cli_domains
-from pipeline.cli.domain_files import CatalogFile, domain_file, root_catalog, root_pairing, root_recorded, root_rules
+from pipeline.cli.domain_files import CatalogFile, domain_file, root_catalog, root_pairing, root_rig, root_rules
 from pipeline.cli.progress import (
     ProgressDisplay, VerifyDisplay, format_head_lost, format_interrupted, format_outage, format_produce_report,
     stop_signals,
@@ -144,7 +144,7 @@ def produce(
     rgb_format: str = typer.Option("png", "--rgb-format", help="File format of the rgb output: png (lossless, the default) or jpg (quality 95, the released IDDA format; about a quarter of the bytes). A root keeps its format."),
     catalog: CatalogFile = None,
     frame_interval: float = typer.Option(3.0, "--frame-interval", metavar="SECONDS", help="Simulated seconds between frames: 3 (the paper's sparse sampling, the default) or e.g. 0.1 for a 10 Hz video-like episode. A root keeps its interval."),
-    rig: Optional[str] = typer.Option(None, "--rig", help="Sensor rig: front (the viewpoint's camera, the default), stereo, surround or lidar64 (docs/conventions.md). A root keeps its rig."),
+    rig: Optional[str] = typer.Option(None, "--rig", help="Sensor rig: front (the viewpoint's camera, the default), stereo, surround, lidar64, or one a --catalog file declares with [[rig]] (docs/conventions.md). A root keeps its rig."),
 ) -> None:
     """Render the selected scenarios into an output root (resumable).
 
@@ -159,7 +159,7 @@ def produce(
         plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
                               height=height, seed=seed, outputs=parse_outputs(outputs), rgb_format=rgb_format,
                               catalog=layer, frame_interval_s=frame_interval, pairing=root_pairing(out),
-                              rules=root_rules(out), rig=rig or root_recorded(out, "rig"))
+                              rules=root_rules(out), rig=root_rig(out, rig, catalog))
         config = ProduceConfig(
             run=RunConfig(plan=plan_cfg, world=world),
             out=out,
