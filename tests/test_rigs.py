@@ -286,3 +286,22 @@ def test_a_domain_file_declares_a_rig_that_travels_in_run_json(tmp_path):
     assert row["sensor"] == "back" and row["rgb_path"].startswith("T01_CN_A/e0000/back/rgb/")
     assert as_matrix(row["K"], 3)[0, 0] == pytest.approx(32 / math.tan(math.radians(30)))
     assert read_record(Storage.from_uri(str(root)))["config"]["rig"] == recorded
+
+
+def test_a_front_root_has_no_rig_columns_in_its_parts_or_indexes(tmp_path):
+    """The default rig writes the parts and indexes it wrote before rigs, byte for byte: no sensor column
+    and no LiDAR columns (without leaving them out, every new front root's index changed)."""
+    import pyarrow.parquet as pq
+
+    from manifests.schema import RULE_PART_SCHEMA
+
+    root = tmp_path / "front"
+    render_root(root, RunConfig(plan=_plan("front", width=64, height=36), world="test"), compact=True)
+    (part,) = root.glob("manifest/**/*.parquet")
+    assert pq.read_schema(part).names == RULE_PART_SCHEMA.names
+    (index,) = root.glob("_index/*.parquet")
+    names = pq.read_schema(index).names
+    assert "sensor" not in names and not any(n.startswith("lidar_") for n in names)
+    (row,) = _rows(root)
+    assert row["sensor"] is None and row["uid"] == "0000_000_T01_CN_A"
+    assert row["rgb_path"] == "T01_CN_A/e0000/rgb/0000_000_T01_CN_A.png"
