@@ -150,6 +150,7 @@ def test_stereo_disparity_is_f_b_over_z(stereo_root):
                     best = k + t
             if best is not None:
                 errors.append(best - u - f * 0.54 / z)
+    print(f"stereo: {len(errors)} matches, median |disparity - f*B/Z| {np.median(np.abs(errors)):.4f} px")
     assert len(errors) > 200
     assert np.median(np.abs(errors)) <= 0.1
 
@@ -223,6 +224,7 @@ def test_surround_neighbours_agree_on_what_they_both_see(tmp_path):
         src = ca[v[front][inside], u[front][inside]]
         agree += int(np.count_nonzero(src[seen] == cb[vb[seen], ub[seen]]))
         total += int(np.count_nonzero(seen))
+    print(f"surround: {total} shared points, class agreement {agree / total:.4f}")
     assert total > 500  # the 10-degree overlaps hold many points
     assert agree / total >= 0.98
 
@@ -257,6 +259,8 @@ def test_lidar_points_land_on_the_front_camera_pixels_of_their_depth_and_class(t
     smooth = np.all([np.abs(depth[v + dv, u + du] - depth[v, u]) < 0.05 * depth[v, u] for dv, du in window], axis=0)
     hood = read_output("instance", (root / front["instance_path"]).read_bytes())[v, u] == HOOD_ID  # the ego: the camera's alone
     keep = same & smooth & (rel < 0.05) & ~hood
+    print(f"lidar: {len(points)} points, {len(z)} in view, median relative depth error {np.median(rel):.5f}, "
+          f"class agreement {np.mean(cls[keep] == classes[v, u][keep]):.4f} over {np.count_nonzero(keep)} points")
     assert np.count_nonzero(keep) > 500
     assert np.mean(cls[keep] == classes[v, u][keep]) >= 0.98
     # the ranges stay inside the sensor's limit, and the instance ids ride in the high 16 bits
@@ -305,3 +309,31 @@ def test_a_front_root_has_no_rig_columns_in_its_parts_or_indexes(tmp_path):
     (row,) = _rows(root)
     assert row["sensor"] is None and row["uid"] == "0000_000_T01_CN_A"
     assert row["rgb_path"] == "T01_CN_A/e0000/rgb/0000_000_T01_CN_A.png"
+
+
+def test_an_export_takes_one_sensor_at_a_time(stereo_root, tmp_path):
+    """Export layouts name files per frame: the left and right frames of a stereo root would overwrite each
+    other, so an export of both is refused in one line, and --sensor picks one."""
+    from pipeline.cli import app
+
+    runner = CliRunner()
+    both = runner.invoke(app, ["export", str(stereo_root), "--format", "cityscapes", "--to", str(tmp_path / "cs")])
+    assert both.exit_code == 2 and "export one sensor at a time (--sensor NAME)" in both.output
+    left = runner.invoke(app, ["export", str(stereo_root), "--format", "cityscapes", "--to", str(tmp_path / "cs"),
+                               "--sensor", "left"])
+    assert left.exit_code == 0, left.output
+    assert len(list((tmp_path / "cs").rglob("*_leftImg8bit.png"))) == 2
+
+
+def test_semantickitti_files_round_trip():
+    from outputs.encoding import encode_kitti_bin, encode_lidar_labels, encode_lidar_points
+
+    points = np.array([[1.5, -2.0, 0.25, 0.0], [10.0, 0.0, -1.0, 0.0]], np.float32)
+    labels = np.array([7 | (3 << 16), 11], np.uint32)
+    data = encode_kitti_bin(encode_lidar_points((points, labels)))
+    assert len(data) == 32 and np.array_equal(decode_kitti_points(data), points)
+    assert np.array_equal(decode_kitti_labels(encode_kitti_bin(encode_lidar_labels((points, labels)))), labels)
+    with pytest.raises(ValueError, match="lidar_points"):
+        encode_lidar_points((points[:, :3].copy(), labels))
+    with pytest.raises(ValueError, match="16-byte"):
+        decode_kitti_points(data[:-1])
