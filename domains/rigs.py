@@ -123,6 +123,8 @@ def _sensor(entry, where: str) -> Sensor:
             raise RigError(f"{where}: key {key!r}: {value} is out of range [{lo}, {hi}]")
         values[key] = kind_of(value)
     sensor = Sensor(name=name, kind=kind, **values)
+    if sensor.kind == "lidar" and (sensor.pitch or sensor.roll):  # its four faces turn about the ego's z only
+        raise RigError(f"{where}: a LiDAR is mounted level: pitch and roll must be 0")
     if sensor.fov_down_deg >= sensor.fov_up_deg:
         raise RigError(f"{where}: key 'fov_down_deg': {sensor.fov_down_deg} must be below fov_up_deg {sensor.fov_up_deg}")
     return sensor

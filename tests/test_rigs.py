@@ -68,6 +68,7 @@ def test_built_in_rigs():
     ({"name": "x", "sensor": [{"name": "a", "kind": "camera", "colour": 1}]}, "'colour': unknown"),
     ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "a", "kind": "camera"}]}, "twice"),
     ({"name": "x", "sensor": [{"name": "a", "kind": "lidar"}]}, "at least one camera"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "l", "kind": "lidar", "pitch": 5}]}, "level"),
 ])
 def test_a_bad_rig_is_refused_naming_what(entry, message):
     with pytest.raises(RigError, match=message):

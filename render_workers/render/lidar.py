@@ -26,7 +26,7 @@ import numpy as np
 
 from domains.catalog import class_id
 from domains.conditions import frame_conditions
-from domains.rigs import RigError, Sensor, rig_from_json
+from domains.rigs import Sensor, rig_from_json
 from outputs.geometry import flat, intrinsics
 from render_workers.render.camera import mount_to_ego
 from render_workers.worlds.scene import Frame
@@ -65,15 +65,9 @@ def face_size(sensor: Sensor) -> tuple[int, int]:
     return width, height
 
 
-def check_lidar(sensor: Sensor) -> None:
-    if sensor.pitch or sensor.roll:
-        raise RigError(f"lidar {sensor.name!r}: only yaw is supported for a LiDAR's mounting (pitch and roll 0)")
-
-
 def lidar_sweep(renderer, sensor: Sensor, t: float, width: int, height: int) -> LidarSweep:
     """The sweep of ``sensor`` at time ``t`` of the renderer's loaded episode (the GL thread's work);
     the renderer is left on the viewpoint's camera at ``width`` x ``height``."""
-    check_lidar(sensor)
     fw, fh = face_size(sensor)
     K = intrinsics(fw, fh, 90.0)
     dirs = beam_directions(sensor).reshape(-1, 3)
