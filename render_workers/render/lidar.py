@@ -2,13 +2,15 @@
 
 How: four class passes (planar depth, class and instance ids: ``Renderer.render_labels``) from the
 LiDAR's position, 90 degrees apart in yaw, cover the full turn; each beam (elevation x azimuth) takes
-the pixel its ray falls on and returns the point at that pixel's depth along its own ray. Why not
-trimesh's ray casting: with no Embree on the package index for this Python, trimesh casts rays in
-pure numpy/rtree at a few thousand rays per second against a town's ~1e6 triangles, so one 131k-beam
-sweep took minutes; the class pass draws the very triangles, actor poses and culling the cameras
-draw, on the same GL context, in a fraction of a camera frame (bench: ``make bench``). The price is
-sampling: a beam reads the nearest pixel (faces at twice the azimuth resolution), so within half a
-pixel of an occluding edge it can take the neighbour's depth and class.
+the pixel its ray falls on and returns the point at that pixel's depth along its own ray (interpolated
+in 1/Z among the four pixels around the ray where they are one surface). Why not trimesh's ray
+casting: it needs rtree (not installed) or Embree (``embreex``, a wheel exists for this Python) as a
+new native dependency of every worker, and a second copy of the scene kept in step with the drawn
+one (every actor re-posed per frame); the class pass draws the very triangles, actor poses and
+culling the cameras draw, on the same GL context, with no new dependency (its cost:
+``benchmarks.bench_rigs``). Embree would likely cast a sweep faster; that was not measured. The
+price is sampling: within a pixel of an occluding edge a beam takes the nearest pixel's depth and
+class, which may be the neighbour surface's.
 
 A sweep is taken at one instant (the frame's): ``rate_hz`` is recorded, not simulated (no rolling
 shutter). Points are in the sensor's frame (x forward, y left, z up, metres), in SemanticKITTI's
@@ -32,7 +34,8 @@ from render_workers.render.camera import mount_to_ego
 from render_workers.worlds.scene import Frame
 
 SKY_ID = class_id("sky")
-OVERSAMPLE = 2  # face pixels per azimuth step
+OVERSAMPLE = 1  # face pixels per azimuth step
+EDGE = 1.05  # neighbours whose depths differ by more than this ratio straddle an edge: no interpolation
 # the face camera's OpenCV axes (x right, y down, z forward) in the sensor's (x forward, y left, z up)
 SENSOR_FROM_CV = np.array([[0.0, 0.0, 1.0], [-1.0, 0.0, 0.0], [0.0, -1.0, 0.0]])
 
@@ -65,6 +68,22 @@ def face_size(sensor: Sensor) -> tuple[int, int]:
     return width, height
 
 
+def _depth_at(depth: np.ndarray, cls: np.ndarray, u: np.ndarray, v: np.ndarray, row: np.ndarray,
+              col: np.ndarray) -> np.ndarray:
+    """Planar depth at sub-pixel (u, v): bilinear in 1/Z (exact on a plane) among the four pixels around it
+    where they are one class and one surface; the nearest pixel's elsewhere (edges)."""
+    h, w = depth.shape
+    u0 = np.clip(np.floor(u).astype(int), 0, w - 2)
+    v0 = np.clip(np.floor(v).astype(int), 0, h - 2)
+    fu, fv = np.clip(u - u0, 0.0, 1.0), np.clip(v - v0, 0.0, 1.0)
+    corners = [(v0, u0), (v0, u0 + 1), (v0 + 1, u0), (v0 + 1, u0 + 1)]
+    d = np.stack([depth[r, c] for r, c in corners]).astype(np.float64)
+    same = np.all(np.stack([cls[r, c] for r, c in corners]) == cls[v0, u0], axis=0) & (d.max(0) < EDGE * d.min(0))
+    weights = np.stack([(1 - fu) * (1 - fv), fu * (1 - fv), (1 - fu) * fv, fu * fv])
+    smooth = 1.0 / (weights / d).sum(axis=0)
+    return np.where(same, smooth, depth[row, col].astype(np.float64))
+
+
 def lidar_sweep(renderer, sensor: Sensor, t: float, width: int, height: int) -> LidarSweep:
     """The sweep of ``sensor`` at time ``t`` of the renderer's loaded episode (the GL thread's work);
     the renderer is left on the viewpoint's camera at ``width`` x ``height``."""
@@ -92,7 +111,7 @@ def lidar_sweep(renderer, sensor: Sensor, t: float, width: int, height: int) -> 
         v = K[1, 1] * d_cv[:, 1] / d_cv[:, 2] + K[1, 2]
         col = np.clip(np.rint(u).astype(int), 0, fw - 1)
         row = np.clip(np.rint(v).astype(int), 0, fh - 1)
-        z = depth[row, col].astype(np.float64)
+        z = _depth_at(depth, cls, u, v, row, col)
         points[mine] = (d_cv * (z / d_cv[:, 2])[:, None]) @ rot.T
         classes[mine] = cls[row, col]
         instance[mine] = inst[row, col]
