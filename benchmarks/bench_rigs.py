@@ -4,7 +4,7 @@ For each rig, one episode of FRAMES frames of SCENARIO is rendered by ``render_e
 that encodes every sensor's outputs into file bytes (``pipeline.episode_job.frame_files``: what
 production writes, not written); the process CPU seconds (llvmpipe's threads included) and wall
 seconds between the ends of consecutive frames are taken, the first frame (shader compilation,
-world load) left out. The LiDAR sweep's wall time per frame comes from the episode's own
+world load) left out. BENCH_RIGS=front,lidar64 picks rigs (default: every built-in one; front first). The LiDAR sweep's wall time per frame comes from the episode's own
 ``lidar`` stage. Size: BENCH_RIGS_SIZE=WxH (default 1920x1080).
 """
 
@@ -52,7 +52,7 @@ def measure(rig: str, width: int, height: int, frames: int = FRAMES, world: str 
 
 def main(out_dir: str = "docs") -> None:
     width, height = _size()
-    rows = [measure(rig, width, height) for rig in builtin_rigs()]
+    rows = [measure(rig, width, height) for rig in os.environ.get("BENCH_RIGS", ",".join(builtin_rigs())).split(",")]
     front = rows[0]["cpu_s"]
     lines = [
         "# Benchmark: per-frame cost of each sensor rig",

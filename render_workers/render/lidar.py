@@ -21,6 +21,7 @@ low 16 bits and the episode's instance id in the high 16. Beams with no return (
 
 from __future__ import annotations
 
+import functools
 import math
 from dataclasses import dataclass
 
@@ -51,13 +52,16 @@ class LidarSweep:
     t: float
 
 
+@functools.lru_cache(maxsize=8)
 def beam_directions(sensor: Sensor) -> np.ndarray:
     """(beams, points, 3) unit ray directions in the sensor frame: rows top beam first, azimuth from +x
     towards +y (left) in ``points`` equal steps."""
     elevation = np.radians(np.linspace(sensor.fov_up_deg, sensor.fov_down_deg, sensor.beams))
     azimuth = 2 * np.pi * np.arange(sensor.points) / sensor.points
     e, a = np.meshgrid(elevation, azimuth, indexing="ij")
-    return np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1)
+    dirs = np.stack([np.cos(e) * np.cos(a), np.cos(e) * np.sin(a), np.sin(e)], axis=-1)
+    dirs.flags.writeable = False  # cached: shared by every sweep of the sensor
+    return dirs
 
 
 def face_size(sensor: Sensor) -> tuple[int, int]:

@@ -298,7 +298,7 @@ class Renderer:
         """The class pass alone at time ``t`` from the current sensor: (planar depth float32 metres, background
         ZFAR; class ids uint8, background sky; instance ids uint16) and world_from_camera (OpenGL axes)."""
         pr = compat.import_pyrender()
-        cam = self.update(t)
+        cam = self.update(t, shadows=False)
         seg, depth = self._offscreen.render(self._scene, flags=pr.RenderFlags.SEG | pr.RenderFlags.SKIP_CULL_FACES,
                                             seg_node_map=self._seg_map)
         background = depth <= 0.0
@@ -367,8 +367,9 @@ class Renderer:
         inside = (np.abs(x) * c - z * s) < radii
         return near & inside & (z > -radii)
 
-    def update(self, t: float) -> np.ndarray:
-        """Pose the camera and actors for time ``t`` and cull; returns world_from_camera."""
+    def update(self, t: float, shadows: bool = True) -> np.ndarray:
+        """Pose the camera and actors for time ``t`` and cull (and fit the shadow map, unless ``shadows`` is
+        False: a class pass alone draws none); returns world_from_camera."""
         if self._scene is None or self._episode is None:
             raise RuntimeError("Renderer.load() must be called before rendering")
         cam = self.rig.world_from_camera(self._episode.ego.pose(t))
@@ -387,7 +388,7 @@ class Renderer:
                 node.mesh.is_visible = bool(on)
         else:
             world_centres = np.empty((0, 3))
-        if self._shadows_on():
+        if shadows and self._shadows_on():
             self._shadow_frame = self._fit_shadows(cam, world_centres)
         return cam
 
