@@ -34,11 +34,11 @@ GRID = {"frontleft": (0, 0), "front": (0, 1), "frontright": (0, 2), "backleft": 
 log = logging.getLogger(__name__)
 
 
-def render_rig(rig: str, width: int, height: int, root: str) -> list[dict]:
+def render_rig(rig: str, width: int, height: int, root: str, world: str = "procedural") -> list[dict]:
     """One frame of ``rig`` rendered into a fresh ``root``; its manifest rows in rig order."""
     shutil.rmtree(root, ignore_errors=True)
     plan = PlanConfig(domains=DOMAIN, frames_per_scenario=1, width=width, height=height, rig=rig)
-    render_plan(Storage.from_uri(root), RunConfig(plan=plan, world="procedural"))
+    render_plan(Storage.from_uri(root), RunConfig(plan=plan, world=world))
     return read_manifest(root).to_pylist()
 
 

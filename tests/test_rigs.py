@@ -338,3 +338,15 @@ def test_semantickitti_files_round_trip():
         encode_lidar_points((points[:, :3].copy(), labels))
     with pytest.raises(ValueError, match="16-byte"):
         decode_kitti_points(data[:-1])
+
+
+def test_the_rig_pictures_draw(tmp_path):
+    """reports.rig_pictures (docs/images/rig_surround.png and rig_lidar64.png at full size), tiny."""
+    from reports import rig_pictures
+
+    root = str(tmp_path / "s")
+    png = rig_pictures.surround_png(root, rig_pictures.render_rig("surround", 64, 36, root, world="test"))
+    assert png.startswith(b"\x89PNG")
+    root = str(tmp_path / "l")
+    png = rig_pictures.lidar_png(root, rig_pictures.render_rig("lidar64", 96, 54, root, world="test"))
+    assert png.startswith(b"\x89PNG")
