@@ -10,7 +10,7 @@ import os
 import sys
 import time
 
-BENCHMARKS = ("plan", "render", "produce", "manifest", "control", "control_root", "verify", "outputs", "export")  # `make report` renders the worlds sample
+BENCHMARKS = ("plan", "render", "produce", "manifest", "control", "control_root", "verify", "outputs", "export", "rigs")  # `make report` renders the worlds sample
 
 
 def main() -> int:

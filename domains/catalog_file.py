@@ -26,7 +26,8 @@ from domains.rows import AXES, CODE_CHARS, ROW_TYPES, Catalog, row_dict
 from domains.fog import visibility_of_share
 from domains.ramps import check_shift
 
-CODE_PATTERN = re.compile(CODE_CHARS)  # domains.rows: the one grammar of codes
+CODE_PATTERN = re.compile(CODE_CHARS)
+RIG_TABLE = "rig"  # a domain file's [[rig]] tables: sensor rigs (domains.rigs), chosen with --rig  # domains.rows: the one grammar of codes
 HEADER = """\
 # IDDA domain catalog: towns, weathers and viewpoints (docs/catalog.md).
 # Each [[town]], [[weather]] or [[viewpoint]] entry has a code and its parameters;
@@ -153,10 +154,10 @@ def rows_from_data(data: dict, base: Catalog, source: str, record: bool = False)
     """axis -> resolved rows of a parsed file (TOML), or of the JSON layer of a run's record (``record``)."""
     if not isinstance(data, dict):
         raise CatalogError(f"{source}: expected tables {', '.join(AXES)}")
-    unknown = [k for k in data if k not in AXES]
+    unknown = [k for k in data if k not in AXES and (record or k != RIG_TABLE)]  # rigs: domains.rigs reads them
     if unknown:
         raise CatalogError(f"{source}: key {unknown[0]!r}: unknown table; valid tables: "
-                           + ", ".join(f"[[{a}]]" for a in AXES))
+                           + ", ".join(f"[[{a}]]" for a in AXES + (() if record else (RIG_TABLE,))))
     rows: dict[str, list] = {}
     for axis in AXES:
         entries = data.get(axis, [])

@@ -54,7 +54,12 @@ class ExportFrame:
 
 
 def frames_of(table: pa.Table) -> list[ExportFrame]:
-    """The export frames of a manifest table, in its row order."""
+    """The export frames of a manifest table, in its row order. ValueError for the frames of several
+    sensors of a rig: the layouts name files per frame, so one sensor's would overwrite another's."""
+    sensors = sorted(set(table.column("sensor").to_pylist()) - {None}) if "sensor" in table.column_names else []
+    if len(sensors) > 1:
+        raise ValueError(f"these frames are seen by the sensors {', '.join(sensors)} of the root's rig; an export "
+                         "names its files per frame, so export one sensor at a time (--sensor NAME)")
     table = with_uids(table)
     meta = {name: table.column(name).to_pylist() for name in _META}
     paths = {o: table.column(output_columns(o)[0]).to_pylist()

@@ -44,18 +44,23 @@ def check_layout(layout) -> int:
     return layout
 
 
-def output_dir(scenario: str, name: str, episode: int, layout: int) -> str:
-    """The folder holding episode ``episode``'s files of output ``name``."""
+def output_dir(scenario: str, name: str, episode: int, layout: int, sensor: str = "") -> str:
+    """The folder holding episode ``episode``'s files of output ``name`` (of a rig's ``sensor``:
+    ``<scenario>/e<episode>/<sensor>/<output>``, in the episode-folder layout only)."""
     if check_layout(layout) == FLAT:
+        if sensor:
+            raise ValueError("a rig's sensors need the episode-folder layout")
         return f"{scenario}/{name}"
-    return f"{scenario}/e{episode:04d}/{name}"
+    return f"{scenario}/e{episode:04d}/{sensor}/{name}" if sensor else f"{scenario}/e{episode:04d}/{name}"
 
 
-def frame_path(scenario: str, name: str, fid: str, rgb_format: str, layout: int) -> str:
+def frame_path(scenario: str, name: str, fid: str, rgb_format: str, layout: int, sensor: str = "") -> str:
     """Relative path of one output file of frame ``fid`` (``<episode:04d>_<frame:03d>``);
-    the rgb output's extension is the root's rgb format."""
+    the rgb output's extension is the root's rgb format. A rig's ``sensor`` has its own folder and
+    its name at the end of the stem."""
     episode = int(fid.partition("_")[0])
-    return f"{output_dir(scenario, name, episode, layout)}/{frame_stem(fid, scenario)}.{extension(name, rgb_format)}"
+    return (f"{output_dir(scenario, name, episode, layout, sensor)}/{frame_stem(fid, scenario, sensor)}."
+            f"{extension(name, rgb_format)}")
 
 
 # The names of frame files, the only files repair may delete from a scenario
@@ -72,9 +77,11 @@ _OUTPUT = (
     + r"(?P<output>" + "|".join(OUTPUTS) + r")/"
 )
 _NAME = r"(?P<frame>\d{3})_(?P=scenario)\.[a-z0-9]+$"
+_SENSOR_NAME = r"(?P<frame>\d{3})_(?P=scenario)(?(sensor)_(?P=sensor))\.[a-z0-9]+$"
+_SENSOR = r"(?:(?P<sensor>(?!(?:" + "|".join(OUTPUTS) + r")/)[a-z][a-z0-9]*)/)?"  # domains.rigs.NAME_RE
 FRAME_FILE_RES = {
     FLAT: re.compile(_SCENARIO + _OUTPUT + r"(?P<episode>\d{4})_" + _NAME),
-    EPISODE_DIRS: re.compile(_SCENARIO + r"e(?P<episode>\d{4})/" + _OUTPUT + r"(?P=episode)_" + _NAME),
+    EPISODE_DIRS: re.compile(_SCENARIO + r"e(?P<episode>\d{4})/" + _SENSOR + _OUTPUT + r"(?P=episode)_" + _SENSOR_NAME),
 }
 
 

@@ -24,6 +24,7 @@ import pyarrow.compute as pc
 
 from domains.catalog import ALL_SCENARIOS, AXES, NAME2LABEL, class_id, lookup, scenario, weather
 from domains.conditions import check_condition, with_visibility
+from domains.rigs import DEFAULT_RIG, NAME_RE
 from outputs.table import OUTPUTS
 from manifests.reader import datasets
 from manifests.schema import output_columns
@@ -41,6 +42,7 @@ class Query:
     domains: str | None = None  # selection grammar, as for --domains; None: every scenario the root holds
     splits: tuple[str, ...] = ()  # empty: any split
     episodes: tuple[int, ...] = ()  # empty: any episode
+    sensors: tuple[str, ...] = ()  # empty: any sensor of the root's rig (domains.rigs; the default rig's camera: front)
     classes: tuple[str, ...] = ()  # each frame must contain all of these
     min_share: tuple[tuple[str, float], ...] = ()  # (class, minimum share in [0, 1])
     min_condition: tuple[tuple[str, float], ...] = ()  # (condition column, minimum value), inclusive
@@ -56,6 +58,9 @@ class Query:
         for split in self.splits:
             if split not in SPLITS:
                 raise ValueError(f"unknown split {split!r}; valid splits: {', '.join(SPLITS)}")
+        for name in self.sensors:
+            if not NAME_RE.match(name):
+                raise ValueError(f"sensor {name!r} is not a sensor name (lower-case letters and digits)")
         for name in self.classes:
             class_id(name)
         for name, share in self.min_share:
@@ -126,6 +131,10 @@ def filter_frames(table_or_dataset, query: Query) -> pa.Table:
         table = table_or_dataset.filter(expr)
     else:
         table = table_or_dataset.to_table(filter=expr)
+    if query.sensors:  # null: a root of the default rig, whose one camera is front
+        named = pc.fill_null(table.column("sensor"), DEFAULT_RIG) if "sensor" in table.column_names \
+            else pa.array([DEFAULT_RIG] * len(table))
+        table = table.filter(pc.is_in(named, value_set=pa.array(list(query.sensors))))
     if query.classes or query.min_share:
         pixels = pc.multiply(table.column("width"), table.column("height"))
         mask = pa.array(np.ones(len(table), dtype=bool))

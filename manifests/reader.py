@@ -30,6 +30,7 @@ from manifests.schema import (
     MANIFEST_DIR,
     MANIFEST_SCHEMA,
     PARTITION_KEYS,
+    RIG_FIELDS,
     PARTITION_SCHEMA,
     PART_SCHEMA,
     index_path,
@@ -431,7 +432,11 @@ def index_table(parts: list[pa.Table], scenario: str, episodes: list[int], sizes
 
 def index_bytes(table: pa.Table) -> bytes:
     """Serialise an index deterministically: the same parts give the same bytes
-    (whether folded in at once or a few at a time)."""
+    (whether folded in at once or a few at a time). The rig columns are left out of the index of a
+    root whose rig is the default (null in every row), as its parts leave them out."""
+    rig_columns = [name for name, _ in RIG_FIELDS if name in table.column_names]
+    if rig_columns and all(table.column(name).null_count == len(table) for name in rig_columns):
+        table = table.drop_columns(rig_columns)
     sink = io.BytesIO()
     pq.write_table(table.combine_chunks(), sink, compression="zstd", row_group_size=1 << 16, write_page_checksum=True)
     return sink.getvalue()

@@ -9,7 +9,7 @@ import pyarrow as pa
 
 from domains.catalog import AXES, CODE_CHARS, INSTANCE_LABELS, LABELS, code_axes, scenario_pattern
 from domains.conditions import PART_CONDITIONS, VISIBILITY
-from outputs.table import OUTPUTS
+from outputs.table import CAMERA_OUTPUTS, LIDAR_OUTPUTS
 
 # The root's rules for what its rows and files say (issue 32; docs/layout.md, "Rules of a root"). A new
 # root records "rules": 1 in run.json's config; a root made before, without the key, keeps OLD_RULES
@@ -88,7 +88,14 @@ FIELD_SOURCE = {name: source for name, _, source in _FRAME_FIELDS + _RULE_FIELDS
 # An output a run did not ask for has null path, size and checksum.
 _OUTPUT_FIELDS = [
     field
-    for name in OUTPUTS
+    for name in CAMERA_OUTPUTS
+    for field in zip(output_columns(name), (pa.string(), pa.int64(), pa.string()))
+]
+# Added with rigs (domains.rigs) after every other column, and only in the parts of a root whose rig is not the
+# default (front): the sensor of the row, then the LiDAR's files. Null in every other part.
+RIG_FIELDS = [("sensor", pa.string())] + [
+    field
+    for name in LIDAR_OUTPUTS
     for field in zip(output_columns(name), (pa.string(), pa.int64(), pa.string()))
 ]
 PIXEL_FIELDS = [(label.column, pa.int64()) for label in LABELS]
@@ -96,7 +103,8 @@ OBJECT_FIELDS = [(label.object_column, pa.int32()) for label in INSTANCE_LABELS]
 
 # Schema of a part file (one episode); the full manifest adds PARTITION_KEYS.
 OLD_PART_SCHEMA = pa.schema([(n, t) for n, t, _ in _FRAME_FIELDS] + _OUTPUT_FIELDS + PIXEL_FIELDS + OBJECT_FIELDS)
-PART_SCHEMA = pa.schema(list(OLD_PART_SCHEMA) + [(n, t) for n, t, _ in _RULE_FIELDS])  # what readers read
+RULE_PART_SCHEMA = pa.schema(list(OLD_PART_SCHEMA) + [(n, t) for n, t, _ in _RULE_FIELDS])  # a default-rig part
+PART_SCHEMA = pa.schema(list(RULE_PART_SCHEMA) + RIG_FIELDS)  # what readers read; a rig's part
 # a part of a root made before rules (manifests.schema.OLD_RULES) has the columns of OLD_PART_SCHEMA only
 MANIFEST_SCHEMA = pa.schema(list(PART_SCHEMA) + list(PARTITION_SCHEMA))
 
@@ -118,15 +126,15 @@ def frame_id(episode: int, frame: int) -> str:
     return f"{episode:04d}_{frame:03d}"
 
 
-def frame_stem(fid: str, scenario: str) -> str:
-    """The stem of a frame's files, ``<frame_id>_<scenario>``: its uid too."""
-    return f"{fid}_{scenario}"
+def frame_stem(fid: str, scenario: str, sensor: str = "") -> str:
+    """The stem of a frame's files, ``<frame_id>_<scenario>`` (a rig's sensor: ``..._<sensor>``): its uid too."""
+    return f"{fid}_{scenario}_{sensor}" if sensor else f"{fid}_{scenario}"
 
 
-def frame_uid(scenario: str, episode: int, frame: int) -> str:
+def frame_uid(scenario: str, episode: int, frame: int, sensor: str = "") -> str:
     """A frame's id, unique in its root and the same in every rerun: ``<episode:04d>_<frame:03d>_<scenario>``,
     the stem of its files."""
-    return frame_stem(frame_id(episode, frame), scenario)
+    return frame_stem(frame_id(episode, frame), scenario, sensor)
 
 
 def with_uids(table: pa.Table) -> pa.Table:

@@ -16,9 +16,9 @@ from domains.conditions import FOG_DENSITY, VISIBILITY, frame_conditions
 from domains.ramps import weather_at
 from manifests.writer import write_part
 from outputs.geometry import HFOV_DEG, flat, intrinsics
-from outputs.table import OUTPUTS
+from outputs.table import CAMERA_OUTPUTS
 from manifests.layout import frame_path
-from manifests.schema import OLD_PART_SCHEMA, PART_SCHEMA, frame_id, output_columns
+from manifests.schema import OLD_PART_SCHEMA, RULE_PART_SCHEMA, frame_id, output_columns
 from manifests.schema import NEW_RULES
 from manifests.stats import PAPER_SHARES
 
@@ -61,7 +61,7 @@ def episode_table(spec) -> pa.Table:
     else:
         columns[VISIBILITY.column] = np.array([c[VISIBILITY.column] for c in conditions], np.float64)
         columns[FOG_DENSITY.column] = pa.nulls(n, pa.float32())
-    for output in OUTPUTS:
+    for output in CAMERA_OUTPUTS:
         path_col, bytes_col, sha_col = output_columns(output)
         columns[path_col] = [frame_path(spec.scenario, output, f, spec.rgb_format, spec.layout) for f in fids]
         columns[bytes_col] = rng.integers(100_000, 3_000_000, n)
@@ -70,7 +70,7 @@ def episode_table(spec) -> pa.Table:
         columns[label.column] = counts[:, label.id]
     for label in INSTANCE_LABELS:
         columns[label.object_column] = rng.integers(0, 20, n, dtype=np.int32)
-    return pa.table(columns, schema=PART_SCHEMA if spec.rules >= NEW_RULES else OLD_PART_SCHEMA)
+    return pa.table(columns, schema=RULE_PART_SCHEMA if spec.rules >= NEW_RULES else OLD_PART_SCHEMA)
 
 
 def _poses(spec, camera_height_m: float, times: np.ndarray) -> dict[str, list]:

@@ -16,7 +16,8 @@ import numpy as np
 from domains.catalog import LABELS
 from manifests.layout import frame_path
 from domains.conditions import FOG_DENSITY, VISIBILITY
-from manifests.schema import (FIELD_SOURCE, OBJECT_FIELDS, OLD_PART_SCHEMA, PART_SCHEMA, frame_id, frame_uid,
+from manifests.schema import (FIELD_SOURCE, OBJECT_FIELDS, OLD_PART_SCHEMA, PART_SCHEMA, RIG_FIELDS, RULE_PART_SCHEMA,
+                              frame_id, frame_uid,
                               NEW_RULES, output_columns, part_path)
 from outputs.table import OUTPUTS
 from manifests.part_file import ManifestError
@@ -32,8 +33,9 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
     per object column); ``files`` the bytes written per output (outputs not
     asked for get null columns)."""
     fid = frame_id(spec.episode, frame.index)
-    derived = {"frame_id": fid, "uid": frame_uid(spec.scenario, spec.episode, frame.index), "frame": frame.index,
-               **frame.conditions}
+    sensor = getattr(frame, "sensor", "")
+    derived = {"frame_id": fid, "uid": frame_uid(spec.scenario, spec.episode, frame.index, sensor),
+               "frame": frame.index, **frame.conditions}
     row = {}
     for name, source in FIELD_SOURCE.items():
         row[name] = (derived[name] if source in ("derived", "condition")
@@ -44,9 +46,25 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
     for name in OUTPUTS:
         data = files.get(name)
         path_col, bytes_col, sha_col = output_columns(name)
-        row[path_col] = None if data is None else frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout)
+        row[path_col] = (None if data is None
+                         else frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout, sensor))
         row[bytes_col] = None if data is None else len(data)
         row[sha_col] = None if data is None else sha256_bytes(data)
+    if spec.rules < NEW_RULES:  # a root made before rules: its parts' columns, fog as its share per km
+        del row[VISIBILITY.column]
+    else:
+        row[FOG_DENSITY.column] = None
+    if spec.rig:  # a rig's part: the sensor column (LiDAR files are OUTPUTS above); else none of RIG_FIELDS
+        row["sensor"] = sensor
+    else:
+        for name, _ in RIG_FIELDS:
+            row.pop(name, None)
+    if frame.class_counts is None:  # a LiDAR sweep: no pixels, no objects table
+        for label in LABELS:
+            row[label.column] = None
+        for name, _ in OBJECT_FIELDS:
+            row[name] = None
+        return row
     counts = np.asarray(frame.class_counts, dtype=np.int64)
     if counts.shape != (len(LABELS),) or int(counts.sum()) != spec.width * spec.height:
         raise ManifestError(
@@ -57,10 +75,6 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
         row[label.column] = int(counts[label.id])
     for name, _ in OBJECT_FIELDS:
         row[name] = int(frame.object_counts[name])
-    if spec.rules < NEW_RULES:  # a root made before rules: its parts' columns, fog as its share per km
-        del row[VISIBILITY.column]
-    else:
-        row[FOG_DENSITY.column] = None
     return row
 
 
@@ -68,7 +82,8 @@ def part_table(rows: list[dict]) -> pa.Table:
     """Build a part table from frame rows; every schema column must be present."""
     if not rows:
         raise ManifestError("an episode part needs at least one frame row")
-    schema = PART_SCHEMA if VISIBILITY.column in rows[0] else OLD_PART_SCHEMA  # OLD_RULES: without visibility_m
+    schema = (OLD_PART_SCHEMA if VISIBILITY.column not in rows[0]  # OLD_RULES: without visibility_m
+              else PART_SCHEMA if "sensor" in rows[0] else RULE_PART_SCHEMA)  # a rig's part, or the default rig's
     missing = [name for name in schema.names if name not in rows[0]]
     if missing:
         raise ManifestError(f"frame row lacks manifest columns: {', '.join(missing)}")
@@ -98,7 +113,7 @@ def write_part(storage, scenario: str, episode: int, rows: list[dict] | pa.Table
     the episode's part under the old name (an old root's episode rendered again)
     is removed: until then readers prefer the new name (``schema.newer_part``)."""
     table = rows if isinstance(rows, pa.Table) else part_table(rows)
-    if table.schema not in (PART_SCHEMA, OLD_PART_SCHEMA):
+    if table.schema not in (PART_SCHEMA, RULE_PART_SCHEMA, OLD_PART_SCHEMA):
         raise ManifestError(f"part for {scenario} episode {episode} does not have the manifest schema")
     rel = part_path(scenario, episode, len(table))
     storage.write_bytes(rel, part_bytes(table))

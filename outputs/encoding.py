@@ -346,3 +346,41 @@ def _decode_single(data: bytes, name: str, dtype) -> np.ndarray:
         article = "an" if bits == 8 else "a"
         raise ValueError(f"{name}: expected {article} {bits}-bit single-channel PNG, got {image.dtype} {image.shape}")
     return image
+
+
+# ------------------------------------------------------------ LiDAR (SemanticKITTI's files) ----
+def encode_lidar_points(sweep) -> np.ndarray:
+    """A sweep's (points, labels) -> its points: Nx4 float32 x, y, z (sensor frame, metres), intensity."""
+    points, labels = sweep
+    _check("lidar_points", points, np.float32, 2)
+    if points.shape[1:] != (4,) or labels.shape != (len(points),):
+        raise ValueError(f"lidar_points: expected Nx4 points and N labels, got {points.shape} and {labels.shape}")
+    return points
+
+
+def encode_lidar_labels(sweep) -> np.ndarray:
+    """A sweep's (points, labels) -> its labels: N uint32, class id in the low 16 bits, instance id in the high 16."""
+    points, labels = sweep
+    _check("lidar_labels", labels, np.uint32, 1)
+    return labels
+
+
+def encode_kitti_bin(array: np.ndarray, name: str = "points") -> bytes:
+    """SemanticKITTI's ``.bin``/``.label`` bytes: the array's little-endian values, row-major, no header."""
+    if array.dtype not in (np.float32, np.uint32):
+        raise ValueError(f"{name}: expected float32 or uint32 values, got {array.dtype}")
+    return np.ascontiguousarray(array, dtype=array.dtype.newbyteorder("<")).tobytes()
+
+
+def decode_kitti_points(data: bytes, name: str = "points") -> np.ndarray:
+    """Nx4 float32 (x, y, z, intensity) from a ``.bin`` file's bytes."""
+    if len(data) % 16:
+        raise ValueError(f"{name}: {len(data)} bytes is not a whole number of 16-byte points")
+    return np.frombuffer(data, dtype="<f4").reshape(-1, 4).astype(np.float32)
+
+
+def decode_kitti_labels(data: bytes, name: str = "labels") -> np.ndarray:
+    """N uint32 labels from a ``.label`` file's bytes."""
+    if len(data) % 4:
+        raise ValueError(f"{name}: {len(data)} bytes is not a whole number of 4-byte labels")
+    return np.frombuffer(data, dtype="<u4").astype(np.uint32)

@@ -47,6 +47,11 @@ from outputs.encoding import (
     encode_semantic_color,
     encode_semantic_raw,
     encode_semantic_trainid,
+    decode_kitti_labels,
+    decode_kitti_points,
+    encode_kitti_bin,
+    encode_lidar_labels,
+    encode_lidar_points,
 )
 from outputs.objects import encode_objects, objects_as_arrays, read_objects, write_objects
 
@@ -59,6 +64,7 @@ BUFFERS: dict[str, str] = {
     "objects": "pyarrow table of the visible objects (outputs.objects.OBJECT_SCHEMA)",
     "flow": "HxWx3 float32 forward flow to the next frame in pixels (u, v) and valid (1/0) (render_workers.render.flow)",
     "normals": "HxWx3 float32 unit surface normals, OpenCV camera frame, 0 for the sky (outputs.geometry)",
+    "lidar": "a LiDAR sweep: (Nx4 float32 points, N uint32 labels) (render_workers.render.lidar)",
 }
 
 
@@ -78,6 +84,8 @@ FORMATS: dict[str, FileFormat] = {
     "png16rgb": FileFormat("png", encode_png16rgb, decode_png16rgb),  # HxWx3 uint16
     "jpg": FileFormat("jpg", encode_jpeg, decode_jpeg),  # HxWx3 uint8 RGB, lossy (the rgb output's option)
     "parquet": FileFormat("parquet", write_objects, read_objects),  # a table
+    "bin": FileFormat("bin", encode_kitti_bin, decode_kitti_points),  # SemanticKITTI points, Nx4 float32
+    "label": FileFormat("label", encode_kitti_bin, decode_kitti_labels),  # SemanticKITTI labels, N uint32
 }
 
 
@@ -154,6 +162,11 @@ OUTPUT_TABLE: tuple[Output, ...] = (
            "16-bit RGB, KITTI's flow encoding: forward flow to the episode's next frame from geometry and object "
            "motion, `u = (R - 2**15) / 64`, `v = (G - 2**15) / 64`, B = 1 where valid (0 for the last frame, the sky, "
            "points whose next position is out of view and motion beyond the encoding's +-512 px)"),
+    # A rig's LiDAR writes these (never asked for with --outputs): docs/conventions.md, "Sensor rigs".
+    Output("lidar_points", "lidar", encode_lidar_points, "bin", _same, "lidar_points", "float32", 0,
+           "SemanticKITTI `.bin`: float32 x, y, z (the LiDAR's frame: x forward, y left, z up, metres), intensity (0)"),
+    Output("lidar_labels", "lidar", encode_lidar_labels, "label", _same, "lidar_labels", "uint32", 0,
+           "SemanticKITTI `.label`: uint32 per point, class id in the low 16 bits, instance id in the high 16"),
 )
 # The encoders of roots made before rules (manifests.schema.OLD_RULES) where they differ, so such a root
 # keeps writing what it holds: docs/layout.md, "Rules of a root".
@@ -164,6 +177,8 @@ SEED_OUTPUTS: tuple[str, ...] = OUTPUTS[:6]  # the six images of the IDDA paper
 # what `idda produce` writes unless --outputs says otherwise: the paper's six, instance and objects
 DEFAULT_OUTPUTS: tuple[str, ...] = OUTPUTS[:8]
 IMAGE_OUTPUTS: tuple[str, ...] = tuple(o.name for o in OUTPUT_TABLE if o.channels)
+LIDAR_OUTPUTS: tuple[str, ...] = tuple(o.name for o in OUTPUT_TABLE if o.source == "lidar")
+CAMERA_OUTPUTS: tuple[str, ...] = tuple(o for o in OUTPUTS if o not in LIDAR_OUTPUTS)  # what --outputs may ask for
 
 for _output in OUTPUT_TABLE:  # every row reads a known buffer and writes known formats
     lookup(BUFFERS, _output.source, "buffer")
@@ -186,6 +201,9 @@ def check_outputs(names) -> tuple[str, ...]:
         raise ValueError(f"ask for at least one output; valid outputs: {', '.join(OUTPUTS)}")
     for name in names:
         output(name)
+        if name in LIDAR_OUTPUTS:
+            raise ValueError(f"output {name!r} is written by a rig's LiDAR (--rig lidar64), not asked for; "
+                             f"valid outputs: {', '.join(CAMERA_OUTPUTS)}")
     return tuple(o for o in OUTPUTS if o in names)
 
 
@@ -198,7 +216,7 @@ def encode_outputs(buffers: dict[str, Any], names: tuple[str, ...] = DEFAULT_OUT
                    old_rules: bool = False) -> dict[str, Any]:
     """The requested outputs' file contents from the renderer's named buffers; ``old_rules``: as a root
     made before rules writes them (OLD_RULE_ENCODERS)."""
-    shapes = {k: v.shape[:2] for k, v in buffers.items() if isinstance(v, np.ndarray)}
+    shapes = {k: v.shape[:2] for k, v in buffers.items() if isinstance(v, np.ndarray) and v.ndim >= 2}
     if len(set(shapes.values())) > 1:
         raise ValueError(f"buffers disagree in size: {shapes}")
     out = {}

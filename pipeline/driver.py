@@ -557,10 +557,13 @@ def pending_episodes(plan, frames: dict[tuple[str, int], int]) -> list:
     """Planned episodes whose part does not hold the frames the plan asks of
     them: absent, or shorter (an --extend to more frames renders the episode
     again; the same seed gives the same first frames, byte for byte).
-    RunConfigError if a part holds more frames than planned (that would drop frames)."""
+    RunConfigError if a part holds more frames than planned (that would drop frames). A rig's part
+    holds one row per sensor frame: ``frames`` counts rows, so its frames are rows / sensors."""
     todo = []
     for spec in plan.episodes:
         have = frames.get((spec.scenario, spec.episode))
+        if have is not None and len(spec.sensors) > 1:
+            have = have / len(spec.sensors)
         if have is not None and have > spec.frames:
             raise RunConfigError(
                 f"{spec.scenario} episode {spec.episode} holds {have} frames, the plan asks for {spec.frames}; "

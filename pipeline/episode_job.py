@@ -91,8 +91,8 @@ def _fault_after() -> int | None:
 
 
 def frame_outputs(spec: EpisodeSpec, frame) -> dict:
-    """The spec's outputs of a rendered frame, encoded from its named buffers (arrays, or a table)."""
-    return encode_outputs(frame.buffers, spec.outputs, old_rules=spec.rules < NEW_RULES)
+    """The spec's outputs of a rendered frame (a LiDAR's: its own), encoded from its named buffers."""
+    return encode_outputs(frame.buffers, spec.sensor_outputs(frame.sensor), old_rules=spec.rules < NEW_RULES)
 
 
 def frame_files(spec: EpisodeSpec, frame) -> dict[str, bytes]:
@@ -134,13 +134,15 @@ def store_frame(spec: EpisodeSpec, frame, storage, fence: FrameFence | None = No
         if fence is not None:
             fence.check()
         # each file fsynced, its folder once before the part (sync_frame_dirs): the part is the commit point
-        storage.write_bytes(frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout), data, durable=False)
+        storage.write_bytes(frame_path(spec.scenario, name, fid, spec.rgb_format, spec.layout, frame.sensor), data,
+                            durable=False)
     return frame_row(spec, frame, files)
 
 
 def sync_frame_dirs(storage, spec: EpisodeSpec) -> None:
     """fsync the episode's frame folders: their files' names are on disk before its part names them."""
-    storage.sync_dirs(output_dir(spec.scenario, name, spec.episode, spec.layout) for name in spec.outputs)
+    storage.sync_dirs(output_dir(spec.scenario, name, spec.episode, spec.layout, sensor)
+                      for sensor in spec.sensors for name in spec.sensor_outputs(sensor))
 
 
 def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
@@ -157,8 +159,10 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
     the driver gave this task up and finished)."""
     spec.check_outputs()  # the writer's fields (outputs, rgb format, layout): the renderer checks the rest
     start = time.perf_counter()
-    for output in OUTPUTS:  # temp files of an earlier, killed attempt at this episode
-        storage.remove_stale_temp(output_dir(spec.scenario, output, spec.episode, spec.layout), f"{spec.episode:04d}_")
+    for sensor in spec.sensors:  # temp files of an earlier, killed attempt at this episode
+        for output in OUTPUTS:
+            storage.remove_stale_temp(output_dir(spec.scenario, output, spec.episode, spec.layout, sensor),
+                                      f"{spec.episode:04d}_")
     part_dir = part_path(spec.scenario, spec.episode).rpartition("/")[0]
     storage.remove_stale_temp(part_dir, part_stem(spec.scenario, spec.episode))  # under any of its names
     rows: list[dict] = []
@@ -169,18 +173,18 @@ def run_episode(spec: EpisodeSpec, storage, world: str = "procedural",
         if full_after is not None and len(rows) >= full_after:
             raise storage_error("write", storage.join(spec.scenario), OSError(errno.ENOSPC, "No space left on device"))
         rows.append(store_frame(spec, frame, storage, frame_fence))
-        if on_frame is not None:
-            on_frame(len(rows))
+        if on_frame is not None and len(rows) % len(spec.sensors) == 0:  # a frame: every sensor of the rig
+            on_frame(len(rows) // len(spec.sensors))
         if kill_after is not None and len(rows) >= kill_after:
             os._exit(17)
 
     # The process keeps one renderer alive across episodes (render_workers.render.episode).
     info = render_episode(spec.drawing, sink, world=world)  # the renderer takes only what it draws
-    if len(rows) != spec.frames:
-        raise RuntimeError(f"{spec.key}: rendered {len(rows)} frames, expected {spec.frames}")
+    if len(rows) != spec.frames * len(spec.sensors):  # one row per sensor frame
+        raise RuntimeError(f"{spec.key}: rendered {len(rows)} sensor frames, expected {spec.frames * len(spec.sensors)}")
     seconds = time.perf_counter() - start
-    result = EpisodeResult(spec.scenario, spec.episode, len(rows), seconds, socket.gethostname(), os.getpid())
-    stats = {"frames": len(rows), "seconds": round(seconds, 3), "node": result.node, "stages": info.timings}
+    result = EpisodeResult(spec.scenario, spec.episode, spec.frames, seconds, socket.gethostname(), os.getpid())
+    stats = {"frames": spec.frames, "seconds": round(seconds, 3), "node": result.node, "stages": info.timings}
     frame_fence.check(force=True)
     storage.write_bytes(stats_path(spec.scenario, spec.episode), json.dumps(stats).encode())
     sync_frame_dirs(storage, spec)

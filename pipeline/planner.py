@@ -15,6 +15,7 @@ import math
 from dataclasses import dataclass, field
 
 from domains.catalog import TOWNS, Town, catalog_for, using
+from domains.rigs import rig_named
 from domains.selection import parse_selection
 from manifests.schema import NEW_RULES
 from pipeline.settings import PlanConfig, full_scale_frames
@@ -116,6 +117,7 @@ def make_plan(config: PlanConfig) -> Plan:
 def _plan(config: PlanConfig) -> Plan:
     episodes: list[EpisodeSpec] = []
     scenes = scene_places([config.domains]) if config.rules >= NEW_RULES else None  # a new root's
+    rig = rig_named(config.rig)
     for place, scenario in enumerate(parse_selection(config.domains)):
         lengths = split_episodes(scenario_frames(config, scenario.town), episode_target(scenario.town))
         for index, frames in enumerate(lengths):
@@ -134,6 +136,7 @@ def _plan(config: PlanConfig) -> Plan:
                     catalog=config.catalog,
                     frame_interval_s=float(config.frame_interval_s),
                     rules=config.rules,
+                    rig="" if rig.is_default else rig.as_json(),
                 )
             )
     return Plan(config=config, episodes=tuple(episodes))

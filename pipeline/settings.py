@@ -15,6 +15,7 @@ import math
 from dataclasses import MISSING, asdict, dataclass, field, fields
 
 from domains.catalog import TOWN_BY_CODE, TOWNS, VIEWPOINTS, WEATHERS, Town, catalog_for, using
+from domains.rigs import DEFAULT_RIG, rig_named
 from domains.selection import parse_selection
 from manifests.schema import NEW_RULES, OLD_RULES
 from outputs.encoding import check_rgb_format
@@ -101,6 +102,9 @@ class PlanConfig:
     # manifests.schema.NEW_RULES (new roots): splits per scene, ...; OLD_RULES is what a config recorded
     # before them means
     rules: int = setting(NEW_RULES, (int,), frame_defining=True, absent=OLD_RULES)
+    # the sensor rig every frame is seen by (domains.rigs): a built-in rig's name, or a domain file's declared
+    # rig as JSON; roots from before rigs: front
+    rig: str = setting(DEFAULT_RIG, (str,), frame_defining=True, absent=DEFAULT_RIG)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "outputs", tuple(self.outputs))  # a list when read back from JSON
@@ -108,6 +112,7 @@ class PlanConfig:
             object.__setattr__(self, "catalog", json.dumps(self.catalog, separators=(",", ":")) if self.catalog else "")
 
     def validate(self) -> None:
+        rig_named(self.rig)
         if self.scale is not None and self.frames_per_scenario is not None:
             raise ValueError("give either --scale or --frames-per-scenario, not both")
         if self.scale is not None and not (0.0 < self.scale <= 1.0):

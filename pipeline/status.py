@@ -59,7 +59,7 @@ def root_status(storage) -> RootStatus:
     _check_names(storage, plan, held, status)
     planned = set()
     for code, episodes in plan.by_scenario().items():
-        have = [min(held.get((e.scenario, e.episode), 0), e.frames) for e in episodes]
+        have = [min(held.get((e.scenario, e.episode), 0) // len(e.sensors), e.frames) for e in episodes]  # rows / sensors
         planned.update((e.scenario, e.episode) for e in episodes)
         status.scenarios.append(
             ScenarioStatus(

@@ -10,11 +10,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from domains.catalog import Scenario, Town, active, code_axes
+from domains.rigs import rig_from_json
 from outputs.deflaters import DEFAULT_DEFLATER
 from outputs.encoding import check_rgb_format
 from manifests.layout import NEW_ROOT_LAYOUT, check_layout
 from manifests.schema import NEW_RULES, RULES
-from outputs.table import DEFAULT_OUTPUTS, check_outputs, output
+from outputs.table import DEFAULT_OUTPUTS, LIDAR_OUTPUTS, check_outputs, output
 
 FRAME_PERIOD_S = 3.0  # the default frame interval: one frame every 3 s of simulated time (the paper's)
 MAX_FRAME_INTERVAL_S = 60.0
@@ -84,6 +85,7 @@ class DrawSpec:
     catalog: str = ""  # the run's user domain entries (domains.rows.Catalog.layer_json); "" = built-in only
     frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (--frame-interval)
     rules: int = NEW_RULES  # the root's rules: OLD_RULES draws a weather shift's ramp as roots made before them
+    rig: str = ""  # the run's sensor rig as JSON (domains.rigs.Rig.as_json); "" = the default rig, front
 
     def frame_time(self, index: int) -> float:
         """Simulated time of frame ``index`` in seconds (frame 0 at 0)."""
@@ -120,13 +122,27 @@ class EpisodeSpec:
     frame_interval_s: float = FRAME_PERIOD_S  # simulated seconds between frames (--frame-interval)
     png_deflater: str = DEFAULT_DEFLATER  # the root's PNG deflater (outputs.deflaters): an older root keeps its own
     rules: int = NEW_RULES  # the root's rules (OLD_RULES in roots made before them: run.json without "rules")
+    rig: str = ""  # the run's sensor rig as JSON (domains.rigs.Rig.as_json); "" = the default rig, front
+
+    @property
+    def sensors(self) -> tuple[str, ...]:
+        """The names of the rig's sensors, in the order each frame renders them; ("",) for the default rig."""
+        rig = rig_from_json(self.rig)
+        return ("",) if rig.is_default else tuple(s.name for s in rig.sensors)
+
+    def sensor_outputs(self, sensor: str) -> tuple[str, ...]:
+        """The outputs ``sensor`` writes: the spec's for a camera, the LiDAR's own files for a lidar."""
+        rig = rig_from_json(self.rig)
+        kind = "camera" if rig.is_default else next(s.kind for s in rig.sensors if s.name == sensor)
+        return LIDAR_OUTPUTS if kind == "lidar" else self.outputs
 
     @property
     def drawing(self) -> DrawSpec:
         """What the renderer takes of this job: nothing of how its frames are encoded or filed."""
         return DrawSpec(scenario=self.scenario, episode=self.episode, seed=self.seed, frames=self.frames,
                         width=self.width, height=self.height, run_seed=self.run_seed, buffers=self.buffers,
-                        catalog=self.catalog, frame_interval_s=self.frame_interval_s, rules=self.rules)
+                        catalog=self.catalog, frame_interval_s=self.frame_interval_s, rules=self.rules,
+                        rig=self.rig)
 
     @property
     def town(self) -> str:
@@ -152,6 +168,9 @@ class EpisodeSpec:
         check_layout(self.layout)
         check_frame_interval(self.frame_interval_s)
         check_rules(self.rules)
+        rig = rig_from_json(self.rig)
+        if not rig.is_default and self.layout != NEW_ROOT_LAYOUT:
+            raise ValueError(f"rig {rig.name!r} needs the episode-folder layout; this root is flat (make a new root)")
 
     @property
     def key(self) -> str:

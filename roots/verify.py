@@ -117,15 +117,24 @@ def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | No
     col = {name: table.column(name).to_pylist() for name in ("scenario", "episode", "frame", "frame_id", "seed", "width", "height")}
     if set(col["scenario"]) != {scenario} or set(col["episode"]) != {episode}:
         return "rows of another scenario or episode"
-    if col["frame"] != list(range(n)) or col["frame_id"] != [frame_id(episode, i) for i in range(n)]:
-        return "frames are not numbered 0.." + str(n - 1)
+    # a rig's part: one row per sensor frame, frame-major in the rig's order (the sensor column; null: no rig)
+    sensors = table.column("sensor").to_pylist() if "sensor" in table.column_names else [None] * n
+    order = list(dict.fromkeys(sensors))
+    k = len(order)
+    if n % k or sensors != order * (n // k) or (k > 1 and None in order):
+        return "sensor rows are not in the rig's order, frame by frame"
+    frames = n // k
+    if col["frame"] != [i for i in range(frames) for _ in order] \
+            or col["frame_id"] != [frame_id(episode, i) for i in range(frames) for _ in order]:
+        return "frames are not numbered 0.." + str(frames - 1)
     # the rgb files' format: run.json's (older records: png); without run.json, any one format
     formats = [config.get("rgb_format", RGB_FORMATS[0])] if config is not None else list(RGB_FORMATS)
     for output in OUTPUTS:
         paths = table.column(output_columns(output)[0]).to_pylist()
         if paths == [None] * n:  # an output the run did not ask for
             continue
-        if all(paths != [frame_path(scenario, output, f, fmt, layout) for f in col["frame_id"]]
+        if all(paths != [p if p is None else frame_path(scenario, output, f, fmt, layout, s or "")
+                         for p, f, s in zip(paths, col["frame_id"], sensors)]
                for fmt in formats for layout in layouts):
             return f"{output} paths do not follow the layout"
     if len(set(col["seed"])) != 1 or len(set(zip(col["width"], col["height"]))) != 1:

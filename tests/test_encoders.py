@@ -25,7 +25,8 @@ images = hnp.arrays(np.uint8, st.tuples(st.integers(1, 16), st.integers(1, 16), 
 
 
 def test_output_table_names_are_unique_and_known():
-    assert len(set(OUTPUTS)) == len(OUTPUTS) == 11
+    assert len(set(OUTPUTS)) == len(OUTPUTS) == 13
+    assert out_table.LIDAR_OUTPUTS == ("lidar_points", "lidar_labels") and len(out_table.CAMERA_OUTPUTS) == 11
     assert OUTPUTS[:6] == SEED_OUTPUTS
     assert out_table.DEFAULT_OUTPUTS == SEED_OUTPUTS + ("instance", "objects")  # new outputs are opt-in
     with pytest.raises(ValueError, match="valid outputs"):

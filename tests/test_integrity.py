@@ -443,10 +443,10 @@ def test_verify_accepts_a_part_written_as_before_and_still_finds_a_forged_one(co
 
     from manifests.writer import part_bytes
 
-    from manifests.schema import PART_SCHEMA, as_plain_lists
+    from manifests.schema import RULE_PART_SCHEMA, as_plain_lists
 
     part = _first_part(copy)
-    table = pq.read_table(part).cast(PART_SCHEMA)  # list columns by the schema's own field names, as a writer has them
+    table = pq.read_table(part).cast(RULE_PART_SCHEMA)  # list columns by the schema's own field names, as a writer has them (a front root's part: no rig columns)
     assert part.read_bytes() == part_bytes(table)  # as this writer writes now
     legacy = part_bytes(as_plain_lists(table), store_schema=True)  # K and the poses were plain lists then
     assert legacy != part.read_bytes() and b"ARROW:schema" in legacy

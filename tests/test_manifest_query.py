@@ -207,11 +207,12 @@ def test_manifest_dir_holds_one_row_per_frame_after_compaction(root, tmp_path):
 
 def test_what_is_in_the_files_and_what_in_the_paths(root, tmp_path):
     """As the README says: a part holds PART_SCHEMA (town / weather / viewpoint
-    only in its hive path); an index holds them inside, matching ``scenario``."""
+    only in its hive path); an index holds them inside, matching ``scenario``. A root of the
+    default rig (front) leaves the rig's columns (sensor, LiDAR files) out of both."""
     import shutil
 
     from manifests.reader import compact
-    from manifests.schema import PARTITION_KEYS, index_path
+    from manifests.schema import PARTITION_KEYS, RIG_FIELDS, RULE_PART_SCHEMA, index_path
 
     storage, plan = root
     copy = Storage.from_uri(str(tmp_path / "copy"))
@@ -219,9 +220,11 @@ def test_what_is_in_the_files_and_what_in_the_paths(root, tmp_path):
     compact(copy)
     spec = plan.episodes[0]
     part = pq.read_table(copy.path(part_of(copy, spec.scenario, spec.episode)))
-    assert part.schema.names == PART_SCHEMA.names and not set(PARTITION_KEYS) & set(part.schema.names)
+    rig = {name for name, _ in RIG_FIELDS}
+    assert part.schema.names == RULE_PART_SCHEMA.names == [n for n in PART_SCHEMA.names if n not in rig]
+    assert not set(PARTITION_KEYS) & set(part.schema.names)
     index = pq.read_table(copy.path(index_path(spec.scenario)))
-    assert index.schema.names == MANIFEST_SCHEMA.names
+    assert index.schema.names == [n for n in MANIFEST_SCHEMA.names if n not in rig]
     for key, value in zip(PARTITION_KEYS, split_code(spec.scenario)):
         assert set(index.column(key).to_pylist()) == {value}
 

@@ -734,11 +734,11 @@ def test_read_part_reads_an_episodes_part_under_whichever_name(tmp_path):
     spec = tiny_spec()
     table = episode_table(spec)
     storage.write_bytes(part_path(spec.scenario, spec.episode), part_bytes(table))  # an old root's name
-    assert read_part(storage, spec.scenario, spec.episode).equals(table)
+    assert read_part(storage, spec.scenario, spec.episode).select(table.column_names).equals(table)  # + null rig columns
     write_part(storage, spec.scenario, spec.episode, table)  # the name that counts its rows
     assert storage.list_files(part_path(spec.scenario, spec.episode).rpartition("/")[0]) == [
         part_path(spec.scenario, spec.episode, len(table))]
-    assert read_part(storage, spec.scenario, spec.episode).equals(table)
+    assert read_part(storage, spec.scenario, spec.episode).select(table.column_names).equals(table)
 
 
 def test_a_part_is_zstd_with_statistics_and_no_arrow_schema():

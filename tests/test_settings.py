@@ -28,10 +28,11 @@ def test_the_recorded_tables_are_the_settings_fields():
     assert list(CONFIG_TYPES) == fields
     assert set(RunConfig(plan=PlanConfig()).to_dict()) == set(CONFIG_TYPES) - {"catalog"}  # catalog: user entries only
     assert set(FRAME_DEFINING) == {"seed", "width", "height", "world", "outputs", "rgb_format", "frame_interval_s",
-                                   "pairing", "rules"}
-    assert set(OPTIONAL_CONFIG) == {"world", "outputs", "rgb_format", "catalog", "frame_interval_s", "pairing", "rules"}
+                                   "pairing", "rules", "rig"}
+    assert set(OPTIONAL_CONFIG) == {"world", "outputs", "rgb_format", "catalog", "frame_interval_s", "pairing", "rules",
+                                    "rig"}
     assert RECORDED_DEFAULTS == {"outputs": list(SEED_OUTPUTS), "rgb_format": "png", "frame_interval_s": FRAME_PERIOD_S,
-                                 "pairing": UNPAIRED, "rules": OLD_RULES}
+                                 "pairing": UNPAIRED, "rules": OLD_RULES, "rig": "front"}
     assert CONFIG_SHAPE.types == CONFIG_TYPES and CONFIG_SHAPE.optional == OPTIONAL_CONFIG
 
 

@@ -15,7 +15,7 @@ from domains.selection import parse_selection
 from manifests import query as q
 from manifests.stats import bar_chart_png, format_share_table, share_table
 from pipeline.cli import data as cli_data, domain_files as cli_domains
-from pipeline.cli.domain_files import CatalogFile, domain_file, root_catalog, root_pairing, root_rules
+from pipeline.cli.domain_files import CatalogFile, domain_file, root_catalog, root_pairing, root_rig, root_rules
 from pipeline.cli.progress import (
     ProgressDisplay, VerifyDisplay, format_head_lost, format_interrupted, format_outage, format_produce_report,
     stop_signals,
@@ -25,7 +25,7 @@ from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MaxCondition, MinCondition, MinShare, OneLineUsageErrors, PerScenario,
     Preset, SampleSeed, Splits, Total, build_query, count, of_held, output_root, user_errors, write_local,
 )
-from outputs.table import DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
+from outputs.table import CAMERA_OUTPUTS, DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import read_manifest, require_outputs, scan_manifest
 from pipeline.driver import HeadLost, ProduceInterrupted, RendererCrashes, StorageOutage, produce as run_produce
 from pipeline.plan_file import write_plan
@@ -140,10 +140,11 @@ def produce(
     max_retries: int = typer.Option(3, help="Retries per episode after a worker, node or renderer failure."),
     extend: bool = typer.Option(False, "--extend", help="Allow a different selection or size than the root was made with. Episodes made longer are rendered again whole; in a shifting weather (e.g. CNtoNT) their earlier frames change, since a shift runs over its episode's length."),
     repair: bool = typer.Option(False, "--repair", help="Verify first and re-render exactly the damaged episodes."),
-    outputs: str = typer.Option(",".join(DEFAULT_OUTPUTS), "--outputs", help=f"Outputs to write, comma-separated: any of {', '.join(OUTPUTS)}. A root keeps the outputs it was made with."),
+    outputs: str = typer.Option(",".join(DEFAULT_OUTPUTS), "--outputs", help=f"Outputs to write, comma-separated: any of {', '.join(CAMERA_OUTPUTS)}. A root keeps the outputs it was made with."),
     rgb_format: str = typer.Option("png", "--rgb-format", help="File format of the rgb output: png (lossless, the default) or jpg (quality 95, the released IDDA format; about a quarter of the bytes). A root keeps its format."),
     catalog: CatalogFile = None,
     frame_interval: float = typer.Option(3.0, "--frame-interval", metavar="SECONDS", help="Simulated seconds between frames: 3 (the paper's sparse sampling, the default) or e.g. 0.1 for a 10 Hz video-like episode. A root keeps its interval."),
+    rig: Optional[str] = typer.Option(None, "--rig", help="Sensor rig: front (the viewpoint's camera, the default), stereo, surround, lidar64, or one a --catalog file declares with [[rig]] (docs/conventions.md). A root keeps its rig."),
 ) -> None:
     """Render the selected scenarios into an output root (resumable).
 
@@ -158,7 +159,7 @@ def produce(
         plan_cfg = PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
                               height=height, seed=seed, outputs=parse_outputs(outputs), rgb_format=rgb_format,
                               catalog=layer, frame_interval_s=frame_interval, pairing=root_pairing(out),
-                              rules=root_rules(out))
+                              rules=root_rules(out), rig=root_rig(out, rig, catalog))
         config = ProduceConfig(
             run=RunConfig(plan=plan_cfg, world=world),
             out=out,
@@ -299,6 +300,7 @@ def query(
     domains: Domains = None,
     split: Splits = [],
     episode: list[int] = typer.Option([], help="Keep this episode index; repeatable."),
+    sensor: list[str] = typer.Option([], "--sensor", help="Keep the frames of this sensor of the root's rig (e.g. left, frontleft, lidar; the default rig's camera is front); repeatable."),
     has_class: HasClass = [],
     min_share: MinShare = [],
     min_condition: MinCondition = [],
@@ -319,6 +321,9 @@ def query(
         if paired is not None:
             chosen = tuple(w.strip() for w in paired.split(",") if w.strip())
             the_query = replace(the_query, paired=chosen)
+            the_query.validate()
+        if sensor:
+            the_query = replace(the_query, sensors=tuple(sensor))
             the_query.validate()
         storage = output_root(root)
         result, held = scan_manifest(storage, lambda dataset: (q.run_query(dataset, the_query), dataset.count_rows()))

@@ -8,6 +8,7 @@ become one line and exit code 2 via ``pipeline.cli.common.user_errors``.
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -58,6 +59,7 @@ def export(
     outputs: Optional[str] = typer.Option(None, "--outputs", help="webdataset: the outputs each sample holds, comma-separated (default: every output the frames hold)."),
     shard_size: str = typer.Option("1GB", "--shard-size", help="webdataset: the most bytes a shard holds, e.g. 1GB, 256MB."),
     catalog: CatalogFile = None,
+    sensor: Optional[str] = typer.Option(None, "--sensor", help="In a root made with a rig of several sensors: the one sensor whose frames to export (docs/conventions.md, 'Sensor rigs')."),
 ) -> None:
     """Export a query's frames as a Cityscapes, IDDA, HuggingFace, COCO or WebDataset layout (never re-renders).
 
@@ -74,6 +76,9 @@ def export(
             raise ValueError("give at most one of --copy and --symlink")
         output_root(root)
         query = build_query(preset, domains, split, has_class, min_share, per_scenario, total, seed)
+        if sensor is not None:
+            query = replace(query, sensors=(sensor,))
+            query.validate()
         config = ExportConfig(
             root=root, to=str(to), format=fmt, query=query,
             files="copy" if copy else "symlink" if symlink else "hardlink", force=force, threads=threads,

@@ -16,6 +16,7 @@ import typer
 
 from domains.catalog import BUILTIN, catalog_for
 from domains.catalog_file import CatalogError, catalog_toml, with_file
+from domains.rigs import run_rig
 from pipeline.cli.common import user_errors
 from pipeline.settings import CONFIG_SHAPE, RECORDED_DEFAULTS, PlanConfig
 from render_workers.worlds.styles import STYLE_BY_NAME
@@ -76,6 +77,14 @@ def root_pairing(root: str) -> int:
 def root_rules(root: str) -> int:
     """The rules of a root (roots.episode_spec): OLD_RULES in a root from before them."""
     return root_recorded(root, "rules")
+
+
+def root_rig(root: str, name: str | None, path: Path | None) -> str:
+    """The rig a run on ``root`` uses (``PlanConfig.rig``): ``name`` (built-in, or declared by ``[[rig]]`` in the
+    domain file at ``path``), else the root's recorded one (a new root: front)."""
+    if name is None:
+        return root_recorded(root, "rig")
+    return run_rig(name, path.read_text(encoding="utf-8") if path is not None else None, str(path))
 
 
 def root_catalog(root: str | None, path: Path | None):

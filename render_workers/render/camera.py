@@ -29,6 +29,7 @@ import numpy as np
 import trimesh
 
 from domains.catalog import Viewpoint, viewpoint as lookup_viewpoint
+from domains.rigs import Sensor
 from outputs.geometry import CV_FROM_GL, HFOV_DEG, intrinsics
 
 CAMERA_FORWARD_M = 0.2  # camera position ahead of the ego's centre (rear-view mirror)
@@ -52,14 +53,24 @@ class CameraRig:
     viewpoint: Viewpoint
     width: int
     height: int
+    sensor: Sensor | None = None  # a rig's camera (domains.rigs), mounted relative to the viewpoint's; None: the viewpoint's
 
     def __post_init__(self) -> None:
         if self.width < 1 or self.height < 1:
             raise ValueError(f"camera size must be positive, got {self.width}x{self.height}")
 
     @property
+    def hfov_deg(self) -> float:
+        return HFOV_DEG if self.sensor is None else self.sensor.hfov_deg
+
+    @property
+    def has_hood(self) -> bool:
+        """Whether this camera sees the ego's hood: the viewpoint's own camera only."""
+        return self.sensor is None or self.sensor.is_mount_camera
+
+    @property
     def tan_half_h(self) -> float:
-        return math.tan(math.radians(HFOV_DEG) / 2)
+        return math.tan(math.radians(self.hfov_deg) / 2)
 
     @property
     def tan_half_v(self) -> float:
@@ -93,6 +104,8 @@ class CameraRig:
         m = np.eye(4)
         m[:3, :3] = EGO_FROM_CAMERA_ROT
         m[:3, 3] = (CAMERA_FORWARD_M, 0.0, self.viewpoint.camera_height_m)
+        if self.sensor is not None and not self.sensor.is_mount_camera:  # ego <- mount <- sensor <- GL camera
+            m = mount_to_ego(self.viewpoint) @ self.sensor.mount_from_sensor() @ _rotation(EGO_FROM_CAMERA_ROT)
         return m
 
     def world_from_camera(self, world_from_ego: np.ndarray) -> np.ndarray:
@@ -101,7 +114,7 @@ class CameraRig:
     @property
     def K(self) -> np.ndarray:
         """3x3 intrinsics in the manifest's convention (``outputs.geometry``: OpenCV, pixel centres at integers)."""
-        return intrinsics(self.width, self.height, HFOV_DEG)
+        return intrinsics(self.width, self.height, self.hfov_deg)
 
     @cached_property
     def cam_to_ego(self) -> np.ndarray:
@@ -122,8 +135,22 @@ class CameraRig:
         return math.inf if dv <= 0 else self.focal_px * self.viewpoint.camera_height_m / dv
 
 
-def camera_rig(view: Viewpoint | str, width: int, height: int) -> CameraRig:
-    return CameraRig(_as_viewpoint(view), width, height)
+def camera_rig(view: Viewpoint | str, width: int, height: int, sensor: Sensor | None = None) -> CameraRig:
+    return CameraRig(_as_viewpoint(view), width, height, sensor)
+
+
+def _rotation(rot: np.ndarray) -> np.ndarray:
+    m = np.eye(4)
+    m[:3, :3] = rot
+    return m
+
+
+def mount_to_ego(view: Viewpoint | str) -> np.ndarray:
+    """4x4: the viewpoint's camera mount (ego axes, 0.2 m ahead, ``camera_height_m`` up) in the ego frame;
+    a rig's sensor poses are given from it (domains.rigs)."""
+    m = np.eye(4)
+    m[:3, 3] = (CAMERA_FORWARD_M, 0.0, _as_viewpoint(view).camera_height_m)
+    return m
 
 
 # --------------------------------------------------------------------------

@@ -32,6 +32,7 @@ import numpy as np
 from domains.catalog import NUM_CLASSES, scenario as lookup_scenario, town_variant, using, weather as lookup_weather
 from domains.ramps import weather_at
 from domains.conditions import frame_conditions
+from domains.rigs import rig_from_json
 from outputs.geometry import CV_FROM_GL, normals_from_depth, pose_cells
 from outputs.objects import object_counts
 from manifests.schema import NEW_RULES
@@ -42,6 +43,7 @@ from render_workers.worlds import testworld, traffic, worldcache, world as proce
 from render_workers.render.camera import measured_hood_fraction
 from render_workers.render.flow import episode_flow
 from render_workers.render.instances import frame_objects, instance_classes
+from render_workers.render.lidar import LidarSweep, lidar_frame, lidar_sweep
 from render_workers.render.renderer import Renderer, RenderResult
 from render_workers.worlds.scene import EpisodeScene, Frame, World
 from render_workers.worlds.registry import DEFAULT_WORLD, WORLDS, check_world  # noqa: F401 (re-exported: the API since before the registry)
@@ -165,7 +167,7 @@ def render_frame(renderer: Renderer, scene: EpisodeScene, spec: DrawSpec, index:
 
 
 def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, spec: DrawSpec,
-                 index: int) -> tuple[Frame, dict]:
+                 index: int, sensor: int = 0) -> tuple[Frame, dict]:
     """Frame ``index`` from its rendered buffers: post effects, the objects table (when asked), counts.
 
     No GL here: it reads only the episode's fixed state (weather, rig,
@@ -179,7 +181,8 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
         depth=buffers["depth"], classes=buffers["classes"], hood_mask=result.hood_mask, rig=result.rig,
         world_from_camera=result.world_from_camera, weather=result.weather,
         ego_speed_mps=scene.ego.speed_mps, sun_pixel=result.sun_pixel,
-        rng=np.random.default_rng([spec.seed, _FX_STREAM, index]), episode_seed=spec.seed, world=scene.world,
+        rng=np.random.default_rng([spec.seed, _FX_STREAM, index] + ([sensor] if sensor else [])),
+        episode_seed=spec.seed, world=scene.world,
     )
     buffers["rgb"] = postfx.apply(buffers["rgb"], ctx)
     timings["post_fx"] = time.perf_counter() - start
@@ -200,19 +203,24 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     ego_to_world = scene.ego.pose(t)
     frame = Frame(
         index=index, sim_time_s=t, buffers=buffers, class_counts=counts, object_counts=objects,
-        camera_height_m=renderer.rig.viewpoint.camera_height_m,
+        camera_height_m=float(result.rig.cam_to_ego[2, 3]),
         hood_fraction=measured_hood_fraction(result.hood_mask), ego_speed_mps=float(scene.ego.speed_mps),
         n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
         conditions=frame_conditions(result.weather),
         **pose_cells(result.rig.K, result.world_from_camera @ CV_FROM_GL, ego_to_world, result.rig.cam_to_ego),
+        sensor="" if rig_from_json(spec.rig).is_default else rig_from_json(spec.rig).sensors[sensor].name,
     )
     return frame, timings
 
 
-def _finish_and_sink(sink: Callable[[Frame], None], result: RenderResult, renderer: Renderer, scene: EpisodeScene,
-                     spec: DrawSpec, index: int) -> dict:
-    """The back half of a frame, on the sink thread: finish it, then hand it to ``sink``; returns its timings."""
-    frame, timings = finish_frame(result, renderer, scene, spec, index)
+def _finish_and_sink(sink: Callable[[Frame], None], result, renderer: Renderer, scene: EpisodeScene,
+                     spec: DrawSpec, index: int, sensor: int = 0) -> dict:
+    """The back half of a frame, on the sink thread: finish it, then hand it to ``sink``; returns its timings.
+    ``sensor``: the rig's sensor (its place in the rig); a LiDAR's ``result`` is its sweep."""
+    if isinstance(result, LidarSweep):
+        frame, timings = lidar_frame(result, scene, spec, index, sensor, frame_weathers(spec)[index]), {}
+    else:
+        frame, timings = finish_frame(result, renderer, scene, spec, index, sensor)
     start = time.perf_counter()
     sink(frame)
     timings["sink"] = time.perf_counter() - start
@@ -247,20 +255,31 @@ def render_episode(spec: DrawSpec, sink: Callable[[Frame], None], *, world: str 
             collect(pending.popleft())
         timings["sink_wait"] += time.perf_counter() - start
 
+    rig = rig_from_json(spec.rig)
     with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
         try:
             for index in range(spec.frames):
-                result = renderer.render(spec.frame_time(index), weathers[index])
-                for stage, seconds in result.timings.items():
-                    timings[stage] += seconds
-                while pending and pending[0].done():  # surface a sink error early
-                    collect(pending.popleft())
-                settle(SINK_AHEAD - 1)
-                pending.append(pool.submit(_finish_and_sink, sink, result, renderer, scene, spec, index))
+                for k, sensor in enumerate(rig.sensors):  # every sensor at the frame's instant, in rig order
+                    if sensor.kind == "lidar":
+                        start = time.perf_counter()
+                        result = lidar_sweep(renderer, sensor, spec.frame_time(index), spec.width, spec.height)
+                        timings["lidar"] = timings.get("lidar", 0.0) + time.perf_counter() - start
+                    else:
+                        if not rig.is_default:
+                            renderer.use_sensor(sensor, spec.width, spec.height)
+                        result = renderer.render(spec.frame_time(index), weathers[index])
+                        for stage, seconds in result.timings.items():
+                            timings[stage] += seconds
+                    while pending and pending[0].done():  # surface a sink error early
+                        collect(pending.popleft())
+                    settle(SINK_AHEAD - 1)
+                    pending.append(pool.submit(_finish_and_sink, sink, result, renderer, scene, spec, index, k))
             settle(0)
         finally:
             for future in pending:  # after an error: drop frames not yet started
                 future.cancel()
+    if not rig.is_default:
+        renderer.use_sensor(None, spec.width, spec.height)  # the next episode starts from the viewpoint's camera
     log.debug("%s: %d frames, timings %s", spec.key, spec.frames, timings)
     return EpisodeInfo(n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
                        frames=spec.frames, timings=timings)

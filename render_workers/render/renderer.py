@@ -258,7 +258,9 @@ class Renderer:
 
         camera = pr.PerspectiveCamera(yfov=self.rig.yfov, aspectRatio=self.rig.aspect,
                                       znear=self.znear, zfar=self.zfar)
+        self._camera = camera
         self._camera_node = prs.add(camera, pose=np.eye(4))
+        self._hood_node = None
         hood = hood_mesh(viewpoint, self.rig.aspect)
         if hood is not None:
             soup = _Soup()
@@ -267,6 +269,7 @@ class Renderer:
             mesh, _ = _pyrender_mesh(soup, "glossy")
             hood_node = pr.Node(mesh=mesh, matrix=np.eye(4))
             prs.add_node(hood_node, parent_node=self._camera_node)
+            self._hood_node = hood_node
             self._seg_map[hood_node] = _seg_color(VEHICLE_ID, HOOD_ID)
         self._draw_list = list(self._seg_map)  # hood, then actors, then static: near first
         self._draw_list.reverse()
@@ -280,6 +283,32 @@ class Renderer:
         self._sun = sun
         self._shadow_strength = shadow_strength(weather)
         self._scene = prs
+
+    def use_sensor(self, sensor, width: int, height: int, hood: bool | None = None) -> None:
+        """Draw the next frames from a rig's sensor (``domains.rigs.Sensor``) at ``width`` x ``height``:
+        its mounting and field of view; the hood only for the viewpoint's own camera. The loaded
+        episode (world, actors, weather) stays as it is, so every sensor sees the same instant."""
+        self._ensure_context(width, height)
+        self.rig = CameraRig(self.rig.viewpoint, width, height, sensor)
+        self._camera.yfov, self._camera.aspectRatio = self.rig.yfov, self.rig.aspect
+        if self._hood_node is not None:
+            self._hood_node.mesh.is_visible = self.rig.has_hood if hood is None else hood
+
+    def render_labels(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The class pass alone at time ``t`` from the current sensor: (planar depth float32 metres, background
+        ZFAR; class ids uint8, background sky; instance ids uint16) and world_from_camera (OpenGL axes)."""
+        pr = compat.import_pyrender()
+        cam = self.update(t, shadows=False)
+        seg, depth = self._offscreen.render(self._scene, flags=pr.RenderFlags.SEG | pr.RenderFlags.SKIP_CULL_FACES,
+                                            seg_node_map=self._seg_map)
+        background = depth <= 0.0
+        classes = seg[..., 0].copy()
+        classes[background] = SKY_ID
+        instance = seg[..., 1].astype(np.uint16) | (seg[..., 2].astype(np.uint16) << 8)
+        instance[background] = 0
+        depth = np.minimum(depth, np.float32(self.zfar), dtype=np.float32)
+        depth[background] = self.zfar
+        return depth, classes, instance, cam
 
     def set_weather(self, weather: Weather) -> None:
         """Light the loaded episode by ``weather`` from the next frame on (a shift's frame weather):
@@ -338,8 +367,9 @@ class Renderer:
         inside = (np.abs(x) * c - z * s) < radii
         return near & inside & (z > -radii)
 
-    def update(self, t: float) -> np.ndarray:
-        """Pose the camera and actors for time ``t`` and cull; returns world_from_camera."""
+    def update(self, t: float, shadows: bool = True) -> np.ndarray:
+        """Pose the camera and actors for time ``t`` and cull (and fit the shadow map, unless ``shadows`` is
+        False: a class pass alone draws none); returns world_from_camera."""
         if self._scene is None or self._episode is None:
             raise RuntimeError("Renderer.load() must be called before rendering")
         cam = self.rig.world_from_camera(self._episode.ego.pose(t))
@@ -358,7 +388,7 @@ class Renderer:
                 node.mesh.is_visible = bool(on)
         else:
             world_centres = np.empty((0, 3))
-        if self._shadows_on():
+        if shadows and self._shadows_on():
             self._shadow_frame = self._fit_shadows(cam, world_centres)
         return cam
 

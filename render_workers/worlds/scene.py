@@ -189,3 +189,4 @@ class Frame:
     ego_to_world: list  # 16 values, 4x4
     cam_to_ego: list  # 16 values, 4x4, fixed per viewpoint
     conditions: dict  # condition column -> value (domains.conditions): the weather this frame was rendered under
+    sensor: str = ""  # the rig's sensor that saw it (domains.rigs); "" in the default rig (no sensor column)

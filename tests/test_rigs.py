@@ -1,0 +1,352 @@
+"""Sensor rigs (issue 37): the rig table, one world state per frame for every sensor, the layout,
+the manifest's sensor rows, resume and verify, and the geometric proofs (stereo disparity, surround
+neighbours, LiDAR against the front camera)."""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import replace
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from domains.catalog import class_id
+from domains.conditions import CONDITION_COLUMNS
+from domains.rigs import DEFAULT_RIG, RigError, builtin_rigs, rig_from_entry, rig_named, rigs_from_text
+from manifests.layout import EPISODE_DIRS, match_frame_file, frame_path
+from outputs.encoding import decode_depth_raw, decode_kitti_labels, decode_kitti_points, decode_png
+from outputs.geometry import as_matrix, project, world_to_camera
+from outputs.table import read_output
+from pipeline.planner import PlanConfig, make_plan
+from pipeline.settings import RunConfig
+from render_workers.render.instances import HOOD_ID
+from tests.roots import render_root
+
+SKY = class_id("sky")
+
+
+def _rows(root) -> list[dict]:
+    from manifests.reader import read_manifest
+
+    return read_manifest(str(root)).to_pylist()
+
+
+def _depth(root, row) -> np.ndarray:
+    return decode_depth_raw(decode_png((root / row["depth_raw_path"]).read_bytes())).astype(np.float64)
+
+
+def _classes(root, row) -> np.ndarray:
+    return decode_png((root / row["semantic_raw_path"]).read_bytes())[..., 0]
+
+
+def _plan(rig: str, frames: int = 1, width: int = 160, height: int = 90, domains: str = "T01_CN_A") -> PlanConfig:
+    return PlanConfig(domains=domains, frames_per_scenario=frames, width=width, height=height, rig=rig)
+
+
+# ------------------------------------------------------------------ the table ----
+def test_built_in_rigs():
+    rigs = builtin_rigs()
+    assert list(rigs) == ["front", "stereo", "surround", "lidar64"]
+    assert rigs[DEFAULT_RIG].is_default and len(rigs["front"].sensors) == 1 and rigs["front"].sensors[0].is_mount_camera
+    left, right = rigs["stereo"].sensors
+    assert left.is_mount_camera and (right.y - left.y) == pytest.approx(-0.54)  # right is 0.54 m to the right
+    assert len(rigs["surround"].cameras) == 6
+    yaws = sorted(s.yaw % 360 for s in rigs["surround"].sensors)
+    gaps = np.diff(yaws + [yaws[0] + 360])
+    assert all(g < s.hfov_deg for g, s in zip(gaps, rigs["surround"].sensors))  # neighbours overlap: all round
+    lidar = [s for s in rigs["lidar64"].sensors if s.kind == "lidar"]
+    assert len(lidar) == 1 and lidar[0].beams == 64
+
+
+@pytest.mark.parametrize("entry, message", [
+    ({"name": "x", "sensor": []}, "at least one sensor"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "radar"}]}, "'kind'"),
+    ({"name": "x", "sensor": [{"name": "A b", "kind": "camera"}]}, "lower-case"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera", "hfov_deg": 500}]}, "out of range"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera", "colour": 1}]}, "'colour': unknown"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "a", "kind": "camera"}]}, "twice"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "lidar"}]}, "at least one camera"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "l", "kind": "lidar", "pitch": 5}]}, "level"),
+])
+def test_a_bad_rig_is_refused_naming_what(entry, message):
+    with pytest.raises(RigError, match=message):
+        rig_from_entry(entry, "f.toml")
+    with pytest.raises(RigError, match="valid rigs: front, stereo"):
+        rig_named("nope")
+    assert list(rigs_from_text('[[rig]]\nname = "mono"\nsensor = [{ name = "cam", kind = "camera" }]\n', "f")) == ["mono"]
+
+
+def test_a_bad_rig_is_one_line_and_exit_2(tmp_path):
+    from pipeline.cli import app
+
+    result = CliRunner().invoke(app, ["produce", "--domains", "T01_CN_A", "--frames-per-scenario", "1", "--width", "64",
+                                      "--height", "36", "--world", "test", "--rig", "wide", "--out", str(tmp_path / "o")])
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines() == ["error: unknown rig 'wide'; valid rigs: front, stereo, surround, lidar64"]
+    assert not (tmp_path / "o").exists()
+
+
+def test_the_default_rig_leaves_specs_and_paths_as_before():
+    plan = make_plan(_plan("front"))
+    assert {spec.rig for spec in plan.episodes} == {""} and plan.episodes[0].sensors == ("",)
+    assert frame_path("T01_CN_A", "rgb", "0000_001", "png", EPISODE_DIRS) == "T01_CN_A/e0000/rgb/0000_001_T01_CN_A.png"
+    stereo = make_plan(_plan("stereo")).episodes[0]
+    assert stereo.sensors == ("left", "right") and json.loads(stereo.rig)["name"] == "stereo"
+    path = frame_path("T01_CN_A", "rgb", "0000_001", "png", EPISODE_DIRS, "left")
+    assert path == "T01_CN_A/e0000/left/rgb/0000_001_T01_CN_A_left.png"
+    match = match_frame_file(path)
+    assert match and match["sensor"] == "left" and match["output"] == "rgb" and match["frame"] == "001"
+    assert match_frame_file("T01_CN_A/e0000/rgb/0000_001_T01_CN_A.png")["sensor"] is None
+    assert match_frame_file("T01_CN_A/e0000/left/rgb/0000_001_T01_CN_A_right.png") is None  # the stem names its sensor
+    with pytest.raises(ValueError, match="written by a rig's LiDAR"):
+        replace(_plan("front"), outputs=("rgb", "lidar_points")).validate()
+
+
+# ------------------------------------------------------------------ stereo ----
+@pytest.fixture(scope="module")
+def stereo_root(tmp_path_factory):
+    root = tmp_path_factory.mktemp("stereo")
+    render_root(root, RunConfig(plan=_plan("stereo", frames=2), world="test"))
+    return root
+
+
+def test_stereo_rows_one_per_sensor_frame_same_instant(stereo_root):
+    rows = _rows(stereo_root)
+    assert [(r["frame"], r["sensor"]) for r in rows] == [(0, "left"), (0, "right"), (1, "left"), (1, "right")]
+    assert len({r["uid"] for r in rows}) == 4
+    for left, right in zip(rows[::2], rows[1::2]):
+        assert left["sim_time_s"] == right["sim_time_s"] and left["ego_to_world"] == right["ego_to_world"]
+        assert left["n_vehicles"] == right["n_vehicles"]
+        assert all(left[c] == right[c] for c in CONDITION_COLUMNS)  # the same weather
+        lc, rc = as_matrix(left["cam_to_ego"], 4), as_matrix(right["cam_to_ego"], 4)
+        assert np.allclose(np.linalg.inv(lc) @ rc[:, 3], [0.54, 0, 0, 1])  # the right camera, 0.54 m along camera x
+        assert left["hood_fraction"] > 0 and right["hood_fraction"] == 0  # the hood: the viewpoint's camera only
+
+
+def test_stereo_disparity_is_f_b_over_z(stereo_root):
+    """For static pixels of the right image on surfaces whose depth changes along the row, the
+    left image's matching position (where the left depth, interpolated in 1/Z, equals the right pixel's
+    depth) is f * B / Z to the right: measured from the two depth renders, not from the poses."""
+    rows = _rows(stereo_root)
+    errors = []
+    for left, right in zip(rows[::2], rows[1::2]):
+        zl, zr = _depth(stereo_root, left), _depth(stereo_root, right)
+        cl, cr = _classes(stereo_root, left), _classes(stereo_root, right)
+        inst = read_output("instance", (stereo_root / right["instance_path"]).read_bytes())
+        f = as_matrix(right["K"], 3)[0, 0]
+        for v, u in zip(*np.nonzero((zr < 200) & (inst == 0) & (cr != SKY))):
+            z = zr[v, u]
+            pred = u + f * 0.54 / z
+            best = None
+            for k in range(int(pred) - 2, int(pred) + 3):
+                if not 0 <= k < zl.shape[1] - 1 or cl[v, k] != cr[v, u] or cl[v, k + 1] != cr[v, u]:
+                    continue
+                a, b = 1 / zl[v, k], 1 / zl[v, k + 1]
+                if abs(b - a) < 1e-3 / z or abs(zl[v, k + 1] - zl[v, k]) > 0.05 * z:  # flat along the row, or an edge
+                    continue
+                t = (1 / z - a) / (b - a)
+                if 0 <= t <= 1 and (best is None or abs(k + t - pred) < abs(best - pred)):
+                    best = k + t
+            if best is not None:
+                errors.append(best - u - f * 0.54 / z)
+    print(f"stereo: {len(errors)} matches, median |disparity - f*B/Z| {np.median(np.abs(errors)):.4f} px")
+    assert len(errors) > 200
+    assert np.median(np.abs(errors)) <= 0.1
+
+
+def test_stereo_resumes_and_verifies_byte_identically(stereo_root, tmp_path):
+    """A rig's part holds frames x sensors rows: resume must count frames, not rows (without that a done
+    stereo episode read as 'holds 4 frames, the plan asks for 2' and the run stopped)."""
+    import shutil
+
+    from manifests.reader import episode_frames
+    from pipeline.driver import pending_episodes
+    from pipeline.status import root_status
+    from roots.verify import verify as verify_root
+    from storage import Storage
+
+    root = tmp_path / "copy"
+    shutil.copytree(stereo_root, root)
+    storage = Storage.from_uri(str(root))
+    plan = make_plan(_plan("stereo", frames=2))
+    assert pending_episodes(plan, episode_frames(storage)) == []
+    status = root_status(storage)
+    assert (status.frames_done, status.frames_total) == (2, 2)
+    assert verify_root(storage).ok
+    before = {p.relative_to(root): p.read_bytes() for p in root.rglob("*.png")}
+    # lose the part and one right-camera file: the episode is pending, and re-rendered to the same bytes
+    part = next(root.glob("manifest/**/*.parquet"))
+    part.unlink()
+    (root / "T01_CN_A/e0000/right/rgb/0000_001_T01_CN_A_right.png").unlink()
+    assert [s.key for s in pending_episodes(plan, episode_frames(storage))] == ["T01_CN_A/e0000"]
+    render_root(root, RunConfig(plan=_plan("stereo", frames=2), world="test"))
+    assert {p.relative_to(root): p.read_bytes() for p in root.rglob("*.png")} == before
+    assert verify_root(storage).ok
+    damaged = root / "T01_CN_A/e0000/right/depth_raw/0000_000_T01_CN_A_right.png"
+    damaged.write_bytes(damaged.read_bytes()[:-1] + b"x")
+    problems = verify_root(storage).problems
+    assert [p.path for p in problems] == ["T01_CN_A/e0000/right/depth_raw/0000_000_T01_CN_A_right.png"]
+
+
+def test_query_by_sensor(stereo_root):
+    from manifests.query import Query, run_query
+    from manifests.reader import read_manifest
+
+    table = read_manifest(str(stereo_root))
+    picked = run_query(table, Query(sensors=("right",))).table
+    assert picked.column("sensor").to_pylist() == ["right", "right"]
+    with pytest.raises(ValueError, match="not a sensor name"):
+        Query(sensors=("Right side",)).validate()
+
+
+# ------------------------------------------------------------------ surround ----
+def test_surround_neighbours_agree_on_what_they_both_see(tmp_path):
+    root = tmp_path / "surround"
+    render_root(root, RunConfig(plan=_plan("surround", width=192, height=108), world="test"))
+    rows = _rows(root)
+    assert [r["sensor"] for r in rows] == ["front", "frontleft", "backleft", "back", "backright", "frontright"]
+    agree = total = 0
+    for a, b in zip(rows, rows[1:] + rows[:1]):  # every pair of neighbours, all round
+        za, zb, ca, cb = _depth(root, a), _depth(root, b), _classes(root, a), _classes(root, b)
+        Ka, Kb = as_matrix(a["K"], 3), as_matrix(b["K"], 3)
+        v, u = np.nonzero(za < 200)
+        z = za[v, u]
+        cam = np.stack([(u - Ka[0, 2]) * z / Ka[0, 0], (v - Ka[1, 2]) * z / Ka[1, 1], z], axis=1)
+        T = as_matrix(a["cam_to_world"], 4)
+        world = cam @ T[:3, :3].T + T[:3, 3]
+        in_b = world_to_camera(world, b["cam_to_world"])
+        front = in_b[:, 2] > 0.5
+        uv = np.rint(project(in_b[front], Kb)).astype(int)
+        inside = (uv[:, 0] >= 0) & (uv[:, 0] < zb.shape[1]) & (uv[:, 1] >= 0) & (uv[:, 1] < zb.shape[0])
+        ub, vb = uv[inside, 0], uv[inside, 1]
+        seen = np.abs(zb[vb, ub] - in_b[front][inside, 2]) < 0.02 * in_b[front][inside, 2]  # not occluded in b
+        src = ca[v[front][inside], u[front][inside]]
+        agree += int(np.count_nonzero(src[seen] == cb[vb[seen], ub[seen]]))
+        total += int(np.count_nonzero(seen))
+    print(f"surround: {total} shared points, class agreement {agree / total:.4f}")
+    assert total > 500  # the 10-degree overlaps hold many points
+    assert agree / total >= 0.98
+
+
+# ------------------------------------------------------------------ LiDAR ----
+def test_lidar_points_land_on_the_front_camera_pixels_of_their_depth_and_class(tmp_path):
+    root = tmp_path / "lidar"
+    render_root(root, RunConfig(plan=_plan("lidar64", width=320, height=180), world="test"))
+    front, lidar = _rows(root)
+    assert (front["sensor"], lidar["sensor"]) == ("front", "lidar") and lidar["K"] is None
+    assert lidar["rgb_path"] is None and lidar["lidar_points_path"].endswith("/lidar/lidar_points/0000_000_T01_CN_A_lidar.bin")
+    points = decode_kitti_points((root / lidar["lidar_points_path"]).read_bytes())
+    labels = decode_kitti_labels((root / lidar["lidar_labels_path"]).read_bytes())
+    assert len(points) == len(labels) > 10_000 and points.dtype == np.float32
+    world = points[:, :3].astype(np.float64) @ as_matrix(lidar["cam_to_world"], 4)[:3, :3].T \
+        + as_matrix(lidar["cam_to_world"], 4)[:3, 3]
+    cam = world_to_camera(world, front["cam_to_world"])
+    ahead = cam[:, 2] > 1.0
+    uv = np.rint(project(cam[ahead], front["K"])).astype(int)
+    depth, classes = _depth(root, front), _classes(root, front)
+    h, w = depth.shape
+    inside = (uv[:, 0] >= 1) & (uv[:, 0] < w - 1) & (uv[:, 1] >= 1) & (uv[:, 1] < h - 1)
+    u, v = uv[inside, 0], uv[inside, 1]
+    z = cam[ahead][inside, 2]
+    cls = (labels[ahead][inside] & 0xFFFF).astype(np.uint8)
+    assert len(z) > 1000
+    rel = np.abs(depth[v, u] - z) / z
+    assert np.median(rel) <= 0.01
+    # class, edges aside: pixels whose 3x3 neighbourhood is one class and one surface (no depth jump)
+    window = [(dv, du) for dv in (-1, 0, 1) for du in (-1, 0, 1)]
+    same = np.all([classes[v + dv, u + du] == classes[v, u] for dv, du in window], axis=0)
+    smooth = np.all([np.abs(depth[v + dv, u + du] - depth[v, u]) < 0.05 * depth[v, u] for dv, du in window], axis=0)
+    hood = read_output("instance", (root / front["instance_path"]).read_bytes())[v, u] == HOOD_ID  # the ego: the camera's alone
+    keep = same & smooth & (rel < 0.05) & ~hood
+    print(f"lidar: {len(points)} points, {len(z)} in view, median relative depth error {np.median(rel):.5f}, "
+          f"class agreement {np.mean(cls[keep] == classes[v, u][keep]):.4f} over {np.count_nonzero(keep)} points")
+    assert np.count_nonzero(keep) > 500
+    assert np.mean(cls[keep] == classes[v, u][keep]) >= 0.98
+    # the ranges stay inside the sensor's limit, and the instance ids ride in the high 16 bits
+    assert np.linalg.norm(points[:, :3], axis=1).max() <= 120.0 + 1e-3
+    assert set(np.unique(labels >> 16)) <= set(range(2**16))
+
+
+def test_a_domain_file_declares_a_rig_that_travels_in_run_json(tmp_path):
+    """A [[rig]] of a --catalog file: recorded whole in run.json, so resume, verify and workers need no file."""
+    from domains.catalog import BUILTIN
+    from domains.catalog_file import CatalogError, with_file
+    from domains.rigs import run_rig
+    from roots.run_file import read_record
+    from storage import Storage
+
+    text = ('[[rig]]\nname = "rear"\nsensor = [{ name = "back", kind = "camera", yaw = 180.0, hfov_deg = 60.0 }]\n'
+            '[[weather]]\ncode = "FG1"\nlike = "CN"\n')
+    assert with_file(BUILTIN, text, "f.toml").weathers[-1].code == "FG1"  # the domain tables still load
+    with pytest.raises(CatalogError, match="valid tables: .*\\[\\[rig\\]\\]"):
+        with_file(BUILTIN, "[[bogus]]\n", "f.toml")
+    assert run_rig("stereo", text, "f.toml") == "stereo"
+    recorded = run_rig("rear", text, "f.toml")
+    assert json.loads(recorded)["name"] == "rear"
+    root = tmp_path / "rear"
+    render_root(root, RunConfig(plan=_plan(recorded, width=64, height=36), world="test"))
+    (row,) = _rows(root)
+    assert row["sensor"] == "back" and row["rgb_path"].startswith("T01_CN_A/e0000/back/rgb/")
+    assert as_matrix(row["K"], 3)[0, 0] == pytest.approx(32 / math.tan(math.radians(30)))
+    assert read_record(Storage.from_uri(str(root)))["config"]["rig"] == recorded
+
+
+def test_a_front_root_has_no_rig_columns_in_its_parts_or_indexes(tmp_path):
+    """The default rig writes the parts and indexes it wrote before rigs, byte for byte: no sensor column
+    and no LiDAR columns (without leaving them out, every new front root's index changed)."""
+    import pyarrow.parquet as pq
+
+    from manifests.schema import RULE_PART_SCHEMA
+
+    root = tmp_path / "front"
+    render_root(root, RunConfig(plan=_plan("front", width=64, height=36), world="test"), compact=True)
+    (part,) = root.glob("manifest/**/*.parquet")
+    assert pq.read_schema(part).names == RULE_PART_SCHEMA.names
+    (index,) = root.glob("_index/*.parquet")
+    names = pq.read_schema(index).names
+    assert "sensor" not in names and not any(n.startswith("lidar_") for n in names)
+    (row,) = _rows(root)
+    assert row["sensor"] is None and row["uid"] == "0000_000_T01_CN_A"
+    assert row["rgb_path"] == "T01_CN_A/e0000/rgb/0000_000_T01_CN_A.png"
+
+
+def test_an_export_takes_one_sensor_at_a_time(stereo_root, tmp_path):
+    """Export layouts name files per frame: the left and right frames of a stereo root would overwrite each
+    other, so an export of both is refused in one line, and --sensor picks one."""
+    from pipeline.cli import app
+
+    runner = CliRunner()
+    both = runner.invoke(app, ["export", str(stereo_root), "--format", "cityscapes", "--to", str(tmp_path / "cs")])
+    assert both.exit_code == 2 and "export one sensor at a time (--sensor NAME)" in both.output
+    left = runner.invoke(app, ["export", str(stereo_root), "--format", "cityscapes", "--to", str(tmp_path / "cs"),
+                               "--sensor", "left"])
+    assert left.exit_code == 0, left.output
+    assert len(list((tmp_path / "cs").rglob("*_leftImg8bit.png"))) == 2
+
+
+def test_semantickitti_files_round_trip():
+    from outputs.encoding import encode_kitti_bin, encode_lidar_labels, encode_lidar_points
+
+    points = np.array([[1.5, -2.0, 0.25, 0.0], [10.0, 0.0, -1.0, 0.0]], np.float32)
+    labels = np.array([7 | (3 << 16), 11], np.uint32)
+    data = encode_kitti_bin(encode_lidar_points((points, labels)))
+    assert len(data) == 32 and np.array_equal(decode_kitti_points(data), points)
+    assert np.array_equal(decode_kitti_labels(encode_kitti_bin(encode_lidar_labels((points, labels)))), labels)
+    with pytest.raises(ValueError, match="lidar_points"):
+        encode_lidar_points((points[:, :3].copy(), labels))
+    with pytest.raises(ValueError, match="16-byte"):
+        decode_kitti_points(data[:-1])
+
+
+def test_the_rig_pictures_draw(tmp_path):
+    """reports.rig_pictures (docs/images/rig_surround.png and rig_lidar64.png at full size), tiny."""
+    from reports import rig_pictures
+
+    root = str(tmp_path / "s")
+    png = rig_pictures.surround_png(root, rig_pictures.render_rig("surround", 64, 36, root, world="test"))
+    assert png.startswith(b"\x89PNG")
+    root = str(tmp_path / "l")
+    png = rig_pictures.lidar_png(root, rig_pictures.render_rig("lidar64", 96, 54, root, world="test"))
+    assert png.startswith(b"\x89PNG")
