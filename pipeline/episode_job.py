@@ -15,7 +15,6 @@ import os
 import signal
 import socket
 import time
-from dataclasses import dataclass
 from typing import Callable
 
 from outputs.deflaters import deflating_with
@@ -27,7 +26,7 @@ from pipeline.planner import make_plan
 from pipeline.provenance import for_root, prepare_root
 from render_workers.render.episode import render_episode
 from roots.contract import claim_root
-from roots.episode_spec import EpisodeSpec
+from roots.episode_spec import EpisodeResult, EpisodeSpec  # noqa: F401 (EpisodeResult: public here too)
 from manifests.writer import frame_row, write_part
 from roots.lease import LeaseLost, check_fence
 from storage.errors import storage_error
@@ -64,18 +63,6 @@ def _stop_before_commit() -> None:
 def _enospc_after() -> int | None:
     spec = os.environ.get(FAULT_ENV, "")
     return int(spec.split(":")[1]) if spec.startswith("enospc-after:") else None
-
-
-@dataclass(frozen=True)
-class EpisodeResult:
-    """What a worker reports back: small, never image data."""
-
-    scenario: str
-    episode: int
-    frames: int
-    seconds: float
-    node: str
-    pid: int
 
 
 def _fault_after() -> int | None:

@@ -97,6 +97,22 @@ class DrawSpec:
         return episode_key(self.scenario, self.episode)
 
 
+@dataclass(frozen=True)
+class EpisodeResult:
+    """What a worker reports back: small, never image data. Defined here, beside the job, not with the
+    worker's code (pipeline.episode_job): the driver unpickles it in ray.get, and a class whose module
+    the driver has not imported yet is imported right there (the renderer, a second or more), inside
+    Ray's deserialization, which turns a Ctrl-C or SIGTERM arriving then into a failed result: the stop
+    was lost and the run went on (tests/test_signals.py)."""
+
+    scenario: str
+    episode: int
+    frames: int
+    seconds: float
+    node: str
+    pid: int
+
+
 def episode_key(scenario: str, episode: int) -> str:
     """An episode's name within a run: ``T01_CS_A/e0003``."""
     return f"{scenario}/e{episode:04d}"

@@ -90,3 +90,21 @@ def test_signal_stops_like_ctrl_c(reference, tmp_path, ray_tmpdir, sig, code):
     assert f"{done} of 4 episodes were already done" in result.stdout
     assert tree_digest(out) == tree_digest(reference)
     assert processes_using(ray_tmpdir) == [], "processes of the run's Ray cluster outlived it"
+
+
+def test_the_driver_reads_a_result_without_importing_the_renderer():
+    """The driver unpickles each episode's result inside ray.get, where Ray turns a KeyboardInterrupt into a
+    failed result: a SIGTERM that arrived while the result's module was being imported (the renderer, the
+    first time) was lost, and the run went on to the end. The result's class lives where the driver has it
+    already, so reading one imports nothing."""
+    import pickle
+
+    from pipeline.episode_job import EpisodeResult
+
+    data = pickle.dumps(EpisodeResult("T01_CN_A", 0, 4, 1.0, "node", 1))
+    probe = ("import pickle, sys; import pipeline.driver; before = set(sys.modules); "
+             "pickle.loads(sys.stdin.buffer.read()); print(sorted(set(sys.modules) - before))")
+    done = subprocess.run([sys.executable, "-c", probe], input=data, capture_output=True, cwd=REPO,
+                          env={**os.environ, "PYTHONPATH": str(REPO)}, timeout=120)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.decode().strip() == "[]", done.stdout.decode()[-2000:]
