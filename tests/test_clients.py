@@ -303,12 +303,13 @@ def test_hf_reads_the_manifest_as_the_docs_say(root, manifest, tmp_path):
     the card's manifest config splits them into train / validation / test."""
     from datasets import load_dataset
 
-    from manifests.schema import PART_SCHEMA
+    from manifests.schema import RULE_PART_SCHEMA
     from exports.card import CardConfig, write_card
 
     every = load_dataset("parquet", data_files=f"{root}/manifest/**/*.parquet", split="train",
                          cache_dir=str(tmp_path / "hf"))
-    assert every.column_names == PART_SCHEMA.names and "town" not in every.column_names
+    # a front root's parts: the rig columns (sensor, the LiDAR's files) are only in a rig root's parts
+    assert every.column_names == RULE_PART_SCHEMA.names and "town" not in every.column_names
     copy = tmp_path / "root"
     shutil.copytree(root, copy)
     write_card(CardConfig(root=str(copy)))
