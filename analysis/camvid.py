@@ -20,10 +20,12 @@ same batch order rule, flips and learning-rate schedule.
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import time
 from dataclasses import asdict, dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -131,6 +133,7 @@ class TransferReport:
     val_frames: int
     seconds: float
     class_shares: dict[str, dict[str, float]] = field(default_factory=dict)  # side -> class -> pixel share
+    ceiling_from: str | None = None  # the earlier run's JSON the real side was read from; None: trained here
 
     @property
     def kept(self) -> float:
@@ -140,7 +143,7 @@ class TransferReport:
         return {"config": asdict(self.config), "device": self.device, "parameters": self.parameters,
                 "classes": list(CAMVID_CLASSES), "kept": round(self.kept, 4), "val_frames": self.val_frames,
                 "synthetic": asdict(self.synthetic), "real": asdict(self.real),
-                "class_shares": self.class_shares, "seconds": round(self.seconds, 1)}
+                "class_shares": self.class_shares, "seconds": round(self.seconds, 1), "ceiling_from": self.ceiling_from}
 
 
 def class_shares(labels: np.ndarray) -> dict[str, float]:
@@ -163,15 +166,54 @@ def train_and_score(torch, name: str, data, val, config: TransferConfig, device:
     return Side(name, len(data), mean_iou(matrix), iou, matrix.tolist(), loss, time.perf_counter() - start)
 
 
-def run_transfer(config: TransferConfig, ceiling: Side | None = None) -> TransferReport:
+# What the CamVid-trained side depends on besides the CamVid folder (its frame count is checked) and the device.
+CEILING_KEYS = ("steps", "batch_size", "lr", "width", "height", "max_frames", "seed", "threads")
+
+
+def stored_ceiling(path, config: TransferConfig, device: str, train_frames: int) -> Side:
+    """The CamVid-trained side of an earlier run trained as ``config`` would train it.
+
+    ``path``: an ``idda shifts --camvid`` JSON, or a report's ``docs/worlds.json`` (its CamVid runs).
+    The run must match ``config`` on CEILING_KEYS, ``device`` and the number of CamVid train frames:
+    anything else would not be the ceiling this run would have trained."""
+    try:
+        doc = json.loads(Path(path).read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"cannot read the stored ceiling {path}: {exc}") from exc
+    if not isinstance(doc, dict):
+        runs = []
+    elif "real" in doc:  # one run's --json
+        runs = [doc]
+    else:  # docs/worlds.json
+        runs = (doc.get("camvid") or {}).get("runs", [])
+    if not runs:
+        raise ValueError(f"{path} holds no CamVid run (an `idda shifts --camvid` JSON or docs/worlds.json)")
+    want = {key: getattr(config, key) for key in CEILING_KEYS}
+    for run in runs:
+        if ({key: run["config"].get(key) for key in CEILING_KEYS} == want and run.get("device") == device
+                and run["real"]["frames"] == train_frames):
+            return Side(**run["real"])
+    have = "; ".join(", ".join(f"{key} {run['config'].get(key)}" for key in CEILING_KEYS)
+                     + f", {run.get('device')}, {run['real']['frames']} frames" for run in runs)
+    raise ValueError(f"{path} has no CamVid-trained run like this one ("
+                     + ", ".join(f"{key} {value}" for key, value in want.items())
+                     + f", {device}, {train_frames} frames); it has: {have}. Leave out the stored ceiling to train it")
+
+
+def run_transfer(config: TransferConfig, ceiling: Side | None = None, ceiling_from: str | None = None) -> TransferReport:
     """Train on the root's selection and on CamVid train, score both on CamVid val.
 
     ``ceiling``: the real side of an earlier report with the same config but root and
-    domains (it depends on nothing else), to measure several selections against one."""
+    domains (it depends on nothing else), to measure several selections against one.
+    ``ceiling_from``: a stored run's JSON to read that side from (``stored_ceiling``), checked
+    against this config before any training."""
     config.validate()
     start = time.perf_counter()
     with deterministic_torch(config.threads) as torch:
         device = _device(torch, config.device)
+        if ceiling is None and ceiling_from is not None:
+            train_frames = len(camvid_pairs(config.camvid, TRAIN_SPLIT)[:config.max_frames])
+            ceiling = stored_ceiling(ceiling_from, config, device, train_frames)
         ours = load_synthetic(config.root, config.domains, config.width, config.height, config.max_frames)
         val = load_camvid(config.camvid, SCORE_SPLIT, config.width, config.height, config.max_frames)
         synthetic = train_and_score(torch, "ours", ours, val, config, device)
@@ -182,7 +224,7 @@ def run_transfer(config: TransferConfig, ceiling: Side | None = None) -> Transfe
             ceiling = train_and_score(torch, "camvid train", real, val, config, device)
         parameters = parameter_count(SegNet(NUM_CAMVID))
     return TransferReport(config, device, parameters, synthetic, ceiling, len(val), time.perf_counter() - start,
-                          shares)
+                          shares, None if ceiling_from is None else str(ceiling_from))
 
 
 # ------------------------------------------------------------ output --------
@@ -198,7 +240,8 @@ def format_transfer(report: TransferReport) -> str:
     cfg = report.config
     lines.append(f"kept {report.kept:.2f} = {s.miou:.3f} / {r.miou:.3f}: SegNet ({report.parameters:,} parameters) "
                  f"trained {cfg.steps} steps of {cfg.batch_size} frames at {cfg.width}x{cfg.height}, seed {cfg.seed}, "
-                 f"on {s.frames} of our frames ({cfg.domains}) and on {r.frames} CamVid train frames; "
+                 f"on {s.frames} of our frames ({cfg.domains}) and on {r.frames} CamVid train frames"
+                 f"{'' if report.ceiling_from is None else f' (stored: {report.ceiling_from})'}; "
                  f"scored on {report.val_frames} CamVid val frames, {report.device}, {report.seconds:.0f} s")
     return "\n".join(lines)
 

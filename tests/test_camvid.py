@@ -110,6 +110,41 @@ def test_the_same_frames_on_both_sides_keep_everything(twins, tmp_path):
     assert picture.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_a_stored_ceiling_is_reused_only_when_trained_alike(twins, tmp_path, monkeypatch):
+    import analysis.camvid
+
+    root, folder = twins
+    first, again, worlds = tmp_path / "first.json", tmp_path / "again.json", tmp_path / "worlds.json"
+    args = ["shifts", str(root), "--camvid", str(folder), "--domains", DOMAINS, *TINY]
+    assert CliRunner().invoke(cli_app(), [*args, "--json", str(first)]).exit_code == 0
+    stored = json.loads(first.read_text())
+    assert stored["ceiling_from"] is None
+    trained = []
+    real_train = analysis.camvid.train_and_score
+    monkeypatch.setattr(analysis.camvid, "train_and_score", lambda torch, name, *a: trained.append(name)
+                        or real_train(torch, name, *a))
+    worlds.write_text(json.dumps({"camvid": {"runs": [stored]}}))  # a report's docs/worlds.json
+    for source in (first, worlds):
+        result = CliRunner().invoke(cli_app(), [*args, "--json", str(again), "--ceiling", str(source)])
+        assert result.exit_code == 0, result.output
+        report = json.loads(again.read_text())
+        assert report["real"] == stored["real"]  # seconds too: read, not trained again
+        assert {**report["synthetic"], "seconds": 0} == {**stored["synthetic"], "seconds": 0}
+        assert report["kept"] == 1.0 and report["ceiling_from"] == str(source)
+        assert f"(stored: {source})" in result.output
+    assert trained == ["ours", "ours"]  # the CamVid side was read, not trained
+    # Another seed, steps or frame count would not have trained that ceiling: refused before training.
+    for other in (["--seed", "1"], ["--steps", "5"], ["--max-frames", "5"]):
+        result = CliRunner().invoke(cli_app(), [*args, *other, "--json", str(again), "--ceiling", str(first)])
+        assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, (other, result.output)
+        assert f"{first} has no CamVid-trained run like this one" in result.output
+    assert trained == ["ours", "ours"]
+    result = CliRunner().invoke(cli_app(), [*args, "--ceiling", str(tmp_path / "nope.json")])
+    assert result.exit_code == 2 and "cannot read the stored ceiling" in result.output
+    stray = CliRunner().invoke(cli_app(), ["shifts", str(root), "--ceiling", str(first)])
+    assert stray.exit_code == 2 and "--ceiling go with --camvid" in stray.output
+
+
 def test_the_hood_is_cropped_before_mapping(twins):
     from analysis.camvid import crop_hood
     from domains.catalog import viewpoint
@@ -130,7 +165,7 @@ def test_camvid_command_errors_are_one_line(twins, tmp_path):
     assert flat.exit_code == 2 and len(flat.output.strip().splitlines()) == 1
     assert f"{tmp_path} is not in CamVid layout: it has no train/" in flat.output
     stray = CliRunner().invoke(cli_app(), ["shifts", str(root), "--picture", str(tmp_path / "p.png")])
-    assert stray.exit_code == 2 and "--picture and --domains go with --camvid" in stray.output
+    assert stray.exit_code == 2 and "--picture, --domains and --ceiling go with --camvid" in stray.output
 
 
 def test_config_is_checked_before_training(twins):

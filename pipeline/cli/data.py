@@ -188,6 +188,7 @@ def shifts(
     threads: int = typer.Option(2, help="torch CPU threads."),
     device: str = typer.Option("auto", help="auto (a CUDA GPU when torch sees one), cpu or cuda."),
     json_out: Path = typer.Option(Path("shifts.json"), "--json", help="Write the full results (per-class IoU) here."),
+    ceiling: Optional[Path] = typer.Option(None, "--ceiling", help="With --camvid: take the CamVid-trained side from an earlier run's --json (or docs/worlds.json) instead of training it; it must have been trained as this run would (steps, size, seed, threads, device, frames)."),
     catalog: CatalogFile = None,
 ) -> None:
     """The paper's domain-shift table: train a small segmentation net from scratch
@@ -216,7 +217,8 @@ def shifts(
 
             transfer = run_transfer(TransferConfig(
                 root=root, camvid=str(camvid), domains=domains, steps=steps or 600, batch_size=batch_size,
-                width=width, height=height or 120, max_frames=max_frames, seed=seed, threads=threads, device=device))
+                width=width, height=height or 120, max_frames=max_frames, seed=seed, threads=threads, device=device),
+                ceiling_from=None if ceiling is None else str(ceiling))
             typer.echo(format_transfer(transfer))
             write_local(json_out, (json.dumps(transfer.to_json(), indent=1) + "\n").encode())
             typer.echo(f"wrote {json_out}")
@@ -224,8 +226,8 @@ def shifts(
                 confusion_picture(transfer, picture)
                 typer.echo(f"confusion picture: {picture}")
             return
-        if picture is not None or domains != "all":
-            raise ValueError("--picture and --domains go with --camvid")
+        if picture is not None or domains != "all" or ceiling is not None:
+            raise ValueError("--picture, --domains and --ceiling go with --camvid")
         if cases is None:
             cases = "" if pairs.strip() else ",".join(CASE_BY_NAME)
         config = ShiftConfig(
