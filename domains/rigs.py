@@ -85,6 +85,10 @@ class Rig:
         """The ``front`` rig: frames written as before rigs (no sensor folder, no sensor column)."""
         return self == builtin_rigs()[DEFAULT_RIG]
 
+    def sensor_name(self, index: int) -> str:
+        """The name a frame of sensor ``index`` carries: "" for the default rig (no sensor column)."""
+        return "" if self.is_default else self.sensors[index].name
+
     def as_json(self) -> str:
         """The rig as the episode spec and run.json carry it (workers need no file)."""
         return json.dumps({"name": self.name, "sensors": [asdict(s) for s in self.sensors]}, sort_keys=True)
@@ -197,6 +201,7 @@ def run_rig(name: str, file_text: str | None = None, source: str = "") -> str:
     return rig_named(name, declared).as_json()
 
 
+@lru_cache(maxsize=16)  # asked per frame and sensor; a Rig is frozen
 def rig_from_json(text: str) -> Rig:
     """The rig an episode spec or run.json carries ("" is the default rig)."""
     if not text:

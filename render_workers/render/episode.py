@@ -208,7 +208,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
         n_vehicles=scene.n_vehicles, n_pedestrians=scene.n_pedestrians,
         conditions=frame_conditions(result.weather),
         **pose_cells(result.rig.K, result.world_from_camera @ CV_FROM_GL, ego_to_world, result.rig.cam_to_ego),
-        sensor="" if rig_from_json(spec.rig).is_default else rig_from_json(spec.rig).sensors[sensor].name,
+        sensor=rig_from_json(spec.rig).sensor_name(sensor),
     )
     return frame, timings
 
