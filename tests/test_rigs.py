@@ -88,6 +88,34 @@ def test_a_bad_rig_is_one_line_and_exit_2(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def test_plan_takes_a_rig_and_counts_sensor_frames(tmp_path):
+    """``idda plan --rig``: the rig's sensors and the frames as sensor frames; a bad rig as produce's (one line, exit 2)."""
+    from pipeline.cli import app
+    from pipeline.plan_file import read_plan
+
+    runner = CliRunner()
+    out = tmp_path / "plan.parquet"
+    args = ["plan", "--domains", "T01_CN_A", "--frames-per-scenario", "3", "--out", str(out)]
+    result = runner.invoke(app, [*args, "--rig", "surround"])
+    assert result.exit_code == 0, result.output
+    assert ("rig surround: 6 sensors, front (camera), frontleft (camera), backleft (camera), back (camera), "
+            "backright (camera), frontright (camera); 3 frames = 18 sensor frames") in result.output.splitlines()
+    assert read_plan(out).config.rig == "surround"
+    assert "rig front: 1 sensor, front (camera); 3 frames = 3 sensor frames" in runner.invoke(app, args).output
+    out.unlink()
+    result = runner.invoke(app, [*args, "--rig", "wide"])
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines() == ["error: unknown rig 'wide'; valid rigs: front, stereo, surround, lidar64"]
+    assert not out.exists()
+    domain = tmp_path / "rear.toml"
+    domain.write_text('[[rig]]\nname = "rear"\nsensor = [{ name = "back", kind = "camera", yaw = 180.0 }, '
+                      '{ name = "roof", kind = "lidar", z = 0.4 }]\n')
+    result = runner.invoke(app, [*args, "--rig", "rear", "--catalog", str(domain)])
+    assert result.exit_code == 0, result.output
+    assert "rig rear: 2 sensors, back (camera), roof (lidar); 3 frames = 6 sensor frames" in result.output
+    assert json.loads(read_plan(out).config.rig)["name"] == "rear"
+
+
 def test_the_default_rig_leaves_specs_and_paths_as_before():
     plan = make_plan(_plan("front"))
     assert {spec.rig for spec in plan.episodes} == {""} and plan.episodes[0].sensors == ("",)
