@@ -229,6 +229,33 @@ def test_query_by_sensor(stereo_root):
         Query(sensors=("Right side",)).validate()
 
 
+def test_card_and_stats_count_frames_not_sensor_frames(stereo_root, tmp_path):
+    """A stereo root of 2 frames holds 4 manifest rows: the card and ``idda stats`` say 2 frames (and 4 sensor frames)."""
+    import shutil
+
+    from exports.card import split_counts
+    from manifests.query import count_frames, rig_sensors
+    from manifests.reader import read_manifest
+    from pipeline.cli import app
+
+    root = tmp_path / "stereo"
+    shutil.copytree(stereo_root, root)
+    table = read_manifest(str(root))
+    assert (len(table), count_frames(table), rig_sensors(table)) == (4, 2, ("left", "right"))
+    assert sum(sum(row.values()) for row in split_counts(table).values()) == 2
+    runner = CliRunner()
+    result = runner.invoke(app, ["card", str(root)])
+    assert result.exit_code == 0, result.output
+    assert "(2 of the 2 frames the root holds)" in result.output
+    card = (root / "README.md").read_text()
+    assert "2 frames in 1 episodes over 1 scenarios (town x weather x viewpoint), each seen by the 2 sensor(s) of its " \
+           "rig (left, right; 4 sensor frames, one manifest row each), at 160x90" in card
+    assert "| **total** (1 scenarios) | | | |" in card and "| **2** |" in card
+    result = runner.invoke(app, ["stats", str(root), "--chart", str(tmp_path / "shares.png")])
+    assert result.exit_code == 0, result.output
+    assert "(2 of the 2 frames the root holds, 4 sensor frames of its 4)" in result.output
+
+
 # ------------------------------------------------------------------ surround ----
 def test_surround_neighbours_agree_on_what_they_both_see(tmp_path):
     root = tmp_path / "surround"

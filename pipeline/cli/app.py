@@ -26,7 +26,7 @@ from pipeline.cli.progress import (
 )
 from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MaxCondition, MinCondition, MinShare, OneLineUsageErrors, PerScenario,
-    Preset, SampleSeed, Splits, Total, build_query, count, of_held, output_root, user_errors, write_local,
+    Preset, SampleSeed, Splits, Total, build_query, count, of_held, of_held_frames, output_root, user_errors, write_local,
 )
 from outputs.table import CAMERA_OUTPUTS, DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import read_manifest, require_outputs, scan_manifest
@@ -388,8 +388,8 @@ def stats(
             raise ValueError(f"{storage.uri} has no frames" + (f" for {domains!r}" if domains else "") + " yet")
         shares = share_table(table, by_scenario=per_scenario)
         typer.echo(format_share_table(shares))
-        write_local(chart, bar_chart_png(shares, title=f"Class pixel shares, {len(table):,} frames"))
-        typer.echo(f"chart: {chart} ({of_held(len(table), len(manifest))})")
+        write_local(chart, bar_chart_png(shares, title=f"Class pixel shares, {q.count_frames(table):,} frames"))
+        typer.echo(f"chart: {chart} ({of_held_frames(table, manifest)})")
 
 
 @app.command()
