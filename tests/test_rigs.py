@@ -69,6 +69,10 @@ def test_built_in_rigs():
     ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "a", "kind": "camera"}]}, "twice"),
     ({"name": "x", "sensor": [{"name": "a", "kind": "lidar"}]}, "at least one camera"),
     ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "l", "kind": "lidar", "pitch": 5}]}, "level"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera", "width": 9}]}, r"'width': 9 is out of range \[32, 8192\]"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera", "height": 64.5}]}, "'height': expected a whole number"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "l", "kind": "lidar", "height": 64}]},
+     "'height': a camera's"),
 ])
 def test_a_bad_rig_is_refused_naming_what(entry, message):
     with pytest.raises(RigError, match=message):
@@ -346,6 +350,38 @@ def test_a_domain_file_declares_a_rig_that_travels_in_run_json(tmp_path):
     assert row["sensor"] == "back" and row["rgb_path"].startswith("T01_CN_A/e0000/back/rgb/")
     assert as_matrix(row["K"], 3)[0, 0] == pytest.approx(32 / math.tan(math.radians(30)))
     assert read_record(Storage.from_uri(str(root)))["config"]["rig"] == recorded
+
+
+def test_a_camera_of_its_own_size_renders_at_it_and_its_rows_say_so(tmp_path):
+    """A rig's camera may declare width and height (default the run's): its files and K are at its size, its rows
+    carry it, and verify and resume accept it (the run's size is not every row's); the built-in rigs' JSON is unchanged."""
+    from pipeline.provenance import RunConfigError, check_rows
+    from roots.verify import verify as verify_root
+    from storage import Storage
+
+    text = ('[[rig]]\nname = "mixed"\nsensor = [{ name = "main", kind = "camera" }, '
+            '{ name = "wide", kind = "camera", yaw = 90.0, hfov_deg = 120.0, width = 96, height = 48 }]\n')
+    rig = rigs_from_text(text, "f.toml")["mixed"]
+    assert rig.sizes(64, 36) == {"main": (64, 36), "wide": (96, 48)}
+    assert all("width" not in json.dumps(json.loads(r.as_json())["sensors"]) for r in builtin_rigs().values())
+    assert rig_from_entry(json.loads(rig.as_json()), "spec") == rig  # the JSON a spec carries keeps the size
+    config = RunConfig(plan=_plan(rig.as_json(), frames=2, width=64, height=36), world="test")
+    root = tmp_path / "mixed"
+    storage = render_root(root, config)
+    rows = _rows(root)
+    assert [(r["sensor"], r["width"], r["height"]) for r in rows] == [("main", 64, 36), ("wide", 96, 48)] * 2
+    for row in rows:
+        for output in ("rgb", "depth_raw", "semantic_raw"):
+            assert decode_png((root / row[f"{output}_path"]).read_bytes()).shape[:2] == (row["height"], row["width"])
+        assert sum(row[label] for label in row if label.startswith("px_")) == row["width"] * row["height"]
+    K = as_matrix(rows[1]["K"], 3)
+    assert K[0, 0] == pytest.approx(48 / math.tan(math.radians(60))) and (K[0, 2], K[1, 2]) == (47.5, 23.5)  # pixel centres: (W - 1) / 2
+    assert verify_root(storage).ok
+    before = {p.relative_to(root): p.read_bytes() for p in root.rglob("*.png")}
+    render_root(root, config)  # a resume checks the rows' sizes against the run's (check_rows)
+    assert {p.relative_to(root): p.read_bytes() for p in root.rglob("*.png")} == before
+    with pytest.raises(RunConfigError, match="holds frames at 64x36, 96x48, this run asks for 80x36, 96x48"):
+        check_rows(storage, RunConfig(plan=_plan(rig.as_json(), frames=2, width=80, height=36), world="test"))
 
 
 def test_a_front_root_has_no_rig_columns_in_its_parts_or_indexes(tmp_path):

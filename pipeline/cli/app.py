@@ -99,13 +99,15 @@ def format_plan_table(plan) -> str:
         )
     cfg = plan.config
     lines.append(f"resolution {cfg.width}x{cfg.height}, seed {cfg.seed}")
-    lines.append(format_rig_line(rig_named(cfg.rig), plan.total_frames))
+    lines.append(format_rig_line(rig_named(cfg.rig), plan.total_frames, cfg.width, cfg.height))
     return "\n".join(lines)
 
 
-def format_rig_line(rig, frames: int) -> str:
-    """The rig's sensors, and the frames as sensor frames: every sensor of the rig sees every frame."""
-    sensors = ", ".join(f"{s.name} ({s.kind})" for s in rig.sensors)
+def format_rig_line(rig, frames: int, width: int, height: int) -> str:
+    """The rig's sensors (a camera of its own size with it), and the frames as sensor frames: every
+    sensor of the rig sees every frame."""
+    own = {s.name: "" if not (s.width or s.height) else " {}x{}".format(*s.size(width, height)) for s in rig.sensors}
+    sensors = ", ".join(f"{s.name} ({s.kind}{own[s.name]})" for s in rig.sensors)
     return (f"rig {rig.name}: {count(len(rig.sensors), 'sensor')}, {sensors}; "
             f"{count(frames, 'frame')} = {count(frames * len(rig.sensors), 'sensor frame')}")
 

@@ -266,7 +266,7 @@ def render_episode(spec: DrawSpec, sink: Callable[[Frame], None], *, world: str 
                         timings["lidar"] = timings.get("lidar", 0.0) + time.perf_counter() - start
                     else:
                         if not rig.is_default:
-                            renderer.use_sensor(sensor, spec.width, spec.height)
+                            renderer.use_sensor(sensor, *sensor.size(spec.width, spec.height))
                         result = renderer.render(spec.frame_time(index), weathers[index])
                         for stage, seconds in result.timings.items():
                             timings[stage] += seconds
