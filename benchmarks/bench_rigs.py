@@ -43,7 +43,7 @@ def measure(rig: str, width: int, height: int, frames: int = FRAMES, world: str 
         if frame.sensor == last:
             ends.append((time.process_time(), time.perf_counter()))
 
-    info = render_episode(spec, sink, world=world)
+    info = render_episode(spec.drawing, sink, world=world)  # what a worker draws from
     cpu = [b[0] - a[0] for a, b in zip(ends, ends[1:])]
     wall = [b[1] - a[1] for a, b in zip(ends, ends[1:])]
     return {"rig": rig, "sensors": len(spec.sensors), "cpu_s": statistics.mean(cpu), "wall_s": statistics.mean(wall),

@@ -417,6 +417,15 @@ def test_an_export_takes_one_sensor_at_a_time(stereo_root, tmp_path):
     assert len(list((tmp_path / "cs").rglob("*_leftImg8bit.png"))) == 2
 
 
+def test_the_rig_bench_measures(tmp_path):
+    """``benchmarks.bench_rigs`` (make bench BENCH=rigs) runs: small, on the test world (it had stopped running
+    when episodes came to be drawn from a DrawSpec, and nothing noticed)."""
+    from benchmarks.bench_rigs import measure
+
+    row = measure("lidar64", 64, 36, frames=2, world="test")
+    assert row["rig"] == "lidar64" and row["sensors"] == 2 and row["cpu_s"] > 0 and row["lidar_wall_s"] > 0
+
+
 def test_semantickitti_files_round_trip():
     from outputs.encoding import encode_kitti_bin, encode_lidar_labels, encode_lidar_points
 
