@@ -382,6 +382,15 @@ def test_a_camera_of_its_own_size_renders_at_it_and_its_rows_say_so(tmp_path):
     assert {p.relative_to(root): p.read_bytes() for p in root.rglob("*.png")} == before
     with pytest.raises(RunConfigError, match="holds frames at 64x36, 96x48, this run asks for 80x36, 96x48"):
         check_rows(storage, RunConfig(plan=_plan(rig.as_json(), frames=2, width=80, height=36), world="test"))
+    # verify holds each sensor's rows to its own size: a camera at the run's size where its rig gives another is a conflict
+    from roots.run_file import read_record
+    from roots.verify import config_conflict
+
+    recorded = read_record(storage)["config"]
+    seed = rows[0]["seed"]
+    assert config_conflict({"main": (64, 36), "wide": (96, 48)}, seed, "T01_CN_A", 0, recorded) is None
+    assert config_conflict({"main": (64, 36), "wide": (64, 36)}, seed, "T01_CN_A", 0, recorded) \
+        == "wide frames are 64x36, run.json says 96x48"
 
 
 def test_a_front_root_has_no_rig_columns_in_its_parts_or_indexes(tmp_path):
