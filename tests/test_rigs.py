@@ -431,7 +431,7 @@ def test_the_rig_bench_measures(tmp_path):
     when episodes came to be drawn from a DrawSpec, and nothing noticed)."""
     from benchmarks.bench_rigs import measure
 
-    row = measure("lidar64", 64, 36, frames=2, world="test")
+    row = measure("lidar64", 64, 36, frames=3, world="test")
     assert row["rig"] == "lidar64" and row["sensors"] == 2 and row["cpu_s"] > 0 and row["lidar_wall_s"] > 0 < row["lidar_cpu_s"]
 
 
