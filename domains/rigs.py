@@ -45,6 +45,8 @@ class Sensor:
     pitch: float = 0.0  # degrees, nose down
     roll: float = 0.0  # degrees, about the sensor's forward axis
     hfov_deg: float = 90.0  # camera: horizontal field of view
+    width: int = 0  # camera: image width in pixels; 0: the run's (--width)
+    height: int = 0  # camera: image height in pixels; 0: the run's (--height)
     beams: int = 64  # lidar: rows of the sweep
     fov_up_deg: float = 2.0  # lidar: elevation of the top beam
     fov_down_deg: float = -24.8  # lidar: elevation of the bottom beam
@@ -57,6 +59,10 @@ class Sensor:
         """Whether this is the viewpoint's own camera (it sees the hood)."""
         return (self.kind == "camera" and self.hfov_deg == 90.0
                 and (self.x, self.y, self.z, self.yaw, self.pitch, self.roll) == (0.0,) * 6)
+
+    def size(self, width: int, height: int) -> tuple[int, int]:
+        """The sensor's image size in a run at ``width`` x ``height``: its own where declared (a camera's)."""
+        return self.width or width, self.height or height
 
     def mount_from_sensor(self) -> np.ndarray:
         """4x4: the sensor's own axes (x forward, y left, z up) to the mount's (ego axes at the mount)."""
@@ -89,14 +95,28 @@ class Rig:
         """The name a frame of sensor ``index`` carries: "" for the default rig (no sensor column)."""
         return "" if self.is_default else self.sensors[index].name
 
+    def size_of(self, sensor: str, width: int, height: int) -> tuple[int, int]:
+        """The image size of the rows of ``sensor`` (a name; "": the default rig's) in a run at ``width`` x ``height``."""
+        return next((s.size(width, height) for s in self.sensors if s.name == sensor), (width, height))
+
+    def sizes(self, width: int, height: int) -> dict[str, tuple[int, int]]:
+        """Every sensor's image size in a run at ``width`` x ``height``, by the name its rows carry."""
+        return {self.sensor_name(i): s.size(width, height) for i, s in enumerate(self.sensors)}
+
     def as_json(self) -> str:
-        """The rig as the episode spec and run.json carry it (workers need no file)."""
-        return json.dumps({"name": self.name, "sensors": [asdict(s) for s in self.sensors]}, sort_keys=True)
+        """The rig as the episode spec and run.json carry it (workers need no file). A camera at the run's
+        size is written without width and height, as rigs were before a camera could declare its own."""
+        sensors = [{k: v for k, v in asdict(s).items() if not (k in _OWN_SIZE and v == 0)} for s in self.sensors]
+        return json.dumps({"name": self.name, "sensors": sensors}, sort_keys=True)
+
+
+_OWN_SIZE = ("width", "height")  # a camera's own image size; 0 (not written): the run's
 
 
 _SENSOR_KEYS = {f.name: f for f in fields(Sensor)}
 _RANGES = {"hfov_deg": (1.0, 170.0), "beams": (1, 256), "points": (8, 8192), "range_m": (1.0, 1000.0),
-           "rate_hz": (0.1, 100.0), "fov_up_deg": (-89.0, 89.0), "fov_down_deg": (-89.0, 89.0)}
+           "rate_hz": (0.1, 100.0), "fov_up_deg": (-89.0, 89.0), "fov_down_deg": (-89.0, 89.0),
+           "width": (32, 8192), "height": (32, 8192)}  # a camera's size: as the run's (pipeline.settings)
 
 
 def _sensor(entry, where: str) -> Sensor:
@@ -127,6 +147,9 @@ def _sensor(entry, where: str) -> Sensor:
             raise RigError(f"{where}: key {key!r}: {value} is out of range [{lo}, {hi}]")
         values[key] = kind_of(value)
     sensor = Sensor(name=name, kind=kind, **values)
+    if sensor.kind == "lidar" and (sensor.width or sensor.height):  # its faces are sized by its beams
+        raise RigError(f"{where}: key {'width' if sensor.width else 'height'!r}: a camera's; a LiDAR's resolution is "
+                       "its beams and points")
     if sensor.kind == "lidar" and (sensor.pitch or sensor.roll):  # its four faces turn about the ego's z only
         raise RigError(f"{where}: a LiDAR is mounted level: pitch and roll must be 0")
     if sensor.fov_down_deg >= sensor.fov_up_deg:

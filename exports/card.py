@@ -25,7 +25,7 @@ from manifests.stats import bar_chart_png, share_table
 from outputs.table import OUTPUTS, file_of_path, markdown_table
 from manifests.schema import PART_SCHEMA, output_columns, part_path
 from exports.hf import HF_SPLITS, card_header, citation_section
-from manifests.query import SPLITS
+from manifests.query import SPLITS, count_frames, rig_sensors
 from roots.contract import CARD_FILE, CHART_FILE, PREVIEW_DIR  # the root's own names (verify knows them)
 from roots.run_file import REPAIR_HINT, ConfigShape, RunRecordError, read_record
 from roots.verify import verify
@@ -54,15 +54,19 @@ class CardResult:
     card: str  # URI of the README.md
     chart: str  # URI of the class-share chart
     previews: list[str]  # root-relative preview images linked from the card
-    frames: int
+    frames: int  # distinct frames (a rig's root holds a manifest row per sensor of each)
     problems: dict[str, int] | None = None  # what verify found, by kind ({}: none); None: not verified
 
 
 # -------------------------------------------------------------- sections ----
 def split_counts(table: pa.Table) -> dict[str, dict[str, int]]:
-    """Frames per scenario and split: {scenario: {split: n}} (every split present)."""
+    """Frames per scenario and split: {scenario: {split: n}} (every split present); a frame of a rig counts once."""
     counts: dict[str, dict[str, int]] = {}
-    for code, split in zip(table.column("scenario").to_pylist(), table.column("split").to_pylist()):
+    seen = set()  # a rig's root has a row per sensor of a frame
+    for code, split, episode, frame in zip(*(table.column(c).to_pylist() for c in ("scenario", "split", "episode", "frame"))):
+        if (code, episode, frame) in seen:
+            continue
+        seen.add((code, episode, frame))
         row = counts.setdefault(code, {s: 0 for s in SPLITS})
         row[split] = row.get(split, 0) + 1
     return dict(sorted(counts.items()))
@@ -253,6 +257,15 @@ def _integrity_section(verified) -> list[str]:
                     "below may count damaged frames. `idda verify` lists the damage, `idda produce --repair` mends it."]
 
 
+def _rig_clause(table: pa.Table) -> str:
+    """In a rig's root: the sensors that see every frame, and the sensor frames (manifest rows) they make."""
+    sensors = rig_sensors(table)
+    if not sensors:
+        return ""
+    return (f"each seen by the {len(sensors)} sensor(s) of its rig ({', '.join(sensors)}; "
+            f"{len(table):,} sensor frames, one manifest row each), ")
+
+
 def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list[str],
                   parts: dict[str, dict[int, str]] | None = None, verified=None) -> str:
     """The card's text for a manifest ``table`` (all frames of the root); ``uri``
@@ -267,8 +280,8 @@ def card_markdown(table: pa.Table, record: dict | None, uri: str, previews: list
     intro = [
         "# IDDA-style synthetic driving dataset",
         "",
-        f"{len(table):,} frames in {episodes:,} episodes over {scenarios} scenarios (town x weather x viewpoint), "
-        f"at {resolution}, each with {len(held)} output file(s): {', '.join(held)} "
+        f"{count_frames(table):,} frames in {episodes:,} episodes over {scenarios} scenarios (town x weather x viewpoint), "
+        f"{_rig_clause(table)}at {resolution}, each with {len(held)} output file(s): {', '.join(held)} "
         f"(\"Files and encodings\" below says what each holds; {len(LABELS)} semantic classes). Made in the manner of IDDA "
         "(Alberti et al., 2020) by idda-pipeline; every frame is listed with checksums and per-class "
         "pixel counts in the Parquet manifest under `manifest/`.",
@@ -338,7 +351,8 @@ def write_card(config: CardConfig) -> CardResult:
         verified = verify(storage, shape=config.shape)
     # Local cards say "." (run the commands in the root, which may move); s3 cards the URI.
     text = card_markdown(table, record, "." if storage.is_local else storage.uri, previews, part_files(storage), verified)
-    storage.write_bytes(CHART_FILE, bar_chart_png(share_table(table), title=f"Class pixel shares, {len(table):,} frames"))
+    frames = count_frames(table)
+    storage.write_bytes(CHART_FILE, bar_chart_png(share_table(table), title=f"Class pixel shares, {frames:,} frames"))
     storage.write_bytes(CARD_FILE, text.encode())
-    return CardResult(storage.join(CARD_FILE), storage.join(CHART_FILE), previews, len(table),
+    return CardResult(storage.join(CARD_FILE), storage.join(CHART_FILE), previews, frames,
                       None if verified is None else verified.counts())

@@ -155,6 +155,24 @@ def filter_frames(table_or_dataset, query: Query) -> pa.Table:
     return table.sort_by([("scenario", "ascending"), ("episode", "ascending"), ("frame", "ascending")])
 
 
+FRAME_KEY = ("scenario", "episode", "frame")  # one frame; a rig's root has a row per sensor of each
+
+
+def count_frames(table: pa.Table) -> int:
+    """The frames ``table`` holds: its distinct (scenario, episode, frame). In a root of the default rig a row is
+    a frame; in a rig's root a row is a sensor frame, and every sensor of the rig sees every frame."""
+    if len(table) == 0:
+        return 0
+    return table.select(list(FRAME_KEY)).group_by(list(FRAME_KEY)).aggregate([]).num_rows
+
+
+def rig_sensors(table: pa.Table) -> tuple[str, ...]:
+    """The sensors whose rows ``table`` holds, in their first row's order; () in a root of the default rig."""
+    if "sensor" not in table.column_names:
+        return ()
+    return tuple(dict.fromkeys(s for s in table.column("sensor").to_pylist() if s is not None))
+
+
 def _allocate(total: int, available: dict[str, int]) -> dict[str, int]:
     """Spread ``total`` over scenarios in proportion to their frames (largest remainder)."""
     pool = sum(available.values())

@@ -16,6 +16,7 @@ import numpy as np
 from domains.catalog import LABELS
 from manifests.layout import frame_path
 from domains.conditions import FOG_DENSITY, VISIBILITY
+from domains.rigs import rig_from_json
 from manifests.schema import (FIELD_SOURCE, OBJECT_FIELDS, OLD_PART_SCHEMA, PART_SCHEMA, RIG_FIELDS, RULE_PART_SCHEMA,
                               frame_id, frame_uid,
                               NEW_RULES, output_columns, part_path)
@@ -56,6 +57,7 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
         row[FOG_DENSITY.column] = None
     if spec.rig:  # a rig's part: the sensor column (LiDAR files are OUTPUTS above); else none of RIG_FIELDS
         row["sensor"] = sensor
+        row["width"], row["height"] = rig_from_json(spec.rig).size_of(sensor, spec.width, spec.height)  # its own
     else:
         for name, _ in RIG_FIELDS:
             row.pop(name, None)
@@ -66,10 +68,10 @@ def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
             row[name] = None
         return row
     counts = np.asarray(frame.class_counts, dtype=np.int64)
-    if counts.shape != (len(LABELS),) or int(counts.sum()) != spec.width * spec.height:
+    if counts.shape != (len(LABELS),) or int(counts.sum()) != row["width"] * row["height"]:
         raise ManifestError(
             f"{spec.key} frame {frame.index}: class counts must be {len(LABELS)} values summing to "
-            f"{spec.width * spec.height}, got shape {counts.shape} sum {int(counts.sum())}"
+            f"{row['width'] * row['height']}, got shape {counts.shape} sum {int(counts.sum())}"
         )
     for label in LABELS:
         row[label.column] = int(counts[label.id])

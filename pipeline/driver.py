@@ -152,6 +152,16 @@ PROGRESS_ACTOR_OPTIONS = dict(num_cpus=0, max_restarts=-1, max_task_retries=0)
 PROGRESS_RETRY_S = 1.0  # after a failed call to the progress actor, ask again this much later
 
 
+def on_driver_node(ray) -> dict:
+    """Actor options that place an actor on the driver's own node and nowhere else (no CPU): an actor
+    the run cannot do without (``ChecksGate``: the tasks' part commits wait for its answer) is lost
+    with the driver, never with a worker node."""
+    from ray.util.scheduling_strategies import NodeAffinitySchedulingStrategy
+
+    node = ray.get_runtime_context().get_node_id()
+    return dict(num_cpus=0, scheduling_strategy=NodeAffinitySchedulingStrategy(node_id=node, soft=False))
+
+
 class RendererCrashes(Exception):
     """Render workers died of a native fault (not a Python error) on the first
     episodes of the run, none finished: retrying cannot help, the environment
@@ -477,7 +487,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         queue, in_flight, given_up = deque(todo), {}, []
         frames_total, episodes_total = sum(e.frames for e in todo), len(todo)
         if late is not None:
-            gate = ray.remote(ChecksGate).options(num_cpus=0).remote()
+            gate = ray.remote(ChecksGate).options(**on_driver_node(ray)).remote()
             gated = GatedFence.of(fence, gate.wait.remote())
             late.start()
 

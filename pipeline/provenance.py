@@ -23,6 +23,7 @@ from pathlib import Path
 
 from domains.catalog import scenario as lookup_scenario, using
 from domains.catalog_file import current_layer
+from domains.rigs import rig_named
 from manifests.layout import LAYOUT_KEY, NEW_ROOT_LAYOUT, held_layout, record_layout
 from manifests.part_file import ManifestError, read_part_file
 from manifests.reader import done_episodes, part_summaries
@@ -105,11 +106,14 @@ def check_rows(storage, config: RunConfig, summaries: dict | None = None) -> Non
             f"{storage.uri} holds {', '.join(sorted(formats))} rgb files, this run asks for {plan.rgb_format}; "
             "frames would not match: use a new --out"
         )
+    # a summary holds the (min, max) corners of its rows' sizes: every sensor's, a camera of the rig its own
+    asked = set(rig_named(plan.rig).sizes(plan.width, plan.height).values())
+    corners = {(min(w for w, _ in asked), min(h for _, h in asked)), (max(w for w, _ in asked), max(h for _, h in asked))}
     sizes = {r for s in held.values() for r in s.resolutions}
-    if sizes != {(plan.width, plan.height)}:
-        found = ", ".join(f"{w}x{h}" for w, h in sorted(sizes))
+    if sizes != corners:
+        found, wanted = (", ".join(f"{w}x{h}" for w, h in sorted(them)) for them in (sizes, asked))
         raise RunConfigError(
-            f"{storage.uri} holds frames at {found}, this run asks for {plan.width}x{plan.height}; "
+            f"{storage.uri} holds frames at {found}, this run asks for {wanted}; "
             "frames would not match: use a new --out"
         )
     with using(plan.catalog):

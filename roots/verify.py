@@ -35,6 +35,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from domains.catalog import all_scenarios, scenario as lookup_scenario, using
+from domains.rigs import DEFAULT_RIG, RigError, rig_named
 from outputs.encoding import RGB_FORMATS
 from outputs.table import OUTPUTS
 from manifests.reader import as_storage, filed_where_named, index_bytes, index_episodes, index_files, index_summaries, index_table
@@ -137,17 +138,34 @@ def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | No
                          for p, f, s in zip(paths, col["frame_id"], sensors)]
                for fmt in formats for layout in layouts):
             return f"{output} paths do not follow the layout"
-    if len(set(col["seed"])) != 1 or len(set(zip(col["width"], col["height"]))) != 1:
+    if len(set(col["seed"])) != 1 or len(set(zip(sensors, col["width"], col["height"]))) != k:  # a camera may have its own
         return "mixed seeds or resolutions"
-    return config_conflict(col["width"][0], col["height"][0], col["seed"][0], scenario, episode, config)
+    return config_conflict(part_sizes(table), col["seed"][0], scenario, episode, config)
 
 
-def config_conflict(width: int, height: int, seed: int, scenario: str, episode: int, config: dict | None) -> str | None:
-    """Why an episode's frames cannot belong to the run ``config`` describes, or None."""
+def part_sizes(table: pa.Table) -> dict[str | None, tuple[int, int]]:
+    """The image size of each sensor's rows in a part (None: a part of the default rig), from its first rows."""
+    sensors = table.column("sensor").to_pylist() if "sensor" in table.column_names else [None] * len(table)
+    sizes: dict[str | None, tuple[int, int]] = {}
+    for sensor, width, height in zip(sensors, table.column("width").to_pylist(), table.column("height").to_pylist()):
+        sizes.setdefault(sensor, (width, height))
+    return sizes
+
+
+def config_conflict(sizes: dict[str | None, tuple[int, int]], seed: int, scenario: str, episode: int,
+                    config: dict | None) -> str | None:
+    """Why an episode's frames (``sizes``: each sensor's image size, ``part_sizes``) cannot belong to the run
+    ``config`` describes, or None. A sensor's size is the run's unless the run's rig gives it its own."""
     if config is None:
         return None
-    if (width, height) != (config["width"], config["height"]):
-        return f"frames are {width}x{height}, run.json says {config['width']}x{config['height']}"
+    try:
+        rig = rig_named(config.get("rig", DEFAULT_RIG))
+    except RigError as exc:
+        return f"run.json's rig: {exc}"
+    for sensor, (width, height) in sizes.items():
+        want = rig.size_of(sensor or "", config["width"], config["height"])
+        if (width, height) != want:
+            return f"{f'{sensor} ' if sensor else ''}frames are {width}x{height}, run.json says {want[0]}x{want[1]}"
     with using(config.get("catalog")):  # the root's own domain entries (run.json), wherever this runs
         derived = episode_seed(config["seed"], lookup_scenario(scenario), episode, config.get("pairing", UNPAIRED))
     if seed != derived:
@@ -178,8 +196,7 @@ def _check_part(storage, rel: str, scenario: str, episode: int, config: dict | N
     if detail is None and named_rows(rel) not in (None, len(table)):  # status counts frames from the name
         detail = f"its name says {named_rows(rel)} rows, it holds {len(table)}"
     if detail is None:
-        first = {name: table.column(name)[0].as_py() for name in ("width", "height", "seed")}
-        detail = config_conflict(first["width"], first["height"], first["seed"], scenario, episode, config)
+        detail = config_conflict(part_sizes(table), table.column("seed")[0].as_py(), scenario, episode, config)
         conflict = detail is not None
     if detail is None and pq.read_metadata(arrow_reader(data)).created_by == _this_writer() \
             and data not in _reencoded(table, data, lambda t, plain: part_bytes(t, store_schema=plain)):

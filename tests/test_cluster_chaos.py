@@ -197,3 +197,41 @@ def test_a_hung_node_is_given_up_and_writes_nothing_when_it_wakes(local_referenc
     lines = [r.getMessage() for r in caplog.records if " lost: " in r.getMessage()]
     assert len(lines) == 1 and lines[0].startswith("node ") and "retried elsewhere" in lines[0], lines
     assert tree_digest(out) == local_reference
+
+
+def test_the_checks_gate_lives_on_the_drivers_node_and_outlives_a_worker_node():
+    """The checks gate (``ChecksGate``: the first episodes' part commits wait for its answer) is pinned to the
+    driver's node: with the head's CPU busy, Ray would place a CPU-less actor on the worker node, and losing
+    that node lost the gate, so every waiting commit failed. Here the gates stay on the head, the worker node
+    goes, and they still answer."""
+    import ray
+    from ray.cluster_utils import Cluster
+
+    from pipeline.driver import on_driver_node
+    from pipeline.ray_task import ChecksGate
+
+    class PlacedGate(ChecksGate):
+        def node(self) -> str:
+            return ray.get_runtime_context().get_node_id()
+
+    if ray.is_initialized():
+        ray.shutdown()
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "resources": {HEAD_HOST: 1}})
+    try:
+        worker = cluster.add_node(num_cpus=2)
+        cluster.wait_for_nodes()
+        ray.init(address=cluster.address)
+        head = ray.get_runtime_context().get_node_id()
+        busy = ray.remote(lambda: time.sleep(60)).options(num_cpus=1, resources={HEAD_HOST: 1}).remote()  # the head's CPU
+        gates = [ray.remote(PlacedGate).options(**on_driver_node(ray)).remote() for _ in range(4)]
+        assert ray.get([g.node.remote() for g in gates], timeout=60) == [head] * 4
+        answers = [g.wait.remote() for g in gates]
+        cluster.remove_node(worker)
+        for g in gates:
+            g.open.remote(True)
+        assert ray.get(answers, timeout=60) == [True] * 4
+        ray.cancel(busy, force=True)
+    finally:
+        if ray.is_initialized():
+            ray.shutdown()
+        cluster.shutdown()

@@ -184,3 +184,71 @@ def test_renderers_share_one_shader_copy_and_leave_nothing_per_renderer(tmp_path
             r.render(0.0)
     assert list(tmp_path.iterdir()) == [first.parent]
     assert sorted(p.name for p in first.parent.iterdir()) == sorted([first.name, other.name])  # no staging left
+
+
+# ------------------------------------------------------------ what a frame costs ----
+def test_a_lidar_face_leaves_out_what_lies_beyond_its_range_and_its_points_stay(renderer, monkeypatch):
+    """A LiDAR's four face passes leave out nodes wholly beyond ``lidar.cull_distance`` (about 200 m for a
+    120 m range, where the renderer draws to 450 m): the wall 400 m behind is not drawn, and the sweep's
+    points and labels are the very ones of faces drawn to 450 m (issue 37: a sweep's cost)."""
+    from domains.rigs import Sensor
+    from render_workers.render import lidar
+
+    sensor = Sensor(name="roof", kind="lidar", z=0.4, beams=16, points=256, range_m=120.0)
+    renderer.load(flat_scene((_wall(60.0), _wall(-400.0))), weather("CN"), viewpoint("A"), W, H)
+    drawn = []
+    labels_pass = renderer.render_labels
+
+    def recorded(t, cull_m=None):
+        out = labels_pass(t, cull_m=cull_m)
+        drawn.append(out[0][out[1] == WALL].max(initial=0.0))  # the farthest wall pixel of the face
+        return out
+
+    monkeypatch.setattr(renderer, "render_labels", recorded)
+    near = lidar.lidar_sweep(renderer, sensor, 0.0, W, H)
+    assert 150.0 < lidar.cull_distance(sensor) < 250.0 and max(drawn) < 150.0  # the far wall: not drawn
+    drawn.clear()
+    monkeypatch.setattr(lidar, "cull_distance", lambda s: 1e9)
+    whole = lidar.lidar_sweep(renderer, sensor, 0.0, W, H)
+    assert max(drawn) > 390.0  # drawn to the renderer's 450 m, it is there
+    assert near.points.tobytes() == whole.points.tobytes() and near.labels.tobytes() == whole.labels.tobytes()
+    assert ((near.labels & 0xFFFF) == WALL).any()  # the near wall is in the sweep
+
+
+def test_a_rigs_sensors_pose_the_actors_once_per_instant(renderer, monkeypatch):
+    """Every sensor of a rig draws one instant: the actors are posed for it once, not once per sensor
+    (a LiDAR sweep's four faces, a surround rig's six cameras)."""
+    from domains.rigs import Sensor
+    from render_workers.worlds.scene import Actor, Path as LanePath
+
+    box = trimesh.creation.box(extents=(4.0, 2.0, 1.5))
+    box.visual.vertex_colors = np.tile([200, 20, 20, 255], (len(box.vertices), 1))
+    lane = LanePath(np.array([[0.0, 0.0, 0.0], [100.0, 0.0, 0.0]]))
+    car = Actor("sedan", (Part(WALL, box, "matte"),), lane, 20.0, 5.0)
+    scene = flat_scene()
+    scene = EpisodeScene(world=scene.world, actors=(car,), ego=scene.ego, n_vehicles=1, n_pedestrians=0)
+    renderer.load(scene, weather("CN"), viewpoint("A"), W, H)
+    posed = []
+    pose = Actor.pose
+    monkeypatch.setattr(Actor, "pose", lambda self, t: (posed.append(t) if self is car else None, pose(self, t))[1])
+    for yaw in (0.0, 90.0, 180.0):
+        renderer.use_sensor(Sensor(name="cam", kind="camera", yaw=yaw), W, H)
+        renderer.render_labels(1.0)
+    assert posed == [1.0]
+    renderer.use_sensor(None, W, H)
+    seen = renderer.render(2.0).buffers["classes"]  # another instant: posed again, 10 m on, and drawn there
+    assert posed == [1.0, 2.0] and (seen == WALL).any()
+
+
+def test_a_pass_asks_gl_for_its_light_limits_once_per_kind_of_pass(renderer, monkeypatch):
+    """pyrender derives its per-program light limits from a GL query at every primitive; a renderer asks once
+    per set of flags (the context's answer does not change), so a frame makes no such query after the first."""
+    import pyrender.renderer as pr_renderer
+
+    renderer.load(flat_scene((_wall(30.0), _wall(60.0))), weather("CN"), viewpoint("A"), W, H)
+    renderer.render(0.0)
+    asked = []
+    query = pr_renderer.glGetIntegerv
+    monkeypatch.setattr(pr_renderer, "glGetIntegerv", lambda what: (asked.append(what), query(what))[1])
+    again = renderer.render(0.0)
+    assert asked == [] and (again.buffers["classes"] == WALL).any()

@@ -69,6 +69,10 @@ def test_built_in_rigs():
     ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "a", "kind": "camera"}]}, "twice"),
     ({"name": "x", "sensor": [{"name": "a", "kind": "lidar"}]}, "at least one camera"),
     ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "l", "kind": "lidar", "pitch": 5}]}, "level"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera", "width": 9}]}, r"'width': 9 is out of range \[32, 8192\]"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera", "height": 64.5}]}, "'height': expected a whole number"),
+    ({"name": "x", "sensor": [{"name": "a", "kind": "camera"}, {"name": "l", "kind": "lidar", "height": 64}]},
+     "'height': a camera's"),
 ])
 def test_a_bad_rig_is_refused_naming_what(entry, message):
     with pytest.raises(RigError, match=message):
@@ -86,6 +90,34 @@ def test_a_bad_rig_is_one_line_and_exit_2(tmp_path):
     assert result.exit_code == 2
     assert result.output.strip().splitlines() == ["error: unknown rig 'wide'; valid rigs: front, stereo, surround, lidar64"]
     assert not (tmp_path / "o").exists()
+
+
+def test_plan_takes_a_rig_and_counts_sensor_frames(tmp_path):
+    """``idda plan --rig``: the rig's sensors and the frames as sensor frames; a bad rig as produce's (one line, exit 2)."""
+    from pipeline.cli import app
+    from pipeline.plan_file import read_plan
+
+    runner = CliRunner()
+    out = tmp_path / "plan.parquet"
+    args = ["plan", "--domains", "T01_CN_A", "--frames-per-scenario", "3", "--out", str(out)]
+    result = runner.invoke(app, [*args, "--rig", "surround"])
+    assert result.exit_code == 0, result.output
+    assert ("rig surround: 6 sensors, front (camera), frontleft (camera), backleft (camera), back (camera), "
+            "backright (camera), frontright (camera); 3 frames = 18 sensor frames") in result.output.splitlines()
+    assert read_plan(out).config.rig == "surround"
+    assert "rig front: 1 sensor, front (camera); 3 frames = 3 sensor frames" in runner.invoke(app, args).output
+    out.unlink()
+    result = runner.invoke(app, [*args, "--rig", "wide"])
+    assert result.exit_code == 2
+    assert result.output.strip().splitlines() == ["error: unknown rig 'wide'; valid rigs: front, stereo, surround, lidar64"]
+    assert not out.exists()
+    domain = tmp_path / "rear.toml"
+    domain.write_text('[[rig]]\nname = "rear"\nsensor = [{ name = "back", kind = "camera", yaw = 180.0 }, '
+                      '{ name = "roof", kind = "lidar", z = 0.4 }]\n')
+    result = runner.invoke(app, [*args, "--rig", "rear", "--catalog", str(domain)])
+    assert result.exit_code == 0, result.output
+    assert "rig rear: 2 sensors, back (camera), roof (lidar); 3 frames = 6 sensor frames" in result.output
+    assert json.loads(read_plan(out).config.rig)["name"] == "rear"
 
 
 def test_the_default_rig_leaves_specs_and_paths_as_before():
@@ -201,6 +233,33 @@ def test_query_by_sensor(stereo_root):
         Query(sensors=("Right side",)).validate()
 
 
+def test_card_and_stats_count_frames_not_sensor_frames(stereo_root, tmp_path):
+    """A stereo root of 2 frames holds 4 manifest rows: the card and ``idda stats`` say 2 frames (and 4 sensor frames)."""
+    import shutil
+
+    from exports.card import split_counts
+    from manifests.query import count_frames, rig_sensors
+    from manifests.reader import read_manifest
+    from pipeline.cli import app
+
+    root = tmp_path / "stereo"
+    shutil.copytree(stereo_root, root)
+    table = read_manifest(str(root))
+    assert (len(table), count_frames(table), rig_sensors(table)) == (4, 2, ("left", "right"))
+    assert sum(sum(row.values()) for row in split_counts(table).values()) == 2
+    runner = CliRunner()
+    result = runner.invoke(app, ["card", str(root)])
+    assert result.exit_code == 0, result.output
+    assert "(2 of the 2 frames the root holds)" in result.output
+    card = (root / "README.md").read_text()
+    assert "2 frames in 1 episodes over 1 scenarios (town x weather x viewpoint), each seen by the 2 sensor(s) of its " \
+           "rig (left, right; 4 sensor frames, one manifest row each), at 160x90" in card
+    assert "| **total** (1 scenarios) | | | |" in card and "| **2** |" in card
+    result = runner.invoke(app, ["stats", str(root), "--chart", str(tmp_path / "shares.png")])
+    assert result.exit_code == 0, result.output
+    assert "(2 of the 2 frames the root holds, 4 sensor frames of its 4)" in result.output
+
+
 # ------------------------------------------------------------------ surround ----
 def test_surround_neighbours_agree_on_what_they_both_see(tmp_path):
     root = tmp_path / "surround"
@@ -293,6 +352,47 @@ def test_a_domain_file_declares_a_rig_that_travels_in_run_json(tmp_path):
     assert read_record(Storage.from_uri(str(root)))["config"]["rig"] == recorded
 
 
+def test_a_camera_of_its_own_size_renders_at_it_and_its_rows_say_so(tmp_path):
+    """A rig's camera may declare width and height (default the run's): its files and K are at its size, its rows
+    carry it, and verify and resume accept it (the run's size is not every row's); the built-in rigs' JSON is unchanged."""
+    from pipeline.provenance import RunConfigError, check_rows
+    from roots.verify import verify as verify_root
+    from storage import Storage
+
+    text = ('[[rig]]\nname = "mixed"\nsensor = [{ name = "main", kind = "camera" }, '
+            '{ name = "wide", kind = "camera", yaw = 90.0, hfov_deg = 120.0, width = 96, height = 48 }]\n')
+    rig = rigs_from_text(text, "f.toml")["mixed"]
+    assert rig.sizes(64, 36) == {"main": (64, 36), "wide": (96, 48)}
+    assert all("width" not in json.dumps(json.loads(r.as_json())["sensors"]) for r in builtin_rigs().values())
+    assert rig_from_entry(json.loads(rig.as_json()), "spec") == rig  # the JSON a spec carries keeps the size
+    config = RunConfig(plan=_plan(rig.as_json(), frames=2, width=64, height=36), world="test")
+    root = tmp_path / "mixed"
+    storage = render_root(root, config)
+    rows = _rows(root)
+    assert [(r["sensor"], r["width"], r["height"]) for r in rows] == [("main", 64, 36), ("wide", 96, 48)] * 2
+    for row in rows:
+        for output in ("rgb", "depth_raw", "semantic_raw"):
+            assert decode_png((root / row[f"{output}_path"]).read_bytes()).shape[:2] == (row["height"], row["width"])
+        assert sum(row[label] for label in row if label.startswith("px_")) == row["width"] * row["height"]
+    K = as_matrix(rows[1]["K"], 3)
+    assert K[0, 0] == pytest.approx(48 / math.tan(math.radians(60))) and (K[0, 2], K[1, 2]) == (47.5, 23.5)  # pixel centres: (W - 1) / 2
+    assert verify_root(storage).ok
+    before = {p.relative_to(root): p.read_bytes() for p in root.rglob("*.png")}
+    render_root(root, config)  # a resume checks the rows' sizes against the run's (check_rows)
+    assert {p.relative_to(root): p.read_bytes() for p in root.rglob("*.png")} == before
+    with pytest.raises(RunConfigError, match="holds frames at 64x36, 96x48, this run asks for 80x36, 96x48"):
+        check_rows(storage, RunConfig(plan=_plan(rig.as_json(), frames=2, width=80, height=36), world="test"))
+    # verify holds each sensor's rows to its own size: a camera at the run's size where its rig gives another is a conflict
+    from roots.run_file import read_record
+    from roots.verify import config_conflict
+
+    recorded = read_record(storage)["config"]
+    seed = rows[0]["seed"]
+    assert config_conflict({"main": (64, 36), "wide": (96, 48)}, seed, "T01_CN_A", 0, recorded) is None
+    assert config_conflict({"main": (64, 36), "wide": (64, 36)}, seed, "T01_CN_A", 0, recorded) \
+        == "wide frames are 64x36, run.json says 96x48"
+
+
 def test_a_front_root_has_no_rig_columns_in_its_parts_or_indexes(tmp_path):
     """The default rig writes the parts and indexes it wrote before rigs, byte for byte: no sensor column
     and no LiDAR columns (without leaving them out, every new front root's index changed)."""
@@ -324,6 +424,15 @@ def test_an_export_takes_one_sensor_at_a_time(stereo_root, tmp_path):
                                "--sensor", "left"])
     assert left.exit_code == 0, left.output
     assert len(list((tmp_path / "cs").rglob("*_leftImg8bit.png"))) == 2
+
+
+def test_the_rig_bench_measures(tmp_path):
+    """``benchmarks.bench_rigs`` (make bench BENCH=rigs) runs: small, on the test world (it had stopped running
+    when episodes came to be drawn from a DrawSpec, and nothing noticed)."""
+    from benchmarks.bench_rigs import measure
+
+    row = measure("lidar64", 64, 36, frames=3, world="test")
+    assert row["rig"] == "lidar64" and row["sensors"] == 2 and row["cpu_s"] > 0 and row["lidar_wall_s"] > 0 < row["lidar_cpu_s"]
 
 
 def test_semantickitti_files_round_trip():

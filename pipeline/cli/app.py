@@ -11,11 +11,14 @@ from typing import Optional
 import typer
 
 from domains.catalog import using
+from domains.rigs import rig_named
 from domains.selection import parse_selection
 from manifests import query as q
 from manifests.stats import bar_chart_png, format_share_table, share_table
 from pipeline.cli import data as cli_data, domain_files as cli_domains
-from pipeline.cli.domain_files import CatalogFile, domain_file, root_catalog, root_pairing, root_rig, root_rules
+from pipeline.cli.domain_files import (
+    RIG_HELP, CatalogFile, chosen_rig, domain_file, root_catalog, root_pairing, root_rig, root_rules,
+)
 from pipeline.cli.progress import (
     ProgressDisplay, VerifyDisplay, format_head_lost, format_interrupted, format_outage, format_produce_report,
     stop_signals,
@@ -23,7 +26,7 @@ from pipeline.cli.progress import (
 )
 from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MaxCondition, MinCondition, MinShare, OneLineUsageErrors, PerScenario,
-    Preset, SampleSeed, Splits, Total, build_query, count, of_held, output_root, user_errors, write_local,
+    Preset, SampleSeed, Splits, Total, build_query, count, of_held, of_held_frames, output_root, user_errors, write_local,
 )
 from outputs.table import CAMERA_OUTPUTS, DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import read_manifest, require_outputs, scan_manifest
@@ -96,7 +99,17 @@ def format_plan_table(plan) -> str:
         )
     cfg = plan.config
     lines.append(f"resolution {cfg.width}x{cfg.height}, seed {cfg.seed}")
+    lines.append(format_rig_line(rig_named(cfg.rig), plan.total_frames, cfg.width, cfg.height))
     return "\n".join(lines)
+
+
+def format_rig_line(rig, frames: int, width: int, height: int) -> str:
+    """The rig's sensors (a camera of its own size with it), and the frames as sensor frames: every
+    sensor of the rig sees every frame."""
+    own = {s.name: "" if not (s.width or s.height) else " {}x{}".format(*s.size(width, height)) for s in rig.sensors}
+    sensors = ", ".join(f"{s.name} ({s.kind}{own[s.name]})" for s in rig.sensors)
+    return (f"rig {rig.name}: {count(len(rig.sensors), 'sensor')}, {sensors}; "
+            f"{count(frames, 'frame')} = {count(frames * len(rig.sensors), 'sensor frame')}")
 
 
 @app.command()
@@ -109,6 +122,7 @@ def plan(
     seed: int = typer.Option(0, help="Run seed; every episode's seed derives from it."),
     out: Optional[Path] = typer.Option(None, help="Write the plan as Parquet (one row per episode)."),
     catalog: CatalogFile = None,
+    rig: Optional[str] = typer.Option(None, "--rig", help=RIG_HELP + " The plan lists its sensors and counts sensor frames."),
 ) -> None:
     """Expand a domain selection into shards and episodes, and print them.
 
@@ -116,8 +130,9 @@ def plan(
     scenarios hold the paper's 1,006,800 frames.
     """
     with user_errors():
+        layer = domain_file(catalog).layer_json()  # a bad file is reported before its rigs are read
         the_plan = make_plan(PlanConfig(domains=domains, scale=scale, frames_per_scenario=frames_per_scenario, width=width,
-                                        height=height, seed=seed, catalog=domain_file(catalog).layer_json()))
+                                        height=height, seed=seed, catalog=layer, rig=chosen_rig(rig, catalog)))
         typer.echo(format_plan_table(the_plan))
         if out is not None:
             write_plan(the_plan, out)
@@ -144,7 +159,7 @@ def produce(
     rgb_format: str = typer.Option("png", "--rgb-format", help="File format of the rgb output: png (lossless, the default) or jpg (quality 95, the released IDDA format; about a quarter of the bytes). A root keeps its format."),
     catalog: CatalogFile = None,
     frame_interval: float = typer.Option(3.0, "--frame-interval", metavar="SECONDS", help="Simulated seconds between frames: 3 (the paper's sparse sampling, the default) or e.g. 0.1 for a 10 Hz video-like episode. A root keeps its interval."),
-    rig: Optional[str] = typer.Option(None, "--rig", help="Sensor rig: front (the viewpoint's camera, the default), stereo, surround, lidar64, or one a --catalog file declares with [[rig]] (docs/conventions.md). A root keeps its rig."),
+    rig: Optional[str] = typer.Option(None, "--rig", help=RIG_HELP + " A root keeps its rig."),
 ) -> None:
     """Render the selected scenarios into an output root (resumable).
 
@@ -375,8 +390,8 @@ def stats(
             raise ValueError(f"{storage.uri} has no frames" + (f" for {domains!r}" if domains else "") + " yet")
         shares = share_table(table, by_scenario=per_scenario)
         typer.echo(format_share_table(shares))
-        write_local(chart, bar_chart_png(shares, title=f"Class pixel shares, {len(table):,} frames"))
-        typer.echo(f"chart: {chart} ({of_held(len(table), len(manifest))})")
+        write_local(chart, bar_chart_png(shares, title=f"Class pixel shares, {q.count_frames(table):,} frames"))
+        typer.echo(f"chart: {chart} ({of_held_frames(table, manifest)})")
 
 
 @app.command()

@@ -114,6 +114,15 @@ def of_held(n: int, held: int) -> str:
     return f"{n:,} of the {count(held, 'frame')} the root holds"
 
 
+def of_held_frames(table, manifest) -> str:
+    """``of_held`` for the rows of ``table`` taken from ``manifest`` (all the root's): counted in frames, and in a
+    rig's root its sensor frames too ('2 of the 2 frames the root holds, 4 sensor frames of its 4')."""
+    said = of_held(q.count_frames(table), q.count_frames(manifest))
+    if len(manifest) == q.count_frames(manifest):
+        return said
+    return f"{said}, {count(len(table), 'sensor frame')} of its {len(manifest):,}"
+
+
 def write_local(path: Path, data: bytes) -> None:
     """Write ``data`` to a local file atomically (a temporary file, then a rename)."""
     if not path.parent.exists():

@@ -16,7 +16,7 @@ import typer
 
 from domains.catalog import BUILTIN, catalog_for
 from domains.catalog_file import CatalogError, catalog_toml, with_file
-from domains.rigs import run_rig
+from domains.rigs import DEFAULT_RIG, run_rig
 from pipeline.cli.common import user_errors
 from pipeline.settings import CONFIG_SHAPE, RECORDED_DEFAULTS, PlanConfig
 from render_workers.worlds.styles import STYLE_BY_NAME
@@ -26,6 +26,8 @@ from storage import Storage, StorageError
 CATALOG_HELP = ("Domain file (TOML) whose towns, weathers and viewpoints are added to the built-in ones or "
                 "override them (docs/catalog.md); select them all with --domains catalog.")
 CatalogFile = Annotated[Optional[Path], typer.Option("--catalog", help=CATALOG_HELP)]
+RIG_HELP = ("Sensor rig: front (the viewpoint's camera, the default), stereo, surround, lidar64, or one a --catalog "
+            "file declares with [[rig]] (docs/conventions.md).")
 
 
 def domain_file(path: Path | None, base=None):
@@ -84,6 +86,14 @@ def root_rig(root: str, name: str | None, path: Path | None) -> str:
     domain file at ``path``), else the root's recorded one (a new root: front)."""
     if name is None:
         return root_recorded(root, "rig")
+    return chosen_rig(name, path)
+
+
+def chosen_rig(name: str | None, path: Path | None) -> str:
+    """What a run records as its rig (``PlanConfig.rig``) for ``--rig name`` (None: the default, front), a
+    built-in rig or one the domain file at ``path`` declares; RigError (one ``error:`` line) if there is none."""
+    if name is None:
+        return DEFAULT_RIG
     return run_rig(name, path.read_text(encoding="utf-8") if path is not None else None, str(path))
 
 

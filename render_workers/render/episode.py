@@ -261,12 +261,13 @@ def render_episode(spec: DrawSpec, sink: Callable[[Frame], None], *, world: str 
             for index in range(spec.frames):
                 for k, sensor in enumerate(rig.sensors):  # every sensor at the frame's instant, in rig order
                     if sensor.kind == "lidar":
-                        start = time.perf_counter()
+                        start, cpu = time.perf_counter(), time.thread_time()
                         result = lidar_sweep(renderer, sensor, spec.frame_time(index), spec.width, spec.height)
                         timings["lidar"] = timings.get("lidar", 0.0) + time.perf_counter() - start
+                        timings["lidar_cpu"] = timings.get("lidar_cpu", 0.0) + time.thread_time() - cpu  # this thread's
                     else:
                         if not rig.is_default:
-                            renderer.use_sensor(sensor, spec.width, spec.height)
+                            renderer.use_sensor(sensor, *sensor.size(spec.width, spec.height))
                         result = renderer.render(spec.frame_time(index), weathers[index])
                         for stage, seconds in result.timings.items():
                             timings[stage] += seconds

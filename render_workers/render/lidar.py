@@ -72,6 +72,20 @@ def face_size(sensor: Sensor) -> tuple[int, int]:
     return width, height
 
 
+def cull_distance(sensor: Sensor) -> float:
+    """How far from the LiDAR a face pass must draw: a node wholly beyond this changes no point of the sweep.
+
+    A point is kept only within ``range_m``, so its planar depth, and (1/Z interpolation being a weighted
+    harmonic mean) the least of the four pixel depths around its ray, is at most ``range_m``. A surface
+    farther than D from the sensor has planar depth at least D * cos(the widest angle of a face's pixel from
+    its axis); past EDGE * range_m that depth straddles an edge with every such pixel, so the beam takes
+    its nearest pixel, and that pixel, if it is the far surface's, returns a point beyond the range. So
+    neither the far surface nor the background in its place gives or moves a point."""
+    fw, fh = face_size(sensor)
+    widest = 1.0 / math.sqrt(1.0 + 1.0 + (fh / fw) ** 2)  # a face corner: 45 degrees across, fh / fw up
+    return 1.01 * EDGE * sensor.range_m / widest
+
+
 def _depth_at(depth: np.ndarray, cls: np.ndarray, u: np.ndarray, v: np.ndarray, row: np.ndarray,
               col: np.ndarray) -> np.ndarray:
     """Planar depth at sub-pixel (u, v): bilinear in 1/Z (exact on a plane) among the four pixels around it
@@ -106,7 +120,7 @@ def lidar_sweep(renderer, sensor: Sensor, t: float, width: int, height: int) -> 
         face_sensor = Sensor(name=f"{sensor.name}face{face}", kind="camera", x=sensor.x, y=sensor.y, z=sensor.z,
                              yaw=sensor.yaw + yaw)
         renderer.use_sensor(face_sensor, fw, fh, hood=False)
-        depth, cls, inst, _ = renderer.render_labels(t)
+        depth, cls, inst, _ = renderer.render_labels(t, cull_m=min(renderer.cull_m, cull_distance(sensor)))
         mine = np.nonzero(face_of == face)[0]
         c, s = math.cos(math.radians(yaw)), math.sin(math.radians(yaw))
         rot = np.array([[c, -s, 0.0], [s, c, 0.0], [0.0, 0.0, 1.0]]) @ SENSOR_FROM_CV  # sensor <- face's OpenCV

@@ -323,6 +323,17 @@ def install_forward_pass(offscreen) -> None:
     from pyrender.constants import ProgramFlags, RenderFlags
 
     inner = offscreen._renderer
+    asked = inner._compute_max_n_lights
+    max_lights: dict = {}
+
+    def max_n_lights(flags) -> list:
+        """pyrender's light limits per program, which it derives for every primitive from a GL query
+        (the context's texture units, fixed): asked once per set of flags."""
+        if flags not in max_lights:
+            max_lights[flags] = tuple(asked(flags))
+        return list(max_lights[flags])
+
+    inner._compute_max_n_lights = max_n_lights
 
     def forward_pass(scene, flags, seg_node_map=None):
         seg = _clear_for_pass(inner, scene, flags)

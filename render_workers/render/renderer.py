@@ -243,6 +243,7 @@ class Renderer:
             self._static = self._build_static(scene.world)
             self._static_world = scene.world
         self._actors, self._actor_of = self._build_actors(scene)
+        self._posed_at = None  # (t, the actors' world centres): the instant the actors were last posed for
 
         prs = pr.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=_ambient(weather))
         self.instances = episode_instances(scene, self._static_objects)
@@ -294,11 +295,13 @@ class Renderer:
         if self._hood_node is not None:
             self._hood_node.mesh.is_visible = self.rig.has_hood if hood is None else hood
 
-    def render_labels(self, t: float) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    def render_labels(self, t: float, cull_m: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The class pass alone at time ``t`` from the current sensor: (planar depth float32 metres, background
-        ZFAR; class ids uint8, background sky; instance ids uint16) and world_from_camera (OpenGL axes)."""
+        ZFAR; class ids uint8, background sky; instance ids uint16) and world_from_camera (OpenGL axes).
+        ``cull_m``: leave out nodes wholly farther than this from the sensor (default: the renderer's
+        ``cull_m``); a LiDAR's faces need nothing beyond its range (``render_workers.render.lidar``)."""
         pr = compat.import_pyrender()
-        cam = self.update(t, shadows=False)
+        cam = self.update(t, shadows=False, cull_m=cull_m)
         seg, depth = self._offscreen.render(self._scene, flags=pr.RenderFlags.SEG | pr.RenderFlags.SKIP_CULL_FACES,
                                             seg_node_map=self._seg_map)
         background = depth <= 0.0
@@ -356,35 +359,36 @@ class Renderer:
         return [node for node in self._draw_list if node.mesh.is_visible]
 
     # -- per frame -----------------------------------------------------------
-    def _visible(self, centres: np.ndarray, radii: np.ndarray, cam: np.ndarray) -> np.ndarray:
-        """Distance and horizontal-frustum test of bounding spheres (world frame)."""
+    def _visible(self, centres: np.ndarray, radii: np.ndarray, cam: np.ndarray, cull_m: float | None = None) -> np.ndarray:
+        """Distance (``cull_m``, default the renderer's) and horizontal-frustum test of bounding spheres (world frame)."""
         d = centres - cam[:3, 3]
         forward, right = -cam[:3, 2], cam[:3, 0]
         z, x = d @ forward, d @ right
-        near = np.linalg.norm(d, axis=1) - radii < self.cull_m
+        near = np.linalg.norm(d, axis=1) - radii < (self.cull_m if cull_m is None else cull_m)
         half = math.atan(self.rig.tan_half_h)
         c, s = math.cos(half), math.sin(half)
         inside = (np.abs(x) * c - z * s) < radii
         return near & inside & (z > -radii)
 
-    def update(self, t: float, shadows: bool = True) -> np.ndarray:
+    def update(self, t: float, shadows: bool = True, cull_m: float | None = None) -> np.ndarray:
         """Pose the camera and actors for time ``t`` and cull (and fit the shadow map, unless ``shadows`` is
-        False: a class pass alone draws none); returns world_from_camera."""
+        False: a class pass alone draws none); returns world_from_camera. ``cull_m``: as ``render_labels``."""
         if self._scene is None or self._episode is None:
             raise RuntimeError("Renderer.load() must be called before rendering")
         cam = self.rig.world_from_camera(self._episode.ego.pose(t))
         self._scene.set_pose(self._camera_node, cam)
         if self._static.nodes:
-            for node, on in zip(self._static.nodes, self._visible(self._static.centres, self._static.radii, cam)):
+            for node, on in zip(self._static.nodes, self._visible(self._static.centres, self._static.radii, cam, cull_m)):
                 node.mesh.is_visible = bool(on)
         if self._actors.nodes:
-            poses = [actor.pose(t) for actor in self._episode.actors]
-            world_centres = np.empty_like(self._actors.centres)
-            for i, (node, a) in enumerate(zip(self._actors.nodes, self._actor_of)):
-                pose = poses[a]
-                self._scene.set_pose(node, pose)
-                world_centres[i] = pose[:3, :3] @ self._actors.centres[i] + pose[:3, 3]
-            for node, on in zip(self._actors.nodes, self._visible(world_centres, self._actors.radii, cam)):
+            if self._posed_at is None or self._posed_at[0] != t:  # a rig's sensors draw one instant: pose it once
+                poses = [actor.pose(t) for actor in self._episode.actors]
+                for node, a in zip(self._actors.nodes, self._actor_of):
+                    self._scene.set_pose(node, poses[a])
+                centres = np.array([poses[a][:3, :3] @ c + poses[a][:3, 3] for c, a in zip(self._actors.centres, self._actor_of)])
+                self._posed_at = (t, centres.reshape(self._actors.centres.shape))
+            world_centres = self._posed_at[1]
+            for node, on in zip(self._actors.nodes, self._visible(world_centres, self._actors.radii, cam, cull_m)):
                 node.mesh.is_visible = bool(on)
         else:
             world_centres = np.empty((0, 3))
