@@ -114,6 +114,18 @@ def test_a_narrower_field_of_view_magnifies_and_keeps_the_hood_share(renderer, v
     assert camera.measured_hood_fraction(result.hood_mask) == pytest.approx(narrow.hood_fraction, abs=2.0 / H)
 
 
+def test_a_rigs_mount_camera_takes_the_viewpoints_field_of_view():
+    """The stereo rig's left camera is the viewpoint's own (it sees the hood): it follows the viewpoint's hfov_deg;
+    the surround rig's cameras keep their own 70 degrees."""
+    from domains.rigs import rig_named
+
+    narrow = dataclasses.replace(viewpoint("A"), hfov_deg=60.0)
+    left, right = rig_named("stereo").cameras
+    assert camera.camera_rig(narrow, W, H, left).hfov_deg == 60.0 and camera.camera_rig(narrow, W, H, left).has_hood
+    assert camera.camera_rig(narrow, W, H, right).hfov_deg == 90.0  # a camera of its own: the rig's (default) 90
+    assert {camera.camera_rig(narrow, W, H, s).hfov_deg for s in rig_named("surround").cameras} == {70.0}
+
+
 def test_hood_mask_converges_to_catalog_fraction():
     for vp in VIEWPOINTS:
         mask = camera.hood_mask(vp, 3840, 2160)
