@@ -137,6 +137,8 @@ class Viewpoint:
     ego_size_m: tuple[float, float] = param("the ego vehicle's footprint (length, width)", "m", 0.5, 25.0)
     ego_speed_mps: tuple[float, float] = param("the ego's speed range off the freeway (uniform draw per episode)",
                                                "m/s", 0.0, 40.0, ordered=True)
+    hfov_deg: float = param("the camera's horizontal field of view (the hood keeps its share of the image)",
+                            "degrees", 10.0, 150.0, default=90.0)
 
     @property
     def hood_visible(self) -> bool:

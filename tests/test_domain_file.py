@@ -38,6 +38,8 @@ TOWNS_REF = (
 )
 # Parameters added with dense streets (street_density, issue 34): their defaults, which the paper's towns keep.
 NEW_TOWN_DEFAULTS = (0.0,)
+# Parameters added with camera geometry (hfov_deg, issue 34): the paper's 90 degrees.
+NEW_VIEWPOINT_DEFAULTS = (90.0,)
 # Parameters added with fog, night, snow and shifts (snowfall, snow_cover, street_lights, car_lights,
 # shift_from, shift_to, easing), structured domain randomization (randomize), a real camera's look
 # (camera) and the surface and light levers (textures, foliage, occlusion): their defaults, which the
@@ -89,7 +91,7 @@ def _typed_ref(ref):
 def test_builtin_file_gives_the_python_tables_bit_for_bit():
     assert _typed(TOWNS) == _typed_ref(tuple(row + NEW_TOWN_DEFAULTS for row in TOWNS_REF))
     assert _typed(WEATHERS) == _typed_ref(WEATHERS_REF)
-    assert _typed(VIEWPOINTS) == _typed_ref(VIEWPOINTS_REF)
+    assert _typed(VIEWPOINTS) == _typed_ref(tuple(row + NEW_VIEWPOINT_DEFAULTS for row in VIEWPOINTS_REF))
     assert len(ALL_SCENARIOS) == 105 and catalog.weather("HRN") is WEATHERS[2]
 
 
@@ -142,6 +144,8 @@ BAD = {
     "min above max": ('[[town]]\ncode = "T09"\nlike = "T01"\nbuilding_height_m = [20.0, 10.0]\n',
                       "town 'T09': key 'building_height_m': the first value (min) exceeds the second"),
     "table": ('[[weathers]]\ncode = "FG1"\n', "key 'weathers': unknown table"),
+    "field of view": ('[[viewpoint]]\ncode = "A2"\nlike = "A"\nhfov_deg = 170.0\n',
+                      "viewpoint 'A2': key 'hfov_deg': 170.0 is out of range [10.0, 150.0]"),
 }
 
 

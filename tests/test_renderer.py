@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 import trimesh
@@ -88,6 +90,40 @@ def test_hood_fraction(renderer, vp):
     # the hood's top edge is the parabola: highest in the middle
     top = result.hood_mask.argmax(axis=0)
     assert top[w // 2] <= top[2] and top[w // 2] <= top[-3]
+
+
+@pytest.mark.parametrize("view", ["A", "V"])
+def test_a_narrower_field_of_view_magnifies_and_keeps_the_hood_share(renderer, view):
+    """A viewpoint's ``hfov_deg`` (90 unless a domain file says otherwise): the focal length, K and the road's
+    depth follow it, and the hood covers the same share of the image, so the catalog's hood_fraction still crops it."""
+    assert viewpoint(view).hfov_deg == 90.0 and camera.camera_rig(view, W, H).focal_px == pytest.approx(W / 2)
+    narrow = dataclasses.replace(viewpoint(view), hfov_deg=60.0)
+    renderer.load(flat_scene(), weather("CN"), narrow, W, H)
+    result = renderer.render(0.0)
+    rig = result.rig
+    assert rig.focal_px == pytest.approx(W / 2 / np.tan(np.radians(30.0)))
+    assert rig.K[0, 0] == rig.K[1, 1] == pytest.approx(rig.focal_px)
+    col = W // 2
+    for row in range(H // 2 + 2, H):
+        if result.hood_mask[row, col]:
+            break
+        expected = rig.focal_px * narrow.camera_height_m / (row + 0.5 - rig.cy)
+        assert result.buffers["depth"][row, col] == pytest.approx(expected, rel=0.01), row
+    wide = render(renderer, flat_scene(), view)
+    assert (result.hood_mask == wide.hood_mask).mean() > 0.995  # the hood's outline is the same in the image
+    assert camera.measured_hood_fraction(result.hood_mask) == pytest.approx(narrow.hood_fraction, abs=2.0 / H)
+
+
+def test_a_rigs_mount_camera_takes_the_viewpoints_field_of_view():
+    """The stereo rig's left camera is the viewpoint's own (it sees the hood): it follows the viewpoint's hfov_deg;
+    the surround rig's cameras keep their own 70 degrees."""
+    from domains.rigs import rig_named
+
+    narrow = dataclasses.replace(viewpoint("A"), hfov_deg=60.0)
+    left, right = rig_named("stereo").cameras
+    assert camera.camera_rig(narrow, W, H, left).hfov_deg == 60.0 and camera.camera_rig(narrow, W, H, left).has_hood
+    assert camera.camera_rig(narrow, W, H, right).hfov_deg == 90.0  # a camera of its own: the rig's (default) 90
+    assert {camera.camera_rig(narrow, W, H, s).hfov_deg for s in rig_named("surround").cameras} == {70.0}
 
 
 def test_hood_mask_converges_to_catalog_fraction():

@@ -5,8 +5,9 @@ Frames:
 * ego (``render_workers.worlds.scene``): +x forward, +y left, +z up, origin on the road.
 
 The camera is level (no pitch or roll), ``Viewpoint.camera_height_m`` above the
-road, looking along the ego's +x, with a 90 degree horizontal field of view at
-any resolution (the vertical one follows from the aspect ratio). Pixel centres
+road, looking along the ego's +x, with the viewpoint's horizontal field of view
+(``hfov_deg``, 90 degrees unless a domain file says otherwise) at any
+resolution (the vertical one follows from the aspect ratio). Pixel centres
 sit at half-integers, so row r looks along ``(cy - r - 0.5) / f`` and a flat
 road at depth Z appears at row ``cy + f*h/Z - 0.5``.
 
@@ -16,7 +17,7 @@ plane, so its top edge in the image is the parabola ``y(u) = y_c + k*u**2``
 (u in [-1, 1] across the width, y a fraction of the image height from the top,
 k = ``hood_curvature``). The covered share is ``1 - y_c - k/3``, so
 ``y_c = 1 - hood_fraction - k/3`` makes it exactly ``hood_fraction`` in the
-limit of infinite resolution.
+limit of infinite resolution, at any field of view.
 """
 
 from __future__ import annotations
@@ -30,7 +31,7 @@ import trimesh
 
 from domains.catalog import Viewpoint, viewpoint as lookup_viewpoint
 from domains.rigs import Sensor
-from outputs.geometry import CV_FROM_GL, HFOV_DEG, intrinsics
+from outputs.geometry import CV_FROM_GL, intrinsics
 
 CAMERA_FORWARD_M = 0.2  # camera position ahead of the ego's centre (rear-view mirror)
 HOOD_SEGMENTS = 96  # segments along the hood's top edge (chord error ~1e-5 of the image)
@@ -61,7 +62,10 @@ class CameraRig:
 
     @property
     def hfov_deg(self) -> float:
-        return HFOV_DEG if self.sensor is None else self.sensor.hfov_deg
+        """The viewpoint's own camera (a rig's mount camera too) has the viewpoint's; a rig's other cameras their own."""
+        if self.sensor is None or self.sensor.is_mount_camera:
+            return self.viewpoint.hfov_deg
+        return self.sensor.hfov_deg
 
     @property
     def has_hood(self) -> bool:
@@ -202,7 +206,7 @@ def hood_mesh(view: Viewpoint | str, aspect: float) -> trimesh.Trimesh | None:
         return None
     if hood_edge_centre(vp) <= 0.5:
         raise ValueError(f"viewpoint {vp.code}: hood edge must stay below the horizon")
-    tan_h = math.tan(math.radians(HFOV_DEG) / 2)
+    tan_h = math.tan(math.radians(vp.hfov_deg) / 2)
     tan_v = tan_h / aspect
     u = np.linspace(-HOOD_SIDE, HOOD_SIDE, HOOD_SEGMENTS + 1)
     s = np.linspace(0.0, 1.0, HOOD_ROWS)
