@@ -35,3 +35,21 @@ def reference(tmp_path_factory):
     root = tmp_path_factory.mktemp("reference") / "root"
     render_root(root, RunConfig(plan=PLAN, world="test"), compact=True)
     return root
+
+
+class _ProceduralWorlds(dict):
+    """Town code -> the procedural world of seed 0, built on first use (or loaded from the
+    session's world cache, which the other pytest workers and the render workers share)."""
+
+    def __missing__(self, code: str):
+        from render_workers.worlds import world, worldcache
+
+        self[code] = built = worldcache.load_or_build("procedural", code, 0, world.build_world)
+        return built
+
+
+@pytest.fixture(scope="session")
+def procedural_worlds():
+    """The seven towns' worlds (seed 0), each built once per test session: a town takes
+    seconds to build, and the world and town-look tests read the same ones. Read-only."""
+    return _ProceduralWorlds()

@@ -288,3 +288,43 @@ def test_a_pass_asks_gl_for_its_light_limits_once_per_kind_of_pass(renderer, mon
     monkeypatch.setattr(pr_renderer, "glGetIntegerv", lambda what: (asked.append(what), query(what))[1])
     again = renderer.render(0.0)
     assert asked == [] and (again.buffers["classes"] == WALL).any()
+
+
+def test_a_frames_gl_lookups_do_not_grow_with_what_it_draws(renderer, monkeypatch):
+    """Uniform locations are asked of GL once per program and pyrender's program lookup runs once per
+    kind of primitive in a pass: a frame of twelve cars makes no more of either than a frame of two
+    (pyrender asked both again for every primitive: the per-draw Python cost of every pass)."""
+    import OpenGL.GL as gl
+    import pyrender.renderer as pr_renderer
+    import pyrender.shader_program as pr_program
+    from render_workers.worlds.scene import Actor, Path as LanePath
+
+    def scene_of(cars: int) -> EpisodeScene:
+        lane = LanePath(np.array([[0.0, 0.0, 0.0], [300.0, 0.0, 0.0]]))
+        actors = []
+        for i in range(cars):
+            box = trimesh.creation.box(extents=(4.0, 2.0, 1.5))
+            box.visual.vertex_colors = np.tile([200, 20 + 10 * i, 20, 255], (len(box.vertices), 1))
+            actors.append(Actor("sedan", (Part(WALL, box, "matte"),), lane, 15.0 + 8.0 * i, 0.0, 0.0))
+        base = flat_scene()
+        return EpisodeScene(world=base.world, actors=tuple(actors), ego=base.ego, n_vehicles=cars, n_pedestrians=0)
+
+    def lookups(cars: int) -> tuple[int, int, np.ndarray]:
+        renderer.load(scene_of(cars), weather("CN"), viewpoint("A"), W, H)
+        renderer.render(0.0)  # the first frame: programs compiled, locations learnt
+        asked = {"location": 0, "program": 0}
+        for module in (gl, pr_program):
+            location = module.glGetUniformLocation
+            monkeypatch.setattr(module, "glGetUniformLocation",
+                                lambda *a, _f=location: (asked.__setitem__("location", asked["location"] + 1), _f(*a))[1])
+        inner = renderer._offscreen._renderer
+        lookup = inner._get_primitive_program
+        monkeypatch.setattr(inner, "_get_primitive_program",
+                            lambda *a: (asked.__setitem__("program", asked["program"] + 1), lookup(*a))[1])
+        frame = renderer.render(0.0)
+        monkeypatch.undo()
+        return asked["location"], asked["program"], frame.buffers["classes"]
+
+    few, many = lookups(2), lookups(12)
+    assert (few[2] == WALL).sum() < (many[2] == WALL).sum()  # the twelve cars are drawn
+    assert many[:2] == few[:2], (few[:2], many[:2])

@@ -28,8 +28,8 @@ def distance(a, b) -> float:
 
 
 @pytest.fixture(scope="module")
-def albedo():
-    return {code: W.class_albedo(W.build_world(code, 0)) for code in ("T01", "T03", "T06", "T07")}
+def albedo(procedural_worlds):
+    return {code: W.class_albedo(procedural_worlds[code]) for code in ("T01", "T03", "T06", "T07")}
 
 
 def test_the_farmland_looks_unlike_the_old_town_in_every_shared_class(albedo):

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from domains.catalog import TOWNS, VIEWPOINTS, class_id, town as town_row
+from domains.catalog import TOWNS, VIEWPOINTS, class_id, town as town_row, viewpoint
 from render_workers.worlds import world as W
 from render_workers.worlds.scene import MATERIALS
 from render_workers.worlds.styles import is_urban
@@ -16,8 +16,8 @@ MOVING_CLASSES = {class_id("vehicle"), class_id("bicycle"), class_id("motorcycle
 
 
 @pytest.fixture(scope="module")
-def worlds():
-    return {code: W.build_world(code, 0) for code in TOWN_CODES}
+def worlds(procedural_worlds):
+    return procedural_worlds
 
 
 def _tri_counts(world) -> dict[int, int]:
@@ -247,14 +247,19 @@ def test_no_car_right_ahead_of_the_ego(worlds):
 
 
 def test_ego_prefers_streets_to_the_freeway(worlds):
-    from render_workers.worlds.traffic import FREEWAY_EGO_WEIGHT
+    from render_workers.worlds.traffic import FREEWAY_EGO_WEIGHT, _place_ego
 
     loops = worlds["T04"].loops
     lengths = np.array([lp.path.length for lp in loops])
     is_fw = np.array([lp.kind == "freeway" for lp in loops])
     by_length = lengths[is_fw].sum() / lengths.sum()  # the ego's share if it picked by length only
-    on_fw = np.mean([populate(worlds["T04"], "A", s).extras["ego_loop_kind"] == "freeway" for s in range(40)])
+    # the ego's draw alone (populate's first placement), over many more seeds than whole episodes afford
+    vp = viewpoint("A")
+    on_fw = np.mean([_place_ego(worlds["T04"], vp, np.random.default_rng(s)).ego_loop.kind == "freeway"
+                     for s in range(400)])
     assert FREEWAY_EGO_WEIGHT < 1.0 and 0.0 < on_fw < by_length
+    scene = populate(worlds["T04"], "A", 0)  # and what an episode reports is the loop it drove
+    assert scene.extras["ego_loop_kind"] == loops[scene.extras["ego_loop"]].kind
 
 
 def _boxes_at(actors, t, local):

@@ -240,16 +240,64 @@ def _set_material(program, material, state: dict) -> None:
 
     if state.get(program) is material:
         return
-    program.set_uniform("material.emissive_factor", material.emissiveFactor)
+    set_uniform(program, "material.emissive_factor", material.emissiveFactor)
     if isinstance(material, MetallicRoughnessMaterial):
-        program.set_uniform("material.base_color_factor", material.baseColorFactor)
-        program.set_uniform("material.metallic_factor", material.metallicFactor)
-        program.set_uniform("material.roughness_factor", material.roughnessFactor)
+        set_uniform(program, "material.base_color_factor", material.baseColorFactor)
+        set_uniform(program, "material.metallic_factor", material.metallicFactor)
+        set_uniform(program, "material.roughness_factor", material.roughnessFactor)
     elif isinstance(material, SpecularGlossinessMaterial):
-        program.set_uniform("material.diffuse_factor", material.diffuseFactor)
-        program.set_uniform("material.specular_factor", material.specularFactor)
-        program.set_uniform("material.glossiness_factor", material.glossinessFactor)
+        set_uniform(program, "material.diffuse_factor", material.diffuseFactor)
+        set_uniform(program, "material.specular_factor", material.specularFactor)
+        set_uniform(program, "material.glossiness_factor", material.glossinessFactor)
     state[program] = material
+
+
+def set_uniform(program, name: str, value) -> None:
+    """``program.set_uniform(name, value)`` with the uniform's location asked of GL once.
+
+    pyrender's ``ShaderProgram.set_uniform`` asks GL (``glGetUniformLocation``)
+    on every call, about a third of a primitive's draw in Python. A location is
+    fixed for as long as its program lives, so it is kept on the program object,
+    keyed by the GL program it belongs to (pyrender recompiles into the same
+    object). The same GL call with the same values follows, as pyrender makes
+    it (arrays as float32 vectors or transposed matrices, Python floats and
+    ints as scalars), and a name the shader lacks is skipped, as pyrender
+    skips it (the fast mesh shader has no metallic factor, for one)."""
+    from OpenGL import GL
+    from pyrender.shader_program import ShaderProgram
+
+    locations = program.__dict__.setdefault("_idda_locations", {})
+    key = (program._program_id, name)
+    location = locations.get(key)
+    if location is None:
+        location = locations[key] = int(GL.glGetUniformLocation(program._program_id, name))
+    if location == -1:
+        return
+    if isinstance(value, np.ndarray):
+        if value.ndim == 1:
+            if np.issubdtype(value.dtype, np.unsignedinteger):
+                dtype, value = "u", value.astype(np.uint32)
+            elif np.issubdtype(value.dtype, np.integer):
+                dtype, value = "i", value.astype(np.int32)
+            else:
+                dtype, value = "f", value.astype(np.float32)
+            ShaderProgram._FUNC_MAP[(value.shape[0], dtype)](location, 1, value)
+        else:
+            ShaderProgram._FUNC_MAP[(value.shape[0], value.shape[1])](location, 1, GL.GL_TRUE, value)
+    elif isinstance(value, float):
+        GL.glUniform1f(location, value)
+    elif isinstance(value, int):
+        GL.glUniform1i(location, value)
+    else:
+        raise ValueError(f"uniform {name}: no GL call for a {type(value).__name__}")
+
+
+def program_key(primitive, flags) -> tuple:
+    """What pyrender's ``_get_primitive_program`` reads of a primitive in a pass: its shaders
+    and defines follow from the pass's flags and lights (the same for every primitive of a
+    pass) and from these (buffers, draw mode, material textures and kind)."""
+    material = primitive.material
+    return (flags, primitive.buf_flags, primitive.mode, material.tex_flags, type(material))
 
 
 def _draw_untextured(inner, primitive, pose, program, flags, state: dict) -> None:
@@ -258,7 +306,7 @@ def _draw_untextured(inner, primitive, pose, program, flags, state: dict) -> Non
     from OpenGL import GL
     from pyrender.constants import GLTF, RenderFlags
 
-    program.set_uniform("M", pose)
+    set_uniform(program, "M", pose)
     primitive._bind()
     if not (flags & RenderFlags.DEPTH_ONLY or flags & RenderFlags.SEG):
         material = primitive.material
@@ -312,7 +360,8 @@ def install_forward_pass(offscreen) -> None:
     values that are the same for the whole pass (one sun, no light sorting).
     Uniform values stay with their program, so here they are set the first
     time a program is used in a pass; per primitive, the model matrix and the
-    draw, and the material's uniforms and pyrender's blend, polygon, cull and
+    draw (uniform locations asked of GL once per program, pyrender's program
+    lookup once per kind of primitive in the pass), and the material's uniforms and pyrender's blend, polygon, cull and
     point-size state only when they differ from what the pass last set. A
     primitive with textures takes pyrender's full per-primitive binding, so
     its texture units are allocated exactly as pyrender allocates them. Same
@@ -341,27 +390,30 @@ def install_forward_pass(offscreen) -> None:
         V, P = inner._get_camera_matrices(scene)
         cam_pos = scene.get_pose(scene.main_camera_node)[:3, 3]
         lit = not (flags & RenderFlags.DEPTH_ONLY or flags & RenderFlags.FLAT or seg)
-        ready, program, state = set(), None, {}
+        ready, program, state, programs = set(), None, {}, {}
         for node in inner._sorted_mesh_nodes(scene):
             if not node.mesh.is_visible or (seg and node not in seg_node_map):
                 continue
             color = _seg_color(seg_node_map, node) if seg else None
             for primitive in node.mesh.primitives:
-                shader = inner._get_primitive_program(primitive, flags, ProgramFlags.USE_MATERIAL)
+                key = program_key(primitive, flags)
+                shader = programs.get(key)
+                if shader is None:  # pyrender's lookup once per kind of primitive in this pass
+                    shader = programs[key] = inner._get_primitive_program(primitive, flags, ProgramFlags.USE_MATERIAL)
                 if shader is not program:
                     program = shader
                     program._bind()
                 textured = lit and bool(primitive.material.tex_flags)
                 if textured or program not in ready:
-                    program.set_uniform("V", V)
-                    program.set_uniform("P", P)
-                    program.set_uniform("cam_pos", cam_pos)
+                    set_uniform(program, "V", V)
+                    set_uniform(program, "P", P)
+                    set_uniform(program, "cam_pos", cam_pos)
                     if lit:
                         inner._bind_lighting(scene, program, node, flags)
                     if not textured:
                         ready.add(program)
                 if seg:
-                    program.set_uniform("color", color)
+                    set_uniform(program, "color", color)
                 if textured:  # pyrender's own binding: texture units, then whatever state it leaves
                     inner._bind_and_draw_primitive(primitive=primitive, pose=scene.get_pose(node), program=program,
                                                    flags=flags)
@@ -424,7 +476,7 @@ def install_shadow_pass(offscreen, current: Callable[[], ShadowFrame], *, depth_
         original_bind_lighting(scene, program, node, flags)
         if flags & RenderFlags.SHADOWS_DIRECTIONAL:
             for name, value in current().uniforms.items():
-                program.set_uniform(name, value)
+                set_uniform(program, name, value)
 
     def shadow_pass(scene, light_node, flags):
         frame = current()
@@ -449,19 +501,22 @@ def install_shadow_pass(offscreen, current: Callable[[], ShadowFrame], *, depth_
         GL.glDisable(GL.GL_BLEND)
         GL.glEnable(GL.GL_POLYGON_OFFSET_FILL)
         GL.glPolygonOffset(*SHADOW_POLYGON_OFFSET)
-        program, ready = None, set()
+        program, ready, programs = None, set(), {}
         for node in frame.casters:
             pose = scene.get_pose(node)
             for primitive in node.mesh.primitives:
-                shader = inner._get_primitive_program(primitive, flags, ProgramFlags.NONE)
+                key = program_key(primitive, flags)
+                shader = programs.get(key)
+                if shader is None:
+                    shader = programs[key] = inner._get_primitive_program(primitive, flags, ProgramFlags.NONE)
                 if shader is not program:
                     program = shader
                     program._bind()
                 if program not in ready:  # uniform values stay with the program: once per pass
-                    program.set_uniform("V", frame.view)
-                    program.set_uniform("P", frame.proj)
+                    set_uniform(program, "V", frame.view)
+                    set_uniform(program, "P", frame.proj)
                     ready.add(program)
-                program.set_uniform("M", pose)
+                set_uniform(program, "M", pose)
                 primitive._bind()
                 draw_primitive(primitive)
                 primitive._unbind()
