@@ -757,3 +757,32 @@ def test_a_part_is_zstd_with_statistics_and_no_arrow_schema():
     columns = [meta.row_group(0).column(i) for i in range(meta.num_columns)]
     assert {c.compression for c in columns} == {"ZSTD"}
     assert all(c.is_stats_set for c in columns)
+
+
+# -------------------------------------------------------------- storage/checksum ----
+
+
+def test_a_stream_is_hashed_a_chunk_at_a_time():
+    """Storage.sha256 hashes a file of any size in bounded memory: each read asks for
+    one chunk (1 MiB by default), never the whole stream at once."""
+    import hashlib
+    import io
+
+    from storage.checksum import CHUNK, sha256_stream
+
+    class Recording(io.BytesIO):
+        def __init__(self, data):
+            super().__init__(data)
+            self.asked = []
+
+        def read(self, size=-1):
+            self.asked.append(size)
+            return super().read(size)
+
+    data = bytes(range(256)) * 12 + b"tail"  # 3076 bytes: three whole chunks of 1000 and a short one
+    stream = Recording(data)
+    assert sha256_stream(stream, chunk=1000) == hashlib.sha256(data).hexdigest()
+    assert stream.asked == [1000, 1000, 1000, 1000, 1000]  # the fifth read finds the end
+    stream = Recording(data)
+    assert sha256_stream(stream) == hashlib.sha256(data).hexdigest()
+    assert stream.asked == [CHUNK, CHUNK] and CHUNK == 1 << 20
