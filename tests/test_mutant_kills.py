@@ -917,8 +917,9 @@ def test_a_run_with_another_config_is_refused_in_one_sentence_naming_what_differ
             f"{held} to resume it, or use a new --out")
     refused(storage, {"domains": "T01_CN_B"}, "was produced with another config (domains 'T01_CN_A' -> 'T01_CN_B'); "
             "pass --extend to add to it, or use a new --out", extend=False)
-    with pytest.raises(RunConfigError, match="pass --extend"):  # the default: no --extend
-        check_before_repair(storage, RunConfig(plan=replace(config.plan, domains="T01_CN_B"), world="test"))
+    for check in (prepare_root, check_before_repair):
+        with pytest.raises(RunConfigError, match="pass --extend"):  # the default: no --extend
+            check(storage, RunConfig(plan=replace(config.plan, domains="T01_CN_B"), world="test"))
     check_before_repair(storage, RunConfig(plan=replace(config.plan, domains="T01_CN_B"), world="test"), extend=True)
 
 
@@ -934,6 +935,20 @@ def test_differences_and_changed_entries_name_what_a_run_changes():
     assert changed_entries({"weather": [fg1, fg2]}, {"weather": [{**fg1, "fog": 0.6}]}) == ["weather 'FG1'", "weather 'FG2'"]
     assert changed_entries({"weather": [fg1]}, None) == changed_entries({"weather": [fg1]}, {"town": []}) == ["weather 'FG1'"]
     assert changed_entries(None, {"weather": [fg1]}) == []
+
+
+def test_user_domain_entries_may_be_appended_to_but_never_changed(tmp_path):
+    from pipeline.provenance import RunConfigError, _refuse_differences
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    fg1, fg2 = {"code": "FG1", "fog": 0.5}, {"code": "FG2", "fog": 0.7}
+    _refuse_differences(storage, {"catalog": {"weather": [fg1]}}, {"catalog": {"weather": [fg1, fg2]}}, extend=True)
+    with pytest.raises(RunConfigError) as raised:
+        _refuse_differences(storage, {"catalog": {"weather": [fg1]}}, {"catalog": {"weather": [{**fg1, "fog": 0.6}]}}, True)
+    assert str(raised.value) == (
+        f"{storage.uri} was made with other parameters for the domain weather 'FG1' (run.json records them); frames "
+        "would not match: resume without --catalog, with the same entries, or use a new --out")
 
 
 def test_extending_a_root_keeps_its_history_layout_and_deflater(tmp_path):
@@ -1035,6 +1050,29 @@ def test_root_deflater_and_holds_frames(tmp_path):
     storage.write_bytes("T01_CN_A/e0000/rgb/x.png", b"png")
     assert holds_frames(storage)
 
+
+
+def test_specs_for_a_root_take_its_layout_deflater_and_each_scenes_place_in_its_history():
+    """A scene's split in a NEW_RULES root follows its place among every selection the
+    root's run.json records (an earlier run's scenes first); an older root keeps the plan's."""
+    from dataclasses import replace
+
+    from manifests.layout import FLAT, LAYOUT_KEY
+    from outputs.encoding import encoder_identity
+    from pipeline.planner import make_plan
+    from pipeline.provenance import _fresh_record, for_root
+    from tests.test_caught_bugs import TINY
+
+    plan = replace(TINY, domains="T01_CN_B")
+    specs = make_plan(plan).episodes
+    assert [s.split for s in specs] == ["train"]
+    earlier = replace(TINY, domains="T02_CN_A,T03_CN_A,T04_CN_A").to_dict()
+    record = {**_fresh_record(plan.to_dict(), [earlier], FLAT, encoder_identity("png", "isal")), "config": plan.to_dict()}
+    assert [(s.split, s.layout, s.png_deflater) for s in for_root(specs, record)] == [("test", FLAT, "isal")]
+    alone = {k: v for k, v in record.items() if k != "history"}  # a record without its history: this run's scenes
+    assert [s.split for s in for_root(specs, alone)] == ["train"]
+    old_rules = {**record, "config": {**plan.to_dict(), "rules": 0}, LAYOUT_KEY: FLAT}
+    assert [s.split for s in for_root(specs, old_rules)] == ["train"]
 
 # ------------------------------------------------------------------ exports/export ----
 
