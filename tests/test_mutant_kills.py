@@ -1022,6 +1022,29 @@ def test_a_damaged_run_json_is_rewritten_only_by_a_repair_and_a_lost_one_from_th
     assert prepare_root(storage, config)["config"] == config.to_dict()
 
 
+def test_a_lost_run_json_of_an_isal_root_is_written_again_with_isal(tmp_path):
+    """run.json lost: the record made again names the deflater of the PNG files the
+    parts list (an ISA-L root stays ISA-L), not this run's default."""
+    import numpy as np
+
+    from manifests.reader import read_part
+    from manifests.schema import output_columns
+    from outputs.deflaters import deflating_with
+    from outputs.encoding import encoder_identity, png_bytes
+    from outputs.table import OUTPUTS
+    from pipeline.provenance import prepare_root
+    from roots.run_file import RUN_FILE
+
+    storage, config = _tiny_root(tmp_path)
+    row = read_part(storage, "T01_CN_A", 0).slice(0, 1).to_pylist()[0]
+    with deflating_with("isal"):
+        png = png_bytes(np.tile(np.arange(64, dtype=np.uint8)[None, :, None], (36, 1, 3)))  # noise: either deflater's
+    for name in OUTPUTS:
+        if (row[output_columns(name)[0]] or "").endswith(".png"):
+            storage.write_bytes(row[output_columns(name)[0]], png)
+    storage.delete(RUN_FILE)
+    assert prepare_root(storage, config)["encoder"] == encoder_identity("png", "isal")
+
 def test_a_run_json_another_driver_wrote_first_is_the_one_compared(monkeypatch, tmp_path):
     from pipeline.provenance import _fresh_record, prepare_root
     from roots.run_file import RUN_FILE, record_bytes
