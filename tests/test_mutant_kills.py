@@ -1096,6 +1096,13 @@ def test_specs_for_a_root_take_its_layout_deflater_and_each_scenes_place_in_its_
     assert [s.split for s in for_root(specs, alone)] == ["train"]
     old_rules = {**record, "config": {**plan.to_dict(), "rules": 0}, LAYOUT_KEY: FLAT}
     assert [s.split for s in for_root(specs, old_rules)] == ["train"]
+    from domains.catalog import BUILTIN
+    from domains.catalog_file import with_file
+
+    mine = replace(TINY, domains="T09_CN_A",  # a user's town, known only from the root's run.json
+                   catalog=with_file(BUILTIN, '[[town]]\ncode = "T09"\nlike = "T01"\n', "mine.toml").layer_json())
+    assert [(s.scenario, s.split) for s in for_root(make_plan(mine).episodes, _fresh_record(mine.to_dict()))] == [
+        ("T09_CN_A", "train")]
 
 # ------------------------------------------------------------------ exports/export ----
 
