@@ -1137,3 +1137,54 @@ def test_an_export_config_within_bounds_is_accepted(changes):
     from exports.export import ExportConfig
 
     ExportConfig(**{"root": "/data/root", "to": "/data/export", **changes}).validate()
+
+
+def test_leftovers_of_killed_exports_are_put_back_or_removed_and_a_commit_rechecks_the_tree(monkeypatch, tmp_path, caplog):
+    """Beside a target, a killed export's .old (a finished export moved aside) is put back where
+    nothing is, its .tmp removed; a live or another host's folder, or a link, is left. A commit
+    replaces the export it found only while that still holds the tree it found, then syncs the parent."""
+    import socket
+    import subprocess
+    import uuid
+
+    from exports import export as ex
+    from roots.contract import RootError, export_tree
+
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+
+    def temp(pid, kind, host=socket.gethostname(), marker=True):
+        path = tmp_path / f".exp.idda-export.{host}.{pid}.{uuid.uuid4().hex}.{kind}"
+        path.mkdir()
+        if marker:
+            (path / ex.MARKER).write_text("{}")
+        return path
+
+    target = tmp_path / "exp"
+    old, killed = temp(dead.pid, "old"), temp(dead.pid, "tmp")
+    kept = [temp(os.getpid(), "tmp"), temp(dead.pid, "tmp", host="elsewhere.example")]
+    link = tmp_path / f".exp.idda-export.{socket.gethostname()}.{dead.pid}.{uuid.uuid4().hex}.tmp"
+    link.symlink_to(kept[0], target_is_directory=True)
+    with caplog.at_level("INFO", logger="exports.export"):
+        handled = ex.clean_leftovers(str(target))
+    assert sorted(handled) == sorted([str(old), str(killed)])
+    assert ex.is_complete(str(target)) and not old.exists() and not killed.exists()
+    assert all(p.is_dir() for p in kept) and link.is_symlink()
+    assert f"put back {target}: an export killed while replacing it had moved it to {old}" in caplog.messages
+    assert f"removed {killed}, left by a killed export" in caplog.messages
+
+    synced = []
+    monkeypatch.setattr(ex, "sync_dir", synced.append)
+    found = export_tree(str(target))
+    (target / "frames.csv").write_text("added meanwhile")
+    new = temp(os.getpid(), "tmp")
+    with pytest.raises(RootError, match=f"^export target {target} changed while exporting; nothing was replaced$"):
+        ex._commit(str(new), str(target), found)
+    assert (target / "frames.csv").exists() and new.is_dir() and synced == []
+    ex._commit(str(new), str(target), export_tree(str(target)))
+    assert not (target / "frames.csv").exists() and ex.is_complete(str(target)) and synced == [str(tmp_path)]
+    assert sorted(os.listdir(tmp_path)) == sorted(["exp", link.name, *(p.name for p in kept)])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    ex._commit(str(temp(os.getpid(), "tmp")), str(empty), None)
+    assert ex.is_complete(str(empty)) and synced == [str(tmp_path)] * 2
