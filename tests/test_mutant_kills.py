@@ -1188,3 +1188,61 @@ def test_leftovers_of_killed_exports_are_put_back_or_removed_and_a_commit_rechec
     empty.mkdir()
     ex._commit(str(temp(os.getpid(), "tmp")), str(empty), None)
     assert ex.is_complete(str(empty)) and synced == [str(tmp_path)] * 2
+
+
+def test_an_exports_marker_and_report_count_its_frames_per_split_and_record_its_query(monkeypatch, tmp_path_factory, tmp_path):
+    """EXPORT.json and the report say what was exported: the query asked, the frames per
+    split (all in --as-split's), the file mode, none skipped."""
+    import json
+    from dataclasses import asdict
+
+    from exports import export as ex
+    from manifests.query import SPLITS, Query
+    from tests.test_export import TINY_FRAMES, make_tiny_root
+
+    root = make_tiny_root(tmp_path_factory)  # shared with tests/test_export.py
+    query = Query(domains="T07_*_*")
+    report = ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "exp"), format="idda", query=query,
+                                       as_split="test", files="copy"))
+    per_split = {s: TINY_FRAMES if s == "test" else 0 for s in SPLITS}
+    assert report.frames == TINY_FRAMES and report.per_split == per_split and report.skipped == 0
+    marker = json.loads((tmp_path / "exp" / ex.MARKER).read_text())
+    assert marker["query"] == json.loads(json.dumps(asdict(query))) and marker["per_split"] == per_split and marker["as_split"] == "test"
+    assert marker["file_mode"] == "copy" and marker["per_scenario"] == {"T07_HRN_A": TINY_FRAMES}
+    rows = (tmp_path / "exp" / ex.INDEX).read_text().splitlines()[1:]
+    assert len(rows) == TINY_FRAMES and all(",test," in row for row in rows)
+
+
+    def no_sync(path):
+        raise OSError(5, "disk gone")
+
+    monkeypatch.setattr(ex, "sync_dir", no_sync)  # fails once the export is in place
+    with pytest.raises(OSError, match="disk gone"):  # its own error, not the clean-up's
+        ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "exp2"), format="idda", query=query))
+
+
+def test_skip_damaged_leaves_out_each_damaged_frame_and_names_every_damaged_file(tmp_path_factory, tmp_path):
+    """--skip-damaged: a frame with a damaged file is left out and counted, every damaged file
+    named in the report, whichever round of the build found it; a choice of damaged frames only
+    is refused naming the first."""
+    import shutil
+
+    from exports import export as ex
+    from exports.shared import DamagedFile
+    from manifests.query import Query
+    from tests.test_export import TINY_FRAMES, make_tiny_root
+
+    root = tmp_path / "root"
+    shutil.copytree(make_tiny_root(tmp_path_factory), root)
+    damaged = sorted(next(root.glob(f"{s}/e0000/rgb/0000_00{i}_*.png")).relative_to(root).as_posix()
+                     for s in ("T01_CS_A", "T07_HRN_A") for i in range(TINY_FRAMES))
+    for rel in damaged:
+        (root / rel).write_bytes(b"")
+    report = ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "exp"), format="idda", threads=1,
+                                       skip_damaged=True))
+    assert report.damaged == damaged and report.skipped == len(damaged) and report.frames == report.held - len(damaged)
+    with pytest.raises(DamagedFile) as raised:
+        ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "none"), format="idda", threads=1,
+                                  skip_damaged=True, query=Query(domains="T07_*_*")))
+    assert str(raised.value).startswith(f"{root}: {damaged[2]} is damaged (as are files of every other frame chosen: 2 damaged)")
+    assert not (tmp_path / "none").exists()
