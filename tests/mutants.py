@@ -8,7 +8,7 @@ are left out (mutmut forks a process per mutant; neither survives a fork). The s
 goes to stdout and ``.mutants/scores.json``; docs/mutants.md keeps the last
 one and says why each survivor lives.
 
-    python -m tests.mutants [--max-children N] [--before] [--survivors] [--sample PATTERN ...] [module ...]
+    python -m tests.mutants [--max-children N] [--before] [--survivors] [--sample PATTERN] [module ...]
 
 ``--before`` leaves out the tests written against survivors (the score
 before them); ``--survivors`` reruns only the last run's survivors, timeouts
@@ -152,7 +152,8 @@ def main(argv: list[str] | None = None) -> int:
                         help=f"leave {ALWAYS[-1]} out: the score before the tests written against survivors")
     parser.add_argument("--survivors", action="store_true",
                         help="rerun only the last run's survivors, timeouts and unfinished mutants, with today's tests")
-    parser.add_argument("--sample", nargs="+", metavar="PATTERN",
+    # one pattern per --sample (repeat it for more): a list would swallow the modules that follow it
+    parser.add_argument("--sample", action="append", metavar="PATTERN",
                         help="run and score only the mutants whose names match, e.g. '*__mutmut_*1' (one in ten)")
     args = parser.parse_args(argv)
     unknown = [m for m in args.modules if m not in MODULES]

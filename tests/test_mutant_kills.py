@@ -757,3 +757,492 @@ def test_a_part_is_zstd_with_statistics_and_no_arrow_schema():
     columns = [meta.row_group(0).column(i) for i in range(meta.num_columns)]
     assert {c.compression for c in columns} == {"ZSTD"}
     assert all(c.is_stats_set for c in columns)
+
+
+# -------------------------------------------------------------- storage/checksum ----
+
+
+def test_a_stream_is_hashed_a_chunk_at_a_time():
+    """Storage.sha256 hashes a file of any size in bounded memory: each read asks for
+    one chunk (1 MiB by default), never the whole stream at once."""
+    import hashlib
+    import io
+
+    from storage.checksum import CHUNK, sha256_stream
+
+    class Recording(io.BytesIO):
+        def __init__(self, data):
+            super().__init__(data)
+            self.asked = []
+
+        def read(self, size=-1):
+            self.asked.append(size)
+            return super().read(size)
+
+    data = bytes(range(256)) * 12 + b"tail"  # 3076 bytes: three whole chunks of 1000 and a short one
+    stream = Recording(data)
+    assert sha256_stream(stream, chunk=1000) == hashlib.sha256(data).hexdigest()
+    assert stream.asked == [1000, 1000, 1000, 1000, 1000]  # the fifth read finds the end
+    stream = Recording(data)
+    assert sha256_stream(stream) == hashlib.sha256(data).hexdigest()
+    assert stream.asked == [CHUNK, CHUNK] and CHUNK == 1 << 20
+
+
+# ------------------------------------------------------------- pipeline/provenance ----
+
+
+def _tiny_root(tmp_path, plan=None, parts=True):
+    """A root of TINY's run (or ``plan``'s): marker, run.json and, with ``parts``, its
+    episode's part (synthetic rows: the files it lists do not exist)."""
+    from manifests.writer import write_part
+    from pipeline.planner import make_plan
+    from pipeline.provenance import prepare_root
+    from pipeline.settings import RunConfig
+    from roots.contract import claim_root
+    from storage import Storage
+    from tests.test_caught_bugs import TINY
+    from manifests.synthetic import episode_table
+
+    storage = Storage.from_uri(str(tmp_path / "root"))
+    claim_root(storage)
+    config = RunConfig(plan=plan or TINY, world="test")
+    prepare_root(storage, config)
+    if parts:
+        spec = make_plan(config.plan).episodes[0]
+        write_part(storage, spec.scenario, spec.episode, episode_table(spec))
+    return storage, config
+
+
+def test_a_new_run_record_names_its_config_versions_encoder_and_layout(tmp_path):
+    import platform
+    from importlib import metadata
+
+    from manifests.layout import LAYOUT_KEY, NEW_ROOT_LAYOUT
+    from outputs.encoding import encoder_identity
+    from pipeline.provenance import _PACKAGES, git_revision, recorded_config
+    from roots.run_file import read_record
+
+    storage, config = _tiny_root(tmp_path, parts=False)
+    record = read_record(storage)
+    assert record["config"] == config.to_dict() and record["history"] == [config.to_dict()]
+    assert record["versions"]["python"] == platform.python_version()
+    assert set(record["versions"]) == {"python", *_PACKAGES}
+    assert record["versions"]["numpy"] == metadata.version("numpy")
+    assert record["git_revision"] == git_revision() != "unknown"
+    assert record["encoder"] == encoder_identity("png") and record[LAYOUT_KEY] == NEW_ROOT_LAYOUT
+    assert recorded_config(record) == config
+
+
+def test_the_git_revision_says_dirty_and_unknown_outside_a_checkout(monkeypatch, tmp_path):
+    """run.json's revision is the checkout's HEAD, "-dirty" with tracked changes,
+    found from the code's own folder whatever the working directory; no git: "unknown"."""
+    import subprocess
+    from pathlib import Path
+
+    from pipeline import provenance
+
+    head = subprocess.run(["git", "rev-parse", "HEAD"], cwd=Path(provenance.__file__).parent,
+                          capture_output=True, text=True, check=True).stdout.strip()
+    real = subprocess.run
+
+    def with_status(out):
+        def run(args, **kwargs):
+            done = real(args, **kwargs)
+            if args[:2] == ["git", "status"] and "--porcelain" in args and done.returncode == 0:
+                done.stdout = out  # the short format's lines, as a checkout with (or without) changes gives
+            return done
+        return run
+
+    monkeypatch.chdir(tmp_path)  # not a checkout: the code's folder is asked
+    monkeypatch.setattr(provenance.subprocess, "run", with_status(" M pipeline/cli.py\n"))
+    assert provenance.git_revision() == head + "-dirty"
+    monkeypatch.setattr(provenance.subprocess, "run", with_status(""))
+    assert provenance.git_revision() == head
+
+    def no_git(args, **kwargs):
+        raise FileNotFoundError(args[0])
+
+    monkeypatch.setattr(provenance.subprocess, "run", no_git)
+    assert provenance.git_revision() == "unknown"
+
+
+def test_rows_held_refuse_another_resolution_seed_or_rgb_format_naming_them(tmp_path):
+    from dataclasses import replace
+
+    from manifests.writer import write_part
+    from manifests.synthetic import episode_table
+    from pipeline.planner import make_plan
+    from pipeline.provenance import RunConfigError, check_rows
+    from pipeline.settings import RunConfig
+
+    storage, config = _tiny_root(tmp_path)
+    check_rows(storage, config)  # a paired root's seeds derive from its pairing
+    uri, plan = storage.uri, config.plan
+
+    def refused(plan_changes, says):
+        with pytest.raises(RunConfigError) as raised:
+            check_rows(storage, RunConfig(plan=replace(plan, **plan_changes), world="test"))
+        assert str(raised.value) == f"{uri} {says}; frames would not match: use a new --out"
+
+    refused({"width": 32}, "holds frames at 64x36, this run asks for 32x36")
+    refused({"seed": 6}, "holds frames made with another run seed than 6 (T01_CN_A episode 0)")
+    refused({"rgb_format": "jpg"}, "holds png rgb files, this run asks for jpg")
+    spec = replace(make_plan(plan).episodes[0], episode=1, width=32)
+    write_part(storage, spec.scenario, spec.episode, episode_table(spec))
+    refused({}, "holds frames at 32x36, 64x36, this run asks for 64x36")
+
+
+def test_a_run_with_another_config_is_refused_in_one_sentence_naming_what_differs(tmp_path):
+    from dataclasses import replace
+
+    from pipeline.provenance import RunConfigError, check_before_repair, prepare_root
+    from pipeline.settings import RunConfig
+
+    empty, config = _tiny_root(tmp_path / "empty", parts=False)
+    storage, _ = _tiny_root(tmp_path / "held")
+
+    def refused(where, plan_changes, says, extend=True):
+        other = RunConfig(plan=replace(config.plan, **plan_changes), world="test")
+        for check in (prepare_root, check_before_repair):
+            with pytest.raises(RunConfigError) as raised:
+                check(where, other, extend=extend)
+            assert str(raised.value) == f"{where.uri} {says}"
+
+    refused(empty, {"seed": 6, "width": 32}, "holds no frames, but its run.json records a run with another "
+            "width, seed (seed 5 -> 6; width 64 -> 32); run that command, or use a new --out (this one holds nothing to keep)")
+    refused(storage, {"seed": 6}, "holds frames made with a different seed (seed 5 -> 6); "
+            "frames would not match: use a new --out")
+    held = ",".join(config.plan.outputs)
+    refused(storage, {"outputs": ("rgb",)}, f"holds the outputs {held}; this run asks for rgb: pass --outputs "
+            f"{held} to resume it, or use a new --out")
+    refused(storage, {"domains": "T01_CN_B"}, "was produced with another config (domains 'T01_CN_A' -> 'T01_CN_B'); "
+            "pass --extend to add to it, or use a new --out", extend=False)
+    for check in (prepare_root, check_before_repair):
+        with pytest.raises(RunConfigError, match="pass --extend"):  # the default: no --extend
+            check(storage, RunConfig(plan=replace(config.plan, domains="T01_CN_B"), world="test"))
+    check_before_repair(storage, RunConfig(plan=replace(config.plan, domains="T01_CN_B"), world="test"), extend=True)
+
+
+def test_differences_and_changed_entries_name_what_a_run_changes():
+    from pipeline.provenance import _differences, changed_entries
+
+    fg1, fg2 = {"code": "FG1", "fog": 0.5}, {"code": "FG2", "fog": 0.7}
+    assert _differences({"seed": 5, "old_key": 1}, {"seed": 6}) == ["seed 5 -> 6"]  # a key only run.json has: not a change
+    assert _differences({"catalog": {"weather": [fg1]}, "seed": 5}, {"seed": 5, "catalog": {"weather": [fg1, fg2]}}) == [
+        "catalog ['weather FG1'] -> ['weather FG1', 'weather FG2']"]
+    assert _differences({"catalog": {"weather": [fg1]}}, {}) == ["catalog ['weather FG1'] -> []"]
+    assert changed_entries({"weather": [fg1]}, {"weather": [fg1, fg2]}) == []  # appended: nothing changed
+    assert changed_entries({"weather": [fg1, fg2]}, {"weather": [{**fg1, "fog": 0.6}]}) == ["weather 'FG1'", "weather 'FG2'"]
+    assert changed_entries({"weather": [fg1]}, None) == changed_entries({"weather": [fg1]}, {"town": []}) == ["weather 'FG1'"]
+    assert changed_entries(None, {"weather": [fg1]}) == []
+
+
+def test_user_domain_entries_may_be_appended_to_but_never_changed(tmp_path):
+    from pipeline.provenance import RunConfigError, _refuse_differences
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    fg1, fg2 = {"code": "FG1", "fog": 0.5}, {"code": "FG2", "fog": 0.7}
+    _refuse_differences(storage, {"catalog": {"weather": [fg1]}}, {"catalog": {"weather": [fg1, fg2]}}, extend=True)
+    with pytest.raises(RunConfigError) as raised:
+        _refuse_differences(storage, {"catalog": {"weather": [fg1]}}, {"catalog": {"weather": [{**fg1, "fog": 0.6}]}}, True)
+    assert str(raised.value) == (
+        f"{storage.uri} was made with other parameters for the domain weather 'FG1' (run.json records them); frames "
+        "would not match: resume without --catalog, with the same entries, or use a new --out")
+
+
+def test_extending_a_root_keeps_its_history_layout_and_deflater(tmp_path):
+    """An old root (flat layout, ISA-L frames) extended twice: both runs appended to its
+    history, its layout and its PNG deflater kept (one root never mixes two)."""
+    from dataclasses import replace
+
+    from manifests.layout import FLAT, LAYOUT_KEY
+    from outputs.encoding import encoder_identity
+    from pipeline.provenance import _fresh_record, prepare_root, recorded_as_asked
+    from pipeline.settings import RunConfig
+    from roots.run_file import RUN_FILE, read_record, record_bytes
+
+    storage, config = _tiny_root(tmp_path)
+    isal = encoder_identity("png", "isal")
+    storage.write_bytes(RUN_FILE, record_bytes(_fresh_record(config.to_dict(), layout=FLAT, encoder=isal)))
+    assert recorded_as_asked(storage, config) == read_record(storage)  # ISA-L frames: this run may add to them
+    b = RunConfig(plan=replace(config.plan, domains="T01_CN_A,T01_CN_B"), world="test")
+    c = RunConfig(plan=replace(config.plan, domains="T01_CN_A,T01_CN_B,T01_CN_C"), world="test")
+    prepare_root(storage, b, extend=True)
+    record = {**prepare_root(storage, c, extend=True), "checksum": read_record(storage)["checksum"]}
+    assert record == read_record(storage)
+    assert record["history"] == [config.to_dict(), b.to_dict(), c.to_dict()] and record["config"] == c.to_dict()
+    assert record[LAYOUT_KEY] == FLAT and record["encoder"] == isal
+    assert recorded_as_asked(storage, b) is None and recorded_as_asked(storage, c) == record
+
+
+def test_an_encoder_is_recorded_in_an_empty_root_and_refused_beside_frames(tmp_path):
+    from outputs.encoding import encoder_identity
+    from pipeline.provenance import (UNRECORDED_ENCODER, RunConfigError, check_before_repair, check_encoder,
+                                     recorded_as_asked)
+    from roots.run_file import RUN_FILE, read_record, record_bytes
+
+    empty, config = _tiny_root(tmp_path / "empty", parts=False)
+    old = {k: v for k, v in read_record(empty).items() if k != "encoder"}  # before encoders were recorded
+    empty.write_bytes(RUN_FILE, record_bytes(old))
+    assert recorded_as_asked(empty, config) is None  # prepare_root decides
+    assert check_encoder(empty, old) == read_record(empty) == {**old, "encoder": encoder_identity("png")}
+    storage, _ = _tiny_root(tmp_path / "held")
+    storage.write_bytes(RUN_FILE, record_bytes(old))
+    assert recorded_as_asked(storage, config) is None
+    with pytest.raises(RunConfigError) as raised:
+        check_encoder(storage, old)
+    assert str(raised.value) == (
+        f"{storage.uri} holds frames written by another encoder ({UNRECORDED_ENCODER}; this run writes "
+        f"{encoder_identity('png')}); one root never mixes encoders, since a re-rendered frame would not match its "
+        "files: use a new --out, or the encoder that made the root")
+    with pytest.raises(RunConfigError) as raised:
+        check_before_repair(storage, config)
+    assert str(raised.value) == (
+        f"{storage.uri} holds frames written by another encoder ({UNRECORDED_ENCODER}); repair would re-render "
+        "them with this one: repair with the encoder that made the root")
+
+
+def test_a_damaged_run_json_is_rewritten_only_by_a_repair_and_a_lost_one_from_the_rows(tmp_path, caplog):
+    from manifests.layout import LAYOUT_KEY, NEW_ROOT_LAYOUT
+    from outputs.encoding import encoder_identity
+    from pipeline.provenance import RunConfigError, prepare_root
+    from roots.run_file import REPAIR_HINT, RUN_FILE, read_record
+
+    storage, config = _tiny_root(tmp_path)
+    storage.write_bytes(RUN_FILE, b"{not json")
+    with pytest.raises(RunConfigError, match=f"; {REPAIR_HINT}$"):
+        prepare_root(storage, config)
+    with caplog.at_level("WARNING", logger="pipeline.provenance"):
+        record = prepare_root(storage, config, repair=True)
+    assert f"rewriting the damaged {storage.join(RUN_FILE)} from this run's options" in caplog.messages
+    assert record == read_record(storage) and record["config"] == config.to_dict()
+    assert record["encoder"] == encoder_identity("png") and record[LAYOUT_KEY] == NEW_ROOT_LAYOUT
+    storage.delete(RUN_FILE)  # lost: made again from this run's options, the rows checked first
+    assert prepare_root(storage, config)["config"] == config.to_dict()
+
+
+def test_a_lost_run_json_of_an_isal_root_is_written_again_with_isal(tmp_path):
+    """run.json lost: the record made again names the deflater of the PNG files the
+    parts list (an ISA-L root stays ISA-L), not this run's default."""
+    import numpy as np
+
+    from manifests.reader import read_part
+    from manifests.schema import output_columns
+    from outputs.deflaters import deflating_with
+    from outputs.encoding import encoder_identity, png_bytes
+    from outputs.table import OUTPUTS
+    from pipeline.provenance import prepare_root
+    from roots.run_file import RUN_FILE
+
+    storage, config = _tiny_root(tmp_path)
+    row = read_part(storage, "T01_CN_A", 0).slice(0, 1).to_pylist()[0]
+    with deflating_with("isal"):
+        png = png_bytes(np.tile(np.arange(64, dtype=np.uint8)[None, :, None], (36, 1, 3)))  # noise: either deflater's
+    for name in OUTPUTS:
+        if (row[output_columns(name)[0]] or "").endswith(".png"):
+            storage.write_bytes(row[output_columns(name)[0]], png)
+    storage.delete(RUN_FILE)
+    assert prepare_root(storage, config)["encoder"] == encoder_identity("png", "isal")
+
+def test_a_run_json_another_driver_wrote_first_is_the_one_compared(monkeypatch, tmp_path):
+    from pipeline.provenance import _fresh_record, prepare_root
+    from roots.run_file import RUN_FILE, record_bytes
+
+    storage, config = _tiny_root(tmp_path)
+    storage.delete(RUN_FILE)
+    theirs = {**_fresh_record(config.to_dict()), "git_revision": "the other driver's"}
+    real = storage.create_exclusive
+
+    def second(rel, data):
+        assert real(rel, record_bytes(theirs))
+        return real(rel, data)
+
+    monkeypatch.setattr(storage, "create_exclusive", second)
+    assert prepare_root(storage, config)["git_revision"] == "the other driver's"
+
+
+def test_root_deflater_and_holds_frames(tmp_path):
+    from outputs.encoding import encoder_identity
+    from pipeline.provenance import holds_frames, root_deflater
+
+    assert root_deflater({"encoder": encoder_identity("jpg", "isal")}) == "isal"
+    assert root_deflater({"encoder": "png-sub-zlib level 9"}) == root_deflater(None) == "libdeflate"
+    storage, _ = _tiny_root(tmp_path, parts=False)
+    assert not holds_frames(storage)
+    storage.write_bytes("T01_CN_A/e0000/rgb/x.png", b"png")
+    assert holds_frames(storage)
+
+
+
+def test_specs_for_a_root_take_its_layout_deflater_and_each_scenes_place_in_its_history():
+    """A scene's split in a NEW_RULES root follows its place among every selection the
+    root's run.json records (an earlier run's scenes first); an older root keeps the plan's."""
+    from dataclasses import replace
+
+    from manifests.layout import FLAT, LAYOUT_KEY
+    from outputs.encoding import encoder_identity
+    from pipeline.planner import make_plan
+    from pipeline.provenance import _fresh_record, for_root
+    from tests.test_caught_bugs import TINY
+
+    plan = replace(TINY, domains="T01_CN_B")
+    specs = make_plan(plan).episodes
+    assert [s.split for s in specs] == ["train"]
+    earlier = replace(TINY, domains="T02_CN_A,T03_CN_A,T04_CN_A").to_dict()
+    record = {**_fresh_record(plan.to_dict(), [earlier], FLAT, encoder_identity("png", "isal")), "config": plan.to_dict()}
+    assert [(s.split, s.layout, s.png_deflater) for s in for_root(specs, record)] == [("test", FLAT, "isal")]
+    alone = {k: v for k, v in record.items() if k != "history"}  # a record without its history: this run's scenes
+    assert [s.split for s in for_root(specs, alone)] == ["train"]
+    old_rules = {**record, "config": {**plan.to_dict(), "rules": 0}, LAYOUT_KEY: FLAT}
+    assert [s.split for s in for_root(specs, old_rules)] == ["train"]
+    from domains.catalog import BUILTIN
+    from domains.catalog_file import with_file
+
+    mine = replace(TINY, domains="T09_CN_A",  # a user's town, known only from the root's run.json
+                   catalog=with_file(BUILTIN, '[[town]]\ncode = "T09"\nlike = "T01"\n', "mine.toml").layer_json())
+    assert [(s.scenario, s.split) for s in for_root(make_plan(mine).episodes, _fresh_record(mine.to_dict()))] == [
+        ("T09_CN_A", "train")]
+
+# ------------------------------------------------------------------ exports/export ----
+
+
+@pytest.mark.parametrize("changes, says", [
+    ({"format": "voc"}, "unknown export format 'voc'; valid formats: cityscapes, idda, hf, coco, webdataset"),
+    ({"as_split": "dev"}, "unknown split 'dev'; valid splits: "),
+    ({"splits": "random"}, "unknown split files 'random'; valid: "),
+    ({"splits": "feddrive"}, "split files 'feddrive' are for the idda format, not 'cityscapes'"),
+    ({"format": "idda", "holdout": "T01_*_*"}, "a holdout selection needs --splits feddrive"),
+    ({"files": "move"}, "unknown file mode 'move'; valid modes: "),
+    ({"to": "s3://bucket/export"}, "export target must be a local directory (or s3:// for webdataset), got s3://bucket/export"),
+    ({"shard_size": 1 << 20}, "--outputs and --shard-size are for the webdataset format, not 'cityscapes'"),
+    ({"format": "webdataset", "shard_size": (1 << 16) - 1}, "shard size must be at least 65,536 bytes, got 65,535"),
+    ({"format": "webdataset", "skip_damaged": True}, "--skip-damaged is not available for webdataset"),
+    ({"threads": 0}, "threads must be at least 1, got 0"),
+])
+def test_an_export_config_is_refused_in_one_line_naming_what(changes, says):
+    from exports.export import ExportConfig
+
+    with pytest.raises(ValueError) as raised:
+        ExportConfig(**{"root": "/data/root", "to": "/data/export", **changes}).validate()
+    assert str(raised.value).startswith(says)
+
+
+@pytest.mark.parametrize("changes", [
+    {"format": "idda", "splits": "feddrive", "holdout": "T01_*_*"},
+    {"format": "webdataset", "to": "s3://bucket/shards", "shard_size": 1 << 16},
+    {"to": "file:///data/export", "as_split": "test", "files": "copy", "threads": 1},
+])
+def test_an_export_config_within_bounds_is_accepted(changes):
+    from exports.export import ExportConfig
+
+    ExportConfig(**{"root": "/data/root", "to": "/data/export", **changes}).validate()
+
+
+def test_leftovers_of_killed_exports_are_put_back_or_removed_and_a_commit_rechecks_the_tree(monkeypatch, tmp_path, caplog):
+    """Beside a target, a killed export's .old (a finished export moved aside) is put back where
+    nothing is, its .tmp removed; a live or another host's folder, or a link, is left. A commit
+    replaces the export it found only while that still holds the tree it found, then syncs the parent."""
+    import socket
+    import subprocess
+    import uuid
+
+    from exports import export as ex
+    from roots.contract import RootError, export_tree
+
+    dead = subprocess.Popen(["true"])
+    dead.wait()
+
+    def temp(pid, kind, host=socket.gethostname(), marker=True):
+        path = tmp_path / f".exp.idda-export.{host}.{pid}.{uuid.uuid4().hex}.{kind}"
+        path.mkdir()
+        if marker:
+            (path / ex.MARKER).write_text("{}")
+        return path
+
+    target = tmp_path / "exp"
+    old, killed = temp(dead.pid, "old"), temp(dead.pid, "tmp")
+    kept = [temp(os.getpid(), "tmp"), temp(dead.pid, "tmp", host="elsewhere.example")]
+    link = tmp_path / f".exp.idda-export.{socket.gethostname()}.{dead.pid}.{uuid.uuid4().hex}.tmp"
+    link.symlink_to(kept[0], target_is_directory=True)
+    with caplog.at_level("INFO", logger="exports.export"):
+        handled = ex.clean_leftovers(str(target))
+    assert sorted(handled) == sorted([str(old), str(killed)])
+    assert ex.is_complete(str(target)) and not old.exists() and not killed.exists()
+    assert all(p.is_dir() for p in kept) and link.is_symlink()
+    assert f"put back {target}: an export killed while replacing it had moved it to {old}" in caplog.messages
+    assert f"removed {killed}, left by a killed export" in caplog.messages
+
+    synced = []
+    monkeypatch.setattr(ex, "sync_dir", synced.append)
+    found = export_tree(str(target))
+    (target / "frames.csv").write_text("added meanwhile")
+    new = temp(os.getpid(), "tmp")
+    with pytest.raises(RootError, match=f"^export target {target} changed while exporting; nothing was replaced$"):
+        ex._commit(str(new), str(target), found)
+    assert (target / "frames.csv").exists() and new.is_dir() and synced == []
+    ex._commit(str(new), str(target), export_tree(str(target)))
+    assert not (target / "frames.csv").exists() and ex.is_complete(str(target)) and synced == [str(tmp_path)]
+    assert sorted(os.listdir(tmp_path)) == sorted(["exp", link.name, *(p.name for p in kept)])
+    empty = tmp_path / "empty"
+    empty.mkdir()
+    ex._commit(str(temp(os.getpid(), "tmp")), str(empty), None)
+    assert ex.is_complete(str(empty)) and synced == [str(tmp_path)] * 2
+
+
+def test_an_exports_marker_and_report_count_its_frames_per_split_and_record_its_query(monkeypatch, tmp_path_factory, tmp_path):
+    """EXPORT.json and the report say what was exported: the query asked, the frames per
+    split (all in --as-split's), the file mode, none skipped."""
+    import json
+    from dataclasses import asdict
+
+    from exports import export as ex
+    from manifests.query import SPLITS, Query
+    from tests.test_export import TINY_FRAMES, make_tiny_root
+
+    root = make_tiny_root(tmp_path_factory)  # shared with tests/test_export.py
+    query = Query(domains="T07_*_*")
+    report = ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "exp"), format="idda", query=query,
+                                       as_split="test", files="copy"))
+    per_split = {s: TINY_FRAMES if s == "test" else 0 for s in SPLITS}
+    assert report.frames == TINY_FRAMES and report.per_split == per_split and report.skipped == 0
+    marker = json.loads((tmp_path / "exp" / ex.MARKER).read_text())
+    assert marker["query"] == json.loads(json.dumps(asdict(query))) and marker["per_split"] == per_split and marker["as_split"] == "test"
+    assert marker["file_mode"] == "copy" and marker["per_scenario"] == {"T07_HRN_A": TINY_FRAMES}
+    rows = (tmp_path / "exp" / ex.INDEX).read_text().splitlines()[1:]
+    assert len(rows) == TINY_FRAMES and all(",test," in row for row in rows)
+
+
+    def no_sync(path):
+        raise OSError(5, "disk gone")
+
+    monkeypatch.setattr(ex, "sync_dir", no_sync)  # fails once the export is in place
+    with pytest.raises(OSError, match="disk gone"):  # its own error, not the clean-up's
+        ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "exp2"), format="idda", query=query))
+
+
+def test_skip_damaged_leaves_out_each_damaged_frame_and_names_every_damaged_file(tmp_path_factory, tmp_path):
+    """--skip-damaged: a frame with a damaged file is left out and counted, every damaged file
+    named in the report, whichever round of the build found it; a choice of damaged frames only
+    is refused naming the first."""
+    import shutil
+
+    from exports import export as ex
+    from exports.shared import DamagedFile
+    from manifests.query import Query
+    from tests.test_export import TINY_FRAMES, make_tiny_root
+
+    root = tmp_path / "root"
+    shutil.copytree(make_tiny_root(tmp_path_factory), root)
+    damaged = sorted(next(root.glob(f"{s}/e0000/rgb/0000_00{i}_*.png")).relative_to(root).as_posix()
+                     for s in ("T01_CS_A", "T07_HRN_A") for i in range(TINY_FRAMES))
+    for rel in damaged:
+        (root / rel).write_bytes(b"")
+    report = ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "exp"), format="idda", threads=1,
+                                       skip_damaged=True))
+    assert report.damaged == damaged and report.skipped == len(damaged) and report.frames == report.held - len(damaged)
+    with pytest.raises(DamagedFile) as raised:
+        ex.export(ex.ExportConfig(root=str(root), to=str(tmp_path / "none"), format="idda", threads=1,
+                                  skip_damaged=True, query=Query(domains="T07_*_*")))
+    assert str(raised.value).startswith(f"{root}: {damaged[2]} is damaged (as are files of every other frame chosen: 2 damaged)")
+    assert not (tmp_path / "none").exists()

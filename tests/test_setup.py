@@ -77,6 +77,21 @@ def test_make_mutants_installs_its_extra_and_make_test_never_runs_it(tmp_path):
         assert (REPO / module).is_file() and all((REPO / t).is_file() for t in (*tests, *ALWAYS)), module
 
 
+
+@pytest.mark.parametrize("argv", [["--sample", "*__mutmut_*1", "roots/lease.py"],
+                                  ["roots/lease.py", "--sample", "*__mutmut_*1"]])
+def test_a_sampled_mutants_run_runs_the_module_named_alone(monkeypatch, tmp_path, argv):
+    """`--sample PATTERN module` (as docs/mutants.md writes it) mutates that module
+    alone: the pattern never swallows the module, which ran every module for hours."""
+    from tests import mutants
+
+    ran = []
+    monkeypatch.setattr(mutants, "WORK", tmp_path)
+    monkeypatch.setattr(mutants, "run_module", lambda module, children, tests, only=None, sample=None:
+                        ran.append((module, sample)) or {})
+    assert mutants.main(argv) == 0
+    assert ran == [("roots/lease.py", ["*__mutmut_*1"])]
+
 # ------------------------------------------------------------------ docs ----
 _LINK = re.compile(r"\[[^\]]*\]\(([^)\s]+)\)")
 
