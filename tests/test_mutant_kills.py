@@ -1246,3 +1246,115 @@ def test_skip_damaged_leaves_out_each_damaged_frame_and_names_every_damaged_file
                                   skip_damaged=True, query=Query(domains="T07_*_*")))
     assert str(raised.value).startswith(f"{root}: {damaged[2]} is damaged (as are files of every other frame chosen: 2 damaged)")
     assert not (tmp_path / "none").exists()
+
+
+# ---------------------------------------------------------------- manifests/reader ----
+
+
+def _episodes(storage, domains="T01_CN_A", episodes=(0,), frames=3):
+    """Synthetic parts (rows only: the files they list do not exist) of ``episodes`` of each scenario."""
+    import dataclasses
+
+    from manifests.synthetic import episode_table
+    from manifests.writer import write_part
+    from pipeline.planner import make_plan
+    from tests.test_caught_bugs import TINY
+
+    specs = [dataclasses.replace(spec, episode=e)
+             for spec in make_plan(dataclasses.replace(TINY, domains=domains, frames_per_scenario=frames)).episodes
+             for e in episodes]
+    for spec in specs:
+        write_part(storage, spec.scenario, spec.episode, episode_table(spec))
+    return specs
+
+
+def test_misfiled_parts_count_no_frames_are_refused_naming_them_and_never_indexed(tmp_path, caplog):
+    """Parts whose rows name another episode (copied over four episodes' parts) hold no frames
+    of theirs: episode_frames counts 0, refuse_misfiled names the first three "and 1 more",
+    compaction warns and writes no index; a part filed in another scenario's folder is warned about."""
+    from manifests.reader import compact, episode_frames, part_summaries, refuse_misfiled
+    from manifests.part_file import MisfiledParts
+    from manifests.schema import index_path, part_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec, *_] = _episodes(storage, episodes=range(5))
+    s = spec.scenario
+    good = storage.read_bytes(part_path(s, 0, 3))
+    for e in range(1, 5):
+        storage.write_bytes(part_path(s, e, 3), good)
+    summaries = part_summaries(storage)
+    assert episode_frames(storage, summaries) == {(s, 0): 3, **{(s, e): 0 for e in range(1, 5)}}
+    with pytest.raises(MisfiledParts) as refused:
+        refuse_misfiled(storage, summaries)
+    assert (f"4 manifest part(s) hold the rows of another scenario or episode "
+            f"({s}_e0001, {s}_e0002, {s}_e0003 and 1 more)") in str(refused.value)
+    with caplog.at_level("WARNING", logger="manifests.reader"):
+        assert compact(storage) == []
+    assert not storage.exists(index_path(s))
+    assert f"{storage.join(part_path(s, 1, 3))} holds the rows of another scenario or episode: {s} not indexed" in caplog.messages
+
+    misfiled = part_path("T02_CN_A", 0).rpartition("/")[0] + "/" + part_path(s, 0, 3).rpartition("/")[2]
+    storage.write_bytes(misfiled, good)
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="manifests.reader"):
+        part_summaries(storage)
+    assert (f"{storage.join(misfiled)} is filed under another scenario's folder: not read (`idda verify` names it)"
+            in caplog.messages)
+
+
+def test_compact_folds_only_the_scenarios_asked_and_the_manifest_reads_sorted(tmp_path):
+    """compact(root, [scenario]) writes that scenario's index alone; the manifest then reads one
+    scenario from its index and the other from its parts, still sorted by scenario, episode, frame."""
+    from manifests.reader import compact, read_manifest
+    from manifests.schema import index_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    specs = _episodes(storage, domains="T01_CN_A,T02_CN_A", episodes=(0, 1))
+    first, second = sorted({spec.scenario for spec in specs})
+    assert compact(storage, [first]) == [first]  # the dataset then lists the second's parts before the first's index
+    assert storage.exists(index_path(first)) and not storage.exists(index_path(second))
+    table = read_manifest(storage)
+    keys = list(zip(*(table.column(k).to_pylist() for k in ("scenario", "episode", "frame"))))
+    assert keys == sorted(keys) and len(keys) == 12 and {k[0] for k in keys} == {first, second}
+
+
+def test_an_episodes_parts_are_listed_the_one_readers_use_first_and_both_kept_if_it_lies(tmp_path, caplog):
+    """Beside an old name, the counted name is listed first (readers use it); where the counted
+    name says more rows than it holds, compaction keeps both and names them in its warning."""
+    from manifests.reader import compact, episode_parts
+    from manifests.schema import part_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage)
+    s, e = spec.scenario, spec.episode
+    data = storage.read_bytes(part_path(s, e, 3))
+    storage.write_bytes(part_path(s, e), data)
+    assert episode_parts(storage, s, e) == [part_path(s, e, 3), part_path(s, e)]
+    storage.delete(part_path(s, e, 3))
+    storage.write_bytes(part_path(s, e, 4), data)  # says 4 rows, holds 3
+    with caplog.at_level("WARNING", logger="manifests.reader"):
+        compact(storage)
+    assert storage.exists(part_path(s, e)) and storage.exists(part_path(s, e, 4))
+    assert (f"{storage.join(part_path(s, e))} and {storage.join(part_path(s, e, 4))} name the same episode"
+            in caplog.text)
+
+
+def test_a_part_written_without_statistics_is_summarised_from_its_columns(tmp_path):
+    """A part whose footer has no statistics is read for its few columns: its summary
+    still says its rows and bytes (not unreadable, so its episode is done)."""
+    import pyarrow.parquet as pq
+
+    from manifests.reader import part_summaries, read_part
+    from manifests.schema import part_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage)
+    rel = part_path(spec.scenario, spec.episode, 3)
+    table = read_part(storage, spec.scenario, spec.episode)
+    pq.write_table(table, str(tmp_path / rel), write_statistics=False)
+    [summary] = part_summaries(storage).values()
+    assert summary is not None and summary.rows == 3 and summary.size == (tmp_path / rel).stat().st_size
