@@ -1272,7 +1272,7 @@ def test_misfiled_parts_count_no_frames_are_refused_naming_them_and_never_indexe
     """Parts whose rows name another episode (copied over four episodes' parts) hold no frames
     of theirs: episode_frames counts 0, refuse_misfiled names the first three "and 1 more",
     compaction warns and writes no index; a part filed in another scenario's folder is warned about."""
-    from manifests.reader import compact, episode_frames, part_summaries, refuse_misfiled
+    from manifests.reader import compact, episode_frames, part_summaries, read_manifest, refuse_misfiled
     from manifests.part_file import MisfiledParts
     from manifests.schema import index_path, part_path
     from storage import Storage
@@ -1289,6 +1289,8 @@ def test_misfiled_parts_count_no_frames_are_refused_naming_them_and_never_indexe
         refuse_misfiled(storage, summaries)
     assert (f"4 manifest part(s) hold the rows of another scenario or episode "
             f"({s}_e0001, {s}_e0002, {s}_e0003 and 1 more)") in str(refused.value)
+    with pytest.raises(MisfiledParts, match=f"{s}_e0001_n3.parquet holds the rows of another scenario or episode"):
+        read_manifest(storage)
     with caplog.at_level("WARNING", logger="manifests.reader"):
         assert compact(storage) == []
     assert not storage.exists(index_path(s))
@@ -1304,10 +1306,15 @@ def test_misfiled_parts_count_no_frames_are_refused_naming_them_and_never_indexe
 
 
 def test_compact_folds_only_the_scenarios_asked_and_the_manifest_reads_sorted(tmp_path):
-    """compact(root, [scenario]) writes that scenario's index alone; the manifest then reads one
-    scenario from its index and the other from its parts, still sorted by scenario, episode, frame."""
-    from manifests.reader import compact, read_manifest
-    from manifests.schema import index_path
+    """compact(root, [scenario]) writes that scenario's index alone (its episodes in its footer, no
+    rig columns in a default-rig root's); the manifest then reads one scenario from its index and
+    the other from its parts, still sorted by scenario, episode, frame. A new part makes the index
+    stale, and the next compaction folds in the new part alone (the rows of the others from the index)."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    from manifests.reader import compact, index_episodes, manifest_files, read_manifest
+    from manifests.schema import RIG_FIELDS, index_path, part_path
     from storage import Storage
 
     storage = Storage.from_uri(str(tmp_path))
@@ -1315,16 +1322,26 @@ def test_compact_folds_only_the_scenarios_asked_and_the_manifest_reads_sorted(tm
     first, second = sorted({spec.scenario for spec in specs})
     assert compact(storage, [first]) == [first]  # the dataset then lists the second's parts before the first's index
     assert storage.exists(index_path(first)) and not storage.exists(index_path(second))
+    assert manifest_files(storage) == [index_path(first), *(part_path(second, e, 3) for e in (0, 1))]
     table = read_manifest(storage)
     keys = list(zip(*(table.column(k).to_pylist() for k in ("scenario", "episode", "frame"))))
     assert keys == sorted(keys) and len(keys) == 12 and {k[0] for k in keys} == {first, second}
+    assert index_episodes(storage, index_path(first)) == {0, 1}
+    assert not {name for name, _ in RIG_FIELDS} & set(pq.read_schema(str(tmp_path / index_path(first))).names)
+    _episodes(storage, domains=first, episodes=(2,))  # the index is stale now: its parts are read
+    assert manifest_files(storage)[:3] == [part_path(first, e, 3) for e in (0, 1, 2)]
+    held = tmp_path / part_path(first, 0, 3)
+    held.write_bytes(bytes(held.stat().st_size))  # the index holds its rows: an incremental fold never reads it
+    assert compact(storage, [first]) == [first]
+    assert index_episodes(storage, index_path(first)) == {0, 1, 2}
+    assert len(read_manifest(storage, filter=pc.field("scenario") == first)) == 9
 
 
 def test_an_episodes_parts_are_listed_the_one_readers_use_first_and_both_kept_if_it_lies(tmp_path, caplog):
     """Beside an old name, the counted name is listed first (readers use it); where the counted
     name says more rows than it holds, compaction keeps both and names them in its warning."""
-    from manifests.reader import compact, episode_parts
-    from manifests.schema import part_path
+    from manifests.reader import compact, episode_frames, episode_parts
+    from manifests.schema import index_path, part_path
     from storage import Storage
 
     storage = Storage.from_uri(str(tmp_path))
@@ -1333,7 +1350,15 @@ def test_an_episodes_parts_are_listed_the_one_readers_use_first_and_both_kept_if
     data = storage.read_bytes(part_path(s, e, 3))
     storage.write_bytes(part_path(s, e), data)
     assert episode_parts(storage, s, e) == [part_path(s, e, 3), part_path(s, e)]
+    compact(storage)  # the old name no reader uses is removed
+    assert not storage.exists(part_path(s, e)) and storage.exists(part_path(s, e, 3))
+    storage.write_bytes(part_path(s, e), data)
     storage.delete(part_path(s, e, 3))
+    storage.delete(index_path(s))
+    assert episode_frames(storage) == {(s, e): 3}  # an old name alone: its rows read from its footer
+    storage.write_bytes(part_path(s, e), data[: len(data) // 2])
+    assert episode_frames(storage) == {(s, e): 0}  # torn: none
+    storage.write_bytes(part_path(s, e), data)
     storage.write_bytes(part_path(s, e, 4), data)  # says 4 rows, holds 3
     with caplog.at_level("WARNING", logger="manifests.reader"):
         compact(storage)
@@ -1354,7 +1379,28 @@ def test_a_part_written_without_statistics_is_summarised_from_its_columns(tmp_pa
     storage = Storage.from_uri(str(tmp_path))
     [spec] = _episodes(storage)
     rel = part_path(spec.scenario, spec.episode, 3)
+    [summary] = part_summaries(storage).values()
+    assert summary.rows == 3 and summary.size == (tmp_path / rel).stat().st_size
     table = read_part(storage, spec.scenario, spec.episode)
     pq.write_table(table, str(tmp_path / rel), write_statistics=False)
     [summary] = part_summaries(storage).values()
     assert summary is not None and summary.rows == 3 and summary.size == (tmp_path / rel).stat().st_size
+
+
+def test_a_damaged_index_is_skipped_with_its_error_named_and_its_parts_read(tmp_path, caplog):
+    """An index torn after compaction: the manifest is read from its parts, and the
+    warning names the index and why it was not read."""
+    from manifests.reader import compact, read_manifest
+    from manifests.schema import index_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage, episodes=(0, 1))[:1]
+    assert compact(storage) == [spec.scenario]
+    rel = index_path(spec.scenario)
+    data = storage.read_bytes(rel)
+    storage.write_bytes(rel, data[:40] + bytes(b ^ 0xFF for b in data[40:60]) + data[60:])  # a page; the footer whole
+    with caplog.at_level("WARNING", logger="manifests.reader"):
+        assert len(read_manifest(storage)) == 6
+    [message] = [m for m in caplog.messages if m.startswith("ignoring the damaged index")]
+    assert message.startswith(f"ignoring the damaged index {storage.join(rel)} (manifest file {storage.join(rel)} is unreadable: ")
