@@ -1404,3 +1404,67 @@ def test_a_damaged_index_is_skipped_with_its_error_named_and_its_parts_read(tmp_
         assert len(read_manifest(storage)) == 6
     [message] = [m for m in caplog.messages if m.startswith("ignoring the damaged index")]
     assert message.startswith(f"ignoring the damaged index {storage.join(rel)} (manifest file {storage.join(rel)} is unreadable: ")
+
+
+# ------------------------------------------------------------------ roots/contract ----
+
+
+def test_roots_old_and_new_are_told_apart_from_other_folders(tmp_path):
+    """A root made before the marker (run.json and a manifest part) is ours, and so is a folder
+    with a manifest part alone for the commands that read one; a folder of other files is
+    refused by claim_root naming what it holds."""
+    from roots.contract import RootError, claim_root, is_our_root, require_root
+    from storage import Storage
+
+    old = Storage.from_uri(str(tmp_path / "old"))
+    old.write_bytes("manifest/town=T01/weather=CN/viewpoint=A/T01_CN_A_e0000_n3.parquet", b"part")
+    require_root(old)  # a manifest part alone
+    assert not is_our_root(old)
+    old.write_bytes("run.json", b"{}")
+    assert is_our_root(old)
+    claim_root(old)
+    assert not old.exists("idda-root.json")  # an old root stays as it was
+    other = Storage.from_uri(str(tmp_path / "other"))
+    other.write_bytes("notes.txt", b"mine")
+    with pytest.raises(RootError) as refused:
+        claim_root(other)
+    assert str(refused.value) == (f"{other.uri} is not empty (notes.txt) and is not an idda output root "
+                                  "(no idda-root.json); use a new or empty directory as --out")
+
+
+def test_an_export_target_holding_an_old_root_deep_down_is_refused_naming_it(tmp_path):
+    """An old root (run.json beside manifest/, no marker) two folders down a target: the
+    target is refused, the message naming that root's folder, not the first folder met."""
+    from roots.contract import RootError, check_export_target
+
+    target = tmp_path / "target"
+    (target / "a" / "0plain").mkdir(parents=True)
+    (target / "a" / "old" / "manifest").mkdir(parents=True)
+    (target / "a" / "old" / "run.json").write_text("{}")
+    with pytest.raises(RootError) as refused:
+        check_export_target(str(target), force=True)
+    assert str(refused.value) == f"export target {target} holds the output root {target}/a/old; export elsewhere"
+    with pytest.raises(RootError, match="is an output root"):
+        check_export_target(str(target / "a" / "old"), force=True)
+
+
+def test_an_export_marker_that_lists_no_tree_or_a_changed_one_is_refused_saying_why(tmp_path):
+    """--force replaces an export only where EXPORT.json records its tree (a dict of entries,
+    sha256 and top), and only while the tree is what it records: a file more under a
+    recorded folder is a change, counted."""
+    import json
+
+    from roots.contract import RootError, check_export_target, export_tree
+
+    target = tmp_path / "export"
+    (target / "images").mkdir(parents=True)
+    (target / "images" / "a.png").write_bytes(b"png")
+    (target / "EXPORT.json").write_text(json.dumps({"tree": ["entries", "sha256", "top"]}))
+    with pytest.raises(RootError, match="its EXPORT.json does not list what it wrote"):
+        check_export_target(str(target), force=True)
+    (target / "EXPORT.json").write_text(json.dumps({"tree": export_tree(str(target))}))
+    check_export_target(str(target), force=True)
+    (target / "images" / "b.png").write_bytes(b"png")
+    with pytest.raises(RootError) as refused:
+        check_export_target(str(target), force=True)
+    assert "its content changed since the export (3 entries, the export wrote 2);" in str(refused.value)
