@@ -1413,7 +1413,7 @@ def test_roots_old_and_new_are_told_apart_from_other_folders(tmp_path):
     """A root made before the marker (run.json and a manifest part) is ours, and so is a folder
     with a manifest part alone for the commands that read one; a folder of other files is
     refused by claim_root naming what it holds."""
-    from roots.contract import RootError, claim_root, is_our_root, require_root
+    from roots.contract import RootError, claim_root, is_our_root, own_top_names, require_root
     from storage import Storage
 
     old = Storage.from_uri(str(tmp_path / "old"))
@@ -1424,6 +1424,12 @@ def test_roots_old_and_new_are_told_apart_from_other_folders(tmp_path):
     assert is_our_root(old)
     claim_root(old)
     assert not old.exists("idda-root.json")  # an old root stays as it was
+    new = Storage.from_uri(str(tmp_path / "new"))
+    claim_root(new)
+    require_root(new)  # its marker alone: a root before its run.json
+    assert own_top_names(["T01_CN_A"]) >= {"idda-root.json", "run.json", "manifest", "T01_CN_A"}
+    with pytest.raises(RootError, match=f"is inside the output root {tmp_path / 'new'}; use a directory outside"):
+        claim_root(Storage.from_uri(str(tmp_path / "new" / "inner")))
     other = Storage.from_uri(str(tmp_path / "other"))
     other.write_bytes("notes.txt", b"mine")
     with pytest.raises(RootError) as refused:
