@@ -1320,7 +1320,11 @@ def test_compact_folds_only_the_scenarios_asked_and_the_manifest_reads_sorted(tm
     storage = Storage.from_uri(str(tmp_path))
     specs = _episodes(storage, domains="T01_CN_A,T02_CN_A", episodes=(0, 1))
     first, second = sorted({spec.scenario for spec in specs})
-    assert compact(storage, [first]) == [first]  # the dataset then lists the second's parts before the first's index
+    stale = tmp_path / "_index" / f".{first}.parquet.{'0' * 32}.tmp"  # a compaction killed mid-write left it
+    stale.parent.mkdir()
+    stale.write_bytes(b"half")
+    assert compact(storage, [first]) == [first]
+    assert not stale.exists()  # the dataset then lists the second's parts before the first's index
     assert storage.exists(index_path(first)) and not storage.exists(index_path(second))
     assert manifest_files(storage) == [index_path(first), *(part_path(second, e, 3) for e in (0, 1))]
     table = read_manifest(storage)
@@ -1474,3 +1478,25 @@ def test_an_export_marker_that_lists_no_tree_or_a_changed_one_is_refused_saying_
     with pytest.raises(RootError) as refused:
         check_export_target(str(target), force=True)
     assert "its content changed since the export (3 entries, the export wrote 2);" in str(refused.value)
+
+
+def test_require_outputs_names_the_missing_output_how_many_frames_lack_it_and_what_all_have(tmp_path):
+    """require_outputs passes a table whose every row has the outputs asked, and refuses in one
+    line naming the output missing, for how many of how many frames, and those every frame has."""
+    import pyarrow as pa
+
+    from manifests.reader import read_part, require_outputs
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage)
+    table = read_part(storage, spec.scenario, spec.episode)
+    require_outputs(table, ["rgb", "flow"], "the root")
+    column = table.schema.get_field_index("flow_path")
+    table = table.set_column(column, "flow_path", pa.array(["f.png", None, None], pa.string()))
+    with pytest.raises(ValueError) as refused:
+        require_outputs(table, ["rgb", "flow"], "the root")
+    message = str(refused.value)
+    assert message.startswith("the root does not hold the 'flow' output for 2 of 3 frames (every frame has: rgb, depth_raw, ")
+    assert message.endswith("); produce it with `idda produce --outputs` into a new root")
+    assert "flow" not in message.split("every frame has: ")[1]
