@@ -475,7 +475,8 @@ def _fold(storage, scenario: str, listed: dict[int, tuple[str, int]], index: str
         read_in = list(pool.map(read, episodes))
     for e, (table, size) in zip(episodes, read_in):
         if e not in kept and summary_of_table(table, size).misfiled(scenario, e):
-            log.warning("%s holds the rows of another scenario or episode: %s not indexed", listed[e][0], scenario)
+            log.warning("%s holds the rows of another scenario or episode: %s not indexed", storage.join(listed[e][0]),
+                        scenario)
             return None
     sizes = {e: size for e, (_, size) in zip(episodes, read_in)}
     return index_bytes(index_table([table for table, _ in read_in], scenario, episodes, sizes))

@@ -1246,3 +1246,257 @@ def test_skip_damaged_leaves_out_each_damaged_frame_and_names_every_damaged_file
                                   skip_damaged=True, query=Query(domains="T07_*_*")))
     assert str(raised.value).startswith(f"{root}: {damaged[2]} is damaged (as are files of every other frame chosen: 2 damaged)")
     assert not (tmp_path / "none").exists()
+
+
+# ---------------------------------------------------------------- manifests/reader ----
+
+
+def _episodes(storage, domains="T01_CN_A", episodes=(0,), frames=3):
+    """Synthetic parts (rows only: the files they list do not exist) of ``episodes`` of each scenario."""
+    import dataclasses
+
+    from manifests.synthetic import episode_table
+    from manifests.writer import write_part
+    from pipeline.planner import make_plan
+    from tests.test_caught_bugs import TINY
+
+    specs = [dataclasses.replace(spec, episode=e)
+             for spec in make_plan(dataclasses.replace(TINY, domains=domains, frames_per_scenario=frames)).episodes
+             for e in episodes]
+    for spec in specs:
+        write_part(storage, spec.scenario, spec.episode, episode_table(spec))
+    return specs
+
+
+def test_misfiled_parts_count_no_frames_are_refused_naming_them_and_never_indexed(tmp_path, caplog):
+    """Parts whose rows name another episode (copied over four episodes' parts) hold no frames
+    of theirs: episode_frames counts 0, refuse_misfiled names the first three "and 1 more",
+    compaction warns and writes no index; a part filed in another scenario's folder is warned about."""
+    from manifests.reader import compact, episode_frames, part_summaries, read_manifest, refuse_misfiled
+    from manifests.part_file import MisfiledParts
+    from manifests.schema import index_path, part_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec, *_] = _episodes(storage, episodes=range(5))
+    s = spec.scenario
+    good = storage.read_bytes(part_path(s, 0, 3))
+    for e in range(1, 5):
+        storage.write_bytes(part_path(s, e, 3), good)
+    summaries = part_summaries(storage)
+    assert episode_frames(storage, summaries) == {(s, 0): 3, **{(s, e): 0 for e in range(1, 5)}}
+    with pytest.raises(MisfiledParts) as refused:
+        refuse_misfiled(storage, summaries)
+    assert (f"4 manifest part(s) hold the rows of another scenario or episode "
+            f"({s}_e0001, {s}_e0002, {s}_e0003 and 1 more)") in str(refused.value)
+    with pytest.raises(MisfiledParts, match=f"{s}_e0001_n3.parquet holds the rows of another scenario or episode"):
+        read_manifest(storage)
+    with caplog.at_level("WARNING", logger="manifests.reader"):
+        assert compact(storage) == []
+    assert not storage.exists(index_path(s))
+    assert f"{storage.join(part_path(s, 1, 3))} holds the rows of another scenario or episode: {s} not indexed" in caplog.messages
+
+    misfiled = part_path("T02_CN_A", 0).rpartition("/")[0] + "/" + part_path(s, 0, 3).rpartition("/")[2]
+    storage.write_bytes(misfiled, good)
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="manifests.reader"):
+        part_summaries(storage)
+    assert (f"{storage.join(misfiled)} is filed under another scenario's folder: not read (`idda verify` names it)"
+            in caplog.messages)
+
+
+def test_compact_folds_only_the_scenarios_asked_and_the_manifest_reads_sorted(tmp_path):
+    """compact(root, [scenario]) writes that scenario's index alone (its episodes in its footer, no
+    rig columns in a default-rig root's); the manifest then reads one scenario from its index and
+    the other from its parts, still sorted by scenario, episode, frame. A new part makes the index
+    stale, and the next compaction folds in the new part alone (the rows of the others from the index)."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    from manifests.reader import compact, index_episodes, manifest_files, read_manifest
+    from manifests.schema import RIG_FIELDS, index_path, part_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    specs = _episodes(storage, domains="T01_CN_A,T02_CN_A", episodes=(0, 1))
+    first, second = sorted({spec.scenario for spec in specs})
+    stale = tmp_path / "_index" / f".{first}.parquet.{'0' * 32}.tmp"  # a compaction killed mid-write left it
+    stale.parent.mkdir()
+    stale.write_bytes(b"half")
+    assert compact(storage, [first]) == [first]
+    assert not stale.exists()  # the dataset then lists the second's parts before the first's index
+    assert storage.exists(index_path(first)) and not storage.exists(index_path(second))
+    assert manifest_files(storage) == [index_path(first), *(part_path(second, e, 3) for e in (0, 1))]
+    table = read_manifest(storage)
+    keys = list(zip(*(table.column(k).to_pylist() for k in ("scenario", "episode", "frame"))))
+    assert keys == sorted(keys) and len(keys) == 12 and {k[0] for k in keys} == {first, second}
+    assert index_episodes(storage, index_path(first)) == {0, 1}
+    assert not {name for name, _ in RIG_FIELDS} & set(pq.read_schema(str(tmp_path / index_path(first))).names)
+    _episodes(storage, domains=first, episodes=(2,))  # the index is stale now: its parts are read
+    assert manifest_files(storage)[:3] == [part_path(first, e, 3) for e in (0, 1, 2)]
+    held = tmp_path / part_path(first, 0, 3)
+    held.write_bytes(bytes(held.stat().st_size))  # the index holds its rows: an incremental fold never reads it
+    assert compact(storage, [first]) == [first]
+    assert index_episodes(storage, index_path(first)) == {0, 1, 2}
+    assert len(read_manifest(storage, filter=pc.field("scenario") == first)) == 9
+
+
+def test_an_episodes_parts_are_listed_the_one_readers_use_first_and_both_kept_if_it_lies(tmp_path, caplog):
+    """Beside an old name, the counted name is listed first (readers use it); where the counted
+    name says more rows than it holds, compaction keeps both and names them in its warning."""
+    from manifests.reader import compact, episode_frames, episode_parts
+    from manifests.schema import index_path, part_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage)
+    s, e = spec.scenario, spec.episode
+    data = storage.read_bytes(part_path(s, e, 3))
+    storage.write_bytes(part_path(s, e), data)
+    assert episode_parts(storage, s, e) == [part_path(s, e, 3), part_path(s, e)]
+    compact(storage)  # the old name no reader uses is removed
+    assert not storage.exists(part_path(s, e)) and storage.exists(part_path(s, e, 3))
+    storage.write_bytes(part_path(s, e), data)
+    storage.delete(part_path(s, e, 3))
+    storage.delete(index_path(s))
+    assert episode_frames(storage) == {(s, e): 3}  # an old name alone: its rows read from its footer
+    storage.write_bytes(part_path(s, e), data[: len(data) // 2])
+    assert episode_frames(storage) == {(s, e): 0}  # torn: none
+    storage.write_bytes(part_path(s, e), data)
+    storage.write_bytes(part_path(s, e, 4), data)  # says 4 rows, holds 3
+    with caplog.at_level("WARNING", logger="manifests.reader"):
+        compact(storage)
+    assert storage.exists(part_path(s, e)) and storage.exists(part_path(s, e, 4))
+    assert (f"{storage.join(part_path(s, e))} and {storage.join(part_path(s, e, 4))} name the same episode"
+            in caplog.text)
+
+
+def test_a_part_written_without_statistics_is_summarised_from_its_columns(tmp_path):
+    """A part whose footer has no statistics is read for its few columns: its summary
+    still says its rows and bytes (not unreadable, so its episode is done)."""
+    import pyarrow.parquet as pq
+
+    from manifests.reader import part_summaries, read_part
+    from manifests.schema import part_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage)
+    rel = part_path(spec.scenario, spec.episode, 3)
+    [summary] = part_summaries(storage).values()
+    assert summary.rows == 3 and summary.size == (tmp_path / rel).stat().st_size
+    table = read_part(storage, spec.scenario, spec.episode)
+    pq.write_table(table, str(tmp_path / rel), write_statistics=False)
+    [summary] = part_summaries(storage).values()
+    assert summary is not None and summary.rows == 3 and summary.size == (tmp_path / rel).stat().st_size
+
+
+def test_a_damaged_index_is_skipped_with_its_error_named_and_its_parts_read(tmp_path, caplog):
+    """An index torn after compaction: the manifest is read from its parts, and the
+    warning names the index and why it was not read."""
+    from manifests.reader import compact, read_manifest
+    from manifests.schema import index_path
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage, episodes=(0, 1))[:1]
+    assert compact(storage) == [spec.scenario]
+    rel = index_path(spec.scenario)
+    data = storage.read_bytes(rel)
+    storage.write_bytes(rel, data[:40] + bytes(b ^ 0xFF for b in data[40:60]) + data[60:])  # a page; the footer whole
+    with caplog.at_level("WARNING", logger="manifests.reader"):
+        assert len(read_manifest(storage)) == 6
+    [message] = [m for m in caplog.messages if m.startswith("ignoring the damaged index")]
+    assert message.startswith(f"ignoring the damaged index {storage.join(rel)} (manifest file {storage.join(rel)} is unreadable: ")
+
+
+# ------------------------------------------------------------------ roots/contract ----
+
+
+def test_roots_old_and_new_are_told_apart_from_other_folders(tmp_path):
+    """A root made before the marker (run.json and a manifest part) is ours, and so is a folder
+    with a manifest part alone for the commands that read one; a folder of other files is
+    refused by claim_root naming what it holds."""
+    from roots.contract import RootError, claim_root, is_our_root, own_top_names, require_root
+    from storage import Storage
+
+    old = Storage.from_uri(str(tmp_path / "old"))
+    old.write_bytes("manifest/town=T01/weather=CN/viewpoint=A/T01_CN_A_e0000_n3.parquet", b"part")
+    require_root(old)  # a manifest part alone
+    assert not is_our_root(old)
+    old.write_bytes("run.json", b"{}")
+    assert is_our_root(old)
+    claim_root(old)
+    assert not old.exists("idda-root.json")  # an old root stays as it was
+    new = Storage.from_uri(str(tmp_path / "new"))
+    claim_root(new)
+    require_root(new)  # its marker alone: a root before its run.json
+    assert own_top_names(["T01_CN_A"]) >= {"idda-root.json", "run.json", "manifest", "T01_CN_A"}
+    with pytest.raises(RootError, match=f"is inside the output root {tmp_path / 'new'}; use a directory outside"):
+        claim_root(Storage.from_uri(str(tmp_path / "new" / "inner")))
+    other = Storage.from_uri(str(tmp_path / "other"))
+    other.write_bytes("notes.txt", b"mine")
+    with pytest.raises(RootError) as refused:
+        claim_root(other)
+    assert str(refused.value) == (f"{other.uri} is not empty (notes.txt) and is not an idda output root "
+                                  "(no idda-root.json); use a new or empty directory as --out")
+
+
+def test_an_export_target_holding_an_old_root_deep_down_is_refused_naming_it(tmp_path):
+    """An old root (run.json beside manifest/, no marker) two folders down a target: the
+    target is refused, the message naming that root's folder, not the first folder met."""
+    from roots.contract import RootError, check_export_target
+
+    target = tmp_path / "target"
+    (target / "a" / "0plain").mkdir(parents=True)
+    (target / "a" / "old" / "manifest").mkdir(parents=True)
+    (target / "a" / "old" / "run.json").write_text("{}")
+    with pytest.raises(RootError) as refused:
+        check_export_target(str(target), force=True)
+    assert str(refused.value) == f"export target {target} holds the output root {target}/a/old; export elsewhere"
+    with pytest.raises(RootError, match="is an output root"):
+        check_export_target(str(target / "a" / "old"), force=True)
+
+
+def test_an_export_marker_that_lists_no_tree_or_a_changed_one_is_refused_saying_why(tmp_path):
+    """--force replaces an export only where EXPORT.json records its tree (a dict of entries,
+    sha256 and top), and only while the tree is what it records: a file more under a
+    recorded folder is a change, counted."""
+    import json
+
+    from roots.contract import RootError, check_export_target, export_tree
+
+    target = tmp_path / "export"
+    (target / "images").mkdir(parents=True)
+    (target / "images" / "a.png").write_bytes(b"png")
+    (target / "EXPORT.json").write_text(json.dumps({"tree": ["entries", "sha256", "top"]}))
+    with pytest.raises(RootError, match="its EXPORT.json does not list what it wrote"):
+        check_export_target(str(target), force=True)
+    (target / "EXPORT.json").write_text(json.dumps({"tree": export_tree(str(target))}))
+    check_export_target(str(target), force=True)
+    (target / "images" / "b.png").write_bytes(b"png")
+    with pytest.raises(RootError) as refused:
+        check_export_target(str(target), force=True)
+    assert "its content changed since the export (3 entries, the export wrote 2);" in str(refused.value)
+
+
+def test_require_outputs_names_the_missing_output_how_many_frames_lack_it_and_what_all_have(tmp_path):
+    """require_outputs passes a table whose every row has the outputs asked, and refuses in one
+    line naming the output missing, for how many of how many frames, and those every frame has."""
+    import pyarrow as pa
+
+    from manifests.reader import read_part, require_outputs
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage)
+    table = read_part(storage, spec.scenario, spec.episode)
+    require_outputs(table, ["rgb", "flow"], "the root")
+    column = table.schema.get_field_index("flow_path")
+    table = table.set_column(column, "flow_path", pa.array(["f.png", None, None], pa.string()))
+    with pytest.raises(ValueError) as refused:
+        require_outputs(table, ["rgb", "flow"], "the root")
+    message = str(refused.value)
+    assert message.startswith("the root does not hold the 'flow' output for 2 of 3 frames (every frame has: rgb, depth_raw, ")
+    assert message.endswith("); produce it with `idda produce --outputs` into a new root")
+    assert "flow" not in message.split("every frame has: ")[1]
