@@ -292,12 +292,17 @@ def set_uniform(program, name: str, value) -> None:
         raise ValueError(f"uniform {name}: no GL call for a {type(value).__name__}")
 
 
-def program_key(primitive, flags) -> tuple:
-    """What pyrender's ``_get_primitive_program`` reads of a primitive in a pass: its shaders
-    and defines follow from the pass's flags and lights (the same for every primitive of a
-    pass) and from these (buffers, draw mode, material textures and kind)."""
+def pass_program(inner, programs: dict, primitive, flags, program_flags):
+    """pyrender's ``_get_primitive_program``, asked once per kind of primitive in a pass (``programs``:
+    the pass's own memo). Its shaders and defines follow from the pass's flags and lights (the same
+    for every primitive of a pass) and from what the key holds: buffers, draw mode, material textures
+    and kind."""
     material = primitive.material
-    return (flags, primitive.buf_flags, primitive.mode, material.tex_flags, type(material))
+    key = (flags, program_flags, primitive.buf_flags, primitive.mode, material.tex_flags, type(material))
+    program = programs.get(key)
+    if program is None:
+        program = programs[key] = inner._get_primitive_program(primitive, flags, program_flags)
+    return program
 
 
 def _draw_untextured(inner, primitive, pose, program, flags, state: dict) -> None:
@@ -361,8 +366,9 @@ def install_forward_pass(offscreen) -> None:
     Uniform values stay with their program, so here they are set the first
     time a program is used in a pass; per primitive, the model matrix and the
     draw (uniform locations asked of GL once per program, pyrender's program
-    lookup once per kind of primitive in the pass), and the material's uniforms and pyrender's blend, polygon, cull and
-    point-size state only when they differ from what the pass last set. A
+    lookup once per kind of primitive in the pass), and the material's
+    uniforms and pyrender's blend, polygon, cull and point-size state only
+    when they differ from what the pass last set. A
     primitive with textures takes pyrender's full per-primitive binding, so
     its texture units are allocated exactly as pyrender allocates them. Same
     GL state at every draw, so the same pixels.
@@ -396,10 +402,7 @@ def install_forward_pass(offscreen) -> None:
                 continue
             color = _seg_color(seg_node_map, node) if seg else None
             for primitive in node.mesh.primitives:
-                key = program_key(primitive, flags)
-                shader = programs.get(key)
-                if shader is None:  # pyrender's lookup once per kind of primitive in this pass
-                    shader = programs[key] = inner._get_primitive_program(primitive, flags, ProgramFlags.USE_MATERIAL)
+                shader = pass_program(inner, programs, primitive, flags, ProgramFlags.USE_MATERIAL)
                 if shader is not program:
                     program = shader
                     program._bind()
@@ -505,10 +508,7 @@ def install_shadow_pass(offscreen, current: Callable[[], ShadowFrame], *, depth_
         for node in frame.casters:
             pose = scene.get_pose(node)
             for primitive in node.mesh.primitives:
-                key = program_key(primitive, flags)
-                shader = programs.get(key)
-                if shader is None:
-                    shader = programs[key] = inner._get_primitive_program(primitive, flags, ProgramFlags.NONE)
+                shader = pass_program(inner, programs, primitive, flags, ProgramFlags.NONE)
                 if shader is not program:
                     program = shader
                     program._bind()
