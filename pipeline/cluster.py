@@ -230,8 +230,19 @@ def start_local_cluster(ray, cpus: int | None = None) -> None:
         os.environ.setdefault(name, value)
     # address="local": a new instance even where `ray start` left a cluster
     # on this machine (ray.init() with no address would attach to it).
-    ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, **_RAY_INIT_COMMON)
+    try:
+        ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, **_RAY_INIT_COMMON)
+    except Exception as exc:  # Ray raises a bare Exception when its raylet does not register in time
+        if _LOCAL_START_TIMEOUT not in str(exc):
+            raise
+        raise ConnectionError("could not start the local Ray cluster: its raylet did not register within Ray's "
+                              "30 s (a machine this busy starts it slowly); run the same command again") from None
     _stop_idle_daemons(ray)
+
+
+# What Ray 2.x says when a new node's raylet does not register with its GCS within a fixed 30 s (seen on a
+# 2-core machine under load): a bare Exception, and a traceback at the CLI, without this.
+_LOCAL_START_TIMEOUT = "timed out during startup"
 
 
 def _stop_idle_daemons(ray) -> None:
