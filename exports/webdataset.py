@@ -53,7 +53,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 from exports.shared import CheckedSource, ExportReport, Layout, listed_files
-from manifests.query import SPLITS, run_query
+from manifests.query import SPLITS, count_frames, run_query
 from manifests.reader import read_manifest, require_outputs
 from manifests.schema import output_columns, with_uids
 from outputs.table import OUTPUTS
@@ -367,10 +367,13 @@ def export_webdataset(config):
     if target.is_local:
         marker["tree"] = export_tree(target.path())  # what --force of any export may delete later
     target.write_bytes(MARKER, (json.dumps(marker, indent=2, sort_keys=True) + "\n").encode())
+    # a sample per sensor frame (manifest row), but the report counts frames, as the other formats' does
+    frames = {(r["scenario"], r["episode"], r["frame"], r["split"]) for r in meta.values()}
     return replace(ExportReport(
-        target=target.uri, format="webdataset", frames=len(meta), held=len(manifest), files=files,
-        per_split=per_split, shortfall=dict(result.shortfall), seconds=time.perf_counter() - start,
-    ), resumed=resumed)
+        target=target.uri, format="webdataset", frames=len(frames), held=count_frames(manifest), files=files,
+        per_split={s: sum(1 for f in frames if f[3] == s) for s in SPLITS}, shortfall=dict(result.shortfall),
+        seconds=time.perf_counter() - start,
+    ), resumed=resumed, sensor_frames=len(meta), held_sensor_frames=len(manifest))
 
 
 LAYOUT = Layout(outputs=(), build=None, run=export_webdataset)  # every output is optional: --outputs picks

@@ -260,6 +260,44 @@ def test_card_and_stats_count_frames_not_sensor_frames(stereo_root, tmp_path):
     assert "(2 of the 2 frames the root holds, 4 sensor frames of its 4)" in result.output
 
 
+def test_query_and_export_count_frames_not_sensor_frames(stereo_root, tmp_path):
+    """``idda query`` and ``idda export`` count a rig's root in frames (2), its manifest rows (4) as sensor frames;
+    a sample draws frames, each with every sensor of the rig, never one sensor's row of a frame."""
+    import csv
+
+    from pipeline.cli import app
+
+    runner = CliRunner()
+    result = runner.invoke(app, ["query", str(stereo_root)])
+    assert result.exit_code == 0, result.output
+    assert result.output.splitlines()[-2:] == [
+        "T01_CN_A          2",
+        "2 frames selected of 2 matching the filters (2 of the 2 frames the root holds, 4 sensor frames of its 4)"]
+    result = runner.invoke(app, ["query", str(stereo_root), "--sensor", "right"])
+    assert result.output.splitlines()[-1] == ("2 frames selected of 2 matching the filters "
+                                              "(2 of the 2 frames the root holds, 2 sensor frames of its 4)")
+    for seed in (0, 1, 2):
+        out = tmp_path / f"one{seed}.csv"
+        result = runner.invoke(app, ["query", str(stereo_root), "--per-scenario", "1", "--seed", str(seed),
+                                     "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        assert result.output.splitlines()[-1].startswith("1 frames selected of 2 matching the filters "
+                                                         "(1 of the 2 frames the root holds, 2 sensor frames of its 4)")
+        rows = list(csv.DictReader(out.open()))
+        assert [r["sensor"] for r in rows] == ["left", "right"] and rows[0]["frame"] == rows[1]["frame"]
+    result = runner.invoke(app, ["query", str(stereo_root), "--per-scenario", "3"])
+    assert "warning: T01_CN_A has 1 frame(s) fewer than asked for" in result.output
+    result = runner.invoke(app, ["query", str(stereo_root), "--sensor", "back"])
+    assert result.exit_code == 2 and "(0 of the 2 frames the root holds match the filters)" in result.output
+    result = runner.invoke(app, ["export", str(stereo_root), "--format", "cityscapes", "--sensor", "left",
+                                 "--to", str(tmp_path / "cs")])
+    assert result.exit_code == 0, result.output
+    assert "exported 2 of the 2 frames the root holds, 2 sensor frames of its 4 (2 " in result.output
+    result = runner.invoke(app, ["export", str(stereo_root), "--format", "webdataset", "--to", str(tmp_path / "wds")])
+    assert result.exit_code == 0, result.output
+    assert "exported 2 of the 2 frames the root holds, 4 sensor frames of its 4 (2 " in result.output
+
+
 # ------------------------------------------------------------------ surround ----
 def test_surround_neighbours_agree_on_what_they_both_see(tmp_path):
     root = tmp_path / "surround"
