@@ -473,6 +473,34 @@ def test_the_rig_bench_measures(tmp_path):
     assert row["rig"] == "lidar64" and row["sensors"] == 2 and row["cpu_s"] > 0 and row["lidar_wall_s"] > 0 < row["lidar_cpu_s"]
 
 
+def test_the_rig_bench_counts_every_draw(monkeypatch):
+    """The bench's per-frame CPU holds every camera draw of the frames it measures. Each draw made to cost
+    0.25 CPU-s more, and each sink made slower (sleeping, so the drawing thread runs ahead of it as at full
+    HD): stereo's frame must cost at least its two draws' 0.5. The window between two frames' sinks it once
+    took held none of front's draws and half of stereo's, which read as an overhead per extra sensor."""
+    import time as clock
+
+    from benchmarks import bench_rigs
+    from render_workers.render.renderer import Renderer
+
+    draw, encode = Renderer.render, bench_rigs.frame_files
+
+    def costly_draw(self, *args, **kwargs):
+        start = clock.thread_time()
+        while clock.thread_time() - start < 0.25:
+            pass
+        return draw(self, *args, **kwargs)
+
+    def slow_sink(spec, frame):
+        clock.sleep(0.6)
+        return encode(spec, frame)
+
+    monkeypatch.setattr(Renderer, "render", costly_draw)
+    monkeypatch.setattr(bench_rigs, "frame_files", slow_sink)
+    row = bench_rigs.measure("stereo", 64, 36, frames=3, world="test")
+    assert row["cpu_s"] >= 0.49, row
+
+
 def test_semantickitti_files_round_trip():
     from outputs.encoding import encode_kitti_bin, encode_lidar_labels, encode_lidar_points
 
