@@ -298,6 +298,25 @@ def test_query_and_export_count_frames_not_sensor_frames(stereo_root, tmp_path):
     assert "exported 2 of the 2 frames the root holds, 4 sensor frames of its 4 (2 " in result.output
 
 
+def test_distances_sample_frames_of_one_camera(stereo_root, monkeypatch):
+    """``idda distances`` samples the first N frames per domain: in a stereo root, N frames of its left
+    camera (the rig's first), not N rows (a frame's left and right images as two 'frames')."""
+    from analysis import distances
+
+    seen = {}
+    features = distances.domain_features
+
+    def spy(storage, paths, bank, threads=4):
+        seen.update(paths)
+        return features(storage, paths, bank, threads)
+
+    monkeypatch.setattr(distances, "domain_features", spy)
+    report = distances.domain_distances(distances.DistanceConfig(root=str(stereo_root), samples=2))
+    assert seen == {"T01_CN_A": ["T01_CN_A/e0000/left/rgb/0000_000_T01_CN_A_left.png",
+                                 "T01_CN_A/e0000/left/rgb/0000_001_T01_CN_A_left.png"]}
+    assert report.sensor == "left" and "2 frames each (the rig's left camera)" in distances.format_distance_table(report)
+
+
 # ------------------------------------------------------------------ surround ----
 def test_surround_neighbours_agree_on_what_they_both_see(tmp_path):
     root = tmp_path / "surround"
