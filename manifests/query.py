@@ -237,7 +237,7 @@ def run_query(table_or_dataset, query: Query) -> QueryResult:
     table = filter_frames(table_or_dataset, query)
     if query.paired:
         table, apart = paired_frames(table, query.paired)
-        return QueryResult(table, len(table), split_apart=apart)
+        return QueryResult(table, len(frame_runs(table)[0]), split_apart=apart)  # a rig's root: frames, not rows
     firsts, ends = frame_runs(table)  # the draws are of frames; a rig's frame brings every sensor's row
     matched = len(firsts)
     if query.per_scenario is None and query.total is None:
