@@ -296,6 +296,8 @@ def test_query_and_export_count_frames_not_sensor_frames(stereo_root, tmp_path):
     result = runner.invoke(app, ["export", str(stereo_root), "--format", "webdataset", "--to", str(tmp_path / "wds")])
     assert result.exit_code == 0, result.output
     assert "exported 2 of the 2 frames the root holds, 4 sensor frames of its 4 (2 " in result.output
+    marker = json.loads((tmp_path / "wds" / "EXPORT.json").read_text())  # a sample per sensor frame
+    assert (marker["frames"], marker["sensor_frames"], marker["per_scenario"]) == (2, 4, {"T01_CN_A": 2})
 
 
 def test_distances_sample_frames_of_one_camera(stereo_root, monkeypatch):
