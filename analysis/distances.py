@@ -58,7 +58,7 @@ import pyarrow as pa
 from analysis.real import REAL, RealFolder, check_real_pairs, real_features
 from domains.catalog import (active, code_axes, scenario as lookup_scenario, split_code,
                                weather as lookup_weather)
-from manifests.query import Query, filter_frames
+from manifests.query import Query, filter_frames, rig_sensors
 from manifests.reader import read_manifest, require_outputs
 from outputs.table import read_output
 from storage import Storage
@@ -279,6 +279,21 @@ class DistanceReport:
     means: np.ndarray  # (domains, components) mean vector per domain
     embedding: np.ndarray  # (domains, 2) 2-D PCA of the domain means
     pairs: list[PairDistance] = field(default_factory=list)
+    sensor: str | None = None  # in a rig's root: the camera whose images were sampled (rig_camera)
+
+
+def rig_camera(table: pa.Table) -> str | None:
+    """In a rig's root, the camera whose frames stand for the root's: the first sensor of the rig (in its
+    rows' order) with RGB in every row; None in a root of the default rig (a row is a frame)."""
+    sensors = rig_sensors(table)
+    if not sensors:
+        return None
+    named, rgb = table.column("sensor").to_pylist(), table.column("rgb_path").to_pylist()
+    lacking = {s for s, path in zip(named, rgb) if path is None}
+    cameras = [s for s in sensors if s not in lacking]
+    if not cameras:
+        raise ValueError(f"no sensor of the root's rig ({', '.join(sensors)}) has RGB in every frame")
+    return cameras[0]
 
 
 def parse_pairs(text: str) -> tuple[tuple[str, str], ...]:
@@ -416,6 +431,9 @@ def domain_distances(config: DistanceConfig) -> DistanceReport:
     table = filter_frames(read_manifest(storage), Query(domains=config.domains, splits=config.splits))
     if len(table) == 0:
         raise ValueError(f"{storage.uri} has no frames" + (f" for {config.domains!r}" if config.domains else ""))
+    sensor = rig_camera(table)  # a frame's images, not its rows: one camera of a rig, as the paper's one
+    if sensor is not None:
+        table = filter_frames(table, Query(sensors=(sensor,)))
     require_outputs(table, ("rgb",), storage.uri)
     bank = FilterBank(config.seed)
     features = domain_features(storage, first_frames(table, config.samples), bank, config.threads)
@@ -424,7 +442,9 @@ def domain_distances(config: DistanceConfig) -> DistanceReport:
         features[REAL] = real_features(real, bank, config.samples, config.threads)
         if not any(REAL in pair for pair in pairs):
             pairs += tuple((code, REAL) for code in sorted(features) if code != REAL)
-    return compare_domains(features, pairs, config.components)
+    report = compare_domains(features, pairs, config.components)
+    report.sensor = sensor
+    return report
 
 
 # ------------------------------------------------------------ presenting ----
@@ -457,7 +477,9 @@ def format_distance_table(report: DistanceReport) -> str:
     n = sorted(set(report.samples.values()))
     span = str(n[0]) if len(n) == 1 else f"{n[0]}-{n[-1]}"
     lines.append(
-        f"{len(report.domains)} domains, {span} frames each, PCA to {report.components} components "
+        f"{len(report.domains)} domains, {span} frames each"
+        + (f" (the rig's {report.sensor} camera)" if report.sensor else "")
+        + f", PCA to {report.components} components "
         f"({100 * report.explained:.1f}% of the standardised feature variance)"
     )
     if len(report.domains) < MIN_COSINE_DOMAINS:

@@ -1,12 +1,21 @@
 """Per-frame CPU of each built-in rig (issue 37), beside ``front``: one process, one renderer.
 
-For each rig, one episode of FRAMES frames of SCENARIO is rendered by ``render_episode`` with a sink
-that encodes every sensor's outputs into file bytes (``pipeline.episode_job.frame_files``: what
-production writes, not written); the process CPU seconds (llvmpipe's threads included) and wall
-seconds between the ends of consecutive frames are taken, the first WARM frames left out (the
-first: world load, shader compilation; the second: 0.3-0.4 CPU-s of one-off costs more than the
-frames after it, in every rig, which made two measured frames read high). BENCH_RIGS=front,lidar64 picks rigs (default: every built-in one; front first). The LiDAR sweep's wall time per frame comes from the episode's own
-``lidar`` stage, its CPU from ``lidar_cpu`` (the drawing thread's; llvmpipe's own threads add about a tenth). Size: BENCH_RIGS_SIZE=WxH (default 1920x1080).
+For each rig, episodes of SCENARIO are rendered by ``render_episode`` with a sink that encodes every
+sensor's outputs into file bytes (``pipeline.episode_job.frame_files``: what production writes, not
+written). A frame's cost is taken by difference: the process CPU seconds (llvmpipe's threads included)
+and wall seconds of an episode of FRAMES frames less those of one of WARM frames, over FRAMES - WARM,
+both after a warm-up episode of WARM frames (world load, shader compilation, one-off costs). So what
+every episode pays once (its load, filling and draining the sink thread) cancels, and every frame
+counted is counted whole: its draws on this thread and its finishing and encoding on the sink thread.
+
+Not a window between the ends of two frames' sinks, as this bench measured before: the drawing thread
+runs up to SINK_AHEAD sensor frames ahead of the sink thread, so such a window held none of front's
+draws and two of stereo's four (``render_workers.render.episode``), which read as a cost of each
+extra sensor (docs/bench_rigs.md). BENCH_RIGS=front,lidar64 picks rigs (default: every built-in one;
+front first); BENCH_RIGS_ROUNDS=N (default 3) rounds, the rigs alternating, medians reported. The
+LiDAR sweep's wall time per frame comes from the episode's own ``lidar`` stage, its CPU from
+``lidar_cpu`` (the drawing thread's; llvmpipe's own threads add about a tenth), by the same
+difference. Size: BENCH_RIGS_SIZE=WxH (default 1920x1080).
 """
 
 from __future__ import annotations
@@ -24,8 +33,9 @@ from pipeline.planner import PlanConfig, make_plan
 from render_workers.render.episode import render_episode
 
 SCENARIO = "T01_CN_A"
-FRAMES = 4
-WARM = 2  # frames left out: measured are the FRAMES - WARM after them
+FRAMES = 6
+NOTES = "## Reading"  # docs/bench_rigs.md from this heading on is written by hand; a new run keeps it
+WARM = 2  # frames of the episode whose cost is taken from FRAMES': measured are FRAMES - WARM frames
 
 
 def _size() -> tuple[int, int]:
@@ -33,36 +43,50 @@ def _size() -> tuple[int, int]:
     return int(w), int(h)
 
 
+def _episode(spec, frames: int, world: str) -> dict:
+    """Process CPU and wall seconds of rendering and encoding an episode of ``frames`` frames of ``spec``,
+    with its LiDAR stages."""
+    spec = replace(spec, frames=frames)
+    cpu, wall = time.process_time(), time.perf_counter()
+    info = render_episode(spec.drawing, lambda frame: frame_files(spec, frame), world=world)  # what a worker draws
+    return {"cpu_s": time.process_time() - cpu, "wall_s": time.perf_counter() - wall,
+            "lidar_wall_s": info.timings.get("lidar", 0.0), "lidar_cpu_s": info.timings.get("lidar_cpu", 0.0)}
+
+
 def measure(rig: str, width: int, height: int, frames: int = FRAMES, world: str = "procedural") -> dict:
+    """Per-frame figures of ``rig``: an episode of ``frames`` less one of WARM, after a warm-up one."""
+    if frames <= WARM:
+        raise ValueError(f"measure needs more than {WARM} frames, got {frames}")
     spec = make_plan(PlanConfig(domains=SCENARIO, frames_per_scenario=frames, width=width, height=height,
                                 rig=rig)).episodes[0]
-    spec = replace(spec, frames=frames)
-    last = spec.sensors[-1]
-    ends: list[tuple[float, float]] = []
-
-    def sink(frame) -> None:
-        frame_files(spec, frame)
-        if frame.sensor == last:
-            ends.append((time.process_time(), time.perf_counter()))
-
-    info = render_episode(spec.drawing, sink, world=world)  # what a worker draws from
-    cpu = [b[0] - a[0] for a, b in zip(ends[WARM - 1:], ends[WARM:])]
-    wall = [b[1] - a[1] for a, b in zip(ends[WARM - 1:], ends[WARM:])]
-    return {"rig": rig, "sensors": len(spec.sensors), "cpu_s": statistics.mean(cpu), "wall_s": statistics.mean(wall),
-            "lidar_wall_s": info.timings.get("lidar", 0.0) / frames,
-            "lidar_cpu_s": info.timings.get("lidar_cpu", 0.0) / frames}
+    _episode(spec, WARM, world)
+    short, long = _episode(spec, WARM, world), _episode(spec, frames, world)
+    row = {key: (long[key] - short[key]) / (frames - WARM) for key in long}
+    return {"rig": rig, "sensors": len(spec.sensors), **row}
 
 
 def main(out_dir: str = "docs") -> None:
     width, height = _size()
-    rows = [measure(rig, width, height) for rig in os.environ.get("BENCH_RIGS", ",".join(builtin_rigs())).split(",")]
+    rigs = os.environ.get("BENCH_RIGS", ",".join(builtin_rigs())).split(",")
+    rounds = int(os.environ.get("BENCH_RIGS_ROUNDS", "3"))
+    write_doc([[measure(rig, width, height) for rig in rigs] for _ in range(rounds)], width, height, out_dir)
+
+
+def write_doc(runs: list[list[dict]], width: int, height: int, out_dir: str = "docs") -> None:
+    """docs/bench_rigs.md from rounds of ``measure`` rows (the same rigs in each, front first): their medians."""
+    rounds = len(runs)
+    rows = [{**runs[0][i], **{key: statistics.median(run[i][key] for run in runs)
+                              for key in ("cpu_s", "wall_s", "lidar_wall_s", "lidar_cpu_s")}}
+            for i in range(len(runs[0]))]
     front = rows[0]["cpu_s"]
+    load = os.getloadavg()[0]
     lines = [
         "# Benchmark: per-frame cost of each sensor rig",
         "",
         f"`python -m benchmarks.bench_rigs` (`make bench BENCH=rigs`): {SCENARIO}, {width}x{height}, one process, "
-        f"{FRAMES - WARM} frames measured after {WARM} left out, every sensor's outputs encoded (not written); "
-        f"{platform.machine()}, {os.cpu_count()} cores, llvmpipe, a machine shared with other jobs. "
+        f"per frame: an episode of {FRAMES} frames less one of {WARM}, after a warm-up episode; every sensor's "
+        f"outputs encoded (not written); medians of {rounds} rounds, rigs alternating; {platform.machine()}, "
+        f"{os.cpu_count()} cores, llvmpipe, a machine shared with other jobs (load average {load:.1f} at the end). "
         "CPU is the process's (all threads), per frame of the rig (every sensor).",
         "",
         "| rig | sensors | CPU s / frame | x front | wall s / frame | LiDAR sweep wall s | LiDAR sweep CPU s |",
@@ -72,7 +96,9 @@ def main(out_dir: str = "docs") -> None:
         sweep = f"{r['lidar_wall_s']:.2f} | {r['lidar_cpu_s']:.2f}" if r["lidar_wall_s"] else "- | -"
         lines.append(f"| {r['rig']} | {r['sensors']} | {r['cpu_s']:.2f} | {r['cpu_s'] / front:.2f} | {r['wall_s']:.2f} | "
                      f"{sweep} |")
-    Path(out_dir, "bench_rigs.md").write_text("\n".join(lines) + "\n")
+    path = Path(out_dir, "bench_rigs.md")
+    notes = path.read_text().partition(NOTES)[1:] if path.exists() else ()  # the hand-written reading, kept
+    path.write_text("\n".join(lines) + "\n" + ("\n" + "".join(notes) if notes and notes[0] else ""))
 
 
 if __name__ == "__main__":

@@ -46,7 +46,7 @@ from exports.shared import (
     FILE_MODES, CheckedSource, DamagedFile, ExportReport, Layout, frames_of, index_csv, listed_files, write,
 )
 from exports.webdataset import MIN_SHARD_SIZE, SHARD_SIZE
-from manifests.query import SPLITS, Query, run_query
+from manifests.query import SPLITS, Query, count_frames, run_query
 from manifests.reader import read_manifest, require_outputs
 from outputs.table import check_outputs
 from roots.contract import EXPORT_MARKER, RootError, check_export_target, export_tree
@@ -285,14 +285,16 @@ def export(config: ExportConfig) -> ExportReport:
     return ExportReport(
         target=target,
         format=config.format,
-        frames=len(frames),
-        held=len(manifest),
+        frames=len(frames),  # of one sensor (frames_of)
+        held=count_frames(manifest),
         files=files,
         per_split=per_split,
         shortfall=dict(result.shortfall),
         seconds=time.perf_counter() - start,
         damaged=sorted(damaged),
         skipped=asked - len(frames),
+        sensor_frames=len(frames),
+        held_sensor_frames=len(manifest),
     )
 
 

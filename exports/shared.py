@@ -235,7 +235,7 @@ class Layout:
 class ExportReport:
     target: str
     format: str
-    frames: int
+    frames: int  # frames exported (a rig's root: of the same instant, distinct (scenario, episode, frame))
     held: int  # frames the root holds (the query chose ``frames`` of them)
     files: int
     per_split: dict[str, int]
@@ -244,6 +244,8 @@ class ExportReport:
     damaged: list[str] = field(default_factory=list)  # files found damaged (--skip-damaged: their frames left out)
     skipped: int = 0  # frames left out for them
     resumed: int = 0  # webdataset: shards an interrupted export had written and verified, kept
+    sensor_frames: int = 0  # manifest rows exported: ``frames`` but in a rig's root, a row per sensor of each
+    held_sensor_frames: int = 0  # manifest rows the root holds: ``held`` but in a rig's root
 
 
 def listed_files(table) -> dict[str, tuple[int, str]]:

@@ -53,7 +53,7 @@ from concurrent.futures import ThreadPoolExecutor
 from dataclasses import asdict, dataclass
 
 from exports.shared import CheckedSource, ExportReport, Layout, listed_files
-from manifests.query import SPLITS, run_query
+from manifests.query import SPLITS, count_frames, run_query
 from manifests.reader import read_manifest, require_outputs
 from manifests.schema import output_columns, with_uids
 from outputs.table import OUTPUTS
@@ -356,21 +356,26 @@ def export_webdataset(config):
         writer.writerow([uid, m["frame_id"], m["scenario"], m["episode"], m["frame"], m["split"], name, offset])
     target.write_bytes(FRAMES_INDEX, out.getvalue().encode())
     target.write_bytes(SHARDS_INDEX, (json.dumps(index, indent=1) + "\n").encode())
-    per_split = {s: sum(1 for r in meta.values() if r["split"] == s) for s in SPLITS}
+    # a sample per sensor frame (manifest row); the marker and the report count frames, as the other formats'
+    # do, and in a rig's root say the sensor frames (samples) beside them
+    frames = {(r["scenario"], r["episode"], r["frame"], r["split"]) for r in meta.values()}
+    per_split = {s: sum(1 for f in frames if f[3] == s) for s in SPLITS}
     per_scenario: dict[str, int] = {}
-    for r in meta.values():
-        per_scenario[r["scenario"]] = per_scenario.get(r["scenario"], 0) + 1
+    for f in frames:
+        per_scenario[f[0]] = per_scenario.get(f[0], 0) + 1
     files = 2 * len(shards) + 4
-    marker = {"format": "webdataset", "source": storage.uri, "query": query, "frames": len(meta), "files": files,
+    marker = {"format": "webdataset", "source": storage.uri, "query": query, "frames": len(frames), "files": files,
               "per_split": per_split, "per_scenario": per_scenario, "as_split": config.as_split, "plan": digest,
               "outputs": list(outputs), "shards": len(shards), "shard_size": config.shard_size}
+    if len(meta) != len(frames):
+        marker["sensor_frames"] = len(meta)
     if target.is_local:
         marker["tree"] = export_tree(target.path())  # what --force of any export may delete later
     target.write_bytes(MARKER, (json.dumps(marker, indent=2, sort_keys=True) + "\n").encode())
     return replace(ExportReport(
-        target=target.uri, format="webdataset", frames=len(meta), held=len(manifest), files=files,
+        target=target.uri, format="webdataset", frames=len(frames), held=count_frames(manifest), files=files,
         per_split=per_split, shortfall=dict(result.shortfall), seconds=time.perf_counter() - start,
-    ), resumed=resumed)
+    ), resumed=resumed, sensor_frames=len(meta), held_sensor_frames=len(manifest))
 
 
 LAYOUT = Layout(outputs=(), build=None, run=export_webdataset)  # every output is optional: --outputs picks

@@ -166,6 +166,27 @@ def count_frames(table: pa.Table) -> int:
     return table.select(list(FRAME_KEY)).group_by(list(FRAME_KEY)).aggregate([]).num_rows
 
 
+def frame_runs(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
+    """Where each frame's rows start and end in ``table`` (sorted by scenario, episode, frame, as
+    ``filter_frames`` leaves it): one row each in a root of the default rig, one per sensor in a rig's root."""
+    n = len(table)
+    if n == 0 or "sensor" not in table.column_names or table.column("sensor").null_count == n:
+        return np.arange(n), np.arange(1, n + 1)
+    keys = [table.column(k).to_numpy(zero_copy_only=False) for k in FRAME_KEY]
+    new = np.ones(n, dtype=bool)
+    new[1:] = np.logical_or.reduce([k[1:] != k[:-1] for k in keys])
+    firsts = np.flatnonzero(new)
+    return firsts, np.append(firsts[1:], n)
+
+
+def count_held(dataset: ds.Dataset) -> tuple[int, int]:
+    """The frames and the manifest rows (sensor frames) a root's manifest dataset holds."""
+    rows = dataset.count_rows()
+    if "sensor" not in dataset.schema.names:
+        return rows, rows
+    return count_frames(dataset.to_table(columns=list(FRAME_KEY))), rows
+
+
 def rig_sensors(table: pa.Table) -> tuple[str, ...]:
     """The sensors whose rows ``table`` holds, in their first row's order; () in a root of the default rig."""
     if "sensor" not in table.column_names:
@@ -216,11 +237,12 @@ def run_query(table_or_dataset, query: Query) -> QueryResult:
     table = filter_frames(table_or_dataset, query)
     if query.paired:
         table, apart = paired_frames(table, query.paired)
-        return QueryResult(table, len(table), split_apart=apart)
-    matched = len(table)
+        return QueryResult(table, len(frame_runs(table)[0]), split_apart=apart)  # a rig's root: frames, not rows
+    firsts, ends = frame_runs(table)  # the draws are of frames; a rig's frame brings every sensor's row
+    matched = len(firsts)
     if query.per_scenario is None and query.total is None:
         return QueryResult(table, matched)
-    scenarios = table.column("scenario").to_numpy(zero_copy_only=False)
+    scenarios = table.column("scenario").to_numpy(zero_copy_only=False)[firsts]
     codes, starts, sizes = np.unique(scenarios, return_index=True, return_counts=True)
     available = dict(zip(codes.tolist(), sizes.tolist()))
     if query.per_scenario is not None:
@@ -246,7 +268,9 @@ def run_query(table_or_dataset, query: Query) -> QueryResult:
         have = available.get(code, 0)
         if n > have:
             shortfall[code] = n - have
-    index = np.concatenate(picks) if picks else np.array([], dtype=np.int64)
+    chosen = np.concatenate(picks) if picks else np.array([], dtype=np.int64)
+    index = np.concatenate([np.arange(firsts[i], ends[i]) for i in chosen] or [np.array([], dtype=np.int64)]) \
+        if len(firsts) < len(table) else chosen
     if query.total is not None and sum(want.values()) < query.total:
         shortfall["(total)"] = query.total - sum(want.values())
     return QueryResult(table.take(pa.array(index, type=pa.int64())), matched, shortfall)

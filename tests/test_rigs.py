@@ -260,6 +260,65 @@ def test_card_and_stats_count_frames_not_sensor_frames(stereo_root, tmp_path):
     assert "(2 of the 2 frames the root holds, 4 sensor frames of its 4)" in result.output
 
 
+def test_query_and_export_count_frames_not_sensor_frames(stereo_root, tmp_path):
+    """``idda query`` and ``idda export`` count a rig's root in frames (2), its manifest rows (4) as sensor frames;
+    a sample draws frames, each with every sensor of the rig, never one sensor's row of a frame."""
+    import csv
+
+    from pipeline.cli import app
+
+    runner = CliRunner()
+    result = runner.invoke(app, ["query", str(stereo_root)])
+    assert result.exit_code == 0, result.output
+    assert result.output.splitlines()[-2:] == [
+        "T01_CN_A          2",
+        "2 frames selected of 2 matching the filters (2 of the 2 frames the root holds, 4 sensor frames of its 4)"]
+    result = runner.invoke(app, ["query", str(stereo_root), "--sensor", "right"])
+    assert result.output.splitlines()[-1] == ("2 frames selected of 2 matching the filters "
+                                              "(2 of the 2 frames the root holds, 2 sensor frames of its 4)")
+    for seed in (0, 1, 2):
+        out = tmp_path / f"one{seed}.csv"
+        result = runner.invoke(app, ["query", str(stereo_root), "--per-scenario", "1", "--seed", str(seed),
+                                     "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        assert result.output.splitlines()[-1].startswith("1 frames selected of 2 matching the filters "
+                                                         "(1 of the 2 frames the root holds, 2 sensor frames of its 4)")
+        rows = list(csv.DictReader(out.open()))
+        assert [r["sensor"] for r in rows] == ["left", "right"] and rows[0]["frame"] == rows[1]["frame"]
+    result = runner.invoke(app, ["query", str(stereo_root), "--per-scenario", "3"])
+    assert "warning: T01_CN_A has 1 frame(s) fewer than asked for" in result.output
+    result = runner.invoke(app, ["query", str(stereo_root), "--sensor", "back"])
+    assert result.exit_code == 2 and "(0 of the 2 frames the root holds match the filters)" in result.output
+    result = runner.invoke(app, ["export", str(stereo_root), "--format", "cityscapes", "--sensor", "left",
+                                 "--to", str(tmp_path / "cs")])
+    assert result.exit_code == 0, result.output
+    assert "exported 2 of the 2 frames the root holds, 2 sensor frames of its 4 (2 " in result.output
+    result = runner.invoke(app, ["export", str(stereo_root), "--format", "webdataset", "--to", str(tmp_path / "wds")])
+    assert result.exit_code == 0, result.output
+    assert "exported 2 of the 2 frames the root holds, 4 sensor frames of its 4 (2 " in result.output
+    marker = json.loads((tmp_path / "wds" / "EXPORT.json").read_text())  # a sample per sensor frame
+    assert (marker["frames"], marker["sensor_frames"], marker["per_scenario"]) == (2, 4, {"T01_CN_A": 2})
+
+
+def test_distances_sample_frames_of_one_camera(stereo_root, monkeypatch):
+    """``idda distances`` samples the first N frames per domain: in a stereo root, N frames of its left
+    camera (the rig's first), not N rows (a frame's left and right images as two 'frames')."""
+    from analysis import distances
+
+    seen = {}
+    features = distances.domain_features
+
+    def spy(storage, paths, bank, threads=4):
+        seen.update(paths)
+        return features(storage, paths, bank, threads)
+
+    monkeypatch.setattr(distances, "domain_features", spy)
+    report = distances.domain_distances(distances.DistanceConfig(root=str(stereo_root), samples=2))
+    assert seen == {"T01_CN_A": ["T01_CN_A/e0000/left/rgb/0000_000_T01_CN_A_left.png",
+                                 "T01_CN_A/e0000/left/rgb/0000_001_T01_CN_A_left.png"]}
+    assert report.sensor == "left" and "2 frames each (the rig's left camera)" in distances.format_distance_table(report)
+
+
 # ------------------------------------------------------------------ surround ----
 def test_surround_neighbours_agree_on_what_they_both_see(tmp_path):
     root = tmp_path / "surround"
@@ -433,6 +492,34 @@ def test_the_rig_bench_measures(tmp_path):
 
     row = measure("lidar64", 64, 36, frames=3, world="test")
     assert row["rig"] == "lidar64" and row["sensors"] == 2 and row["cpu_s"] > 0 and row["lidar_wall_s"] > 0 < row["lidar_cpu_s"]
+
+
+def test_the_rig_bench_counts_every_draw(monkeypatch):
+    """The bench's per-frame CPU holds every camera draw of the frames it measures. Each draw made to cost
+    0.25 CPU-s more, and each sink made slower (sleeping, so the drawing thread runs ahead of it as at full
+    HD): stereo's frame must cost at least its two draws' 0.5. The window between two frames' sinks it once
+    took held none of front's draws and half of stereo's, which read as an overhead per extra sensor."""
+    import time as clock
+
+    from benchmarks import bench_rigs
+    from render_workers.render.renderer import Renderer
+
+    draw, encode = Renderer.render, bench_rigs.frame_files
+
+    def costly_draw(self, *args, **kwargs):
+        start = clock.thread_time()
+        while clock.thread_time() - start < 0.25:
+            pass
+        return draw(self, *args, **kwargs)
+
+    def slow_sink(spec, frame):
+        clock.sleep(0.6)
+        return encode(spec, frame)
+
+    monkeypatch.setattr(Renderer, "render", costly_draw)
+    monkeypatch.setattr(bench_rigs, "frame_files", slow_sink)
+    row = bench_rigs.measure("stereo", 64, 36, frames=3, world="test")
+    assert row["cpu_s"] >= 0.49, row
 
 
 def test_semantickitti_files_round_trip():

@@ -26,7 +26,8 @@ from pipeline.cli.progress import (
 )
 from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MaxCondition, MinCondition, MinShare, OneLineUsageErrors, PerScenario,
-    Preset, SampleSeed, Splits, Total, build_query, count, of_held, of_held_frames, output_root, user_errors, write_local,
+    Preset, SampleSeed, Splits, Total, build_query, count, of_held, of_held_frames, of_held_sensors, output_root,
+    user_errors, write_local,
 )
 from outputs.table import CAMERA_OUTPUTS, DEFAULT_OUTPUTS, OUTPUTS, parse_outputs
 from manifests.reader import read_manifest, require_outputs, scan_manifest
@@ -341,7 +342,8 @@ def query(
             the_query = replace(the_query, sensors=tuple(sensor))
             the_query.validate()
         storage = output_root(root)
-        result, held = scan_manifest(storage, lambda dataset: (q.run_query(dataset, the_query), dataset.count_rows()))
+        result, (held, held_rows) = scan_manifest(storage, lambda dataset: (q.run_query(dataset, the_query),
+                                                                             q.count_held(dataset)))
         for code, missing in sorted(result.shortfall.items()):
             typer.echo(f"warning: {code} has {missing} frame(s) fewer than asked for", err=True)
         if result.split_apart:
@@ -359,15 +361,17 @@ def query(
                 require_outputs(result.table, chosen, storage.uri)
             data = q.encode_result(result.table, fmt, chosen)
             write_local(out, data)
-        counts: dict[str, int] = {}
-        for code in result.table.column("scenario").to_pylist():
+        counts: dict[str, int] = {}  # frames per scenario (in a rig's root: not its rows, the sensor frames)
+        scenarios = result.table.column("scenario").to_numpy(zero_copy_only=False)
+        for code in scenarios[q.frame_runs(result.table)[0]].tolist():
             counts[code] = counts.get(code, 0) + 1
         w = max([10, *map(len, counts)])  # a declared code may be longer than T01_HRN_A
         for code, n in sorted(counts.items()):
             typer.echo(f"{code:<{w}} {n:>8}")
         where = f"; wrote {out}" if out is not None else ""
-        typer.echo(f"{len(result.table):,} frames selected of {result.matched:,} matching the filters "
-                   f"({of_held(len(result.table), held)}){where}")
+        chosen_frames = sum(counts.values())
+        typer.echo(f"{chosen_frames:,} frames selected of {result.matched:,} matching the filters "
+                   f"({of_held_sensors(chosen_frames, held, len(result.table), held_rows)}){where}")
 
 
 @app.command()

@@ -114,13 +114,18 @@ def of_held(n: int, held: int) -> str:
     return f"{n:,} of the {count(held, 'frame')} the root holds"
 
 
-def of_held_frames(table, manifest) -> str:
-    """``of_held`` for the rows of ``table`` taken from ``manifest`` (all the root's): counted in frames, and in a
-    rig's root its sensor frames too ('2 of the 2 frames the root holds, 4 sensor frames of its 4')."""
-    said = of_held(q.count_frames(table), q.count_frames(manifest))
-    if len(manifest) == q.count_frames(manifest):
+def of_held_sensors(frames: int, held: int, sensor_frames: int, held_sensor_frames: int) -> str:
+    """``of_held``, and in a rig's root (its manifest rows, sensor frames, outnumber its frames) the sensor
+    frames too: '2 of the 2 frames the root holds, 4 sensor frames of its 4'."""
+    said = of_held(frames, held)
+    if held_sensor_frames == held:
         return said
-    return f"{said}, {count(len(table), 'sensor frame')} of its {len(manifest):,}"
+    return f"{said}, {count(sensor_frames, 'sensor frame')} of its {held_sensor_frames:,}"
+
+
+def of_held_frames(table, manifest) -> str:
+    """``of_held_sensors`` for the rows of ``table`` taken from ``manifest`` (all the root's)."""
+    return of_held_sensors(q.count_frames(table), q.count_frames(manifest), len(table), len(manifest))
 
 
 def write_local(path: Path, data: bytes) -> None:

@@ -25,7 +25,7 @@ from exports.webdataset import SHARD_SIZE, parse_size
 from outputs.table import parse_outputs
 from pipeline.cli.common import (
     DOMAINS_HELP, ROOT_DOMAINS_HELP, ROOT_HELP, Domains, HasClass, MinShare, PerScenario, Preset, SampleSeed, Splits, Total,
-    build_query, count, of_held, output_root, user_errors, write_local,
+    build_query, count, of_held, of_held_sensors, output_root, user_errors, write_local,
 )
 from pipeline.cli.domain_files import CatalogFile, root_catalog
 from pipeline.settings import CONFIG_SHAPE
@@ -96,7 +96,8 @@ def export(
         if report.resumed:
             typer.echo(f"kept {count(report.resumed, 'shard')} an earlier run had written (verified)")
         typer.echo(
-            f"exported {of_held(report.frames, report.held)} ({splits}) as {report.format} to {report.target}: "
+            f"exported {of_held_sensors(report.frames, report.held, report.sensor_frames, report.held_sensor_frames)} "
+            f"({splits}) as {report.format} to {report.target}: "
             f"{report.files:,} files in {report.seconds:.1f} s"
         )
 
