@@ -491,7 +491,9 @@ def test_the_rig_bench_measures(tmp_path):
     from benchmarks.bench_rigs import measure
 
     row = measure("lidar64", 64, 36, frames=3, world="test")
-    assert row["rig"] == "lidar64" and row["sensors"] == 2 and row["cpu_s"] > 0 and row["lidar_wall_s"] > 0 < row["lidar_cpu_s"]
+    # cpu_s is a difference of two episodes' CPU: at this size a loaded machine's noise can make it either sign
+    assert row["rig"] == "lidar64" and row["sensors"] == 2 and isinstance(row["cpu_s"], float)
+    assert row["lidar_wall_s"] > 0 < row["lidar_cpu_s"]  # means of the sweeps, never a difference
 
 
 def test_the_rig_bench_counts_every_draw(monkeypatch):
