@@ -383,7 +383,8 @@ def _look_rng(ctx: FxContext, stream: int) -> np.random.Generator:
     """The generator of a drawn look (the camera's exposure and white balance, the random colours): the
     episode's, or the frame's own for the share of frames the weather's ``frame_looks`` asks (issue 34: a new
     look every frame taught a network more than one per episode). Which frames draw their own is itself drawn
-    per frame, from a stream of its own, so at 1 every frame does and at 0 (the default) none."""
+    per frame, from a stream of its own, so at 1 every frame does and at 0 (the default) none. (Frame 0's own
+    look is the episode's: numpy's seed sequences ignore a trailing zero.)"""
     share = ctx.weather.frame_looks
     if share >= 1.0 or (share > 0.0 and np.random.default_rng([ctx.episode_seed, stream, ctx.frame, 1]).random() < share):
         return np.random.default_rng([ctx.episode_seed, stream, ctx.frame])
