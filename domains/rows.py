@@ -118,6 +118,11 @@ class Weather:
     # Ambient occlusion (issue 34), opt-in: corners, kerbs and the ground under cars darkened by how much nearer
     # their surroundings are (render_workers.render.postfx.occlusion, from depth). 0 = no occlusion.
     occlusion: float = param("screen-space ambient occlusion from depth (0 = off)", "share", 0.0, 1.0, default=0.0)
+    # The drawn looks redrawn per frame (issue 34), opt-in: the camera look's exposure and white balance and
+    # randomize's colours, drawn anew for this share of frames instead of once per episode
+    # (render_workers.render.postfx._look_rng). 0 = one look per episode, as before.
+    frame_looks: float = param("share of frames that draw their own camera exposure and random colours "
+                               "(0 = one per episode)", "share", 0.0, 1.0, default=0.0)
 
     @property
     def precipitation(self) -> float:

@@ -164,3 +164,28 @@ def test_randomize_is_opt_in_and_recolours_each_class_once_per_episode():
     sky, road = out[classes == SKY][0], out[classes == ROAD][0]
     assert not np.allclose(sky, road) and not np.allclose(sky, 0.5)
     assert np.array_equal(recoloured(seed=3)[0], out) and not np.array_equal(recoloured(seed=4)[0], out)
+
+
+def test_frame_looks_draw_the_camera_and_colours_anew_for_their_share_of_frames():
+    """Issue 34: a look drawn per frame taught a CamVid network more than one per episode (docs/realism.md).
+    At 0 (every built-in weather) every frame of an episode gets the episode's look; at 1 each frame its own,
+    the same on every render; in between, that share of frames."""
+    from dataclasses import replace
+
+    img = image()
+
+    def looks(share, frame, seed=3):
+        ctx = context(seed=seed)
+        ctx = replace(ctx, frame=frame, weather=replace(ctx.weather, camera=1.0, randomize=1.0, frame_looks=share))
+        return postfx.tone(img, ctx), postfx.randomize(img, ctx)
+
+    assert context().weather.frame_looks == 0.0
+    for effect in range(2):
+        episode = looks(0.0, 0)[effect]
+        assert all(np.array_equal(looks(0.0, f)[effect], episode) for f in (1, 7))  # one look per episode
+        own = [looks(1.0, f)[effect] for f in (0, 1, 7)]
+        assert not any(np.array_equal(a, b) for i, a in enumerate(own) for b in own[i + 1:])  # each frame its own
+        assert np.array_equal(looks(1.0, 7)[effect], own[2])  # and the same on every render
+        assert not np.array_equal(looks(1.0, 7, seed=4)[effect], own[2])
+        kept = sum(np.array_equal(looks(0.5, f)[effect], episode) for f in range(40))
+        assert 8 <= kept <= 32  # about half the frames keep the episode's look

@@ -182,7 +182,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
         world_from_camera=result.world_from_camera, weather=result.weather,
         ego_speed_mps=scene.ego.speed_mps, sun_pixel=result.sun_pixel,
         rng=np.random.default_rng([spec.seed, _FX_STREAM, index] + ([sensor] if sensor else [])),
-        episode_seed=spec.seed, world=scene.world,
+        episode_seed=spec.seed, world=scene.world, frame=index,
     )
     buffers["rgb"] = postfx.apply(buffers["rgb"], ctx)
     timings["post_fx"] = time.perf_counter() - start

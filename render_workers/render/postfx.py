@@ -53,6 +53,7 @@ class FxContext:
     rng: np.random.Generator  # per-frame randomness (rain streaks)
     episode_seed: int  # world-anchored patterns (puddles) stay put between frames
     world: World | None = None  # the static world (its street lamps' luminaires, its lanes' wheel tracks)
+    frame: int = 0  # the frame's index in its episode (the looks a weather draws per frame: _look_rng)
 
 
 Effect = Callable[[np.ndarray, FxContext], np.ndarray]
@@ -378,13 +379,26 @@ RANDOMIZE_LEVEL = 0.3  # ... times one brightness gain within 1 +- this
 RANDOMIZE_STREAM = 35  # the episode's colours: np.random.default_rng([episode_seed, RANDOMIZE_STREAM])
 
 
+def _look_rng(ctx: FxContext, stream: int) -> np.random.Generator:
+    """The generator of a drawn look (the camera's exposure and white balance, the random colours): the
+    episode's, or the frame's own for the share of frames the weather's ``frame_looks`` asks (issue 34: a new
+    look every frame taught a network more than one per episode). Which frames draw their own is itself drawn
+    per frame, from a stream of its own, so at 1 every frame does and at 0 (the default) none. (Frame 0's own
+    look is the episode's: numpy's seed sequences ignore a trailing zero.)"""
+    share = ctx.weather.frame_looks
+    if share >= 1.0 or (share > 0.0 and np.random.default_rng([ctx.episode_seed, stream, ctx.frame, 1]).random() < share):
+        return np.random.default_rng([ctx.episode_seed, stream, ctx.frame])
+    return np.random.default_rng([ctx.episode_seed, stream])
+
+
 def randomize(img: np.ndarray, ctx: FxContext) -> np.ndarray:
     """Structured domain randomization (the weather's ``randomize`` strength, opt-in): every class's
-    colour scaled per channel by gains drawn once per episode, so the scene keeps its structure."""
+    colour scaled per channel by gains drawn once per episode (or per frame: ``frame_looks``), so the scene
+    keeps its structure."""
     strength = ctx.weather.randomize
     if strength <= 0.0:
         return img
-    rng = np.random.default_rng([ctx.episode_seed, RANDOMIZE_STREAM])
+    rng = _look_rng(ctx, RANDOMIZE_STREAM)
     gains = 1.0 + strength * RANDOMIZE_GAIN * rng.uniform(-1.0, 1.0, (256, 3))
     gains *= 1.0 + strength * RANDOMIZE_LEVEL * rng.uniform(-1.0, 1.0, (256, 1))
     return np.clip(img * gains.astype(np.float32)[ctx.classes], np.float32(0.0), np.float32(1.0))
@@ -411,10 +425,10 @@ def _camera_look(effect: Effect) -> Effect:
 
 @_camera_look
 def tone(img: np.ndarray, ctx: FxContext) -> np.ndarray:
-    """Exposure and white balance (per episode), a filmic curve in linear light, then muted colour and contrast."""
+    """Exposure and white balance (per episode, or per frame: ``frame_looks``), a filmic curve in linear light, then muted colour and contrast."""
     import cv2
 
-    camera = np.random.default_rng([ctx.episode_seed, CAMERA_STREAM])  # one camera setting per episode
+    camera = _look_rng(ctx, CAMERA_STREAM)  # one camera setting per episode (or per frame)
     exposure = camera.uniform(*CAMERA_EXPOSURE)
     gains = exposure * (1.0 + camera.uniform(-CAMERA_WHITE_BALANCE, CAMERA_WHITE_BALANCE, 3))
     linear = cv2.multiply(cv2.pow(np.maximum(img, np.float32(0.0)), 2.2), (*map(float, gains), 0.0))
