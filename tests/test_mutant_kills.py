@@ -1500,3 +1500,72 @@ def test_require_outputs_names_the_missing_output_how_many_frames_lack_it_and_wh
     assert message.startswith("the root does not hold the 'flow' output for 2 of 3 frames (every frame has: rgb, depth_raw, ")
     assert message.endswith("); produce it with `idda produce --outputs` into a new root")
     assert "flow" not in message.split("every frame has: ")[1]
+
+
+# ------------------------------------------------------------------ roots/verify ----
+
+
+def _verify_root(tiny_root, tmp_path):
+    """A copy of the tiny rendered root, its part's path and its frame files (sorted)."""
+    from tests.roots import part_of
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    frames = sorted(str(p.relative_to(root)) for p in (root / "T01_CN_A").rglob("*") if p.is_file())
+    return root, storage, part_of(storage, "T01_CN_A", 0), frames
+
+
+def test_verify_names_each_damaged_stray_or_linked_file_whole_in_a_fixed_order(tiny_root, tmp_path):
+    """Every problem verify finds carries its kind, path, scenario, episode and detail (repair
+    re-renders the episodes of missing, corrupt and bad-part problems, never of an extra
+    file), in the same order whatever order they were found in; hidden files are never
+    listed, other names are foreign, links are named and never followed."""
+    import os
+
+    from manifests.schema import part_path
+    from roots.verify import LINK_DETAIL, Problem, VerifyProgress, verify
+
+    root, storage, part, frames = _verify_root(tiny_root, tmp_path)
+    short, flipped, folder = frames[0], frames[1], frames[2]
+    size = os.path.getsize(root / short)
+    (root / short).write_bytes((root / short).read_bytes()[:-4])  # a size the listing tells
+    data = bytearray((root / flipped).read_bytes())
+    data[-1] ^= 1
+    (root / flipped).write_bytes(bytes(data))  # the same size: only its hash tells
+    folder_size = os.path.getsize(root / folder)
+    os.unlink(root / folder)
+    (root / folder).mkdir()  # a folder in a frame file's place
+    stray = "T01_CN_A/e0009/rgb/0009_000_T01_CN_A.png"  # ours by name, listed by no part
+    (root / stray).parent.mkdir(parents=True)
+    (root / stray).write_bytes(b"stray")
+    (root / "T01_CN_A" / ".tmp-in-flight").write_bytes(b"x")  # hidden: never listed
+    (root / "T01_CN_A" / "notes.txt").write_bytes(b"x")  # not of our names: foreign
+    os.symlink("/nonexistent", root / "T01_CN_A" / "elsewhere")
+    os.makedirs(root / part_path("T01_CN_A", 7, 3))  # a folder named as a part
+    os.symlink("/nonexistent", root / "manifest" / "linked.parquet")
+    (root / "manifest" / "README").write_bytes(b"x")
+    (root / "manifest" / ".DS_Store").write_bytes(b"x")
+    misfiled = part_path("T02_CN_A", 0).rpartition("/")[0] + "/" + part.rpartition("/")[2]
+    os.makedirs((root / misfiled).parent)
+    (root / misfiled).write_bytes((root / part).read_bytes())
+    seen = []
+
+    report = verify(root, progress=seen.append)
+    folder_error = [p.detail for p in report.problems if p.path == folder]
+    assert report.problems == [
+        Problem("link", "manifest/linked.parquet", None, None, LINK_DETAIL),  # (no scenario sorts first)
+        Problem("link", "T01_CN_A/elsewhere", "T01_CN_A", None, LINK_DETAIL),
+        Problem("bad-part", part_path("T01_CN_A", 7, 3), "T01_CN_A", 7, "a folder where a part file goes"),
+        Problem("corrupt", short, "T01_CN_A", 0, f"{size - 4} bytes, expected {size}"),
+        Problem("corrupt", flipped, "T01_CN_A", 0, f"{len(data)} bytes, expected {len(data)}"),
+        Problem("corrupt", folder, "T01_CN_A", 0, folder_error[0]),
+        Problem("extra", misfiled, None, None, "a part filed under another scenario's folder"),
+        Problem("extra", stray, "T01_CN_A", 9, "not in the manifest"),
+    ]
+    assert folder_error[0] and folder_size
+    assert report.counts() == {"link": 2, "bad-part": 1, "corrupt": 3, "extra": 2}
+    assert report.affected_episodes() == {("T01_CN_A", 0), ("T01_CN_A", 7)}
+    assert report.foreign == ["T01_CN_A/notes.txt", "manifest/README"]
+    assert report.episodes_checked == 1 and report.files_checked == len(frames)
+    assert report.bytes_checked == sum(os.path.getsize(root / f) for f in frames if f not in (short, flipped, folder))
+    assert seen[0] == VerifyProgress(0, 1, 0, seen[0].elapsed_s)
+    assert [(p.episodes_done, p.files_done) for p in seen[1:]] == [(0, len(frames)), (1, len(frames))]
