@@ -1569,3 +1569,65 @@ def test_verify_names_each_damaged_stray_or_linked_file_whole_in_a_fixed_order(t
     assert report.bytes_checked == sum(os.path.getsize(root / f) for f in frames if f not in (short, flipped, folder))
     assert seen[0] == VerifyProgress(0, 1, 0, seen[0].elapsed_s)
     assert [(p.episodes_done, p.files_done) for p in seen[1:]] == [(0, len(frames)), (1, len(frames))]
+
+
+def _bad(report, kinds=("bad-part", "bad-index", "bad-run")) -> list:
+    return [p for p in report.problems if p.kind in kinds]
+
+
+def test_verify_names_a_damaged_part_or_index_and_accepts_one_written_the_old_way(monkeypatch, tiny_root, tmp_path):
+    """A part that is not Parquet, or whose bytes are not its rows as this pyarrow writes them,
+    is a bad part of its episode; one written as parts were before (plain lists, Arrow schema
+    stored), or by another writer, is sound. An index unreadable, unreadable at all, of a
+    scenario without parts, or not the index its parts rebuild is a bad index."""
+    import io
+
+    import pyarrow.parquet as pq
+
+    from manifests.part_file import read_part_file
+    from manifests.schema import PART_SCHEMA, as_plain_lists, index_path
+    from manifests.writer import part_bytes
+    from roots import verify as verify_module
+    from roots.verify import Problem, verify
+    from storage import Storage
+
+    root, storage, part, _ = _verify_root(tiny_root, tmp_path)
+    index = index_path("T01_CN_A")
+    sound, table = storage.read_bytes(part), read_part_file(storage, part, PART_SCHEMA)
+    storage.write_bytes(part, part_bytes(as_plain_lists(table), store_schema=True))  # as parts were written before
+    assert verify(root).ok
+    snappy = io.BytesIO()
+    pq.write_table(table, snappy, compression="snappy")
+    storage.write_bytes(part, snappy.getvalue())
+    [problem] = _bad(verify(root))  # (the index, built from the sound part's size, is now stale)
+    assert problem == Problem("bad-part", part, "T01_CN_A", 0,
+                              "its bytes differ from its own rows re-encoded (damaged metadata)")
+    monkeypatch.setattr(verify_module, "_this_writer", lambda: "another writer")
+    assert _bad(verify(root)) == []  # bytes of another writer are not ours to re-encode
+    monkeypatch.undo()
+    storage.write_bytes(part, b"not parquet")
+    [problem] = _bad(verify(root))
+    assert (problem.kind, problem.path, problem.scenario, problem.episode) == ("bad-part", part, "T01_CN_A", 0)
+    assert part in problem.detail
+
+    storage.write_bytes(part, sound)
+    stored = storage.read_bytes(index)
+    rewritten = io.BytesIO()
+    pq.write_table(pq.read_table(io.BytesIO(stored)), rewritten, compression="snappy")  # its footer's records kept
+    storage.write_bytes(index, rewritten.getvalue())
+    assert _bad(verify(root)) == [Problem("bad-index", index, "T01_CN_A", None, "differs from the index rebuilt from its parts")]
+    storage.write_bytes(index, b"not parquet")
+    assert _bad(verify(root)) == [Problem("bad-index", index, "T01_CN_A", None, "unreadable footer")]
+    storage.write_bytes(index, stored)
+    real = Storage.read_bytes
+
+    def failing(self, rel):
+        if rel == index:
+            raise OSError("disk error")
+        return real(self, rel)
+
+    monkeypatch.setattr(Storage, "read_bytes", failing)
+    assert _bad(verify(root)) == [Problem("bad-index", index, "T01_CN_A", None, "disk error")]
+    monkeypatch.undo()
+    storage.delete(part)
+    assert _bad(verify(root)) == [Problem("bad-index", index, "T01_CN_A", None, "its scenario has no parts")]
