@@ -1631,3 +1631,55 @@ def test_verify_names_a_damaged_part_or_index_and_accepts_one_written_the_old_wa
     monkeypatch.undo()
     storage.delete(part)
     assert _bad(verify(root)) == [Problem("bad-index", index, "T01_CN_A", None, "its scenario has no parts")]
+
+
+def test_verify_reads_run_json_and_the_live_producers_and_times_its_first_hash(monkeypatch, tiny_root, tmp_path):
+    """A damaged run.json is a bad run naming why, a lost one beside parts is "missing"; the
+    layout run.json records decides which files are ours (a flat-named file in a root of
+    episode folders is foreign, even with no part left to tell); frames without a part
+    beside a live producer are in progress, not extra; the first hash is timed from the start."""
+    import time as real_time
+
+    from roots import verify as verify_module
+    from roots.lease import register_producer
+    from roots.run_file import RunRecordError, read_record
+    from manifests.schema import RUN_FILE, index_path
+    from roots.verify import Problem, verify
+
+    root, storage, part, frames = _verify_root(tiny_root, tmp_path)
+
+    class Clock:  # wall-clock time stands still: the first hash is 0 s from the start
+        perf_counter = staticmethod(real_time.perf_counter)
+
+        @staticmethod
+        def time():
+            return 1000.0
+
+    monkeypatch.setattr(verify_module, "time", Clock)
+    report = verify(root)
+    assert report.ok and report.first_hash_s == 0.0 and report.episodes_checked == 1
+    monkeypatch.undo()
+
+    record = storage.read_bytes(RUN_FILE)
+    storage.write_bytes(RUN_FILE, b"{damaged")
+    with pytest.raises(RunRecordError) as damaged:
+        read_record(storage)
+    assert verify(root).problems == [Problem("bad-run", RUN_FILE, None, None, str(damaged.value))]
+    storage.delete(RUN_FILE)
+    assert verify(root).problems == [Problem("bad-run", RUN_FILE, None, None, "missing")]
+
+    storage.write_bytes(RUN_FILE, record)
+    storage.delete(part)
+    storage.delete(index_path("T01_CN_A"))
+    flat = "T01_CN_A/rgb/0009_000_T01_CN_A.png"  # the flat layout's name: not this root's
+    storage.write_bytes(flat, b"x")
+    report = verify(root)
+    assert report.foreign == [flat]
+    assert sorted(p.path for p in report.problems) == frames and {p.kind for p in report.problems} == {"extra"}
+    producer = register_producer(storage, owner="another")
+    try:
+        report = verify(root)
+    finally:
+        producer.release()
+    assert report.ok and report.in_progress == {("T01_CN_A", 0)} and report.foreign == [flat]
+    assert verify(root).in_progress == set()
