@@ -1683,3 +1683,74 @@ def test_verify_reads_run_json_and_the_live_producers_and_times_its_first_hash(m
         producer.release()
     assert report.ok and report.in_progress == {("T01_CN_A", 0)} and report.foreign == [flat]
     assert verify(root).in_progress == set()
+
+
+def test_part_problem_and_config_conflict_name_why_rows_do_not_belong(tmp_path):
+    """A part's rows must be of its episode, numbered 0.., one seed and size, paths of the
+    layout in the run's rgb format, frame-major in a rig's sensor order; a sensor's size is
+    its own where the run's rig gives it one, and the seed derives with the run's pairing."""
+    import json
+
+    import pyarrow as pa
+
+    from domains.catalog import scenario as lookup_scenario
+    from manifests.layout import EPISODE_DIRS, FLAT, frame_path
+    from manifests.reader import read_part
+    from outputs.table import OUTPUTS
+    from manifests.schema import output_columns
+    from roots.episode_spec import PAIRED, episode_seed
+    from roots.verify import config_conflict, part_problem
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage)
+    table = read_part(storage, spec.scenario, 0)
+    config = {"seed": 5, "width": table["width"][0].as_py(), "height": table["height"][0].as_py()}
+
+    def changed(name, values):
+        return table.set_column(table.schema.get_field_index(name), name, pa.array(values, table.schema.field(name).type))
+
+    assert part_problem(table, spec.scenario, 0, None) is None
+    assert part_problem(changed("episode", [1, 1, 1]), spec.scenario, 0, None) == "rows of another scenario or episode"
+    assert part_problem(changed("frame", [1, 2, 3]), spec.scenario, 0, None) == "frames are not numbered 0..2"
+    assert part_problem(changed("seed", [5, 5, 6]), spec.scenario, 0, None) == "mixed seeds or resolutions"
+    assert part_problem(table, spec.scenario, 0, {**config, "seed": spec.seed - 1}) is not None
+    assert part_problem(table, spec.scenario, 0, {**config, "seed": 5, "rgb_format": "jpg"}) \
+        == "rgb paths do not follow the layout"  # run.json's format, not any format
+
+    stereo = table.take([i // 2 for i in range(6)])  # a stereo rig's part: left, right, frame by frame
+    sensors = ["left", "right"] * 3
+    stereo = stereo.set_column(stereo.schema.get_field_index("sensor"), "sensor", pa.array(sensors, pa.string()))
+    for output in OUTPUTS:
+        column = output_columns(output)[0]
+        paths = stereo.column(column).to_pylist()
+        if paths != [None] * 6:
+            paths = [frame_path(spec.scenario, output, f, "png", EPISODE_DIRS, s)
+                     for f, s in zip(stereo["frame_id"].to_pylist(), sensors)]
+            stereo = stereo.set_column(stereo.schema.get_field_index(column), column, pa.array(paths, pa.string()))
+    assert part_problem(stereo, spec.scenario, 0, None) is None
+    assert part_problem(stereo, spec.scenario, 0, None, (FLAT,)) == "rgb paths do not follow the layout"  # no crash
+    assert part_problem(stereo.take([1, 0, 2, 3, 4, 5]), spec.scenario, 0, None) \
+        == "sensor rows are not in the rig's order, frame by frame"
+
+    seed = episode_seed(5, lookup_scenario(spec.scenario), 0, PAIRED)
+    paired = {**config, "pairing": PAIRED}
+    assert config_conflict({None: (config["width"], config["height"])}, seed, spec.scenario, 0, paired) is None
+    assert config_conflict({None: (config["width"], config["height"])}, seed, spec.scenario, 0, config) \
+        == "episode seed does not derive from run.json's seed 5"
+    rig = json.dumps({"name": "wide", "sensor": [{"name": "front", "kind": "camera"},
+                                                   {"name": "side", "kind": "camera", "width": 96, "height": 48}]})
+    own = {**paired, "rig": rig}
+    assert config_conflict({"front": (config["width"], config["height"]), "side": (96, 48)}, seed, spec.scenario, 0, own) is None
+    assert config_conflict({"side": (config["width"], config["height"])}, seed, spec.scenario, 0, own) \
+        == f"side frames are {config['width']}x{config['height']}, run.json says 96x48"
+
+
+def test_since_takes_an_age_or_an_iso_time_utc_unless_it_names_a_zone():
+    from roots.verify import parse_since
+
+    assert [parse_since(t, now=100000.0) for t in ("90s", " 30m ", "2h", "1.5d")] == [99910.0, 98200.0, 92800.0, -29600.0]
+    assert parse_since("2026-11-25T13:00") == 1795611600.0
+    assert parse_since("2026-11-25T13:00+01:00") == 1795611600.0 - 3600
+    with pytest.raises(ValueError, match=r"^--since '3w' is neither an age \(90s, 30m, 2h, 3d\) nor an ISO time \(2026-11-25T13:00\)$"):
+        parse_since("3w")
