@@ -1693,7 +1693,7 @@ def test_part_problem_and_config_conflict_name_why_rows_do_not_belong(tmp_path):
 
     import pyarrow as pa
 
-    from domains.catalog import scenario as lookup_scenario
+    from domains.catalog import scenario as lookup_scenario, using
     from manifests.layout import EPISODE_DIRS, FLAT, frame_path
     from manifests.reader import read_part
     from outputs.table import OUTPUTS
@@ -1738,6 +1738,11 @@ def test_part_problem_and_config_conflict_name_why_rows_do_not_belong(tmp_path):
     assert config_conflict({None: (config["width"], config["height"])}, seed, spec.scenario, 0, paired) is None
     assert config_conflict({None: (config["width"], config["height"])}, seed, spec.scenario, 0, config) \
         == "episode seed does not derive from run.json's seed 5"
+    catalog = {"weather": [{"code": "FG1", "like": "CN", "name": "fog one", "fog": 0.5}]}  # a user's weather
+    with using(catalog):
+        fog_seed = episode_seed(5, lookup_scenario("T01_FG1_A"), 0, PAIRED)
+    assert config_conflict({None: (config["width"], config["height"])}, fog_seed, "T01_FG1_A", 0,
+                           {**paired, "catalog": catalog}) is None  # known from run.json alone
     rig = json.dumps({"name": "wide", "sensor": [{"name": "front", "kind": "camera"},
                                                    {"name": "side", "kind": "camera", "width": 96, "height": 48}]})
     own = {**paired, "rig": rig}
