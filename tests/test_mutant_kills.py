@@ -1732,6 +1732,10 @@ def test_part_problem_and_config_conflict_name_why_rows_do_not_belong(tmp_path):
     assert part_problem(stereo, spec.scenario, 0, None, (FLAT,)) == "rgb paths do not follow the layout"  # no crash
     assert part_problem(stereo.take([1, 0, 2, 3, 4, 5]), spec.scenario, 0, None) \
         == "sensor rows are not in the rig's order, frame by frame"
+    rgb = stereo.schema.get_field_index(output_columns("rgb")[0])
+    without = stereo.set_column(rgb, output_columns("rgb")[0],  # a sensor without an output (a LiDAR has no rgb)
+                                pa.array([p if s == "left" else None for p, s in zip(stereo.column(rgb).to_pylist(), sensors)]))
+    assert part_problem(without, spec.scenario, 0, None) is None
 
     seed = episode_seed(5, lookup_scenario(spec.scenario), 0, PAIRED)
     paired = {**config, "pairing": PAIRED}
