@@ -1525,7 +1525,8 @@ def test_verify_names_each_damaged_stray_or_linked_file_whole_in_a_fixed_order(t
     from roots.verify import LINK_DETAIL, Problem, VerifyProgress, verify
 
     root, storage, part, frames = _verify_root(tiny_root, tmp_path)
-    short, flipped, folder = frames[0], frames[1], frames[2]
+    short, flipped, folder, gone = frames[0], frames[1], frames[2], frames[3]
+    os.unlink(root / gone)
     size = os.path.getsize(root / short)
     (root / short).write_bytes((root / short).read_bytes()[:-4])  # a size the listing tells
     data = bytearray((root / flipped).read_bytes())
@@ -1555,6 +1556,7 @@ def test_verify_names_each_damaged_stray_or_linked_file_whole_in_a_fixed_order(t
         Problem("link", "manifest/linked.parquet", None, None, LINK_DETAIL),  # (no scenario sorts first)
         Problem("link", "T01_CN_A/elsewhere", "T01_CN_A", None, LINK_DETAIL),
         Problem("bad-part", part_path("T01_CN_A", 7, 3), "T01_CN_A", 7, "a folder where a part file goes"),
+        Problem("missing", gone, "T01_CN_A", 0),
         Problem("corrupt", short, "T01_CN_A", 0, f"{size - 4} bytes, expected {size}"),
         Problem("corrupt", flipped, "T01_CN_A", 0, f"{len(data)} bytes, expected {len(data)}"),
         Problem("corrupt", folder, "T01_CN_A", 0, folder_error[0]),
@@ -1562,11 +1564,11 @@ def test_verify_names_each_damaged_stray_or_linked_file_whole_in_a_fixed_order(t
         Problem("extra", stray, "T01_CN_A", 9, "not in the manifest"),
     ]
     assert folder_error[0] and folder_size
-    assert report.counts() == {"link": 2, "bad-part": 1, "corrupt": 3, "extra": 2}
+    assert report.counts() == {"link": 2, "bad-part": 1, "missing": 1, "corrupt": 3, "extra": 2}
     assert report.affected_episodes() == {("T01_CN_A", 0), ("T01_CN_A", 7)}
     assert report.foreign == ["T01_CN_A/notes.txt", "manifest/README"]
     assert report.episodes_checked == 1 and report.files_checked == len(frames)
-    assert report.bytes_checked == sum(os.path.getsize(root / f) for f in frames if f not in (short, flipped, folder))
+    assert report.bytes_checked == sum(os.path.getsize(root / f) for f in frames if f not in (short, flipped, folder, gone))
     assert seen[0] == VerifyProgress(0, 1, 0, seen[0].elapsed_s)
     assert [(p.episodes_done, p.files_done) for p in seen[1:]] == [(0, len(frames)), (1, len(frames))]
 
@@ -1585,7 +1587,7 @@ def test_verify_names_a_damaged_part_or_index_and_accepts_one_written_the_old_wa
     import pyarrow.parquet as pq
 
     from manifests.part_file import read_part_file
-    from manifests.schema import PART_SCHEMA, as_plain_lists, index_path
+    from manifests.schema import PART_SCHEMA, as_plain_lists, index_path, part_path
     from manifests.writer import part_bytes
     from roots import verify as verify_module
     from roots.verify import Problem, verify
@@ -1610,6 +1612,11 @@ def test_verify_names_a_damaged_part_or_index_and_accepts_one_written_the_old_wa
     assert (problem.kind, problem.path, problem.scenario, problem.episode) == ("bad-part", part, "T01_CN_A", 0)
     assert part in problem.detail
 
+    lying = part_path("T01_CN_A", 0, 5)  # a name that says 5 rows, 3 held
+    storage.write_bytes(lying, sound)
+    storage.delete(part)
+    assert _bad(verify(root)) == [Problem("bad-part", lying, "T01_CN_A", 0, "its name says 5 rows, it holds 3")]
+    storage.delete(lying)
     storage.write_bytes(part, sound)
     stored = storage.read_bytes(index)
     rewritten = io.BytesIO()
