@@ -1611,6 +1611,11 @@ def test_verify_names_a_damaged_part_or_index_and_accepts_one_written_the_old_wa
     [problem] = _bad(verify(root))
     assert (problem.kind, problem.path, problem.scenario, problem.episode) == ("bad-part", part, "T01_CN_A", 0)
     assert part in problem.detail
+    old_name = part_path("T01_CN_A", 0)  # a second name of the episode beside the damaged one: both named
+    storage.write_bytes(old_name, sound)
+    assert _bad(verify(root)) == [Problem("bad-part", old_name, "T01_CN_A", 0,
+                                          f"a second part of this episode, beside the damaged {part}"), problem]
+    storage.delete(old_name)
 
     lying = part_path("T01_CN_A", 0, 5)  # a name that says 5 rows, 3 held
     storage.write_bytes(lying, sound)
