@@ -1775,3 +1775,30 @@ def test_since_takes_an_age_or_an_iso_time_utc_unless_it_names_a_zone():
     assert parse_since("2026-11-25T13:00+01:00") == 1795611600.0 - 3600
     with pytest.raises(ValueError, match=r"^--since '3w' is neither an age \(90s, 30m, 2h, 3d\) nor an ISO time \(2026-11-25T13:00\)$"):
         parse_since("3w")
+
+
+def test_verify_of_a_remote_root_finds_a_file_gone_from_its_listing_without_a_request(tiny_root, tmp_path):
+    """On S3 a file the scenario's listing lacks is missing (of its episode, so repair renders it
+    again) without a request; the files listed are read with the listing's size, once each."""
+    from manifests.layout import EPISODE_DIRS
+    from roots.run_file import read_record
+    from roots.verify import Problem, Scope, VerifyReport, check_unit, plan_units
+
+    root, storage, _, frames = _verify_root(tiny_root, tmp_path)
+    storage.delete(frames[0])
+    reads = []
+
+    class Remote:  # the root as S3 shows it: listed, then read by path
+        is_local = False
+
+        def __getattr__(self, name):
+            return getattr(storage, name)
+
+        def read_listed(self, rel, size):
+            reads.append(rel)
+            return storage.read_listed(rel, size)
+
+    [unit] = plan_units(storage, Scope(), VerifyReport(), False, (EPISODE_DIRS,))
+    result = check_unit(Remote(), unit, read_record(storage)["config"])
+    assert result.problems == [Problem("missing", frames[0], "T01_CN_A", 0)]
+    assert sorted(reads) == frames[1:] and result.files_checked == len(frames)
