@@ -134,13 +134,21 @@ def part_problem(table: pa.Table, scenario: str, episode: int, config: dict | No
         paths = table.column(output_columns(output)[0]).to_pylist()
         if paths == [None] * n:  # an output the run did not ask for
             continue
-        if all(paths != [p if p is None else frame_path(scenario, output, f, fmt, layout, s or "")
-                         for p, f, s in zip(paths, col["frame_id"], sensors)]
-               for fmt in formats for layout in layouts):
+        if not any(_follows(paths, scenario, output, col["frame_id"], sensors, fmt, layout)
+                   for fmt in formats for layout in layouts):
             return f"{output} paths do not follow the layout"
     if len(set(col["seed"])) != 1 or len(set(zip(sensors, col["width"], col["height"]))) != k:  # a camera may have its own
         return "mixed seeds or resolutions"
     return config_conflict(part_sizes(table), col["seed"][0], scenario, episode, config)
+
+
+def _follows(paths: list, scenario: str, output: str, fids: list, sensors: list, fmt: str, layout: int) -> bool:
+    """Whether an output's ``paths`` (None: a row without it) are those of ``layout`` in format ``fmt``."""
+    try:
+        return paths == [p if p is None else frame_path(scenario, output, f, fmt, layout, s or "")
+                         for p, f, s in zip(paths, fids, sensors)]
+    except ValueError:  # a rig's sensor in the flat layout, which has no place for one: not this layout
+        return False
 
 
 def part_sizes(table: pa.Table) -> dict[str | None, tuple[int, int]]:

@@ -14,15 +14,21 @@ with ``tests/`` copied there (docs/mutants.md):
 The first argument: a file of mutant names, one a line, or ``MODULE_FILE:PATTERN``
 (fnmatch on mutmut's function names). Prints each mutant and "killed" or
 "survived"; a clean run of the same tests must pass first.
+
+``--renders DIR`` first: each root the tests render (``render_plan``) is rendered
+once, kept in DIR and copied after, for a module rendering never calls (e.g.
+``roots/verify.py``): the tests' rendered fixtures cost a copy, not seconds a mutant.
 """
 
 from __future__ import annotations
 
 import contextlib
 import fnmatch
+import hashlib
 import io
 import os
 import re
+import shutil
 import sys
 
 import pytest
@@ -49,7 +55,44 @@ def run(name: str, args: list[str]) -> tuple[int, str]:
     return int(code), out.getvalue()
 
 
+def _content(folder: str) -> str:
+    """A digest of the files under ``folder`` (names and bytes)."""
+    digest = hashlib.sha256()
+    for where, dirs, files in sorted(os.walk(folder)):
+        dirs.sort()
+        for name in sorted(files):
+            path = os.path.join(where, name)
+            digest.update(os.path.relpath(path, folder).encode())
+            with open(path, "rb") as f:
+                digest.update(f.read())
+    return digest.hexdigest()
+
+
+def cache_renders(folder: str) -> None:
+    """Render each (config, extend, what the root held before) once into ``folder``, copy it after."""
+    sys.path.insert(0, os.getcwd())  # mutmut's copy of the packages, as pytest -c pyproject.toml imports them
+    import pipeline.episode_job as episode_job
+
+    render = episode_job.render_plan
+
+    def render_once(storage, config, extend=False):
+        root = storage.uri
+        held = _content(root) if os.path.isdir(root) else None
+        kept = os.path.join(folder, hashlib.sha256(repr((config, extend, held)).encode()).hexdigest()[:16])
+        if not os.path.isdir(kept):
+            render(storage, config, extend=extend)
+            shutil.copytree(root, kept + ".tmp", symlinks=True)
+            os.rename(kept + ".tmp", kept)
+        else:
+            shutil.copytree(kept, root, symlinks=True, dirs_exist_ok=True)
+
+    episode_job.render_plan = render_once
+
+
 def main(argv: list[str]) -> int:
+    if argv[0] == "--renders":
+        cache_renders(argv[1])
+        argv = argv[2:]
     selection, args = argv[0], argv[1:]
     code, out = run("", args)
     if code != 0:

@@ -1500,3 +1500,305 @@ def test_require_outputs_names_the_missing_output_how_many_frames_lack_it_and_wh
     assert message.startswith("the root does not hold the 'flow' output for 2 of 3 frames (every frame has: rgb, depth_raw, ")
     assert message.endswith("); produce it with `idda produce --outputs` into a new root")
     assert "flow" not in message.split("every frame has: ")[1]
+
+
+# ------------------------------------------------------------------ roots/verify ----
+
+
+def _verify_root(tiny_root, tmp_path):
+    """A copy of the tiny rendered root, its part's path and its frame files (sorted)."""
+    from tests.roots import part_of
+
+    root, storage = _copy_of(tiny_root, tmp_path)
+    frames = sorted(str(p.relative_to(root)) for p in (root / "T01_CN_A").rglob("*") if p.is_file())
+    return root, storage, part_of(storage, "T01_CN_A", 0), frames
+
+
+def test_verify_names_each_damaged_stray_or_linked_file_whole_in_a_fixed_order(tiny_root, tmp_path):
+    """Every problem verify finds carries its kind, path, scenario, episode and detail (repair
+    re-renders the episodes of missing, corrupt and bad-part problems, never of an extra
+    file), in the same order whatever order they were found in; hidden files are never
+    listed, other names are foreign, links are named and never followed."""
+    import os
+
+    from manifests.schema import part_path
+    from roots.verify import LINK_DETAIL, Problem, VerifyProgress, verify
+
+    root, storage, part, frames = _verify_root(tiny_root, tmp_path)
+    short, flipped, folder, gone = frames[0], frames[1], frames[2], frames[3]
+    os.unlink(root / gone)
+    size = os.path.getsize(root / short)
+    (root / short).write_bytes((root / short).read_bytes()[:-4])  # a size the listing tells
+    data = bytearray((root / flipped).read_bytes())
+    data[-1] ^= 1
+    (root / flipped).write_bytes(bytes(data))  # the same size: only its hash tells
+    folder_size = os.path.getsize(root / folder)
+    os.unlink(root / folder)
+    (root / folder).mkdir()  # a folder in a frame file's place
+    stray = "T01_CN_A/e0009/rgb/0009_000_T01_CN_A.png"  # ours by name, listed by no part
+    (root / stray).parent.mkdir(parents=True)
+    (root / stray).write_bytes(b"stray")
+    (root / "T01_CN_A" / ".tmp-in-flight").write_bytes(b"x")  # hidden: never listed
+    (root / "T01_CN_A" / "notes.txt").write_bytes(b"x")  # not of our names: foreign
+    os.symlink("/nonexistent", root / "T01_CN_A" / "elsewhere")
+    os.makedirs(root / part_path("T01_CN_A", 7, 3))  # a folder named as a part
+    os.symlink("/nonexistent", root / "manifest" / "linked.parquet")
+    (root / "manifest" / "README").write_bytes(b"x")
+    (root / "manifest" / ".DS_Store").write_bytes(b"x")
+    misfiled = part_path("T02_CN_A", 0).rpartition("/")[0] + "/" + part.rpartition("/")[2]
+    os.makedirs((root / misfiled).parent)
+    (root / misfiled).write_bytes((root / part).read_bytes())
+    seen = []
+
+    report = verify(root, progress=seen.append)
+    folder_error = [p.detail for p in report.problems if p.path == folder]
+    assert report.problems == [
+        Problem("link", "manifest/linked.parquet", None, None, LINK_DETAIL),  # (no scenario sorts first)
+        Problem("link", "T01_CN_A/elsewhere", "T01_CN_A", None, LINK_DETAIL),
+        Problem("bad-part", part_path("T01_CN_A", 7, 3), "T01_CN_A", 7, "a folder where a part file goes"),
+        Problem("missing", gone, "T01_CN_A", 0),
+        Problem("corrupt", short, "T01_CN_A", 0, f"{size - 4} bytes, expected {size}"),
+        Problem("corrupt", flipped, "T01_CN_A", 0, f"{len(data)} bytes, expected {len(data)}"),
+        Problem("corrupt", folder, "T01_CN_A", 0, folder_error[0]),
+        Problem("extra", misfiled, None, None, "a part filed under another scenario's folder"),
+        Problem("extra", stray, "T01_CN_A", 9, "not in the manifest"),
+    ]
+    assert folder_error[0] and folder_size
+    assert report.counts() == {"link": 2, "bad-part": 1, "missing": 1, "corrupt": 3, "extra": 2}
+    assert report.affected_episodes() == {("T01_CN_A", 0), ("T01_CN_A", 7)}
+    assert report.foreign == ["T01_CN_A/notes.txt", "manifest/README"]
+    assert report.episodes_checked == 1 and report.files_checked == len(frames)
+    assert report.bytes_checked == sum(os.path.getsize(root / f) for f in frames if f not in (short, flipped, folder, gone))
+    assert seen[0] == VerifyProgress(0, 1, 0, seen[0].elapsed_s)
+    assert [(p.episodes_done, p.files_done) for p in seen[1:]] == [(0, len(frames)), (1, len(frames))]
+
+
+def _bad(report, kinds=("bad-part", "bad-index", "bad-run")) -> list:
+    return [p for p in report.problems if p.kind in kinds]
+
+
+def test_verify_names_a_damaged_part_or_index_and_accepts_one_written_the_old_way(monkeypatch, tiny_root, tmp_path):
+    """A part that is not Parquet, or whose bytes are not its rows as this pyarrow writes them,
+    is a bad part of its episode; one written as parts were before (plain lists, Arrow schema
+    stored), or by another writer, is sound. An index unreadable, unreadable at all, of a
+    scenario without parts, or not the index its parts rebuild is a bad index."""
+    import io
+
+    import pyarrow.parquet as pq
+
+    from manifests.part_file import read_part_file
+    from manifests.schema import PART_SCHEMA, as_plain_lists, index_path, part_path
+    from manifests.writer import part_bytes
+    from roots import verify as verify_module
+    from roots.verify import Problem, verify
+    from storage import Storage
+
+    root, storage, part, _ = _verify_root(tiny_root, tmp_path)
+    index = index_path("T01_CN_A")
+    sound, table = storage.read_bytes(part), read_part_file(storage, part, PART_SCHEMA)
+    storage.write_bytes(part, part_bytes(as_plain_lists(table), store_schema=True))  # as parts were written before
+    assert verify(root).ok
+    snappy = io.BytesIO()
+    pq.write_table(table, snappy, compression="snappy")
+    storage.write_bytes(part, snappy.getvalue())
+    [problem] = _bad(verify(root))  # (the index, built from the sound part's size, is now stale)
+    assert problem == Problem("bad-part", part, "T01_CN_A", 0,
+                              "its bytes differ from its own rows re-encoded (damaged metadata)")
+    monkeypatch.setattr(verify_module, "_this_writer", lambda: "another writer")
+    assert _bad(verify(root)) == []  # bytes of another writer are not ours to re-encode
+    monkeypatch.undo()
+    storage.write_bytes(part, b"not parquet")
+    [problem] = _bad(verify(root))
+    assert (problem.kind, problem.path, problem.scenario, problem.episode) == ("bad-part", part, "T01_CN_A", 0)
+    assert part in problem.detail
+    old_name = part_path("T01_CN_A", 0)  # a second name of the episode beside the damaged one: both named
+    storage.write_bytes(old_name, sound)
+    assert _bad(verify(root)) == [Problem("bad-part", old_name, "T01_CN_A", 0,
+                                          f"a second part of this episode, beside the damaged {part}"), problem]
+    storage.delete(old_name)
+
+    lying = part_path("T01_CN_A", 0, 5)  # a name that says 5 rows, 3 held
+    storage.write_bytes(lying, sound)
+    storage.delete(part)
+    assert _bad(verify(root)) == [Problem("bad-part", lying, "T01_CN_A", 0, "its name says 5 rows, it holds 3")]
+    storage.delete(lying)
+    storage.write_bytes(part, sound)
+    stored = storage.read_bytes(index)
+    rewritten = io.BytesIO()
+    pq.write_table(pq.read_table(io.BytesIO(stored)), rewritten, compression="snappy")  # its footer's records kept
+    storage.write_bytes(index, rewritten.getvalue())
+    assert _bad(verify(root)) == [Problem("bad-index", index, "T01_CN_A", None, "differs from the index rebuilt from its parts")]
+    storage.write_bytes(index, b"not parquet")
+    assert _bad(verify(root)) == [Problem("bad-index", index, "T01_CN_A", None, "unreadable footer")]
+    storage.write_bytes(index, stored)
+    real = Storage.read_bytes
+
+    def failing(self, rel):
+        if rel == index:
+            raise OSError("disk error")
+        return real(self, rel)
+
+    monkeypatch.setattr(Storage, "read_bytes", failing)
+    assert _bad(verify(root)) == [Problem("bad-index", index, "T01_CN_A", None, "disk error")]
+    monkeypatch.undo()
+    storage.delete(part)
+    assert _bad(verify(root)) == [Problem("bad-index", index, "T01_CN_A", None, "its scenario has no parts")]
+
+
+def test_verify_reads_run_json_and_the_live_producers_and_times_its_first_hash(monkeypatch, tiny_root, tmp_path):
+    """A damaged run.json is a bad run naming why, a lost one beside parts is "missing"; the
+    layout run.json records decides which files are ours (a flat-named file in a root of
+    episode folders is foreign, even with no part left to tell); frames without a part
+    beside a live producer are in progress, not extra; the first hash is timed from the start."""
+    import time as real_time
+
+    from roots import verify as verify_module
+    from roots.lease import register_producer
+    from roots.run_file import RunRecordError, read_record
+    from manifests.schema import RUN_FILE, index_path
+    from roots.verify import Problem, verify
+
+    root, storage, part, frames = _verify_root(tiny_root, tmp_path)
+
+    class Clock:  # wall-clock time stands still: the first hash is 0 s from the start
+        perf_counter = staticmethod(real_time.perf_counter)
+
+        @staticmethod
+        def time():
+            return 1000.0
+
+    monkeypatch.setattr(verify_module, "time", Clock)
+    report = verify(root)
+    assert report.ok and report.first_hash_s == 0.0 and report.episodes_checked == 1
+    monkeypatch.undo()
+
+    record = storage.read_bytes(RUN_FILE)
+    storage.write_bytes(RUN_FILE, b"{damaged")
+    with pytest.raises(RunRecordError) as damaged:
+        read_record(storage)
+    assert verify(root).problems == [Problem("bad-run", RUN_FILE, None, None, str(damaged.value))]
+    storage.delete(RUN_FILE)
+    assert verify(root).problems == [Problem("bad-run", RUN_FILE, None, None, "missing")]
+
+    storage.write_bytes(RUN_FILE, record)
+    storage.delete(part)
+    storage.delete(index_path("T01_CN_A"))
+    flat = "T01_CN_A/rgb/0009_000_T01_CN_A.png"  # the flat layout's name: not this root's
+    storage.write_bytes(flat, b"x")
+    report = verify(root)
+    assert report.foreign == [flat]
+    assert sorted(p.path for p in report.problems) == frames and {p.kind for p in report.problems} == {"extra"}
+    producer = register_producer(storage, owner="another")
+    try:
+        report = verify(root)
+    finally:
+        producer.release()
+    assert report.ok and report.in_progress == {("T01_CN_A", 0)} and report.foreign == [flat]
+    assert verify(root).in_progress == set()
+
+
+def test_part_problem_and_config_conflict_name_why_rows_do_not_belong(tmp_path):
+    """A part's rows must be of its episode, numbered 0.., one seed and size, paths of the
+    layout in the run's rgb format, frame-major in a rig's sensor order; a sensor's size is
+    its own where the run's rig gives it one, and the seed derives with the run's pairing."""
+    import json
+
+    import pyarrow as pa
+
+    from domains.catalog import scenario as lookup_scenario, using
+    from manifests.layout import EPISODE_DIRS, FLAT, frame_path
+    from manifests.reader import read_part
+    from outputs.table import OUTPUTS
+    from manifests.schema import output_columns
+    from roots.episode_spec import PAIRED, episode_seed
+    from roots.verify import config_conflict, part_problem
+    from storage import Storage
+
+    storage = Storage.from_uri(str(tmp_path))
+    [spec] = _episodes(storage)
+    table = read_part(storage, spec.scenario, 0)
+    config = {"seed": 5, "width": table["width"][0].as_py(), "height": table["height"][0].as_py()}
+
+    def changed(name, values):
+        return table.set_column(table.schema.get_field_index(name), name, pa.array(values, table.schema.field(name).type))
+
+    assert part_problem(table, spec.scenario, 0, None) is None
+    assert part_problem(changed("episode", [1, 1, 1]), spec.scenario, 0, None) == "rows of another scenario or episode"
+    assert part_problem(changed("frame", [1, 2, 3]), spec.scenario, 0, None) == "frames are not numbered 0..2"
+    assert part_problem(changed("seed", [5, 5, 6]), spec.scenario, 0, None) == "mixed seeds or resolutions"
+    assert part_problem(table, spec.scenario, 0, {**config, "seed": spec.seed - 1}) is not None
+    assert part_problem(table, spec.scenario, 0, {**config, "seed": 5, "rgb_format": "jpg"}) \
+        == "rgb paths do not follow the layout"  # run.json's format, not any format
+
+    stereo = table.take([i // 2 for i in range(6)])  # a stereo rig's part: left, right, frame by frame
+    sensors = ["left", "right"] * 3
+    stereo = stereo.set_column(stereo.schema.get_field_index("sensor"), "sensor", pa.array(sensors, pa.string()))
+    for output in OUTPUTS:
+        column = output_columns(output)[0]
+        paths = stereo.column(column).to_pylist()
+        if paths != [None] * 6:
+            paths = [frame_path(spec.scenario, output, f, "png", EPISODE_DIRS, s)
+                     for f, s in zip(stereo["frame_id"].to_pylist(), sensors)]
+            stereo = stereo.set_column(stereo.schema.get_field_index(column), column, pa.array(paths, pa.string()))
+    assert part_problem(stereo, spec.scenario, 0, None) is None
+    assert part_problem(stereo, spec.scenario, 0, None, (FLAT,)) == "rgb paths do not follow the layout"  # no crash
+    assert part_problem(stereo.take([1, 0, 2, 3, 4, 5]), spec.scenario, 0, None) \
+        == "sensor rows are not in the rig's order, frame by frame"
+    rgb = stereo.schema.get_field_index(output_columns("rgb")[0])
+    without = stereo.set_column(rgb, output_columns("rgb")[0],  # a sensor without an output (a LiDAR has no rgb)
+                                pa.array([p if s == "left" else None for p, s in zip(stereo.column(rgb).to_pylist(), sensors)]))
+    assert part_problem(without, spec.scenario, 0, None) is None
+
+    seed = episode_seed(5, lookup_scenario(spec.scenario), 0, PAIRED)
+    paired = {**config, "pairing": PAIRED}
+    assert config_conflict({None: (config["width"], config["height"])}, seed, spec.scenario, 0, paired) is None
+    assert config_conflict({None: (config["width"], config["height"])}, seed, spec.scenario, 0, config) \
+        == "episode seed does not derive from run.json's seed 5"
+    catalog = {"weather": [{"code": "FG1", "like": "CN", "name": "fog one", "fog": 0.5}]}  # a user's weather
+    with using(catalog):
+        fog_seed = episode_seed(5, lookup_scenario("T01_FG1_A"), 0, PAIRED)
+    assert config_conflict({None: (config["width"], config["height"])}, fog_seed, "T01_FG1_A", 0,
+                           {**paired, "catalog": catalog}) is None  # known from run.json alone
+    rig = json.dumps({"name": "wide", "sensor": [{"name": "front", "kind": "camera"},
+                                                   {"name": "side", "kind": "camera", "width": 96, "height": 48}]})
+    own = {**paired, "rig": rig}
+    assert config_conflict({"front": (config["width"], config["height"]), "side": (96, 48)}, seed, spec.scenario, 0, own) is None
+    assert config_conflict({"side": (config["width"], config["height"])}, seed, spec.scenario, 0, own) \
+        == f"side frames are {config['width']}x{config['height']}, run.json says 96x48"
+
+
+def test_since_takes_an_age_or_an_iso_time_utc_unless_it_names_a_zone():
+    from roots.verify import parse_since
+
+    assert [parse_since(t, now=100000.0) for t in ("90s", " 30m ", "2h", "1.5d")] == [99910.0, 98200.0, 92800.0, -29600.0]
+    assert parse_since("2026-11-25T13:00") == 1795611600.0
+    assert parse_since("2026-11-25T13:00+01:00") == 1795611600.0 - 3600
+    with pytest.raises(ValueError, match=r"^--since '3w' is neither an age \(90s, 30m, 2h, 3d\) nor an ISO time \(2026-11-25T13:00\)$"):
+        parse_since("3w")
+
+
+def test_verify_of_a_remote_root_finds_a_file_gone_from_its_listing_without_a_request(tiny_root, tmp_path):
+    """On S3 a file the scenario's listing lacks is missing (of its episode, so repair renders it
+    again) without a request; the files listed are read with the listing's size, once each."""
+    from manifests.layout import EPISODE_DIRS
+    from roots.run_file import read_record
+    from roots.verify import Problem, Scope, VerifyReport, check_unit, plan_units
+
+    root, storage, _, frames = _verify_root(tiny_root, tmp_path)
+    storage.delete(frames[0])
+    reads = []
+
+    class Remote:  # the root as S3 shows it: listed, then read by path
+        is_local = False
+
+        def __getattr__(self, name):
+            return getattr(storage, name)
+
+        def read_listed(self, rel, size):
+            reads.append(rel)
+            return storage.read_listed(rel, size)
+
+    [unit] = plan_units(storage, Scope(), VerifyReport(), False, (EPISODE_DIRS,))
+    result = check_unit(Remote(), unit, read_record(storage)["config"])
+    assert result.problems == [Problem("missing", frames[0], "T01_CN_A", 0)]
+    assert sorted(reads) == frames[1:] and result.files_checked == len(frames)
