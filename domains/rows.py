@@ -102,8 +102,10 @@ class Weather:
     shift_to: str = param("weather the episode ends in", default="")
     easing: str = param("how the shift runs over the episode: linear or smoothstep", default="linear")
     # Structured domain randomization (issue 34), opt-in: every class's colour scaled per channel by
-    # gains drawn per episode (render_workers.render.postfx.randomize). 0 = the colours as designed.
-    randomize: float = param("per-episode random colour of every class (0 = off)", "share", 0.0, 1.0, default=0.0)
+    # gains drawn per episode (render_workers.render.postfx.randomize), within 1 +- 0.45 x this (up to 2).
+    # 0 = the colours as designed.
+    randomize: float = param("per-episode random colour of every class (0 = off, 1 = gains within 1 +- 0.45, up to 2)",
+                             "strength", 0.0, 2.0, default=0.0)
     # A real camera's look (issue 34), opt-in: exposure, white balance, filmic curve and muted colour
     # (postfx.tone), then vignetting, lens blur, chromatic aberration, noise and JPEG-like compression
     # (postfx.sensor); the frame is blended towards that look by this share. 0 = the frames as before.

@@ -146,6 +146,8 @@ BAD = {
     "table": ('[[weathers]]\ncode = "FG1"\n', "key 'weathers': unknown table"),
     "field of view": ('[[viewpoint]]\ncode = "A2"\nlike = "A"\nhfov_deg = 170.0\n',
                       "viewpoint 'A2': key 'hfov_deg': 170.0 is out of range [10.0, 150.0]"),
+    "randomize": ('[[weather]]\ncode = "CNW"\nlike = "CN"\nrandomize = 2.5\n',
+                  "weather 'CNW': key 'randomize': 2.5 is out of range [0.0, 2.0]"),
 }
 
 

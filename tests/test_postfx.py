@@ -166,6 +166,26 @@ def test_randomize_is_opt_in_and_recolours_each_class_once_per_episode():
     assert np.array_equal(recoloured(seed=3)[0], out) and not np.array_equal(recoloured(seed=4)[0], out)
 
 
+def test_randomize_above_1_spreads_the_colours_wider():
+    """``randomize`` is the spread of the gains: 1 within 1 +- 0.45 per channel (times a level within
+    1 +- 0.3), up to 2 (1 +- 0.9 and 1 +- 0.6; at 1.8 a CamVid network kept the most, docs/realism.md)."""
+    from dataclasses import replace
+
+    img = np.full((H, W, 3), 0.5, np.float32)
+
+    def spread(strength):
+        gains = []
+        for seed in range(40):
+            ctx = context(seed=seed)
+            out = postfx.randomize(img, replace(ctx, weather=replace(ctx.weather, randomize=strength)))
+            gains.append(out[ctx.classes == SKY][0] / 0.5)
+        return np.ptp(np.array(gains), axis=0).min(), np.array(gains).min()
+
+    one, two = spread(1.0), spread(2.0)
+    assert two[0] > 1.5 * one[0]  # about twice as wide
+    assert one[1] > 0.3 and 0.0 <= two[1] < 0.3  # darker colours come in; clipped at 0, never negative
+
+
 def test_frame_looks_draw_the_camera_and_colours_anew_for_their_share_of_frames():
     """Issue 34: a look drawn per frame taught a CamVid network more than one per episode (docs/realism.md).
     At 0 (every built-in weather) every frame of an episode gets the episode's look; at 1 each frame its own,
