@@ -161,9 +161,16 @@ FRAME_KEY = ("scenario", "episode", "frame")  # one frame; a rig's root has a ro
 def count_frames(table: pa.Table) -> int:
     """The frames ``table`` holds: its distinct (scenario, episode, frame). In a root of the default rig a row is
     a frame; in a rig's root a row is a sensor frame, and every sensor of the rig sees every frame."""
+    return sum(frames_per_scenario(table).values())
+
+
+def frames_per_scenario(table: pa.Table) -> dict[str, int]:
+    """The frames ``table`` holds per scenario (``count_frames`` of each), in any row order."""
     if len(table) == 0:
-        return 0
-    return table.select(list(FRAME_KEY)).group_by(list(FRAME_KEY)).aggregate([]).num_rows
+        return {}
+    frames = table.select(list(FRAME_KEY)).group_by(list(FRAME_KEY)).aggregate([])
+    counts = frames.group_by("scenario").aggregate([("scenario", "count")])
+    return dict(zip(counts.column("scenario").to_pylist(), counts.column("scenario_count").to_pylist()))
 
 
 def frame_runs(table: pa.Table) -> tuple[np.ndarray, np.ndarray]:
@@ -213,23 +220,29 @@ PAIR_KEY = ("town", "viewpoint", "episode", "frame")  # what a frame's paired fr
 def paired_frames(table: pa.Table, weathers: tuple[str, ...]) -> tuple[pa.Table, int]:
     """The rows of ``table`` (manifest rows) whose frame is present under every one of ``weathers``
     with the same episode seed (the same scene: a paired root, roots.episode_spec) and in the same split,
-    sorted so each group of len(weathers) rows is one frame under the weathers in the order given;
-    and how many frames present under every weather were left out because their weathers lie in
-    different splits (a paired root made before splits were drawn per scene: pipeline.planner)."""
+    sorted so each group of len(weathers) rows is one frame (in a rig's root: one sensor's frame, the
+    sensors in the rig's order) under the weathers in the order given; and how many frames present under
+    every weather were left out because their weathers lie in different splits (a paired root made before
+    splits were drawn per scene: pipeline.planner)."""
     table = table.filter(pc.is_in(table.column("weather"), pa.array(list(weathers))))
     if len(table) == 0:
         return table, 0
-    scenes = list(zip(*(table.column(k).to_pylist() for k in (*PAIR_KEY, "seed"))))
+    sensors = rig_sensors(table)  # a rig's root: a row per sensor of each frame, paired sensor by sensor
+    sensor_rank = ([sensors.index(s) for s in table.column("sensor").to_pylist()] if sensors
+                   else [0] * len(table))
+    scenes = list(zip(*(table.column(k).to_pylist() for k in (*PAIR_KEY, "seed")), sensor_rank))
     keys = [(*scene, split) for scene, split in zip(scenes, table.column("split").to_pylist())]
-    present = Counter(keys)  # one row per weather: (town, viewpoint, episode, frame) is unique per scenario
+    present = Counter(keys)  # one row per weather: (town, viewpoint, episode, frame, sensor) is unique per scenario
     whole = Counter(scenes)
     apart = sum(1 for scene, n in whole.items() if n == len(weathers)) - sum(
         1 for n in present.values() if n == len(weathers))
-    table = table.filter(pa.array([present[k] == len(weathers) for k in keys], pa.bool_()))
+    if sensors:  # counted in frames, as everywhere: a frame's sensors lie apart together
+        apart //= len(sensors)
+    keep = pa.array([present[k] == len(weathers) for k in keys], pa.bool_())
     rank = pa.array([weathers.index(w) for w in table.column("weather").to_pylist()], pa.int32())
-    table = table.append_column("_rank", rank)
-    order = [(k, "ascending") for k in PAIR_KEY] + [("_rank", "ascending")]
-    return table.sort_by(order).drop_columns(["_rank"]), apart
+    table = table.append_column("_sensor", pa.array(sensor_rank, pa.int32())).append_column("_rank", rank).filter(keep)
+    order = [(k, "ascending") for k in (*PAIR_KEY, "_sensor", "_rank")]
+    return table.sort_by(order).drop_columns(["_sensor", "_rank"]), apart
 
 
 def run_query(table_or_dataset, query: Query) -> QueryResult:
@@ -237,7 +250,7 @@ def run_query(table_or_dataset, query: Query) -> QueryResult:
     table = filter_frames(table_or_dataset, query)
     if query.paired:
         table, apart = paired_frames(table, query.paired)
-        return QueryResult(table, len(frame_runs(table)[0]), split_apart=apart)  # a rig's root: frames, not rows
+        return QueryResult(table, count_frames(table), split_apart=apart)  # a rig's root: frames, not rows
     firsts, ends = frame_runs(table)  # the draws are of frames; a rig's frame brings every sensor's row
     matched = len(firsts)
     if query.per_scenario is None and query.total is None:

@@ -548,3 +548,26 @@ def test_the_rig_pictures_draw(tmp_path):
     root = str(tmp_path / "l")
     png = rig_pictures.lidar_png(root, rig_pictures.render_rig("lidar64", 96, 54, root, world="test"))
     assert png.startswith(b"\x89PNG")
+
+
+def test_a_paired_query_pairs_a_rigs_frames_sensor_by_sensor(tmp_path):
+    """`idda query --paired` in a rig's root: a paired scene has a row per sensor under each weather, so
+    pairs were looked for among rows keyed without the sensor, none had exactly one row per weather, and
+    the query matched nothing. Each sensor's frame pairs with the same sensor's under the other weather;
+    the counts are of frames."""
+    import pyarrow.csv as pv
+
+    from pipeline.cli import app
+
+    root = tmp_path / "root"
+    render_root(root, RunConfig(plan=_plan("stereo", frames=2, width=64, height=36, domains="T01_CN_A,T01_CS_A"),
+                                world="test"))
+    out = tmp_path / "pairs.csv"
+    result = CliRunner().invoke(app, ["query", str(root), "--paired", "CS,CN", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    assert "4 frames selected of 4 matching the filters (4 of the 4 frames the root holds, 8 sensor frames of its 8)" \
+        in result.output, result.output
+    assert [line.split() for line in result.output.splitlines()[:2]] == [["T01_CN_A", "2"], ["T01_CS_A", "2"]]
+    back = pv.read_csv(out)
+    assert list(zip(*(back.column(c).to_pylist() for c in ("frame", "sensor", "weather")))) == [
+        (f, s, w) for f in (0, 1) for s in ("left", "right") for w in ("CS", "CN")]

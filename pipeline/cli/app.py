@@ -361,10 +361,7 @@ def query(
                 require_outputs(result.table, chosen, storage.uri)
             data = q.encode_result(result.table, fmt, chosen)
             write_local(out, data)
-        counts: dict[str, int] = {}  # frames per scenario (in a rig's root: not its rows, the sensor frames)
-        scenarios = result.table.column("scenario").to_numpy(zero_copy_only=False)
-        for code in scenarios[q.frame_runs(result.table)[0]].tolist():
-            counts[code] = counts.get(code, 0) + 1
+        counts = q.frames_per_scenario(result.table)  # in a rig's root: frames, not its rows (sensor frames)
         w = max([10, *map(len, counts)])  # a declared code may be longer than T01_HRN_A
         for code, n in sorted(counts.items()):
             typer.echo(f"{code:<{w}} {n:>8}")
