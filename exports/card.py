@@ -25,7 +25,7 @@ from manifests.stats import bar_chart_png, share_table
 from outputs.table import OUTPUTS, file_of_path, markdown_table
 from manifests.schema import PART_SCHEMA, output_columns, part_path
 from exports.hf import HF_SPLITS, card_header, citation_section
-from manifests.query import SPLITS, count_frames, rig_sensors
+from manifests.query import FRAME_KEY, SPLITS, count_frames, rig_sensors
 from roots.contract import CARD_FILE, CHART_FILE, PREVIEW_DIR  # the root's own names (verify knows them)
 from roots.run_file import REPAIR_HINT, ConfigShape, RunRecordError, read_record
 from roots.verify import verify
@@ -62,11 +62,8 @@ class CardResult:
 def split_counts(table: pa.Table) -> dict[str, dict[str, int]]:
     """Frames per scenario and split: {scenario: {split: n}} (every split present); a frame of a rig counts once."""
     counts: dict[str, dict[str, int]] = {}
-    seen = set()  # a rig's root has a row per sensor of a frame
-    for code, split, episode, frame in zip(*(table.column(c).to_pylist() for c in ("scenario", "split", "episode", "frame"))):
-        if (code, episode, frame) in seen:
-            continue
-        seen.add((code, episode, frame))
+    frames = table.select([*FRAME_KEY, "split"]).group_by([*FRAME_KEY, "split"]).aggregate([])  # a frame's sensors once
+    for code, split in zip(frames.column("scenario").to_pylist(), frames.column("split").to_pylist()):
         row = counts.setdefault(code, {s: 0 for s in SPLITS})
         row[split] = row.get(split, 0) + 1
     return dict(sorted(counts.items()))

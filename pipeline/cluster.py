@@ -221,6 +221,11 @@ def attach(ray, address: str | None, workers: int | None = None) -> None:
         start_local_cluster(ray, workers)
 
 
+# What Ray 2.x says when a new node's raylet does not register with its GCS within a fixed 30 s (seen on a
+# 2-core machine under load): a bare Exception, and a traceback at the CLI, without this.
+_LOCAL_START_TIMEOUT = "timed out during startup"
+
+
 def start_local_cluster(ray, cpus: int | None = None) -> None:
     """Start the private one-machine Ray cluster ``produce`` runs on when given no address
     (``cpus``: its CPU count, default all cores). Public so benchmarks start the same one."""
@@ -239,10 +244,6 @@ def start_local_cluster(ray, cpus: int | None = None) -> None:
                               "30 s (a machine this busy starts it slowly); run the same command again") from None
     _stop_idle_daemons(ray)
 
-
-# What Ray 2.x says when a new node's raylet does not register with its GCS within a fixed 30 s (seen on a
-# 2-core machine under load): a bare Exception, and a traceback at the CLI, without this.
-_LOCAL_START_TIMEOUT = "timed out during startup"
 
 
 def _stop_idle_daemons(ray) -> None:
