@@ -148,3 +148,73 @@ def foliage(img: np.ndarray, ctx) -> np.ndarray:
     out = img.copy()
     out[veg] = img[veg] * (np.float32(1.0) + np.float32(strength) * (shade - np.float32(1.0)))[:, None]
     return np.clip(out, np.float32(0.0), np.float32(1.0))
+
+
+SKY_OR_VEGETATION = (SKY_ID, VEGETATION_ID)
+DETAIL_STREAM = 38  # a class's grain and wear: np.random.default_rng([episode_seed, DETAIL_STREAM, class id])
+DETAIL_WEAR_M = (0.3, 2.5)  # wavelengths of stains, wear and weathering ...
+DETAIL_GRAIN_M = (0.03, 0.25)  # ... and of grain (asphalt, render, brick, paint's orange peel)
+DETAIL_WEAR, DETAIL_GRAIN = 0.12, 0.10  # their brightness amplitudes (one standard deviation) at full strength
+
+
+def _smooth_step(cam: np.ndarray, axis: int) -> np.ndarray:
+    """HxWx3 step to the next pixel along ``axis``, towards whichever neighbour is nearer in space (so a
+    surface's edge against the sky or a farther one takes its step from its own side)."""
+    step = np.diff(cam, axis=axis)
+    edge = np.zeros(tuple(1 if i == axis else n for i, n in enumerate(cam.shape)), cam.dtype)
+    ahead, behind = np.concatenate([step, edge], axis=axis), np.concatenate([edge, step], axis=axis)
+    take_behind = np.linalg.norm(behind, axis=-1) < np.linalg.norm(ahead, axis=-1)
+    take_behind |= np.linalg.norm(ahead, axis=-1) == 0
+    take_behind &= np.linalg.norm(behind, axis=-1) > 0
+    return np.where(take_behind[..., None], behind, ahead)
+
+
+def _surface_noise(rng: np.random.Generator, points: np.ndarray, du: np.ndarray, dv: np.ndarray,
+                   span: tuple[float, float], count: int = 16) -> np.ndarray:
+    """``_noise`` filtered by what each pixel sees: ``du``, ``dv`` (N, 3) are the world steps to the next pixel
+    across and down, so a wave fades where its period on the screen, along its own direction, falls below
+    3 pixels (gone below 1.5). On the road ahead, seen edge-on, waves along the view fade while those across
+    it stay: no moire, and no streaks."""
+    direction = rng.normal(size=(count, 3))
+    direction /= np.linalg.norm(direction, axis=1, keepdims=True)
+    wavelength = np.exp(rng.uniform(np.log(span[0]), np.log(span[1]), count))
+    k = (direction * (2.0 * np.pi / wavelength)[:, None]).astype(np.float32)
+    phase = rng.uniform(0.0, 2.0 * np.pi, count).astype(np.float32)
+    weight = _screen_fade(k, du, dv)
+    return (np.sin(points @ k.T + phase) * weight).sum(axis=1) * np.float32(1.0 / np.sqrt(count / 2.0))
+
+
+def _screen_fade(k: np.ndarray, du: np.ndarray, dv: np.ndarray) -> np.ndarray:
+    """(N, waves) weight of each wave (``k``: (waves, 3) radians per metre) at each pixel: 1 where its period on
+    the screen is 3 pixels or more, 0 at 1.5 or less (``_footprint_fade``'s rule, along the wave's direction)."""
+    per_pixel = np.sqrt(np.square(du @ k.T) + np.square(dv @ k.T))  # radians of phase per pixel
+    period_px = np.float32(2.0 * np.pi) / np.maximum(per_pixel, np.float32(1e-6))
+    return np.clip(period_px / np.float32(1.5) - np.float32(1.0), np.float32(0.0), np.float32(1.0))
+
+
+def detail(img: np.ndarray, ctx) -> np.ndarray:
+    """Fine surface detail on everything built or paved (the weather's ``detail`` strength; 0: a no-op):
+    world-anchored grain and wear that modulate the brightness of every class but the sky and vegetation
+    (which has ``foliage``), each class with waves of its own. Real surfaces are never clean; without it a
+    network learns that only trees have texture."""
+    strength = ctx.weather.detail
+    if strength <= 0.0:
+        return img
+    surface = ~np.isin(ctx.classes, SKY_OR_VEGETATION) & ~ctx.hood_mask
+    if not surface.any():
+        return img
+    cam = _camera_points(ctx)
+    points = _world(ctx, cam[surface])
+    rotation = ctx.world_from_camera[:3, :3].T.astype(np.float32)
+    du, dv = (_smooth_step(cam, axis)[surface] @ rotation for axis in (1, 0))
+    classes = ctx.classes[surface]
+    shade = np.ones(len(classes), np.float32)
+    for cid in np.unique(classes):
+        of = classes == cid
+        rng = np.random.default_rng([ctx.episode_seed, DETAIL_STREAM, int(cid)])
+        wear = _surface_noise(rng, points[of], du[of], dv[of], DETAIL_WEAR_M)
+        grain = _surface_noise(rng, points[of], du[of], dv[of], DETAIL_GRAIN_M)
+        shade[of] += np.float32(strength) * (np.float32(DETAIL_WEAR) * wear + np.float32(DETAIL_GRAIN) * grain)
+    out = img.copy()
+    out[surface] = img[surface] * np.clip(shade, np.float32(0.3), np.float32(1.7))[:, None]
+    return np.clip(out, np.float32(0.0), np.float32(1.0))
