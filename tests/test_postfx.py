@@ -186,33 +186,6 @@ def test_randomize_above_1_spreads_the_colours_wider():
     assert one[1] > 0.3 and 0.0 <= two[1] < 0.3  # darker colours come in; clipped at 0, never negative
 
 
-def test_randomize_classes_is_the_share_of_looks_that_recolour_the_classes_apart():
-    """At 1 (the default) every look gives each class its own gains, as before; at 0 every look is one cast
-    over the whole frame (the classes keep their colour relations); in between, that share of looks."""
-    from dataclasses import replace
-
-    img = np.full((H, W, 3), 0.5, np.float32)
-
-    def look(share, frame, seed=3):
-        ctx = context(seed=seed)
-        classes = ctx.classes.copy()
-        classes[0, 0] = 0  # one unlabeled pixel: its gains are the cast's
-        weather = replace(ctx.weather, randomize=1.0, frame_looks=1.0, randomize_classes=share)
-        out = postfx.randomize(img, replace(ctx, classes=classes, frame=frame, weather=weather))
-        return out, out[ctx.classes == SKY][0], out[ctx.classes == ROAD][0]
-
-    assert context().weather.randomize_classes == 1.0
-    for frame in range(6):
-        assert np.array_equal(look(1.0, frame)[0], look(1.0, frame)[0])
-        out, sky, road = look(1.0, frame)
-        assert not np.allclose(sky, road)  # apart
-        cast, sky, road = look(0.0, frame)
-        assert np.array_equal(sky, road) and not np.allclose(sky, 0.5)  # one cast, still a random one
-        assert np.array_equal(sky, out[0, 0])  # the cast is class 0's gains of the same look: nothing else drawn
-    apart = sum(not np.array_equal(look(0.5, f)[1], look(0.5, f)[2]) for f in range(40))
-    assert 8 <= apart <= 32  # about half the looks recolour the classes apart
-
-
 def test_frame_looks_draw_the_camera_and_colours_anew_for_their_share_of_frames():
     """Issue 34: a look drawn per frame taught a CamVid network more than one per episode (docs/realism.md).
     At 0 (every built-in weather) every frame of an episode gets the episode's look; at 1 each frame its own,

@@ -285,11 +285,6 @@ def street_side(kit, c, d, length, spacing, kerb, z, urban) -> None:
 # On dense streets (Town.street_density 1) the furniture line is this much closer-set and its trees this
 # much rarer; what is not a lamp or a tree is a sign pole (DENSE_SIGN_SHARE of the slots) or street clutter.
 DENSE_SPACING_CUT, DENSE_TREE_CUT, DENSE_SIGN_SHARE = 0.45, 0.4, 0.5
-# ... and pedestrian railings (class fence) line this share of the kerb in runs of RAILING_RUN_M metres, 1 m
-# tall, RAILING_SET_M behind the kerb's edge (the walkers' lanes start farther in), drawn from a generator of
-# their own (RAILING_STREAM) so the rest of the street is as without them.
-RAILING_SHARE, RAILING_RUN_M, RAILING_GAP_M, RAILING_SET_M, RAILING_H = 0.5, (6.0, 20.0), (2.0, 8.0), 0.3, 1.0
-RAILING_STREAM = 4
 
 
 def dense_street_side(kit, c, d, length, spacing, kerb, z) -> None:
@@ -317,23 +312,6 @@ def dense_street_side(kit, c, d, length, spacing, kerb, z) -> None:
             kit.traffic_sign(base, facing)
         else:
             kit.static_prop(base + np.array([*n_right, 0.0]) * 0.3, yaw_to_road)
-    _railings(kit, c, d, n_right, length, z)
-
-
-def _railings(kit, c, d, n_right, length, z) -> None:
-    """Pedestrian railings along a dense street's kerb (RAILING_SHARE of it at density 1)."""
-    lay = kit.lay
-    if not hasattr(kit, "railing_rng"):
-        kit.railing_rng = np.random.default_rng([lay.seed, lay.town.stream, RAILING_STREAM])
-    rng, share = kit.railing_rng, RAILING_SHARE * kit.t.street_density
-    line = n_right * (lay.hw + RAILING_SET_M)
-    s, end = lay.hw + 9.0, length - lay.hw - 5.0
-    while s < end:
-        run = rng.uniform(*RAILING_RUN_M)
-        a, b = c + d * s + line, c + d * min(s + run, end) + line
-        if rng.random() < share and not any(kit.on_river(q[1], 4.0) for q in (a, (a + b) / 2, b)):
-            kit.fence_line(a, b, z, RAILING_H, metal=True)
-        s += run + rng.uniform(*RAILING_GAP_M)
 
 
 def junction_furniture(kit, q, c, d, kerb, z, urban) -> None:
