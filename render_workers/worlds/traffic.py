@@ -57,6 +57,11 @@ DENSE_PARKING_M = 9.0
 DENSE_WALKERS = 150
 DENSE_NEAR_M = 25.0  # parked cars fill the strips of the loops this close to the ego's
 DENSE_STREAM = 34  # the crowd's generator: default_rng([episode seed, DENSE_STREAM])
+# ... and at density 1 this share of episodes follows a car in the ego's lane, its tail DENSE_LEAD_GAP_M
+# ahead of the ego's nose (at the loop's speed, so the gap holds), as real drives mostly do.
+DENSE_LEAD_SHARE, DENSE_LEAD_GAP_M = 0.8, (5.0, 20.0)
+DENSE_LEAD_WEIGHTS = {"sedan": 0.5, "suv": 0.3, "van": 0.2}
+DENSE_LEAD_STREAM = 35
 
 
 # --------------------------------------------------------------------------
@@ -264,6 +269,25 @@ def _place_walkers(p: _Placement, n_sidewalk: int) -> None:
                 break
 
 
+def _lead(p: _Placement, density: float, episode_seed: int) -> int:
+    """Dense streets: a car ahead in the ego's lane for ``density`` x DENSE_LEAD_SHARE of the episodes, where the
+    riders ahead leave room; drawn from a generator of its own. Returns 1 or 0."""
+    if density <= 0:
+        return 0
+    rng = np.random.default_rng([episode_seed, DENSE_LEAD_STREAM])
+    if rng.random() >= density * DENSE_LEAD_SHARE:
+        return 0
+    kind = _pick_kind(rng, list(DENSE_LEAD_WEIGHTS), DENSE_LEAD_WEIGHTS)
+    half = VEHICLE_KINDS[kind].length / 2
+    s = (p.ego_s + p.ego_size[0] / 2 + float(rng.uniform(*DENSE_LEAD_GAP_M)) + half) % p.lengths[p.ego_i]
+    if not p.slots[p.ego_i].free(s, half, 2.0):
+        return 0
+    p.slots[p.ego_i].take(s, half)
+    paint = PAINTS[int(rng.integers(len(PAINTS)))]
+    p.actors.append(Actor(kind, vehicle_parts(kind, paint), p.ego_loop.path, s, float(p.speeds[p.ego_i]), 0.0))
+    return 1
+
+
 def _crowd(p: _Placement, density: float, episode_seed: int) -> tuple[int, int]:
     """Dense streets (``World.street_density`` above 0): after everyone IDDA's counts place, cars parked
     along the kerbs until the strips are ``density`` full (a car per ``DENSE_PARKING_M`` of strip) and
@@ -294,6 +318,7 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
     n_two = min(n_vehicles // 3, max(4, int(round(0.12 * n_vehicles))))
     n_parked_target = int(round(rng.uniform(0.15, 0.3) * (n_vehicles - n_two)))
     placed_two = _place_riders(p, n_two)
+    dense_lead = _lead(p, world.street_density, episode_seed)
     # free space ahead of and behind the ego (riders may ride in it): no car
     # closer than about 40 m ahead, on the same loop and at the same speed
     p.slots[p.ego_i].take(p.ego_s + 12.0, p.ego_size[0] / 2 + 18.0)
@@ -306,7 +331,7 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
         world=world,
         actors=tuple(p.actors),
         ego=p.ego,
-        n_vehicles=n_vehicles + dense_parked,
+        n_vehicles=n_vehicles + dense_parked + dense_lead,
         n_pedestrians=n_pedestrians + dense_walkers,
         extras={
             "viewpoint": vp.code,
@@ -318,6 +343,7 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
             "two_wheelers": placed_two,
             "crossing_pedestrians": len(crossing),
             "ego_size_m": p.ego_size,
-            **({"dense_parked": dense_parked, "dense_walkers": dense_walkers} if world.street_density > 0 else {}),
+            **({"dense_parked": dense_parked, "dense_walkers": dense_walkers, "dense_lead": dense_lead}
+               if world.street_density > 0 else {}),
         },
     )
