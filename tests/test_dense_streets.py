@@ -75,12 +75,42 @@ def test_dense_streets_are_denser_and_deterministic(t02, t02_dense):
     for seed in EPISODES:
         plain, crowded = populate(t02, "V", seed), populate(t02_dense, "V", seed)
         assert crowded.extras["dense_parked"] > 0 and crowded.extras["dense_walkers"] > 0
-        assert crowded.n_vehicles == plain.n_vehicles + crowded.extras["dense_parked"]
+        assert crowded.n_vehicles == plain.n_vehicles + crowded.extras["dense_parked"] + crowded.extras["dense_lead"]
         assert crowded.n_pedestrians == plain.n_pedestrians + crowded.extras["dense_walkers"]
         parked = [a for a in crowded.actors if a.speed_mps == 0 and a.kind != "pedestrian"]
         assert len(parked) > len([a for a in plain.actors if a.speed_mps == 0 and a.kind != "pedestrian"])
         assert "dense_parked" not in plain.extras
         assert _fingerprint(t02_dense, [populate(t02_dense, "V", seed)]) == _fingerprint(t02_dense, [crowded])
+
+
+def test_dense_streets_follow_a_car_in_the_ego_lane(t02, t02_dense):
+    """Most dense episodes have a car ahead in the ego's lane, 5-20 m from its nose, at the ego's speed (so the
+    gap holds over the episode); episodes without dense streets keep the 40 m of free road ahead."""
+    from render_workers.worlds import traffic
+    from render_workers.worlds.actors import VEHICLE_KINDS
+
+    def leads(world, seed):
+        scene = populate(world, "V", seed)
+        ego = scene.ego
+        out = []
+        for a in scene.actors:
+            if a.path is not ego.path or a.kind not in VEHICLE_KINDS or a.lateral_m != 0.0:
+                continue
+            ahead = (a.offset_m - ego.offset_m) % ego.path.length
+            tail = ahead - VEHICLE_KINDS[a.kind].length / 2 - scene.extras["ego_size_m"][0] / 2
+            if ahead < 28.0:  # the lead car's farthest; the others keep clear of the first 30 m
+                out.append((tail, a.speed_mps == ego.speed_mps))
+        return scene, out
+
+    followed = 0
+    for seed in range(10):
+        scene, found = leads(t02_dense, seed)
+        assert len(found) == scene.extras["dense_lead"]
+        for tail, same_speed in found:
+            assert traffic.DENSE_LEAD_GAP_M[0] - 1e-6 <= tail <= traffic.DENSE_LEAD_GAP_M[1] + 1e-6 and same_speed
+        followed += len(found)
+        assert leads(t02, seed)[1] == []  # the default: free road ahead
+    assert followed >= 5  # DENSE_LEAD_SHARE 0.8 of ten episodes, less where riders ahead leave no room
 
 
 def test_street_density_is_a_town_parameter_of_domain_files():
