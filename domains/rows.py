@@ -125,11 +125,6 @@ class Weather:
     # (render_workers.render.postfx._look_rng). 0 = one look per episode, as before.
     frame_looks: float = param("share of frames that draw their own camera exposure and random colours "
                                "(0 = one per episode)", "share", 0.0, 1.0, default=0.0)
-    # How many looks recolour the classes apart (issue 34): randomize's share of looks (episodes, or frames with
-    # frame_looks) whose classes each get their own gains; the others get one cast over the whole frame, so
-    # the classes keep their colour relations (a road and its pavement both grey). 1 = every look, as before.
-    randomize_classes: float = param("share of randomize's looks that recolour each class apart (the rest: one "
-                                     "cast over the frame)", "share", 0.0, 1.0, default=1.0)
     # Surface detail (issue 34), opt-in: world-anchored grain and wear on every class but the sky and vegetation
     # (render_workers.render.texturefx.detail). 0 = the surfaces as designed.
     detail: float = param("grain and wear on built and paved surfaces (0 = off)", "share", 0.0, 1.0, default=0.0)

@@ -377,7 +377,6 @@ def occlusion(img: np.ndarray, ctx: FxContext) -> np.ndarray:
 RANDOMIZE_GAIN = 0.45  # at full strength each class's channel gains lie within 1 +- this ...
 RANDOMIZE_LEVEL = 0.3  # ... times one brightness gain within 1 +- this
 RANDOMIZE_STREAM = 35  # the episode's colours: np.random.default_rng([episode_seed, RANDOMIZE_STREAM])
-RANDOMIZE_CLASSES_STREAM = 39  # whether a look recolours the classes apart (the weather's randomize_classes)
 
 
 def _look_rng(ctx: FxContext, stream: int) -> np.random.Generator:
@@ -402,9 +401,6 @@ def randomize(img: np.ndarray, ctx: FxContext) -> np.ndarray:
     rng = _look_rng(ctx, RANDOMIZE_STREAM)
     gains = 1.0 + strength * RANDOMIZE_GAIN * rng.uniform(-1.0, 1.0, (256, 3))
     gains *= 1.0 + strength * RANDOMIZE_LEVEL * rng.uniform(-1.0, 1.0, (256, 1))
-    share = ctx.weather.randomize_classes
-    if share < 1.0 and _look_rng(ctx, RANDOMIZE_CLASSES_STREAM).random() >= share:
-        gains[:] = gains[0]  # this look keeps the classes' colour relations: one cast over the whole frame
     return np.clip(img * gains.astype(np.float32)[ctx.classes], np.float32(0.0), np.float32(1.0))
 
 
