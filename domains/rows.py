@@ -125,9 +125,6 @@ class Weather:
     # (render_workers.render.postfx._look_rng). 0 = one look per episode, as before.
     frame_looks: float = param("share of frames that draw their own camera exposure and random colours "
                                "(0 = one per episode)", "share", 0.0, 1.0, default=0.0)
-    # Surface detail (issue 34), opt-in: world-anchored grain and wear on every class but the sky and vegetation
-    # (render_workers.render.texturefx.detail). 0 = the surfaces as designed.
-    detail: float = param("grain and wear on built and paved surfaces (0 = off)", "share", 0.0, 1.0, default=0.0)
 
     @property
     def precipitation(self) -> float:

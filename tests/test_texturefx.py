@@ -30,7 +30,7 @@ def grey():
     return np.full((H, W, 3), 0.5, np.float32)
 
 
-LEVERS = {"textures": "retexture", "foliage": "foliage", "occlusion": "occlusion", "detail": "detail"}  # weather parameter: effect
+LEVERS = {"textures": "retexture", "foliage": "foliage", "occlusion": "occlusion"}  # weather parameter: effect
 
 
 @pytest.mark.parametrize("lever", sorted(LEVERS))
@@ -95,71 +95,13 @@ def test_occlusion_darkens_what_nearer_things_surround_and_leaves_planes():
     assert np.abs(road - 0.5).max() < 0.02  # a plane's disparity is affine: its local mean is itself
 
 
-def test_detail_puts_grain_and_wear_on_built_and_paved_surfaces_only():
-    ctx = scene(seed=6, detail=1.0)
-    hood = np.zeros((H, W), bool)
-    hood[-4:, :] = True
-    ctx = replace(ctx, hood_mask=hood)
-    out = texturefx.detail(grey(), ctx)
-    untouched = np.isin(ctx.classes, (SKY, VEGETATION)) | hood  # the sky, the crowns (foliage's) and the hood
-    assert np.array_equal(out[untouched], grey()[untouched])
-    for cls, spread in ((BUILDING, 0.03), (ROAD, 0.01)):  # the road, seen edge-on, keeps only its wear
-        shade = out[(ctx.classes == cls) & ~hood][:, 0] / 0.5
-        assert shade.std() > spread, cls  # a pattern, not one flat colour ...
-        assert abs(shade.mean() - 1.0) < 0.1, cls  # ... that keeps the surface's brightness on average
-    assert np.array_equal(out[..., 0], out[..., 2])  # brightness only: randomize owns the colours
-    again = texturefx.detail(grey(), replace(ctx, rng=np.random.default_rng(99)))
-    assert np.array_equal(again, out)  # drawn per episode, not from the frame's rng
-    assert not np.array_equal(texturefx.detail(grey(), replace(scene(seed=7, detail=1.0), hood_mask=hood)), out)
-    half = texturefx.detail(grey(), replace(ctx, weather=replace(ctx.weather, detail=0.5)))
-    wall = ctx.classes == BUILDING
-    np.testing.assert_allclose(np.abs(half[wall] - 0.5), np.abs(out[wall] - 0.5) / 2, atol=1e-5)
-
-
-def test_detail_stays_on_the_world_when_the_camera_moves():
-    ctx = scene(seed=5, detail=1.0)
-    a = texturefx.detail(grey(), ctx)
-    moved = ctx.world_from_camera.copy()
-    moved[:3, 3] += moved[:3, 0] * (30.0 / ctx.rig.focal_px)
-    b = texturefx.detail(grey(), replace(ctx, world_from_camera=moved))
-    wall = ctx.classes == BUILDING
-    both = wall[:, :-1] & wall[:, 1:]
-    assert a[:, :-1][both].std() > 0.005
-    np.testing.assert_allclose(b[:, :-1][both], a[:, 1:][both], atol=2e-3)
-
-
-def test_detail_fades_a_wave_where_the_screen_cannot_show_it_along_its_own_direction():
-    """The road ahead is seen edge-on: a wave running along the view (bands across the road) squeezes into
-    under a pixel there and must fade, while the same wave across the view (stripes along the road) stays."""
-    ctx = scene()
-    cam = texturefx._camera_points(ctx)
-    rotation = ctx.world_from_camera[:3, :3].T.astype(np.float32)
-    du, dv = (texturefx._smooth_step(cam, axis) @ rotation for axis in (1, 0))
-    far_road = (ctx.classes == ROAD) & (ctx.depth > 20.0) & (ctx.depth < 40.0)
-    far_road[:, : 3 * W // 8] = far_road[:, 5 * W // 8:] = False  # straight ahead
-    ahead = (ctx.world_from_camera[:3, :3] @ np.array([0.0, 0.0, -1.0]))[:2]  # the view, on the ground
-    ahead = np.append(ahead / np.linalg.norm(ahead), 0.0)
-    across = np.cross(ahead, [0.0, 0.0, 1.0])
-
-    def strength(direction):  # a 4 m wave's weight on the road 20-40 m ahead
-        k = (2 * np.pi / 4.0) * np.asarray(direction, np.float32)[None, :]
-        return texturefx._screen_fade(k.astype(np.float32), du[far_road], dv[far_road])
-
-    assert np.median(strength(ahead)) < 0.1  # bands across the far road: gone
-    assert np.median(strength(across)) > 0.9  # stripes along it: kept
-    # and _surface_noise itself, on the far road, with only waves of those lengths left
-    noise = texturefx._surface_noise(np.random.default_rng(3), np.zeros((far_road.sum(), 3), np.float32),
-                                     du[far_road], dv[far_road], (0.01, 0.02))
-    assert np.abs(noise).max() < 1e-6  # centimetre waves at 20-40 m: faded in every direction
-
-
 CHILD = """
 import hashlib, sys
 
 import numpy as np
 from tests.test_texturefx import scene
 from render_workers.render import postfx
-ctx = scene(seed=11, textures=1.0, foliage=1.0, occlusion=1.0, detail=1.0)
+ctx = scene(seed=11, textures=1.0, foliage=1.0, occlusion=1.0)
 rgb = (np.random.default_rng(2).uniform(0.1, 0.9, (ctx.rig.height, ctx.rig.width, 3)) * 255).astype(np.uint8)
 print(hashlib.sha256(postfx.apply(rgb, ctx).tobytes()).hexdigest())
 """

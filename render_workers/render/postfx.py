@@ -472,7 +472,6 @@ EFFECTS: dict[str, Effect] = {
     "antialias": antialias,
     "foliage": texturefx.foliage,
     "occlusion": occlusion,
-    "detail": texturefx.detail,
     "puddles": puddles,
     "wet_road": wet_road,
     "snow_cover": weatherfx.snow_cover,
