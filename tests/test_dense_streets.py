@@ -83,34 +83,41 @@ def test_dense_streets_are_denser_and_deterministic(t02, t02_dense):
         assert _fingerprint(t02_dense, [populate(t02_dense, "V", seed)]) == _fingerprint(t02_dense, [crowded])
 
 
-def test_dense_streets_follow_a_car_in_the_ego_lane(t02, t02_dense):
-    """Most dense episodes have a car ahead in the ego's lane, 5-20 m from its nose, at the ego's speed (so the
-    gap holds over the episode); episodes without dense streets keep the 40 m of free road ahead."""
+def test_dense_streets_follow_a_queue_of_cars_in_the_ego_lane(t02, t02_dense):
+    """Most dense episodes have a car ahead in the ego's lane, its tail 5-20 m from the ego's nose, and up to
+    two more queued ahead of it 4-14 m apart, all at the ego's speed (so the gaps hold over the episode);
+    episodes without dense streets keep the free road ahead."""
     from render_workers.worlds import traffic
     from render_workers.worlds.actors import VEHICLE_KINDS
 
-    def leads(world, seed):
+    def ahead_in_lane(world, seed):
         scene = populate(world, "V", seed)
         ego = scene.ego
-        out = []
-        for a in scene.actors:
-            if a.path is not ego.path or a.kind not in VEHICLE_KINDS or a.lateral_m != 0.0:
-                continue
-            ahead = (a.offset_m - ego.offset_m) % ego.path.length
-            tail = ahead - VEHICLE_KINDS[a.kind].length / 2 - scene.extras["ego_size_m"][0] / 2
-            if ahead < 28.0:  # the lead car's farthest; the others keep clear of the first 30 m
-                out.append((tail, a.speed_mps == ego.speed_mps))
-        return scene, out
+        cars = sorted(((a.offset_m - ego.offset_m) % ego.path.length, a) for a in scene.actors
+                      if a.path is ego.path and a.kind in VEHICLE_KINDS and a.lateral_m == 0.0)
+        return scene, cars
 
-    followed = 0
+    followed = queued = 0
     for seed in range(10):
-        scene, found = leads(t02_dense, seed)
-        assert len(found) == scene.extras["dense_lead"]
-        for tail, same_speed in found:
-            assert traffic.DENSE_LEAD_GAP_M[0] - 1e-6 <= tail <= traffic.DENSE_LEAD_GAP_M[1] + 1e-6 and same_speed
-        followed += len(found)
-        assert leads(t02, seed)[1] == []  # the default: free road ahead
-    assert followed >= 5  # DENSE_LEAD_SHARE 0.8 of ten episodes, less where riders ahead leave no room
+        scene, cars = ahead_in_lane(t02_dense, seed)
+        n = scene.extras["dense_lead"]
+        ours, rest = cars[:n], cars[n:]
+        nose = scene.extras["ego_size_m"][0] / 2
+        for k, (ahead, car) in enumerate(ours):
+            assert car.speed_mps == scene.ego.speed_mps
+            half = VEHICLE_KINDS[car.kind].length / 2
+            if k == 0:
+                lo, hi = traffic.DENSE_LEAD_GAP_M
+                gap = ahead - half - nose
+            else:
+                lo, hi = traffic.DENSE_QUEUE_GAP_M
+                gap = ahead - half - (ours[k - 1][0] + VEHICLE_KINDS[ours[k - 1][1].kind].length / 2)
+            assert lo - 1e-6 <= gap <= hi + 1e-6, (seed, k, gap)
+        assert all(ahead > 28.0 for ahead, _ in rest)  # the others keep clear of the road just ahead
+        followed += n > 0
+        queued += max(0, n - 1)
+        assert all(ahead > 28.0 for ahead, _ in ahead_in_lane(t02, seed)[1])  # the default: free road ahead
+    assert followed >= 5 and queued >= 2  # DENSE_LEAD_SHARE 0.8, DENSE_QUEUE_SHARES; riders ahead may leave no room
 
 
 def test_street_density_is_a_town_parameter_of_domain_files():
