@@ -58,11 +58,9 @@ DENSE_WALKERS = 150
 DENSE_NEAR_M = 25.0  # parked cars fill the strips of the loops this close to the ego's
 DENSE_STREAM = 34  # the crowd's generator: default_rng([episode seed, DENSE_STREAM])
 # ... and at density 1 this share of episodes follows a car in the ego's lane, its tail DENSE_LEAD_GAP_M
-# ahead of the ego's nose (at the loop's speed, so the gaps hold), with more queued ahead of it, as real
-# drives mostly do.
+# ahead of the ego's nose (at the loop's speed, so the gap holds), as real drives mostly do.
 DENSE_LEAD_SHARE, DENSE_LEAD_GAP_M = 0.8, (5.0, 20.0)
 DENSE_LEAD_WEIGHTS = {"sedan": 0.5, "suv": 0.3, "van": 0.2}
-DENSE_QUEUE_SHARES, DENSE_QUEUE_GAP_M = (0.6, 0.4), (4.0, 14.0)  # a second and a third car queued ahead of it
 DENSE_LEAD_STREAM = 35
 
 
@@ -272,9 +270,8 @@ def _place_walkers(p: _Placement, n_sidewalk: int) -> None:
 
 
 def _lead(p: _Placement, density: float, episode_seed: int) -> int:
-    """Dense streets: a car ahead in the ego's lane for ``density`` x DENSE_LEAD_SHARE of the episodes, and
-    cars queued ahead of it (DENSE_QUEUE_SHARES: the chance of each next one), where the riders ahead leave
-    room; drawn from a generator of its own. Returns how many were placed."""
+    """Dense streets: a car ahead in the ego's lane for ``density`` x DENSE_LEAD_SHARE of the episodes, where the
+    riders ahead leave room; drawn from a generator of its own. Returns 1 or 0."""
     if density <= 0:
         return 0
     rng = np.random.default_rng([episode_seed, DENSE_LEAD_STREAM])
@@ -283,22 +280,12 @@ def _lead(p: _Placement, density: float, episode_seed: int) -> int:
     kind = _pick_kind(rng, list(DENSE_LEAD_WEIGHTS), DENSE_LEAD_WEIGHTS)
     half = VEHICLE_KINDS[kind].length / 2
     s = (p.ego_s + p.ego_size[0] / 2 + float(rng.uniform(*DENSE_LEAD_GAP_M)) + half) % p.lengths[p.ego_i]
-    placed = 0
-    for queued in range(1 + len(DENSE_QUEUE_SHARES)):  # the lead, then the cars queued ahead of it
-        if queued and rng.random() >= DENSE_QUEUE_SHARES[queued - 1]:
-            break
-        if queued:
-            kind_next = _pick_kind(rng, list(DENSE_LEAD_WEIGHTS), DENSE_LEAD_WEIGHTS)
-            half_next = VEHICLE_KINDS[kind_next].length / 2
-            s = (s + half + float(rng.uniform(*DENSE_QUEUE_GAP_M)) + half_next) % p.lengths[p.ego_i]
-            kind, half = kind_next, half_next
-        if not p.slots[p.ego_i].free(s, half, 2.0):
-            break
-        p.slots[p.ego_i].take(s, half)
-        paint = PAINTS[int(rng.integers(len(PAINTS)))]
-        p.actors.append(Actor(kind, vehicle_parts(kind, paint), p.ego_loop.path, s, float(p.speeds[p.ego_i]), 0.0))
-        placed += 1
-    return placed
+    if not p.slots[p.ego_i].free(s, half, 2.0):
+        return 0
+    p.slots[p.ego_i].take(s, half)
+    paint = PAINTS[int(rng.integers(len(PAINTS)))]
+    p.actors.append(Actor(kind, vehicle_parts(kind, paint), p.ego_loop.path, s, float(p.speeds[p.ego_i]), 0.0))
+    return 1
 
 
 def _crowd(p: _Placement, density: float, episode_seed: int) -> tuple[int, int]:
