@@ -59,7 +59,7 @@ DENSE_NEAR_M = 25.0  # parked cars fill the strips of the loops this close to th
 DENSE_STREAM = 34  # the crowd's generator: default_rng([episode seed, DENSE_STREAM])
 # ... and at density 1 this share of episodes follows a car in the ego's lane, its tail DENSE_LEAD_GAP_M
 # ahead of the ego's nose (at the loop's speed, so the gap holds), as real drives mostly do.
-DENSE_LEAD_SHARE, DENSE_LEAD_GAP_M = 1.0, (3.0, 15.0)
+DENSE_LEAD_SHARE, DENSE_LEAD_GAP_M = 0.8, (5.0, 20.0)
 DENSE_LEAD_WEIGHTS = {"sedan": 0.5, "suv": 0.3, "van": 0.2}
 DENSE_LEAD_STREAM = 35
 
