@@ -6,8 +6,8 @@ to resume, and exit code 1."""
 from __future__ import annotations
 
 import os
-import subprocess
 import re
+import subprocess
 import sys
 import threading
 import time
