@@ -340,6 +340,7 @@ def _clear_for_pass(inner, scene, flags) -> bool:
     from pyrender.constants import RenderFlags
 
     inner._configure_forward_pass_viewport(flags)
+    GL.glDisable(GL.GL_POLYGON_OFFSET_FILL)  # the shadow pass's (a pass cut short leaves it on): a pass sets its own
     seg = bool(flags & RenderFlags.SEG)
     GL.glClearColor(*((0.0, 0.0, 0.0, 1.0) if seg else scene.bg_color))
     GL.glClear(GL.GL_COLOR_BUFFER_BIT | GL.GL_DEPTH_BUFFER_BIT)

@@ -172,8 +172,28 @@ def _node_set(items) -> tuple[_NodeSet, list[int]]:
     return _NodeSet(nodes, np.array(centres).reshape(-1, 3), np.array(radii)), keys
 
 
+def _draws(method):
+    """A renderer method that drives GL. Cut short (an exception, or Ray's cancel raising KeyboardInterrupt
+    in the task's thread mid-pass), it may leave the context's state half-set (a shadow pass's polygon
+    offset stayed on: every later episode without shadows drew its depth shifted) and the renderer's
+    caches half-built; ``_cut_short`` stays set then, and the next :meth:`Renderer.load` starts afresh."""
+
+    @functools.wraps(method)
+    def drawing(self, *args, **kwargs):
+        outer = self._cut_short
+        self._cut_short = True
+        result = method(self, *args, **kwargs)
+        self._cut_short = outer
+        return result
+
+    return drawing
+
+
 class Renderer:
-    """A long-lived off-screen renderer; call :meth:`load` per episode, then :meth:`render`."""
+    """A long-lived off-screen renderer; call :meth:`load` per episode, then :meth:`render`.
+
+    A draw cut short (see ``_draws``) costs a fresh GL context at the next :meth:`load`, so the
+    episodes after it are drawn as by a new renderer, byte for byte."""
 
     def __init__(self, *, znear: float = ZNEAR_M, zfar: float = ZFAR_M, cull_m: float = CULL_M,
                  tile_m: float = TILE_M, pbr: bool = False, msaa: int = 0, shadows: bool = True,
@@ -197,6 +217,7 @@ class Renderer:
         self._scene = None
         self._episode: EpisodeScene | None = None
         self._draw_list: list = []
+        self._cut_short = False  # a GL call of this renderer was interrupted: load() starts afresh
 
     # -- lifecycle ---------------------------------------------------------
     def __enter__(self) -> "Renderer":
@@ -206,11 +227,12 @@ class Renderer:
         self.close()
 
     def close(self) -> None:
-        if self._offscreen is not None:
-            compat.delete_offscreen(self._offscreen)
-            self._offscreen = None
+        offscreen, self._offscreen = self._offscreen, None
         self._scene = self._static = self._static_world = self._episode = None
         self._draw_list = []
+        self._size = None
+        if offscreen is not None:
+            compat.delete_offscreen(offscreen)
 
     def _ensure_context(self, width: int, height: int) -> None:
         if self._offscreen is None:
@@ -231,7 +253,17 @@ class Renderer:
     # -- per episode -------------------------------------------------------
     def load(self, scene: EpisodeScene, weather: Weather, viewpoint: Viewpoint, width: int, height: int,
              sky_seed: int = 0) -> None:
-        """Build the pyrender scene of an episode (static nodes are reused for the same World)."""
+        """Build the pyrender scene of an episode (static nodes are reused for the same World); after a
+        draw cut short, in a fresh GL context."""
+        if self._cut_short:
+            log.warning("the last draw was cut short: the renderer starts a fresh GL context")
+            self._cut_short = False
+            self.close()
+        self._load(scene, weather, viewpoint, width, height, sky_seed)
+
+    @_draws
+    def _load(self, scene: EpisodeScene, weather: Weather, viewpoint: Viewpoint, width: int, height: int,
+              sky_seed: int) -> None:
         pr = compat.import_pyrender()
         self._ensure_context(width, height)
         self.rig = CameraRig(viewpoint, width, height)
@@ -285,6 +317,7 @@ class Renderer:
         self._shadow_strength = shadow_strength(weather)
         self._scene = prs
 
+    @_draws
     def use_sensor(self, sensor, width: int, height: int, hood: bool | None = None) -> None:
         """Draw the next frames from a rig's sensor (``domains.rigs.Sensor``) at ``width`` x ``height``:
         its mounting and field of view; the hood only for the viewpoint's own camera. The loaded
@@ -295,6 +328,7 @@ class Renderer:
         if self._hood_node is not None:
             self._hood_node.mesh.is_visible = self.rig.has_hood if hood is None else hood
 
+    @_draws
     def render_labels(self, t: float, cull_m: float | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The class pass alone at time ``t`` from the current sensor: (planar depth float32 metres, background
         ZFAR; class ids uint8, background sky; instance ids uint16) and world_from_camera (OpenGL axes).
@@ -412,6 +446,7 @@ class Renderer:
         params = np.array([self._shadow_strength, 1.5 * texel, SHADOW_FADE_M, SHADOW_FAR_M], np.float32)
         return passes.ShadowFrame(view=view, proj=proj, casters=ordered, uniforms={"shadow_params": params})
 
+    @_draws
     def render(self, t: float, weather: Weather | None = None) -> RenderResult:
         """Render the loaded episode at simulated time ``t`` (seconds), under ``weather`` if given
         (a shift's weather at that frame; see ``set_weather``), else the episode's."""
