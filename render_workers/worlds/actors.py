@@ -57,27 +57,9 @@ def _wheels(xs, half_track, radius, width, sides=8):
     return M._concat(list(zip(vs, fs)))
 
 
-def _frustum(cx: float, z0: float, z1: float, bottom: tuple[float, float], top: tuple[float, float],
-             top_dx: float = 0.0):
-    """A closed box-like hull from a ``bottom`` (length, width) rectangle at z0 to a ``top`` one at z1, centred
-    on x = cx (the top shifted by ``top_dx``): a cabin whose windscreen and rear window slope."""
-    (lb, wb), (lt, wt) = bottom, top
-    corners = [(cx + sx * lb / 2, sy * wb / 2, z0) for sx in (-1, 1) for sy in (-1, 1)]
-    corners += [(cx + top_dx + sx * lt / 2, sy * wt / 2, z1) for sx in (-1, 1) for sy in (-1, 1)]
-    hull = trimesh.Trimesh(np.array(corners), process=False).convex_hull
-    return np.asarray(hull.vertices, np.float64), np.asarray(hull.faces, np.int64)
-
-
-# How much each kind's cabin narrows to its roof, along and across (1: upright, a box).
-CABIN_SLOPE = {"sedan": (0.62, 0.86), "suv": (0.8, 0.9), "van": (0.88, 0.94), "truck": (0.95, 0.96), "bus": (1.0, 1.0)}
-TAIL_RGB, HEAD_RGB, PLATE_RGB = (165, 22, 24), (228, 226, 214), (232, 232, 226)
-
-
 @lru_cache(maxsize=None)
 def _vehicle_geometry(name: str):
-    """(body, glass, dark, tail lights, head lights, plates) geometry of one vehicle kind: a body to the
-    beltline, a cabin of glass that slopes to its roof, wheels and a dark underbody (the shadowed gap
-    under a real car), bumpers, lamps at the four corners and a plate at each end."""
+    """(body, glass, dark) geometry of one vehicle kind."""
     k = VEHICLE_KINDS[name]
     L, Wd, H = k.length, k.width, k.height
     clear = k.wheel_r * 0.8
@@ -86,25 +68,15 @@ def _vehicle_geometry(name: str):
     r0, r1 = k.cabin
     cab_len = (r1 - r0) * L
     cab_x = (r0 + r1) / 2 * L
-    along, across = CABIN_SLOPE[name]
-    roof_z = zg + (H - zg) * 0.8
-    glass = _frustum(cab_x, zg, roof_z, (cab_len, Wd * 0.92), (cab_len * along, Wd * 0.92 * across),
-                     top_dx=-0.06 * cab_len * (1.0 - along))
-    body.append(M.boxes([[cab_x - 0.06 * cab_len * (1.0 - along), 0, roof_z]],
-                        [[cab_len * along * 0.98, Wd * 0.92 * across * 1.02, (H - zg) * 0.2]]))
+    glass = M.boxes([[cab_x, 0, zg]], [[cab_len, Wd * 0.92, (H - zg) * 0.8]])
+    body.append(M.boxes([[cab_x, 0, zg + (H - zg) * 0.8]], [[cab_len * 0.98, Wd * 0.94, (H - zg) * 0.2]]))
     if name == "truck":  # cargo box behind the cab
         body.append(M.boxes([[-0.18 * L, 0, clear + 0.2]], [[0.62 * L, Wd, H - clear - 0.2]]))
     xs = (L / 2 - 0.9 - k.wheel_r * 0.5, -L / 2 + 0.9 + k.wheel_r * 0.5)
     dark = [_wheels(xs, Wd / 2 - 0.12, k.wheel_r, 0.25)]
     dark.append(M.boxes([[L / 2 + 0.01, 0, clear + 0.05]], [[0.04, Wd * 0.9, 0.22]]))  # grille / bumper
     dark.append(M.boxes([[-L / 2 - 0.01, 0, clear + 0.05]], [[0.04, Wd * 0.9, 0.22]]))
-    dark.append(M.boxes([[0, 0, 0.12]], [[L - 0.3, Wd * 0.84, clear - 0.12]]))  # underbody
-    lamp_z, lamp_y = clear + 0.3 + 0.35 * (zg - clear - 0.3), Wd / 2 - 0.2
-    lamp = [[0.03, 0.32, min(0.16, zg - lamp_z)]]
-    tails = M.boxes([[-L / 2 - 0.006, y, lamp_z] for y in (-lamp_y, lamp_y)], lamp)
-    heads = M.boxes([[L / 2 + 0.006, y, lamp_z] for y in (-lamp_y, lamp_y)], lamp)
-    plates = M.boxes([[x, 0, clear + 0.3] for x in (-L / 2 - 0.02, L / 2 + 0.02)], [[0.02, 0.52, 0.12]])
-    return M._concat(body), glass, M._concat(dark), tails, heads, plates
+    return M._concat(body), glass, M._concat(dark)
 
 
 def _part(cls: str, geom, color, material: str, amount: float = 0.04) -> Part:
@@ -115,13 +87,10 @@ def _part(cls: str, geom, color, material: str, amount: float = 0.04) -> Part:
 
 
 def vehicle_parts(name: str, paint) -> tuple[Part, ...]:
-    body, glass, dark, tails, heads, plates = _vehicle_geometry(name)
+    body, glass, dark = _vehicle_geometry(name)
     return (_part("vehicle", body, paint, "glossy"),
             _part("vehicle", glass, (34, 44, 56), "glass"),
-            _part("vehicle", dark, (26, 26, 28), "matte"),
-            _part("vehicle", tails, TAIL_RGB, "glossy"),
-            _part("vehicle", heads, HEAD_RGB, "glossy"),
-            _part("vehicle", plates, PLATE_RGB, "matte"))
+            _part("vehicle", dark, (26, 26, 28), "matte"))
 
 
 def _person(height: float, sitting: bool = False):
