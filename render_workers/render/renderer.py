@@ -230,7 +230,6 @@ class Renderer:
         offscreen, self._offscreen = self._offscreen, None
         self._scene = self._static = self._static_world = self._episode = None
         self._draw_list = []
-        self._size = None
         if offscreen is not None:
             compat.delete_offscreen(offscreen)
 
