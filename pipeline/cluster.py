@@ -201,6 +201,38 @@ def _quiet_cluster_messages(ray) -> None:
     worker.print_to_stdstream = print_to_stdstream
 
 
+SHUTDOWN_LOG = "driver-shutdown.err"
+
+
+def shutdown(ray) -> None:
+    """``ray.shutdown()``, with whatever Ray's native code writes straight to this process's
+    stderr meanwhile (file descriptor 2, past Python's ``sys.stderr``) put in SHUTDOWN_LOG in
+    the session's logs dir instead: after a stop, the driver's core worker logs one ERROR line
+    per task it can no longer report to its raylet ("Failed to push error to driver ..."),
+    which the user can do nothing with, between idda's own last lines. Where the logs dir is
+    unknown (another Ray version), those lines are dropped."""
+    import sys
+
+    try:
+        target = os.path.join(ray._private.worker._global_node.get_logs_dir_path(), SHUTDOWN_LOG)
+    except AttributeError:  # not connected, or another Ray version
+        target = os.devnull
+    sys.stderr.flush()
+    saved = os.dup(2)
+    try:
+        try:
+            fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_APPEND, 0o644)
+        except OSError:
+            fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, 2)
+        os.close(fd)
+        ray.shutdown()
+    finally:
+        sys.stderr.flush()
+        os.dup2(saved, 2)
+        os.close(saved)
+
+
 def attach(ray, address: str | None, workers: int | None = None) -> None:
     """Attach to the cluster at ``address`` (one line if nothing answers there), or start a
     local one of ``workers`` CPUs (default all cores), unless this process already has Ray."""

@@ -23,7 +23,7 @@ from domains.catalog import using, weather
 from manifests.layout import record_layout
 from manifests.reader import compact, episode_frames, refuse_misfiled, scan
 from manifests.schema import STATS_DIR, named_rows
-from pipeline.cluster import _import_ray, attach, cluster_address, start_local_cluster  # noqa: F401 (re-exported)
+from pipeline.cluster import _import_ray, attach, cluster_address, shutdown, start_local_cluster  # noqa: F401 (re-exported)
 from pipeline.cluster import _host_port
 from pipeline.planner import make_plan
 from pipeline.provenance import RunConfigError, check_rows, for_root, prepare_root, read_run, recorded_as_asked
@@ -558,7 +558,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
             report_progress()
     finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
         if started and ray.is_initialized():
-            ray.shutdown()
+            shutdown(ray)
         if reaper is not None:
             reaper.stop()
 
@@ -656,11 +656,11 @@ def _cluster_first(config: ProduceConfig):
         raise
     except BaseException:
         if ray.is_initialized():
-            ray.shutdown()
+            shutdown(ray)
         raise
     else:
         if ray.is_initialized():
-            ray.shutdown()
+            shutdown(ray)
 
 
 def _checked_todo(storage, config: ProduceConfig, plan, state, report: ProduceReport) -> tuple[list, dict]:

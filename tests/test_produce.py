@@ -398,3 +398,28 @@ def test_a_local_cluster_that_does_not_start_is_one_line_and_exit_2(tmp_path, mo
         from pipeline.cluster import start_local_cluster
 
         start_local_cluster(ray, 1)
+
+
+def test_what_ray_writes_to_stderr_while_shutting_down_goes_to_the_session_logs(tmp_path, capfd):
+    """After a stop, the driver's core worker logs an ERROR line straight to file descriptor 2 per task it
+    can no longer report ("Failed to push error to driver ..."), between idda's own last lines:
+    `shutdown` puts such lines in the session's logs dir, and gives stderr back afterwards.
+    (Ray's native line is stood in for: it comes only when a stop and a task's end race.)"""
+    import types
+
+    from pipeline.cluster import SHUTDOWN_LOG, shutdown
+
+    def native_shutdown():
+        os.write(2, b"[E task_manager.cc:1545] Failed to push error to driver for task 1f\n")
+
+    node = types.SimpleNamespace(get_logs_dir_path=lambda: str(tmp_path))
+    fake = types.SimpleNamespace(shutdown=native_shutdown,
+                                 _private=types.SimpleNamespace(worker=types.SimpleNamespace(_global_node=node)))
+    shutdown(fake)
+    os.write(2, b"stopped by SIGHUP\n")  # idda's own line after it: the terminal's again
+    assert capfd.readouterr().err == "stopped by SIGHUP\n"
+    assert "Failed to push error" in (tmp_path / SHUTDOWN_LOG).read_text()
+
+    fake._private.worker._global_node = None  # no session (another Ray version, Ray Client): dropped
+    shutdown(fake)
+    assert capfd.readouterr().err == ""
