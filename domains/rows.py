@@ -125,6 +125,10 @@ class Weather:
     # (render_workers.render.postfx._look_rng). 0 = one look per episode, as before.
     frame_looks: float = param("share of frames that draw their own camera exposure and random colours "
                                "(0 = one per episode)", "share", 0.0, 1.0, default=0.0)
+    # Reflections on vehicles (issue 34), opt-in: glossy paint and glass mirror a world-anchored street (sky,
+    # a skyline of facades, the road) by Fresnel's law, from the surface's normal and the view direction
+    # (render_workers.render.texturefx.reflections). 0 = the paint as designed.
+    reflections: float = param("sky, facades and road mirrored on vehicles (0 = off)", "share", 0.0, 1.0, default=0.0)
 
     @property
     def precipitation(self) -> float:

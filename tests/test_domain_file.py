@@ -42,9 +42,9 @@ NEW_TOWN_DEFAULTS = (0.0,)
 NEW_VIEWPOINT_DEFAULTS = (90.0,)
 # Parameters added with fog, night, snow and shifts (snowfall, snow_cover, street_lights, car_lights,
 # shift_from, shift_to, easing), structured domain randomization (randomize), a real camera's look
-# (camera), the surface and light levers (textures, foliage, occlusion) and looks drawn per frame
-# (frame_looks): their defaults, which the paper's three weathers keep.
-NEW_WEATHER_DEFAULTS = (0.0, 0.0, 0.0, 0.0, "", "", "linear", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+# (camera), the surface and light levers (textures, foliage, occlusion), looks drawn per frame
+# (frame_looks) and reflections on vehicles: their defaults, which the paper's three weathers keep.
+NEW_WEATHER_DEFAULTS = (0.0, 0.0, 0.0, 0.0, "", "", "linear", 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 _V = visibility_of_share  # fog, a share per km in those tables, is the visibility of that share (issue 32)
 WEATHERS_REF = (
     ('CN', 'ClearNoon', 65.0, 40.0, (1.0, 0.98, 0.94), 4.0, 0.45, (38, 98, 190), (160, 200, 235), 0.1, 0.0, 0.0, 0.0,

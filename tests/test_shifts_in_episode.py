@@ -42,7 +42,7 @@ def test_shift_entries_blend_their_ends_by_the_easing():
     ('to = "NT"\n', "key 'from': missing"),
     ('from = "CN"\nto = "FG"\nshift_to = "NT"\n', "key 'shift_to': write it 'to' \\(a domain file's spelling\\)$"),
     ('shift_from = "CN"\nshift_to = "NT"\n', "key 'shift_from': write it 'from'"),
-    ('from = "CN"\nto = "NT"\ntill = 3\n', "key 'till': unknown key; valid keys: like, code, .*, from, to, easing, randomize, camera, textures, foliage, occlusion, frame_looks$"),
+    ('from = "CN"\nto = "NT"\ntill = 3\n', "key 'till': unknown key; valid keys: like, code, .*, from, to, easing, randomize, camera, textures, foliage, occlusion, frame_looks, reflections$"),
 ])
 def test_bad_shifts_give_one_line(entry, words):
     with pytest.raises(CatalogError, match=words):

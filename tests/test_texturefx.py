@@ -30,7 +30,8 @@ def grey():
     return np.full((H, W, 3), 0.5, np.float32)
 
 
-LEVERS = {"textures": "retexture", "foliage": "foliage", "occlusion": "occlusion"}  # weather parameter: effect
+LEVERS = {"textures": "retexture", "foliage": "foliage", "occlusion": "occlusion",  # weather parameter: effect
+          "reflections": "reflections"}
 
 
 @pytest.mark.parametrize("lever", sorted(LEVERS))
@@ -95,13 +96,54 @@ def test_occlusion_darkens_what_nearer_things_surround_and_leaves_planes():
     assert np.abs(road - 0.5).max() < 0.02  # a plane's disparity is affine: its local mean is itself
 
 
+VEHICLE = class_id("vehicle")
+CAR_Z, CAR_ROOF_M, CAR_LENGTH = 8.0, 1.45, 4.5  # a car ahead: its rear face this far, this tall, then its roof
+
+
+def car_ahead(seed=0, **levers):
+    """The tree crown's scene with a car ahead in the middle: its vertical rear face at CAR_Z from the
+    road up to CAR_ROOF_M, and its flat roof (seen at a grazing angle from viewpoint V's 2.1 m) behind."""
+    ctx = scene(seed=seed, **levers)
+    classes, depth = ctx.classes.copy(), ctx.depth.copy()
+    f, cy, eye = ctx.rig.focal_px, ctx.rig.cy, ctx.rig.viewpoint.camera_height_m
+    row = lambda height, z: int(round(cy + f * (eye - height) / z - 0.5))  # noqa: E731
+    cols = slice(W // 2, W // 2 + 14)
+    face = slice(row(CAR_ROOF_M, CAR_Z) + 1, row(0.3, CAR_Z) + 1)
+    classes[face, cols], depth[face, cols] = VEHICLE, CAR_Z
+    roof = np.arange(row(CAR_ROOF_M, CAR_Z + CAR_LENGTH), face.start)
+    classes[roof, cols] = VEHICLE
+    depth[roof, cols] = (f * (eye - CAR_ROOF_M) / (roof + 0.5 - cy))[:, None]
+    return replace(ctx, classes=classes, depth=depth)
+
+
+def test_reflections_mirror_the_street_on_vehicles_only():
+    ctx = car_ahead(seed=2, reflections=1.0)
+    out = texturefx.reflections(grey(), ctx)
+    car = ctx.classes == VEHICLE
+    assert np.array_equal(out[~car], grey()[~car])
+    rows = np.flatnonzero(car.any(axis=1))
+    face = rows[ctx.depth[rows, W // 2] == CAR_Z]
+    roof = rows[ctx.depth[rows, W // 2] > CAR_Z]
+    assert len(face) >= 6 and len(roof) >= 2
+    light = out[:, W // 2: W // 2 + 14].mean(axis=(1, 2))
+    # the rear face mirrors the sky above its shoulder line and the road below; the roof, seen at a grazing
+    # angle, mirrors most (Fresnel)
+    assert light[face[:2]].mean() > 0.5 > light[face[-2:]].mean() + 0.05
+    assert np.abs(light[roof] - 0.5).mean() > 2 * np.abs(light[face] - 0.5).mean()
+    assert np.array_equal(texturefx.reflections(grey(), replace(ctx, rng=np.random.default_rng(5))), out)
+    hood = np.zeros((H, W), bool)
+    hood[face[-3]:, :] = True  # the ego's hood over the car's bottom rows: it keeps its paint
+    hooded = texturefx.reflections(grey(), replace(ctx, hood_mask=hood))
+    assert np.array_equal(hooded[hood], grey()[hood]) and np.array_equal(hooded[~hood], out[~hood])
+
+
 CHILD = """
 import hashlib, sys
 
 import numpy as np
-from tests.test_texturefx import scene
+from tests.test_texturefx import car_ahead
 from render_workers.render import postfx
-ctx = scene(seed=11, textures=1.0, foliage=1.0, occlusion=1.0)
+ctx = car_ahead(seed=11, textures=1.0, foliage=1.0, occlusion=1.0, reflections=1.0)
 rgb = (np.random.default_rng(2).uniform(0.1, 0.9, (ctx.rig.height, ctx.rig.width, 3)) * 255).astype(np.uint8)
 print(hashlib.sha256(postfx.apply(rgb, ctx).tobytes()).hexdigest())
 """

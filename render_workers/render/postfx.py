@@ -472,6 +472,7 @@ EFFECTS: dict[str, Effect] = {
     "antialias": antialias,
     "foliage": texturefx.foliage,
     "occlusion": occlusion,
+    "reflections": texturefx.reflections,
     "puddles": puddles,
     "wet_road": wet_road,
     "snow_cover": weatherfx.snow_cover,

@@ -148,3 +148,67 @@ def foliage(img: np.ndarray, ctx) -> np.ndarray:
     out = img.copy()
     out[veg] = img[veg] * (np.float32(1.0) + np.float32(strength) * (shade - np.float32(1.0)))[:, None]
     return np.clip(out, np.float32(0.0), np.float32(1.0))
+
+
+VEHICLE_ID = class_id("vehicle")
+REFLECT_STREAM = 38  # the mirrored street: np.random.default_rng([episode_seed, REFLECT_STREAM])
+REFLECT_F0 = 0.2  # share of the light a surface facing the camera mirrors (Schlick: 1 at grazing angles)
+SKY_RADIANCE = 1.6  # the mirrored sky against the paint (brighter than white: clipped after the mix)
+SKYLINE_BLOCKS = 36  # facades around the horizon, each of its own height and shade
+SKYLINE_TOP = (0.05, 0.5)  # sine of a facade's top above the horizon
+FACADE_SHADE = (0.12, 0.5)
+GROUND_SHADE = (0.06, 0.2)
+WINDOW_ROWS = 40.0  # window rows per unit of sine elevation on a mirrored facade ...
+WINDOW_COLUMNS = 5  # ... and columns per facade
+SHOULDER_M = 0.9  # height of a car's shoulder line: panels above it lean towards the sky, below it the road ...
+BULGE = 0.8  # ... by up to this much of a unit normal
+
+
+def reflections(img: np.ndarray, ctx) -> np.ndarray:
+    """Reflections on vehicles (the weather's ``reflections`` strength; 0: a no-op): each pixel of a car's
+    paint or glass mirrors, by Schlick's approximation of Fresnel's law, what lies along the view direction
+    reflected about the surface's normal (from the depth) in a street drawn once per episode and fixed to
+    the world's axes: the weather's sky, a skyline of facades with rows of windows, and the road below the
+    horizon. Flat-shaded boxes then carry the sweeping highlights and mirrored edges of real paint."""
+    strength = ctx.weather.reflections
+    if strength <= 0.0:
+        return img
+    mask = (ctx.classes == VEHICLE_ID) & ~ctx.hood_mask
+    if not mask.any():
+        return img
+    from outputs.geometry import CV_FROM_GL, normals_from_depth
+
+    f = np.float32
+    rng = np.random.default_rng([ctx.episode_seed, REFLECT_STREAM])
+    tops = rng.uniform(*SKYLINE_TOP, SKYLINE_BLOCKS).astype(f)
+    shades = (rng.uniform(*FACADE_SHADE, (SKYLINE_BLOCKS, 1)) * rng.uniform(0.8, 1.2, (SKYLINE_BLOCKS, 3))).astype(f)
+    ground, turn = f(rng.uniform(*GROUND_SHADE)), rng.uniform(0.0, 2.0 * np.pi)
+    zenith, horizon = (np.asarray(c, f) / f(255.0) for c in (ctx.weather.sky_zenith, ctx.weather.sky_horizon))
+
+    cam = _camera_points(ctx)[mask]
+    view = cam / np.linalg.norm(cam, axis=1, keepdims=True)
+    normal = (normals_from_depth(ctx.depth, ctx.rig.K)[mask] * np.diag(CV_FROM_GL)[:3]).astype(f)  # OpenCV -> GL axes
+    rotation = ctx.world_from_camera[:3, :3].astype(f)
+    view, normal = view @ rotation.T, normal @ rotation.T  # world axes from here on (z up)
+    # Car bodies are convex where ours are flat boxes: above the shoulder line a panel turns to the sky,
+    # below it to the road. The normal leans so by the point's height above the road under the camera.
+    height = (cam @ rotation.T)[:, 2] + f(ctx.rig.viewpoint.camera_height_m)
+    normal[:, 2] += np.clip((height - f(SHOULDER_M)) / f(0.4), f(-1.0), f(1.0)) * f(BULGE)
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    facing = np.clip(-(view * normal).sum(axis=1), f(0.0), f(1.0))
+    mirrored = view + f(2.0) * facing[:, None] * normal
+    up = mirrored[:, 2]
+    around = (np.arctan2(mirrored[:, 1], mirrored[:, 0]) + turn) / (2.0 * np.pi) % 1.0 * SKYLINE_BLOCKS
+    block = np.minimum(around.astype(np.int64), SKYLINE_BLOCKS - 1)
+
+    sky = np.clip(up, 0.0, 1.0)[:, None] ** f(0.5)
+    env = (horizon + (zenith - horizon) * sky) * f(SKY_RADIANCE)
+    facade = (up > 0.0) & (up < tops[block])
+    windows = (np.sin(up * f(WINDOW_ROWS * np.pi)) > 0.3) & (np.sin(around * f(WINDOW_COLUMNS * np.pi)) > -0.4)
+    env[facade] = shades[block[facade]] * np.where(windows[facade], f(0.55), f(1.0))[:, None]
+    env[up <= 0.0] = ground
+    fresnel = f(REFLECT_F0) + f(1.0 - REFLECT_F0) * (f(1.0) - facing) ** 5
+    w = (f(strength) * fresnel)[:, None]
+    out = img.copy()
+    out[mask] = np.clip(img[mask] * (f(1.0) - w) + env.astype(f) * w, f(0.0), f(1.0))
+    return out
