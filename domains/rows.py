@@ -128,7 +128,8 @@ class Weather:
     # Reflections on vehicles (issue 34), opt-in: glossy paint and glass mirror a world-anchored street (sky,
     # a skyline of facades, the road) by Fresnel's law, from the surface's normal and the view direction
     # (render_workers.render.texturefx.reflections). 0 = the paint as designed.
-    reflections: float = param("sky, facades and road mirrored on vehicles (0 = off)", "share", 0.0, 1.0, default=0.0)
+    reflections: float = param("sky, facades and road mirrored on vehicles (0 = off, 1 = Fresnel's share, up to 2)",
+                               "strength", 0.0, 2.0, default=0.0)
 
     @property
     def precipitation(self) -> float:

@@ -137,6 +137,36 @@ def test_reflections_mirror_the_street_on_vehicles_only():
     assert np.array_equal(hooded[hood], grey()[hood]) and np.array_equal(hooded[~hood], out[~hood])
 
 
+def test_reflections_read_the_normals_the_whole_frame_gives():
+    """The normals are computed around each car only: the same values as over the whole frame, cars at the
+    image's edges and cars that touch one another included. The cars' sides curve away from the camera (depth
+    quadratic across the columns), so a normal's x and a box's edge both matter."""
+    from outputs.geometry import normals_from_depth
+
+    ctx = car_ahead(seed=4)
+    classes, depth = ctx.classes.copy(), ctx.depth.copy()
+    for rows, cols, z in ((slice(30, H), slice(0, 9), 3.0), (slice(26, 33), slice(W - 7, W), 12.0),
+                          (slice(28, 31), slice(W // 2 + 13, W // 2 + 20), 7.5), (slice(29, 33), slice(30, 37), 9.0)):
+        classes[rows, cols] = VEHICLE
+        side = np.arange(cols.stop - cols.start, dtype=np.float32)
+        depth[rows, cols] = z + 0.03 * side[None, :] ** 2
+    # the last car leans back too, and beside it what is not a car lies nearly at its depth: the whole
+    # frame's normals read that
+    depth[29:33, 30:37] += 0.05 * np.arange(4, dtype=np.float32)[:, None]
+    depth[29:33, 29] = depth[29:33, 30] - 0.001
+    depth[28, 30:37] = depth[29, 30:37] - 0.001
+    ctx = replace(ctx, classes=classes, depth=depth)
+    car = classes == VEHICLE
+    np.testing.assert_array_equal(texturefx._normals_within(ctx, car), normals_from_depth(depth, ctx.rig.K)[car])
+
+
+def test_reflections_above_one_mirror_more_and_stay_in_range():
+    one = texturefx.reflections(grey(), car_ahead(seed=2, reflections=1.0))
+    two = texturefx.reflections(grey(), car_ahead(seed=2, reflections=2.0))
+    assert np.abs(two - 0.5).sum() > 1.5 * np.abs(one - 0.5).sum()
+    assert two.min() >= 0.0 and two.max() <= 1.0
+
+
 CHILD = """
 import hashlib, sys
 

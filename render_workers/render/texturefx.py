@@ -164,6 +164,28 @@ SHOULDER_M = 0.9  # height of a car's shoulder line: panels above it lean toward
 BULGE = 0.8  # ... by up to this much of a unit normal
 
 
+def _normals_within(ctx, mask: np.ndarray) -> np.ndarray:
+    """(N, 3) ``normals_from_depth`` at ``mask``'s pixels, in their order, computed over each connected
+    region's bounding box and one pixel around it (a pixel's normal reads its four neighbours only), not
+    over the whole frame: the same values at a small share of the cost."""
+    import cv2
+
+    from outputs.geometry import normals_from_depth
+
+    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    normals = np.zeros(mask.shape + (3,), np.float64)
+    K = np.array(ctx.rig.K, np.float64)
+    for x, y, w, h, _ in stats[1:count]:
+        r0, r1 = max(y - 1, 0), min(y + h + 1, mask.shape[0])
+        c0, c1 = max(x - 1, 0), min(x + w + 1, mask.shape[1])
+        box = K.copy()
+        box[0, 2] -= c0
+        box[1, 2] -= r0
+        inside = mask[r0:r1, c0:c1]
+        normals[r0:r1, c0:c1][inside] = normals_from_depth(ctx.depth[r0:r1, c0:c1], box)[inside]
+    return normals[mask]
+
+
 def reflections(img: np.ndarray, ctx) -> np.ndarray:
     """Reflections on vehicles (the weather's ``reflections`` strength; 0: a no-op): each pixel of a car's
     paint or glass mirrors, by Schlick's approximation of Fresnel's law, what lies along the view direction
@@ -176,7 +198,7 @@ def reflections(img: np.ndarray, ctx) -> np.ndarray:
     mask = (ctx.classes == VEHICLE_ID) & ~ctx.hood_mask
     if not mask.any():
         return img
-    from outputs.geometry import CV_FROM_GL, normals_from_depth
+    from outputs.geometry import CV_FROM_GL
 
     f = np.float32
     rng = np.random.default_rng([ctx.episode_seed, REFLECT_STREAM])
@@ -187,7 +209,7 @@ def reflections(img: np.ndarray, ctx) -> np.ndarray:
 
     cam = _camera_points(ctx)[mask]
     view = cam / np.linalg.norm(cam, axis=1, keepdims=True)
-    normal = (normals_from_depth(ctx.depth, ctx.rig.K)[mask] * np.diag(CV_FROM_GL)[:3]).astype(f)  # OpenCV -> GL axes
+    normal = (_normals_within(ctx, mask) * np.diag(CV_FROM_GL)[:3]).astype(f)  # OpenCV -> GL axes
     rotation = ctx.world_from_camera[:3, :3].astype(f)
     view, normal = view @ rotation.T, normal @ rotation.T  # world axes from here on (z up)
     # Car bodies are convex where ours are flat boxes: above the shoulder line a panel turns to the sky,
@@ -208,7 +230,7 @@ def reflections(img: np.ndarray, ctx) -> np.ndarray:
     env[facade] = shades[block[facade]] * np.where(windows[facade], f(0.55), f(1.0))[:, None]
     env[up <= 0.0] = ground
     fresnel = f(REFLECT_F0) + f(1.0 - REFLECT_F0) * (f(1.0) - facing) ** 5
-    w = (f(strength) * fresnel)[:, None]
+    w = np.minimum(f(strength) * fresnel, f(1.0))[:, None]
     out = img.copy()
     out[mask] = np.clip(img[mask] * (f(1.0) - w) + env.astype(f) * w, f(0.0), f(1.0))
     return out
