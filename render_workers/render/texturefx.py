@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 
 from domains.catalog import class_id
+from outputs.geometry import CV_FROM_GL, normals_from_depth
 from render_workers.render.weatherfx import _camera_points, _world
 
 TEXTURE_STREAM = 36  # a class's pattern: np.random.default_rng([episode_seed, TEXTURE_STREAM, class id])
@@ -170,8 +171,6 @@ def _normals_within(ctx, mask: np.ndarray) -> np.ndarray:
     over the whole frame: the same values at a small share of the cost."""
     import cv2
 
-    from outputs.geometry import normals_from_depth
-
     count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     normals = np.zeros(mask.shape + (3,), np.float64)
     K = np.array(ctx.rig.K, np.float64)
@@ -198,8 +197,6 @@ def reflections(img: np.ndarray, ctx) -> np.ndarray:
     mask = (ctx.classes == VEHICLE_ID) & ~ctx.hood_mask
     if not mask.any():
         return img
-    from outputs.geometry import CV_FROM_GL
-
     f = np.float32
     rng = np.random.default_rng([ctx.episode_seed, REFLECT_STREAM])
     tops = rng.uniform(*SKYLINE_TOP, SKYLINE_BLOCKS).astype(f)
