@@ -15,7 +15,7 @@ import os
 from collections import deque
 from typing import Callable, Iterator
 
-from pipeline.cluster import _import_ray, attach
+from pipeline.cluster import _import_ray, attach, shutdown
 from roots.verify import check_unit, plain_runner
 
 log = logging.getLogger(__name__)
@@ -80,6 +80,6 @@ def ray_units(storage, units: list, config: dict | None, threads: int, address: 
                 yield ray.get(ref)
     finally:
         if started and ray.is_initialized():
-            ray.shutdown()
+            shutdown(ray)
         if reaper is not None:
             reaper.stop()

@@ -125,14 +125,21 @@ def _noise(rng: np.random.Generator, points: np.ndarray, footprint: np.ndarray, 
     return (np.sin(points @ k.T + phase) * weight).sum(axis=1) * np.float32(1.0 / np.sqrt(count / 2.0))
 
 
+def _lever_pixels(ctx, strength: float, cid: int) -> np.ndarray | None:
+    """The pixels of class ``cid`` a lever of ``strength`` repaints (the ego's hood keeps its paint); None
+    when the lever is off or the class is not in view."""
+    if strength <= 0.0:
+        return None
+    mask = (ctx.classes == cid) & ~ctx.hood_mask
+    return mask if mask.any() else None
+
+
 def foliage(img: np.ndarray, ctx) -> np.ndarray:
     """Leaf clusters on tree crowns and hedges (the weather's ``foliage`` strength; 0: a no-op): world-anchored
     clusters lit on top, dark gaps between them, single leaves within, where the renderer draws a smooth blob."""
     strength = ctx.weather.foliage
-    if strength <= 0.0:
-        return img
-    veg = (ctx.classes == VEGETATION_ID) & ~ctx.hood_mask
-    if not veg.any():
+    veg = _lever_pixels(ctx, strength, VEGETATION_ID)
+    if veg is None:
         return img
     rng = np.random.default_rng([ctx.episode_seed, FOLIAGE_STREAM])
     cam = _camera_points(ctx)[veg]
@@ -171,7 +178,7 @@ def _normals_within(ctx, mask: np.ndarray) -> np.ndarray:
     over the whole frame: the same values at a small share of the cost."""
     import cv2
 
-    count, labels, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
+    count, _, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
     normals = np.zeros(mask.shape + (3,), np.float64)
     K = np.array(ctx.rig.K, np.float64)
     for x, y, w, h, _ in stats[1:count]:
@@ -192,10 +199,8 @@ def reflections(img: np.ndarray, ctx) -> np.ndarray:
     the world's axes: the weather's sky, a skyline of facades with rows of windows, and the road below the
     horizon. Flat-shaded boxes then carry the sweeping highlights and mirrored edges of real paint."""
     strength = ctx.weather.reflections
-    if strength <= 0.0:
-        return img
-    mask = (ctx.classes == VEHICLE_ID) & ~ctx.hood_mask
-    if not mask.any():
+    mask = _lever_pixels(ctx, strength, VEHICLE_ID)
+    if mask is None:
         return img
     f = np.float32
     rng = np.random.default_rng([ctx.episode_seed, REFLECT_STREAM])
@@ -211,7 +216,7 @@ def reflections(img: np.ndarray, ctx) -> np.ndarray:
     view, normal = view @ rotation.T, normal @ rotation.T  # world axes from here on (z up)
     # Car bodies are convex where ours are flat boxes: above the shoulder line a panel turns to the sky,
     # below it to the road. The normal leans so by the point's height above the road under the camera.
-    height = (cam @ rotation.T)[:, 2] + f(ctx.rig.viewpoint.camera_height_m)
+    height = cam @ rotation[2] + f(ctx.rig.viewpoint.camera_height_m)
     normal[:, 2] += np.clip((height - f(SHOULDER_M)) / f(0.4), f(-1.0), f(1.0)) * f(BULGE)
     normal /= np.linalg.norm(normal, axis=1, keepdims=True)
     facing = np.clip(-(view * normal).sum(axis=1), f(0.0), f(1.0))
