@@ -248,6 +248,8 @@ class _LiveFrames:
 
 NODE_POLL_S = 2.0  # on a cluster, the driver looks for nodes Ray marked dead this often
 HEAD_GONE_S = 10.0  # the head's GCS port refusing connections this long: the head is gone (Ray waits 60 s, then aborts)
+HEAD_POLL_S = 1.0  # a thread tries the head's GCS port this often
+HEAD_STUCK_S = 5.0  # the head gone this long and the driver's loop has not said so: it is blocked inside Ray
 
 
 class _NodeWatch:
@@ -255,32 +257,57 @@ class _NodeWatch:
     once per ``every_s``): ``lost()`` gives the nodes found dead since the last
     call, once each. Ray marks a node dead when it stops answering its health
     checks (a hung node: failure threshold x (period + timeout), about 65 s with
-    Ray's defaults), minutes before a task running there fails. ``head_gone``:
-    the head's GCS port (a ``host:port`` address) refused connections for HEAD_GONE_S."""
+    Ray's defaults), minutes before a task running there fails.
 
-    def __init__(self, ray, every_s: float = NODE_POLL_S, address: str | None = None) -> None:
+    With a ``host:port`` address a thread tries the head's GCS port every HEAD_POLL_S:
+    ``head_gone`` once it refused connections for HEAD_GONE_S. The driver's loop then
+    stops (``HeadLost``), but a call into Ray can block on the dead head's raylet
+    until Ray aborts the process at 60 s; so if the loop has not ``noticed()`` the
+    loss HEAD_STUCK_S later, the thread calls ``on_stuck`` (the CLI says so and
+    exits). ``close()`` stops the thread."""
+
+    def __init__(self, ray, every_s: float = NODE_POLL_S, address: str | None = None,
+                 on_stuck: Callable[[], None] | None = None) -> None:
         self._ray, self._every_s = ray, every_s
         self._next = time.monotonic() + every_s
         self._dead = {node["NodeID"] for node in self._nodes() if not node.get("Alive")}
         plain = address is not None and not address.startswith("ray://")  # a client server is no GCS
         self.address, self._head = address, (_host_port(address) if plain else None)
-        self._silent_since: float | None = None
-        self.head_gone = False  # the head's GCS port has refused connections for HEAD_GONE_S
+        self.silent = False  # the head's GCS port refused a connection at the last try
+        self.head_gone = False  # ... and has refused them for HEAD_GONE_S
+        self._noticed, self._closed = threading.Event(), threading.Event()
+        self._on_stuck = on_stuck
+        if self._head is not None:
+            threading.Thread(target=self._watch_head, name="head-watch", daemon=True).start()
 
-    def _head_silent(self) -> bool:
-        """Whether the head's GCS port refuses connections now (updates ``head_gone``)."""
+    def _watch_head(self) -> None:
         import socket
 
-        if self._head is None:
-            return False
-        try:
-            socket.create_connection(self._head, timeout=2.0).close()
-        except OSError:
-            self._silent_since = self._silent_since or time.monotonic()
-            self.head_gone = time.monotonic() - self._silent_since >= HEAD_GONE_S
-            return True
-        self._silent_since = None
-        return False
+        silent_since = gone_since = None
+        while not self._closed.wait(HEAD_POLL_S):
+            try:
+                socket.create_connection(self._head, timeout=HEAD_POLL_S).close()
+            except OSError:
+                silent_since = silent_since or time.monotonic()
+                self.silent = True
+            else:
+                silent_since, self.silent = None, False
+                continue
+            if time.monotonic() - silent_since < HEAD_GONE_S:
+                continue
+            self.head_gone = True
+            gone_since = gone_since or time.monotonic()
+            if time.monotonic() - gone_since >= HEAD_STUCK_S and not self._noticed.is_set():
+                if self._on_stuck is not None:
+                    self._on_stuck()
+                return
+
+    def noticed(self) -> None:
+        """The driver's loop has seen ``head_gone`` and stops: the thread need not act."""
+        self._noticed.set()
+
+    def close(self) -> None:
+        self._closed.set()
 
     def _nodes(self) -> list[dict]:
         try:
@@ -294,7 +321,7 @@ class _NodeWatch:
         if time.monotonic() < self._next:
             return []
         self._next = time.monotonic() + self._every_s
-        if self._head_silent():  # no GCS to ask (Ray's own calls would wait for it)
+        if self.silent:  # no GCS to ask (Ray's own calls would wait for it)
             return []
         found = [(node["NodeID"], node.get("NodeManagerAddress", "?")) for node in self._nodes()
                  if not node.get("Alive") and node["NodeID"] not in self._dead]
@@ -308,9 +335,10 @@ def _retry_lost_nodes(ray, watch: _NodeWatch, live: _LiveFrames, in_flight: dict
     only be stopped, and wake), cancel those not yet known to have started anywhere
     (not forced: one may have been meant for the lost node), run them all again first,
     and say so in one line per node. True if a node was lost."""
-    lost = watch.lost()
     if watch.head_gone:
+        watch.noticed()
         raise HeadLost(report, watch.address)
+    lost = watch.lost()
     if not lost:
         return False
     unknown = [ref for ref, spec in in_flight.items() if spec.key not in live.nodes]
@@ -459,13 +487,14 @@ def _late_checks(config: ProduceConfig, plan, storage, state, report: ProduceRep
 
 def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceReport,
                    progress: Callable[[Progress], None] | None, start: float, episode_fn=None,
-                   fence=None, late: _LateChecks | None = None) -> None:
+                   fence=None, late: _LateChecks | None = None,
+                   on_head_lost: Callable[[HeadLost], None] | None = None) -> None:
     """Run one task per pending episode, at most ``limit`` in flight; fills ``report``.
     ``late``: the root's checks still to run (started here, once Ray is up); until they pass, the
     tasks' part commits wait (``ChecksGate``), and the episodes they find pending join the queue."""
     ray = _import_ray()
     started = not ray.is_initialized()
-    reaper = None
+    reaper = watch = None
     try:
         _connect(ray, config)
         if started and not _address(config):  # our own local cluster: it dies with this process
@@ -483,7 +512,8 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         if progress is not None or not local:  # on a cluster, it also tells which node runs each episode
             counter = ray.remote(FrameCounter).options(**PROGRESS_ACTOR_OPTIONS).remote()
         live = _LiveFrames(ray, counter)
-        watch = None if local else _NodeWatch(ray, address=_address(config))
+        stuck = None if on_head_lost is None else (lambda: on_head_lost(HeadLost(report, _address(config))))
+        watch = None if local else _NodeWatch(ray, address=_address(config), on_stuck=stuck)
         queue, in_flight, given_up = deque(todo), {}, []
         frames_total, episodes_total = sum(e.frames for e in todo), len(todo)
         if late is not None:
@@ -557,6 +587,8 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
                 raise RendererCrashes(report, report.crashed)
             report_progress()
     finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
+        if watch is not None:
+            watch.close()
         if started and ray.is_initialized():
             shutdown(ray)
         if reaper is not None:
@@ -624,17 +656,22 @@ def _folding(storage, producer, every_s: float):
 
 
 def produce(config: ProduceConfig, progress: Callable[[Progress], None] | None = None,
-            episode_fn: Callable | None = None) -> ProduceReport:
+            episode_fn: Callable | None = None, on_head_lost: Callable[[HeadLost], None] | None = None) -> ProduceReport:
     """Render every pending episode of the plan into ``config.out``.
 
     ``episode_fn(spec, storage, world=..., on_frame=...)`` renders one episode
     in a Ray task (default: ``pipeline.episode_job.run_episode``); the control
     plane benchmark swaps in a stand-in that writes no images. The run's user
-    domain entries (``PlanConfig.catalog``) are in force meanwhile."""
+    domain entries (``PlanConfig.catalog``) are in force meanwhile.
+
+    ``on_head_lost(HeadLost)`` is called from another thread if the cluster's head is gone
+    and this call stays blocked inside Ray (which aborts the process 60 s after its head
+    went): the caller's chance to say what is committed and end the process first.
+    Otherwise the loss is raised here, as ``HeadLost``."""
     with using(config.run.plan.catalog):
         config.validate()
         with _cluster_first(config):
-            return _produce(config, progress, episode_fn)
+            return _produce(config, progress, episode_fn, on_head_lost)
 
 
 @contextmanager
@@ -680,7 +717,7 @@ def _checked_todo(storage, config: ProduceConfig, plan, state, report: ProduceRe
 
 
 def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
-             episode_fn: Callable | None) -> ProduceReport:
+             episode_fn: Callable | None, on_head_lost: Callable[[HeadLost], None] | None = None) -> ProduceReport:
     plan = make_plan(config.run.plan)
     storage = Storage.from_uri(config.out)
     claim_root(storage)  # refuses a non-empty directory that is not ours; creates and marks the root
@@ -715,7 +752,7 @@ def _produce(config: ProduceConfig, progress: Callable[[Progress], None] | None,
             if todo:
                 with _folding(storage, producer, config.index_every_s):
                     _render_on_ray(config, storage, todo, report, progress, start, episode_fn, fence=producer.fence,
-                                   late=late)
+                                   late=late, on_head_lost=on_head_lost)
         except KeyboardInterrupt:
             raise ProduceInterrupted(report) from None
         _fold_indexes(storage, producer, state)  # also scenarios an earlier (killed) run finished

@@ -199,6 +199,60 @@ def test_a_killed_head_is_one_line_with_what_is_committed_and_exit_1(tmp_path):
     assert "rpc_client" not in stderr and took < 45, (took, stderr[-3000:])
 
 
+def _accept_until_closed(listener: socket.socket) -> None:
+    """A GCS port's side of a connection test: accept and close, until the port closes."""
+    with contextlib.suppress(OSError):
+        while True:
+            listener.accept()[0].close()
+
+
+def test_a_driver_blocked_inside_ray_still_hears_that_the_head_is_gone(monkeypatch):
+    """The test above failed once in three suites: the head killed, the driver's loop stayed blocked in a
+    call into Ray until Ray aborted the process at 60 s, with its own line. The head watch is a thread of
+    its own: once the head's port has refused connections for HEAD_GONE_S and the loop has not noticed it
+    HEAD_STUCK_S later, it calls ``on_stuck`` (the CLI's one line and exit). Not while the port answers,
+    nor once the loop has noticed; and no listing of nodes is asked of a silent head."""
+    import threading
+
+    from pipeline import driver
+
+    for name, value in (("HEAD_POLL_S", 0.05), ("HEAD_GONE_S", 0.3), ("HEAD_STUCK_S", 0.3)):
+        monkeypatch.setattr(driver, name, value)
+    asked = []
+
+    class Cluster:  # Ray's side: a listing of nodes, each call counted
+        @staticmethod
+        def nodes():
+            asked.append(1)
+            return []
+
+    watches = []
+    for noticed in (False, True):
+        listener = socket.socket()
+        listener.bind(("127.0.0.1", 0))
+        listener.listen(8)
+        threading.Thread(target=_accept_until_closed, args=(listener,), daemon=True).start()
+        stuck = threading.Event()
+        watch = driver._NodeWatch(Cluster(), every_s=0.0, address=f"127.0.0.1:{listener.getsockname()[1]}",
+                                  on_stuck=stuck.set)
+        watches.append(watch)
+        time.sleep(0.6)  # the port answers: nothing happens
+        assert not watch.silent and not watch.head_gone and not stuck.is_set()
+        if noticed:
+            watch.noticed()  # the loop saw it (here: before it happened, so no race can decide the test)
+        listener.shutdown(socket.SHUT_RDWR)  # wakes the accepting thread; the port refuses from now on
+        listener.close()
+        deadline = time.monotonic() + 20
+        while not watch.head_gone and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert watch.head_gone and watch.silent
+        before = len(asked)
+        assert watch.lost() == [] and len(asked) == before  # a silent head is not asked for its nodes
+        assert stuck.wait(1.5 if noticed else 20) is not noticed
+    for watch in watches:
+        watch.close()
+
+
 def test_the_clusters_own_messages_stay_out_of_a_non_terminal_stream(tmp_path):
     """Issue 38: Ray's raylet lines ("(raylet) A worker died ...", with raw colour codes)
     reached stdout when it was not a terminal. A worker killed mid-episode (retried, the

@@ -4,9 +4,12 @@ call one function. Errors reach the user as one line and exit code 2."""
 from __future__ import annotations
 
 import logging
+import os
+import sys
+import threading
 from dataclasses import replace
 from pathlib import Path
-from typing import Optional
+from typing import NoReturn, Optional
 
 import typer
 
@@ -190,7 +193,7 @@ def produce(
         bar = ProgressDisplay()
         with stop_signals() as stopped:
             try:
-                report = run_produce(config, progress=bar.update)
+                report = run_produce(config, progress=bar.update, on_head_lost=lambda lost: _end_head_lost(bar, lost))
             except ProduceInterrupted as stop:
                 bar.close()
                 typer.echo(format_interrupted(stop.report, stopped.get("name", "interrupted")), err=True)
@@ -202,9 +205,7 @@ def produce(
                 typer.echo(format_outage(outage, Storage.from_uri(out).endpoint), err=True)
                 raise typer.Exit(code=1) from None
             except HeadLost as lost:  # the cluster is gone; what finished is committed
-                bar.close()
-                typer.echo(format_head_lost(lost), err=True)
-                raise typer.Exit(code=1) from None
+                _end_head_lost(bar, lost)
             except RendererCrashes as crashes:  # the environment cannot render: no retry helps
                 bar.close()
                 typer.echo(f"error: {crashes}", err=True)
@@ -218,6 +219,22 @@ def produce(
         typer.echo(format_produce_report(report))
         if not report.ok:
             raise typer.Exit(code=1)
+
+
+_HEAD_LOST = threading.Lock()
+
+
+def _end_head_lost(bar, lost: HeadLost) -> NoReturn:
+    """One line for a run whose Ray head is gone, then exit 1 at once: from the driver's loop, or from its
+    head watch when the loop is blocked inside Ray (which would abort the process 60 s after the head went,
+    with a line of its own). Ray's exit handler is skipped too: its shutdown waits for the dead head.
+    Whichever comes first says it; the other waits here for the end."""
+    with _HEAD_LOST:
+        bar.close()
+        typer.echo(format_head_lost(lost), err=True)
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(1)
 
 
 @app.command()
