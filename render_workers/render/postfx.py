@@ -486,6 +486,7 @@ EFFECTS: dict[str, Effect] = {
     "grading": grading,
     "retexture": texturefx.retexture,
     "randomize": randomize,
+    "bare": texturefx.bare,
     "tone": tone,
     "sensor": sensor,
 }
