@@ -130,11 +130,6 @@ class Weather:
     # (render_workers.render.texturefx.reflections). 0 = the paint as designed.
     reflections: float = param("sky, facades and road mirrored on vehicles (0 = off, 1 = Fresnel's share, up to 2)",
                                "strength", 0.0, 2.0, default=0.0)
-    # Bare crowns (issue 34), opt-in: in this share of episodes the crowns above the camera show the frame's sky
-    # through a world-anchored net of branches, as leafless trees do (render_workers.render.texturefx.bare).
-    # 0 = every crown in leaf.
-    bare: float = param("share of episodes whose tree crowns are leafless, the sky seen through branches (0 = none)",
-                        "share", 0.0, 1.0, default=0.0)
 
     @property
     def precipitation(self) -> float:

@@ -31,7 +31,7 @@ def grey():
 
 
 LEVERS = {"textures": "retexture", "foliage": "foliage", "occlusion": "occlusion",  # weather parameter: effect
-          "reflections": "reflections", "bare": "bare"}
+          "reflections": "reflections"}
 
 
 @pytest.mark.parametrize("lever", sorted(LEVERS))
@@ -167,57 +167,13 @@ def test_reflections_above_one_mirror_more_and_stay_in_range():
     assert two.min() >= 0.0 and two.max() <= 1.0
 
 
-def sky_by_rows(ctx):
-    """A grey frame whose sky changes colour row by row, as a real sky's gradient does."""
-    img = grey()
-    rows = np.broadcast_to(np.arange(H, dtype=np.float32)[:, None], (H, W))
-    sky = ctx.classes == SKY
-    img[sky] = np.stack([0.3 + 0.01 * rows[sky], np.full(sky.sum(), 0.7), np.full(sky.sum(), 0.95)], axis=1)
-    return img
-
-
-def test_bare_crowns_show_the_frames_own_sky_through_dark_branches():
-    ctx = scene(seed=1, bare=1.0)
-    near = ctx.classes == VEGETATION  # a crown at 2 m: its branches wider than a pixel
-    ctx = replace(ctx, depth=np.where(near, np.float32(2.0), ctx.depth))
-    img = sky_by_rows(ctx)
-    out = texturefx.bare(img, ctx)
-    veg = ctx.classes == VEGETATION
-    assert np.array_equal(out[~veg], img[~veg])  # labels and every other class alone
-    height = texturefx._camera_points(ctx)[..., :] @ ctx.world_from_camera[2, :3].astype(np.float32)
-    above, below = veg & (height > 0), veg & (height <= 0)
-    assert above.sum() > 100
-    seen = out[above]
-    wood = (seen.max(axis=1) < 0.5).mean()  # dark wood, darker than the grey crown ...
-    assert 0.2 < wood < 0.5 and (seen[:, 2] > 0.9).mean() > 0.5  # ... across the sky's blue: branches, not a tint
-    holes = above & (out[..., 2] > 0.9)  # the sky seen through: the red of the sky's own row
-    rows = np.nonzero(holes)[0]
-    assert len(rows) > 20 and np.corrcoef(rows, out[holes][:, 0])[0, 1] > 0.8
-    assert np.array_equal(out[below], img[below])  # below the camera a crown hides the street, not the sky
-    assert np.array_equal(texturefx.bare(img, replace(ctx, rng=np.random.default_rng(5))), out)  # per episode
-    hood = np.zeros((H, W), bool)
-    hood[: H // 4, :] = True  # even a hood over the crown (unlike any real hood) keeps its paint
-    hooded = texturefx.bare(img, replace(ctx, hood_mask=hood))
-    assert np.array_equal(hooded[hood], img[hood]) and not np.array_equal(hooded, img)
-
-
-def test_bare_is_a_share_of_episodes_and_needs_sky_in_view():
-    bare = {seed: not np.array_equal(texturefx.bare(sky_by_rows(scene(seed=seed, bare=0.5)),
-                                                    scene(seed=seed, bare=0.5)), sky_by_rows(scene(seed=seed)))
-            for seed in range(24)}
-    assert 6 <= sum(bare.values()) <= 18  # about half the episodes
-    ctx = scene(seed=1, bare=1.0)
-    no_sky = replace(ctx, classes=np.where(ctx.classes == SKY, BUILDING, ctx.classes).astype(ctx.classes.dtype))
-    assert np.array_equal(texturefx.bare(grey(), no_sky), grey())
-
-
 CHILD = """
 import hashlib, sys
 
 import numpy as np
 from tests.test_texturefx import car_ahead
 from render_workers.render import postfx
-ctx = car_ahead(seed=11, textures=1.0, foliage=1.0, occlusion=1.0, reflections=1.0, bare=1.0)
+ctx = car_ahead(seed=11, textures=1.0, foliage=1.0, occlusion=1.0, reflections=1.0)
 rgb = (np.random.default_rng(2).uniform(0.1, 0.9, (ctx.rig.height, ctx.rig.width, 3)) * 255).astype(np.uint8)
 print(hashlib.sha256(postfx.apply(rgb, ctx).tobytes()).hexdigest())
 """

@@ -486,7 +486,6 @@ EFFECTS: dict[str, Effect] = {
     "grading": grading,
     "retexture": texturefx.retexture,
     "randomize": randomize,
-    "bare": texturefx.bare,
     "tone": tone,
     "sensor": sensor,
 }

@@ -113,18 +113,15 @@ FOLIAGE_SHADE = (0.35, 1.35)  # light on a gap's floor, on a cluster's sunlit to
 
 
 def _noise(rng: np.random.Generator, points: np.ndarray, footprint: np.ndarray, span: tuple[float, float],
-           count: int = 16, spread: list | None = None) -> np.ndarray:
+           count: int = 16) -> np.ndarray:
     """About standard normal world-anchored noise at ``points`` (N, 3): ``count`` random plane waves in ``span``
-    (metres), each fading out below a few pixels' footprint (the mean of what is left stays 0). ``spread``, a
-    list, receives the noise's standard deviation at each point (1 where no wave has faded, 0 where all have)."""
+    (metres), each fading out below a few pixels' footprint (the mean of what is left stays 0)."""
     direction = rng.normal(size=(count, 3))
     direction /= np.linalg.norm(direction, axis=1, keepdims=True)
     wavelength = np.exp(rng.uniform(np.log(span[0]), np.log(span[1]), count))
     k = (direction * (2.0 * np.pi / wavelength)[:, None]).astype(np.float32)
     phase = rng.uniform(0.0, 2.0 * np.pi, count).astype(np.float32)
     weight = _footprint_fade(wavelength, footprint)
-    if spread is not None:
-        spread.append(np.sqrt((weight * weight).sum(axis=1) / np.float32(count)))
     return (np.sin(points @ k.T + phase) * weight).sum(axis=1) * np.float32(1.0 / np.sqrt(count / 2.0))
 
 
@@ -159,47 +156,6 @@ def foliage(img: np.ndarray, ctx) -> np.ndarray:
     out = img.copy()
     out[veg] = img[veg] * (np.float32(1.0) + np.float32(strength) * (shade - np.float32(1.0)))[:, None]
     return np.clip(out, np.float32(0.0), np.float32(1.0))
-
-
-BARE_STREAM = 39  # bare or not, and the branches: np.random.default_rng([episode_seed, BARE_STREAM])
-BRANCH_M = (0.12, 1.5)  # wavelengths of the noise whose zero lines are a bare crown's branches and twigs
-BRANCH_SHARE = 0.35  # share of a bare crown's pixels that are wood, not sky
-BARK_SHADE = 0.45  # wood: the crown's colour times this
-
-
-def bare(img: np.ndarray, ctx) -> np.ndarray:
-    """Bare crowns, as in winter (the weather's ``bare``: the share of episodes whose trees are leafless; 0: a
-    no-op). Above the camera's height the crowns of such an episode show the sky through a world-anchored
-    net of dark branches, where the renderer draws a solid blob. Labels stay vegetation, as real datasets
-    label a leafless tree's outline. The sky seen through is the frame's own, row by row and after its
-    colours are drawn, so a hole matches the sky beside the tree; a frame with no sky in view is left alone.
-    Far crowns, where the branches are finer than a pixel, blend wood and sky by their shares."""
-    strength = ctx.weather.bare
-    veg = _lever_pixels(ctx, strength, VEGETATION_ID)
-    if veg is None:
-        return img
-    rng = np.random.default_rng([ctx.episode_seed, BARE_STREAM])
-    sky = (ctx.classes == SKY_ID) & ~ctx.hood_mask
-    if rng.random() >= strength or not sky.any():
-        return img
-    f = np.float32
-    rows = np.flatnonzero(sky.any(axis=1))
-    row_sky = (img * sky[..., None]).sum(axis=1)[rows] / sky.sum(axis=1)[rows, None]
-    row_sky = np.stack([np.interp(np.arange(img.shape[0]), rows, row_sky[:, c]) for c in range(3)], axis=1)
-    cam = _camera_points(ctx)[veg]
-    above = cam @ ctx.world_from_camera[2, :3].astype(f) > f(0.0)  # higher than the camera
-    spread: list = []
-    branches = _noise(rng, _world(ctx, cam), ctx.depth[veg] / f(ctx.rig.focal_px), BRANCH_M, spread=spread)
-    from statistics import NormalDist
-
-    half = f(NormalDist().inv_cdf(0.5 + BRANCH_SHARE / 2.0))  # |standard normal| below this: BRANCH_SHARE
-    sharp = spread[0].astype(f)
-    wood = sharp * (np.abs(branches) < half * sharp) + (f(1.0) - sharp) * f(BRANCH_SHARE)
-    pixels = img[veg]
-    seen = wood[:, None] * pixels * f(BARK_SHADE) + (f(1.0) - wood[:, None]) * row_sky[np.nonzero(veg)[0]].astype(f)
-    out = img.copy()
-    out[veg] = np.where(above[:, None], seen, pixels)
-    return out
 
 
 VEHICLE_ID = class_id("vehicle")
