@@ -53,7 +53,7 @@ WALK_SLOT_M = 1.0
 WALK_TRIES = 10
 # Dense streets (Town.street_density, issue 34): at density 1 the kerbside strips hold a parked car per
 # DENSE_PARKING_M of their length (where one fits), and DENSE_WALKERS more people walk the pavements.
-DENSE_PARKING_M = 18.0
+DENSE_PARKING_M = 9.0
 DENSE_WALKERS = 150
 DENSE_NEAR_M = 25.0  # parked cars fill the strips of the loops this close to the ego's
 DENSE_STREAM = 34  # the crowd's generator: default_rng([episode seed, DENSE_STREAM])
