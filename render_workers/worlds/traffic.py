@@ -53,7 +53,9 @@ WALK_SLOT_M = 1.0
 WALK_TRIES = 10
 # Dense streets (Town.street_density, issue 34): at density 1 the kerbside strips hold a parked car per
 # DENSE_PARKING_M of their length (where one fits), and DENSE_WALKERS more people walk the pavements.
-DENSE_PARKING_M = 9.0
+# (18 m, not 9: with a car per 9 m ours showed 1.6x CamVid's share of car and half its pavement, and a
+# network trained on them kept less on CamVid; docs/realism.md.)
+DENSE_PARKING_M = 18.0
 DENSE_WALKERS = 150
 DENSE_NEAR_M = 25.0  # parked cars fill the strips of the loops this close to the ego's
 DENSE_STREAM = 34  # the crowd's generator: default_rng([episode seed, DENSE_STREAM])
@@ -293,9 +295,9 @@ def _crowd(p: _Placement, density: float, episode_seed: int) -> tuple[int, int]:
     along the kerbs until the strips are ``density`` full (a car per ``DENSE_PARKING_M`` of strip) and
     ``density`` x ``DENSE_WALKERS`` more people on the pavements, most along the ego's route. Drawn from a
     generator of their own, after the others: the episode's other actors are the same as without it.
-    Returns (cars, people) added."""
+    Returns (cars, people) added and the metres of kerbside strip near the route."""
     if density <= 0:
-        return 0, 0
+        return 0, 0, 0.0
     p.rng = np.random.default_rng([episode_seed, DENSE_STREAM])
     # the kerbs the ego passes: strips of the loops beside its own (those out of sight stay as they were)
     near = frozenset(i for i, lp in enumerate(p.loops)
@@ -305,7 +307,7 @@ def _crowd(p: _Placement, density: float, episode_seed: int) -> tuple[int, int]:
     cars = _place_parked(p, target, target, near)
     before = len(p.actors)
     _place_walkers(p, int(round(density * DENSE_WALKERS)))
-    return cars, len(p.actors) - before
+    return cars, len(p.actors) - before, strips
 
 
 def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeScene:
@@ -326,7 +328,7 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
     n_parked = _place_parked(p, n_parked_target, n_vehicles - n_two - placed_moving)
     crossing = _place_crossing(p, n_pedestrians)
     _place_walkers(p, n_pedestrians - len(crossing))
-    dense_parked, dense_walkers = _crowd(p, world.street_density, episode_seed)
+    dense_parked, dense_walkers, kerb_m = _crowd(p, world.street_density, episode_seed)
     return EpisodeScene(
         world=world,
         actors=tuple(p.actors),
@@ -343,7 +345,7 @@ def populate(world: World, viewpoint_code: str, episode_seed: int) -> EpisodeSce
             "two_wheelers": placed_two,
             "crossing_pedestrians": len(crossing),
             "ego_size_m": p.ego_size,
-            **({"dense_parked": dense_parked, "dense_walkers": dense_walkers, "dense_lead": dense_lead}
-               if world.street_density > 0 else {}),
+            **({"dense_parked": dense_parked, "dense_walkers": dense_walkers, "dense_lead": dense_lead,
+                "dense_kerb_m": kerb_m} if world.street_density > 0 else {}),
         },
     )
