@@ -229,3 +229,26 @@ def test_preview_renders_a_user_weather(tmp_path):
     result = runner.invoke(app, ["preview", "--out", str(tmp_path / "p"), "--domains", "T01_FG1_A", "--width", "64",
                                  "--height", "36", "--world", "test", "--catalog", str(path)])
     assert result.exit_code == 0 and (tmp_path / "p" / "preview_FG1.png").stat().st_size > 100, result.output
+
+
+def test_the_realism_recipe_in_the_docs_loads_and_plans_the_measured_run(tmp_path):
+    """docs/realism.toml, issue 34's best recipe, stays a valid domain file as the catalog grows: two
+    weathers with every kept lever, the seven towns dense, and the measured run's 28 scenarios; the
+    built-in entries stay as designed."""
+    path = Path(__file__).resolve().parents[1] / "docs" / "realism.toml"
+    recipe = with_file(BUILTIN, path.read_text(), str(path))
+    weathers = {w.code: w for w in recipe.weathers}
+    for code, like in (("CNR", "CN"), ("CSR", "CS")):
+        w = weathers[code]
+        assert (w.randomize, w.camera, w.foliage, w.occlusion, w.frame_looks, w.reflections) == (1.8, 1, 1, 1, 1, 1)
+        assert w.sun_elevation_deg == weathers[like].sun_elevation_deg
+    assert {t.code: t.street_density for t in recipe.towns if t.street_density} == {f"T0{i}": 1.0 for i in range(1, 8)}
+    assert recipe.weathers[: len(BUILTIN.weathers)] == BUILTIN.weathers
+    domains = "towns=T01-T07 weathers=CNR,CSR viewpoints=A,V"
+    result = runner.invoke(app, ["plan", "--catalog", str(path), "--domains", domains, "--frames-per-scenario", "20",
+                                 "--out", str(tmp_path / "plan.parquet")])
+    assert result.exit_code == 0, result.output
+    from pipeline.plan_file import read_plan
+
+    plan = read_plan(tmp_path / "plan.parquet")
+    assert len(plan.scenarios()) == 28 and plan.total_frames == 560
