@@ -253,6 +253,31 @@ def test_a_driver_blocked_inside_ray_still_hears_that_the_head_is_gone(monkeypat
         watch.close()
 
 
+STUCK_CLI = """
+import threading, time
+from pipeline.cli.app import _end_head_lost
+from pipeline.cli.progress import ProgressDisplay
+from pipeline.driver import HeadLost, ProduceReport
+
+report = ProduceReport(out="/tmp/root", planned_episodes=4, planned_frames=24, skipped_episodes=1, rendered_episodes=1)
+bar = ProgressDisplay()
+threading.Thread(target=_end_head_lost, args=(bar, HeadLost(report, "127.0.0.1:6379"))).start()
+time.sleep(120)  # the driver's loop, blocked inside Ray
+"""
+
+
+def test_the_cli_says_a_lost_head_from_the_watch_thread_while_the_loop_is_blocked():
+    """What the CLI gives produce() as ``on_head_lost``, called from a thread while the main thread is blocked:
+    the one line, and the process ends with exit 1 at once (not when the main thread wakes)."""
+    start = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", STUCK_CLI], capture_output=True, text=True, timeout=60, cwd=REPO,
+                          env={**os.environ, "PYTHONPATH": str(REPO)})
+    assert done.returncode == 1 and time.monotonic() - start < 30, done.stderr[-2000:]
+    assert done.stderr.strip().splitlines() == [
+        "error: the Ray head at 127.0.0.1:6379 is gone; 2 of 4 episodes committed (1 this run); "
+        "run the same command again to resume once the head is back"], done.stderr
+
+
 def test_the_clusters_own_messages_stay_out_of_a_non_terminal_stream(tmp_path):
     """Issue 38: Ray's raylet lines ("(raylet) A worker died ...", with raw colour codes)
     reached stdout when it was not a terminal. A worker killed mid-episode (retried, the
