@@ -260,7 +260,7 @@ def test_make_produce_builds_a_command_the_cli_accepts(monkeypatch, assignments,
 
     seen = []
 
-    def fake_produce(config, progress=None):
+    def fake_produce(config, progress=None, on_head_lost=None):
         seen.append(config)
         raise SystemExit(0)  # the plan is all this test wants
 
