@@ -283,7 +283,7 @@ class _NodeWatch:
     def _watch_head(self) -> None:
         import socket
 
-        silent_since = gone_since = None
+        silent_since = None
         while not self._closed.wait(HEAD_POLL_S):
             try:
                 socket.create_connection(self._head, timeout=HEAD_POLL_S).close()
@@ -293,11 +293,9 @@ class _NodeWatch:
             else:
                 silent_since, self.silent = None, False
                 continue
-            if time.monotonic() - silent_since < HEAD_GONE_S:
-                continue
-            self.head_gone = True
-            gone_since = gone_since or time.monotonic()
-            if time.monotonic() - gone_since >= HEAD_STUCK_S and not self._noticed.is_set():
+            silent_s = time.monotonic() - silent_since
+            self.head_gone = silent_s >= HEAD_GONE_S
+            if silent_s >= HEAD_GONE_S + HEAD_STUCK_S and not self._noticed.is_set():
                 if self._on_stuck is not None:
                     self._on_stuck()
                 return

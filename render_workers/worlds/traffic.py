@@ -290,7 +290,7 @@ def _lead(p: _Placement, density: float, episode_seed: int) -> int:
     return 1
 
 
-def _crowd(p: _Placement, density: float, episode_seed: int) -> tuple[int, int]:
+def _crowd(p: _Placement, density: float, episode_seed: int) -> tuple[int, int, float]:
     """Dense streets (``World.street_density`` above 0): after everyone IDDA's counts place, cars parked
     along the kerbs until the strips are ``density`` full (a car per ``DENSE_PARKING_M`` of strip) and
     ``density`` x ``DENSE_WALKERS`` more people on the pavements, most along the ego's route. Drawn from a
