@@ -60,35 +60,60 @@ def _clean_env(home: Path) -> dict:
     return env
 
 
-@contextlib.contextmanager
-def ray_head(env: dict, auth_mode: str):
-    """`ray start --head --block` as a subprocess with RAY_AUTH_MODE=auth_mode; yields its address."""
+def _stop_head(head: subprocess.Popen) -> str:
+    """SIGTERM to a `ray start --block` (it stops what it started), SIGKILL to its tree after 90 s;
+    returns what it printed."""
+    head.send_signal(signal.SIGTERM)
+    try:
+        return head.communicate(timeout=90)[0] or ""
+    except subprocess.TimeoutExpired:
+        for pid in [head.pid, *_descendants(head.pid)]:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        return head.communicate()[0] or ""
+
+
+def _start_head(env: dict, auth_mode: str, temp_dir: str) -> tuple[subprocess.Popen, int] | str:
+    """One `ray start --head --block` on free ports: the head and its GCS port once that port
+    answers, or what it printed if it ended first (a port taken meanwhile by another test's Ray)."""
     port = _free_port()
-    # Its own temp dir: ray_current_cluster there, so a later local ray.init()
-    # in this test session does not try to attach to this (stopped) head.
-    temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Unix socket paths live under it
     cmd = [str(Path(sys.executable).with_name("ray")), "start", "--head", f"--port={port}", "--num-cpus=2",
            "--disable-usage-stats", f"--ray-client-server-port={_free_port()}", f"--dashboard-port={_free_port()}",
            f"--temp-dir={temp_dir}", "--block"]
     head = subprocess.Popen(cmd, env={**env, "RAY_AUTH_MODE": auth_mode}, start_new_session=True,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+    deadline = time.time() + 120
+    while time.time() < deadline and head.poll() is None:
+        with socket.socket() as s:
+            if s.connect_ex(("127.0.0.1", port)) == 0:
+                return head, port
+        time.sleep(0.3)
+    return _stop_head(head) or f"exit {head.returncode}"
+
+
+@contextlib.contextmanager
+def ray_head(env: dict, auth_mode: str):
+    """`ray start --head --block` as a subprocess with RAY_AUTH_MODE=auth_mode; yields its address
+    once its GCS port answers. A head that ends before that (its free ports can be taken by another
+    test's Ray between choosing and binding) is started again on other ports, up to three times."""
+    # Its own temp dir: ray_current_cluster there, so a later local ray.init()
+    # in this test session does not try to attach to this (stopped) head.
+    temp_dir = tempfile.mkdtemp(prefix="ray", dir="/tmp")  # short: Unix socket paths live under it
     try:
-        deadline = time.time() + 120
-        while time.time() < deadline and head.poll() is None:
-            with socket.socket() as s:
-                if s.connect_ex(("127.0.0.1", port)) == 0:
-                    break
-            time.sleep(0.3)
-        yield f"127.0.0.1:{port}", head
-    finally:
-        head.send_signal(signal.SIGTERM)  # --block: the head stops what it started
+        said = []
+        for _ in range(3):
+            started = _start_head(env, auth_mode, temp_dir)
+            if not isinstance(started, str):
+                break
+            said.append(started[-2000:])
+        else:
+            raise AssertionError("`ray start --head` did not come up in three tries:\n" + "\n---\n".join(said))
+        head, port = started
         try:
-            head.communicate(timeout=90)
-        except subprocess.TimeoutExpired:
-            for pid in [head.pid, *_descendants(head.pid)]:
-                with contextlib.suppress(ProcessLookupError):
-                    os.kill(pid, signal.SIGKILL)
-            head.communicate()
+            yield f"127.0.0.1:{port}", head
+        finally:
+            _stop_head(head)
+    finally:
         shutil.rmtree(temp_dir, ignore_errors=True)
 
 
