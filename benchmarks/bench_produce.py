@@ -191,6 +191,7 @@ def main(out_dir: str = "docs", repeats: int = 5) -> dict:
         "scaling_2_over_1": med["ray1"] / med["ray2"],
         "fps": {"plain": frames / med["plain"], "ray1": frames / med["ray1"], "ray2": frames / med["ray2"]},
         "cpus": os.cpu_count(),
+        "cpu_model": cpu_model(),
         "end_to_end": e2e,
     }
     out = Path(out_dir)
@@ -198,6 +199,18 @@ def main(out_dir: str = "docs", repeats: int = 5) -> dict:
     (out / "bench_produce.json").write_text(json.dumps(result, indent=2) + "\n")
     (out / "bench_produce.md").write_text(_markdown(result, med))
     return result
+
+
+def cpu_model() -> str:
+    """The CPU's model name as Linux reports it (figures move with it), or "CPU unknown"."""
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "CPU unknown"
 
 
 def _median(runs: list[dict], key: str) -> float:
@@ -211,7 +224,9 @@ def _markdown(result: dict, med: dict) -> str:
     lines = [
         "# Production benchmark",
         "",
-        f"`{result['command']}` on a {result['cpus']}-core machine, {result['world']} world.",
+        f"`{result['command']}` on a {result['cpus']}-core machine ({result.get('cpu_model', 'CPU not recorded')}), "
+        f"{result['world']} world. Figures differ between kinds of machine (main gave 3.5-3.7 frames/s on the "
+        "machine issue 35 was filed from): compare before and after within one run.",
         "",
         "## The user's run, end to end, before and after",
         "",

@@ -1,0 +1,77 @@
+"""Deflaters side by side on real frames: ``python -m benchmarks.compare_deflaters ROOT``.
+
+Takes the filtered rows out of the PNG files of ROOT's frames 10 and 40 of the first episode of
+its first two scenarios (seven default PNG outputs each; ROOT e.g. the end-to-end run of
+``BENCH=produce make bench``), deflates them with each candidate and prints the thread CPU
+(median of 3 rounds) and bytes per frame, per output. Not part of ``make bench``: the figures
+are in docs/bench_render.md ("Other deflaters").
+"""
+
+from __future__ import annotations
+
+import statistics
+import sys
+import time
+import zlib
+from pathlib import Path
+
+OUTPUTS = ("rgb", "depth_raw", "depth_gray", "depth_log", "semantic_raw", "semantic_color", "instance")
+FRAMES = (10, 40)
+
+
+def _zlib(level: int, strategy: int):
+    def compress(data: bytes) -> bytes:
+        c = zlib.compressobj(level, zlib.DEFLATED, 15, 8, strategy)
+        return c.compress(data) + c.flush()
+    return compress
+
+
+def candidates() -> dict:
+    import deflate
+
+    return {
+        "libdeflate 2": lambda d: bytes(deflate.zlib_compress(d, 2)),
+        "libdeflate 1": lambda d: bytes(deflate.zlib_compress(d, 1)),
+        "zlib 1": _zlib(1, zlib.Z_DEFAULT_STRATEGY),
+        "zlib 1 rle": _zlib(1, zlib.Z_RLE),
+        "zlib 6 rle": _zlib(6, zlib.Z_RLE),
+        "zlib huffman": _zlib(1, zlib.Z_HUFFMAN_ONLY),
+    }
+
+
+def frames(root: Path) -> list[dict[str, bytes]]:
+    from outputs.deflaters import png_stream
+
+    scenarios = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("_"))[:2]
+    rows = []
+    for scenario in scenarios:
+        for index in FRAMES:
+            rows.append({o: zlib.decompress(png_stream(next((scenario / "e0000" / o).glob(f"0000_{index:03d}_*.png")).read_bytes()))
+                         for o in OUTPUTS})
+    return rows
+
+
+def main(root: str, rounds: int = 3) -> str:
+    rows, codecs = frames(Path(root)), candidates()
+    cpu = {k: {o: [] for o in OUTPUTS} for k in codecs}
+    size = {k: {o: 0 for o in OUTPUTS} for k in codecs}
+    for r in range(rounds):
+        for name, compress in codecs.items():
+            for frame in rows:
+                for o in OUTPUTS:
+                    start = time.thread_time()
+                    n = len(compress(frame[o]))
+                    cpu[name][o].append(time.thread_time() - start)
+                    if r == 0:
+                        size[name][o] += n
+    lines = ["| deflater | " + " | ".join(OUTPUTS) + " | per frame |", "|---|" + "---:|" * (len(OUTPUTS) + 1)]
+    for name in codecs:
+        cells = [f"{statistics.median(cpu[name][o]) * 1e3:.1f} ms, {size[name][o] / len(rows) / 1e3:.0f} KB" for o in OUTPUTS]
+        total = sum(statistics.median(cpu[name][o]) for o in OUTPUTS)
+        cells.append(f"{total * 1e3:.1f} ms, {sum(size[name].values()) / len(rows) / 1e3:.0f} KB")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    print(main(sys.argv[1]))
