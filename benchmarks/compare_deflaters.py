@@ -39,20 +39,22 @@ def candidates() -> dict:
     }
 
 
-def frames(root: Path) -> list[dict[str, bytes]]:
+def frames(root: Path, indexes: tuple[int, ...] = FRAMES) -> list[dict[str, bytes]]:
+    """The filtered rows of each output's PNG at frames ``indexes`` of episode 0 of ROOT's first two scenarios."""
     from outputs.deflaters import png_stream
 
     scenarios = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("_"))[:2]
     rows = []
     for scenario in scenarios:
-        for index in FRAMES:
+        for index in indexes:
             rows.append({o: zlib.decompress(png_stream(next((scenario / "e0000" / o).glob(f"0000_{index:03d}_*.png")).read_bytes()))
                          for o in OUTPUTS})
     return rows
 
 
-def main(root: str, rounds: int = 3) -> str:
-    rows, codecs = frames(Path(root)), candidates()
+def measure(root: str, rounds: int = 3, indexes: tuple[int, ...] = FRAMES) -> dict[str, dict[str, tuple[float, float]]]:
+    """Deflater -> output -> (median thread CPU seconds, mean bytes) per frame."""
+    rows, codecs = frames(Path(root), indexes), candidates()
     cpu = {k: {o: [] for o in OUTPUTS} for k in codecs}
     size = {k: {o: 0 for o in OUTPUTS} for k in codecs}
     for r in range(rounds):
@@ -64,14 +66,18 @@ def main(root: str, rounds: int = 3) -> str:
                     cpu[name][o].append(time.thread_time() - start)
                     if r == 0:
                         size[name][o] += n
+    return {k: {o: (statistics.median(cpu[k][o]), size[k][o] / len(rows)) for o in OUTPUTS} for k in codecs}
+
+
+def table(figures: dict[str, dict[str, tuple[float, float]]]) -> str:
+    """The figures as a Markdown table: ms and KB per output and per frame."""
     lines = ["| deflater | " + " | ".join(OUTPUTS) + " | per frame |", "|---|" + "---:|" * (len(OUTPUTS) + 1)]
-    for name in codecs:
-        cells = [f"{statistics.median(cpu[name][o]) * 1e3:.1f} ms, {size[name][o] / len(rows) / 1e3:.0f} KB" for o in OUTPUTS]
-        total = sum(statistics.median(cpu[name][o]) for o in OUTPUTS)
-        cells.append(f"{total * 1e3:.1f} ms, {sum(size[name].values()) / len(rows) / 1e3:.0f} KB")
+    for name, row in figures.items():
+        cells = [f"{row[o][0] * 1e3:.1f} ms, {row[o][1] / 1e3:.0f} KB" for o in OUTPUTS]
+        cells.append(f"{sum(c for c, _ in row.values()) * 1e3:.1f} ms, {sum(b for _, b in row.values()) / 1e3:.0f} KB")
         lines.append(f"| {name} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 if __name__ == "__main__":
-    print(main(sys.argv[1]))
+    print(table(measure(sys.argv[1])))
