@@ -15,8 +15,17 @@ import time
 import zlib
 from pathlib import Path
 
-OUTPUTS = ("rgb", "depth_raw", "depth_gray", "depth_log", "semantic_raw", "semantic_color", "instance")
 FRAMES = (10, 40)
+
+
+def _png_outputs() -> tuple[str, ...]:
+    """The default outputs written as PNG files (all but ``objects``), in table order."""
+    from outputs.table import DEFAULT_OUTPUTS, FORMATS, output
+
+    return tuple(name for name in DEFAULT_OUTPUTS if FORMATS[output(name).file].extension == "png")
+
+
+OUTPUTS = _png_outputs()
 
 
 def _zlib(level: int, strategy: int):
@@ -27,10 +36,14 @@ def _zlib(level: int, strategy: int):
 
 
 def candidates() -> dict:
+    """Name -> compress; the first is the deflater new roots use (``outputs.deflaters``), as they call it."""
     import deflate
 
+    from outputs.deflaters import DEFAULT_DEFLATER, deflater
+
+    default = deflater(DEFAULT_DEFLATER)
     return {
-        "libdeflate 2": lambda d: bytes(deflate.zlib_compress(d, 2)),
+        f"{default.name} {default.level}": default.compress,
         "libdeflate 1": lambda d: bytes(deflate.zlib_compress(d, 1)),
         "zlib 1": _zlib(1, zlib.Z_DEFAULT_STRATEGY),
         "zlib 1 rle": _zlib(1, zlib.Z_RLE),
@@ -39,17 +52,23 @@ def candidates() -> dict:
     }
 
 
+def png_files(root: Path, indexes: tuple[int, ...] = FRAMES) -> list[dict[str, Path]]:
+    """Output -> PNG file of frames ``indexes`` of episode 0 of ROOT's first two scenarios (a root in
+    episode folders, the default layout), frame by frame."""
+    from manifests.layout import EPISODE_DIRS, frame_path
+    from manifests.schema import frame_id
+
+    scenarios = sorted(p.name for p in root.iterdir() if p.is_dir() and not p.name.startswith("_"))[:2]
+    return [{o: root / frame_path(scenario, o, frame_id(0, index), "png", EPISODE_DIRS) for o in OUTPUTS}
+            for scenario in scenarios for index in indexes]
+
+
 def frames(root: Path, indexes: tuple[int, ...] = FRAMES) -> list[dict[str, bytes]]:
-    """The filtered rows of each output's PNG at frames ``indexes`` of episode 0 of ROOT's first two scenarios."""
+    """The filtered rows of each of those PNG files (what their deflater was given)."""
     from outputs.deflaters import png_stream
 
-    scenarios = sorted(p for p in root.iterdir() if p.is_dir() and not p.name.startswith("_"))[:2]
-    rows = []
-    for scenario in scenarios:
-        for index in indexes:
-            rows.append({o: zlib.decompress(png_stream(next((scenario / "e0000" / o).glob(f"0000_{index:03d}_*.png")).read_bytes()))
-                         for o in OUTPUTS})
-    return rows
+    return [{o: zlib.decompress(png_stream(path.read_bytes())) for o, path in files.items()}
+            for files in png_files(root, indexes)]
 
 
 def measure(root: str, rounds: int = 3, indexes: tuple[int, ...] = FRAMES) -> dict[str, dict[str, tuple[float, float]]]:
