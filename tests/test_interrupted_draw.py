@@ -73,8 +73,8 @@ def test_the_episode_after_a_draw_cut_short_is_drawn_as_by_a_new_renderer(fresh_
         assert r._offscreen is context, "an episode that ran through made a new context"
         if where == "shadow pass":  # a shadow caster's draw call (the pass sets polygon offset first)
             calls = _cut_short_once(monkeypatch, passes, "draw_primitive")
-        elif where == "read-back":  # the first frame's colour pass, drawn and not yet read
-            calls = _cut_short_once(monkeypatch, passes, "_read_framebuffer")
+        elif where == "read-back":  # the first frame's colour pass (labels and depth in it), drawn and not yet read
+            calls = _cut_short_once(monkeypatch, passes, "_read_merged")
         else:
             calls = _cut_short_once(monkeypatch, Renderer, "_build_actors")
         with pytest.raises(KeyboardInterrupt):

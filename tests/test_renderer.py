@@ -168,6 +168,39 @@ def test_near_wall_is_drawn_and_lit(renderer):
     assert result.buffers["rgb"][wall].mean() > 10  # not black: ambient + sun
 
 
+def _back_facing_sheet(distance: float) -> Part:
+    """A single-sided quad across the road ``distance`` m ahead, its front face turned away from the camera."""
+    corners = np.array([[distance, -50.0, 0.0], [distance, 50.0, 0.0], [distance, 50.0, 40.0], [distance, -50.0, 40.0]])
+    sheet = trimesh.Trimesh(corners, np.array([[0, 1, 2], [0, 2, 3]]), process=False)  # normal +x: away
+    sheet.visual.vertex_colors = np.tile([150, 120, 100, 255], (4, 1))
+    return Part(WALL, sheet, "matte")
+
+
+def test_labels_and_depth_are_what_the_colour_pass_draws_back_faces_included(renderer):
+    """The colour pass draws back faces (SKIP_CULL_FACES), so the labels and depth, drawn in that same
+    pass, show them too: a sheet seen from behind is wall, at its distance, not the sky behind it that
+    pyrender's SEG pass (which culls back faces) gives. The merged pass, two passes and the class pass
+    alone (``render_labels``: LiDAR, rig sensors) agree byte for byte."""
+    from render_workers.render import pyrender_setup as compat
+
+    pr = compat.import_pyrender()
+    assert renderer.merged
+    merged = render(renderer, flat_scene((_back_facing_sheet(30.0),)), "V").buffers
+    assert merged["classes"][H // 4, W // 2] == WALL
+    assert merged["depth"][H // 4, W // 2] == pytest.approx(30.0 - camera.CAMERA_FORWARD_M, rel=0.01)
+    culled, _ = renderer._offscreen.render(renderer._scene, flags=pr.RenderFlags.SEG, seg_node_map=renderer._seg_map)
+    assert culled[H // 4, W // 2, 0] != WALL  # pyrender's way: the sheet is not there
+    depth, classes, instance, _ = renderer.render_labels(0.0)
+    renderer.merged = False
+    try:
+        two = renderer.render(0.0).buffers
+    finally:
+        renderer.merged = True
+    for name, want in (("depth", depth), ("classes", classes), ("instance", instance)):
+        assert merged[name].tobytes() == want.tobytes() == two[name].tobytes(), name
+    assert merged["rgb"].tobytes() == two["rgb"].tobytes()
+
+
 def test_unknown_material_raises():
     with pytest.raises(ValueError, match="valid"):
         look("chrome")

@@ -163,15 +163,19 @@ def test_closing_one_renderer_leaves_another_intact():
 
 @pytest.mark.parametrize("code", ["CN", "HRN"])
 def test_forward_pass_patch_draws_pyrenders_pixels(code):
-    """passes.install_forward_pass sets per-pass uniforms once per program; colour, classes,
-    instances and depth stay byte for byte what pyrender's own forward pass draws (test world,
-    actors and traffic lights included, shadows on where the weather has them)."""
+    """passes.install_forward_pass sets per-pass uniforms once per program, and draws the labels and
+    depth in the colour pass itself; colour, classes, instances and depth stay byte for byte what
+    pyrender's own colour and SEG passes draw (test world, actors and traffic lights included,
+    shadows on where the weather has them; it shows no back faces, where pyrender's SEG pass, which
+    culls them, would differ)."""
     spec = EpisodeSpec(f"T01_{code}_A", 0, 5, 1, 320, 180, "train", 0).drawing
     with Renderer() as r:
         scene, _ = episode.load_episode(spec, r, world="test")
+        assert r.merged
         patched = r.render(3.0)
         inner = r._offscreen._renderer
-        del inner._forward_pass  # back to pyrender's method
+        del inner._forward_pass  # back to pyrender's method, which has no merged pass: two passes
+        r.merged = False
         plain = r.render(3.0)
     for name, buffer in patched.buffers.items():
         assert buffer.dtype == plain.buffers[name].dtype and buffer.tobytes() == plain.buffers[name].tobytes(), name

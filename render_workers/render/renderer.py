@@ -7,16 +7,18 @@ once: static parts are split into ``tile_m`` ground tiles and merged per
 distance and view; each actor becomes one node per (class, material), posed
 per frame. The hood is a child of the camera node.
 
-Each :meth:`Renderer.render` makes two passes:
-
-* a colour pass (sun as a DirectionalLight plus ambient light, no
-  multisampling: geometry edges are anti-aliased in post, ``postfx.antialias``),
-  composited over a procedural sky by its alpha coverage;
-* a ``RenderFlags.SEG`` pass where every node is mapped to ``(class_id,
-  instance id low byte, high byte)`` (``render_workers.render.instances``: the hood,
-  actors and static traffic lights and signs have ids; merged static tiles 0).
-  It gives crisp class and instance ids (background -> sky, 0) and the metric
-  depth (background -> 1000 m), never blended.
+Each :meth:`Renderer.render` draws one colour pass (sun as a DirectionalLight
+plus ambient light, no multisampling: geometry edges are anti-aliased in post,
+``postfx.antialias``), composited over a procedural sky by its alpha coverage.
+The same pass writes each node's ``(class_id, instance id low byte, high byte)``
+(``render_workers.render.instances``: the hood, actors and static traffic lights
+and signs have ids; merged static tiles 0) into a second colour attachment
+(``passes.install_forward_pass``, "merged"), so the labels and the metric depth
+(background -> sky, 0 and 1000 m) are crisp, never blended, and are exactly the
+surfaces the colour shows, back faces included. A renderer with multisampling
+or pyrender's own shader (``msaa``, ``pbr``) draws them in a second,
+``RenderFlags.SEG`` pass instead, with the same values. That class pass alone is
+``render_labels`` (LiDAR, rig sensors).
 
 The render thread only draws and reads back; compositing the sky and decoding
 the SEG colours happen when the frame's :class:`RenderResult` is first used.
@@ -41,8 +43,8 @@ only the sun's term: ambient and emissive light stay. Shadow strength is
 0.05, at most ~2 grey levels) the shadow pass is skipped and the light stays
 flat. Shadows fade out between :data:`SHADOW_FADE_M` and :data:`SHADOW_FAR_M`
 from the camera (receivers farther away stay lit).
-The class pass is untouched (no shadow pass, no lights), so class ids and
-depth are identical with shadows on or off. See ``render_workers.render.passes`` for
+Labels and depth take no light (a uniform colour per node; a SEG pass binds
+no lights and takes no shadow pass), so they are identical with shadows on or off. See ``render_workers.render.passes`` for
 the pyrender internals this overrides.
 
 pyrender rules this module follows are listed in ``render_workers.render.pyrender_setup``.
@@ -210,6 +212,9 @@ class Renderer:
         if msaa not in passes.MSAA_CHOICES:
             raise ValueError(f"MSAA samples must be one of {passes.MSAA_CHOICES}, got {msaa}")
         self.msaa = msaa
+        # One pass draws colour, labels and depth (the fast shader's second output) unless
+        # multisampled (ids would be blended) or lit by pyrender's own shader (it has no such output).
+        self.merged = msaa == 0 and not pbr
         self._offscreen = None
         self._size: tuple[int, int] | None = None
         self._static_world = None  # the World whose static nodes are cached
@@ -461,13 +466,16 @@ class Renderer:
         flags = pr.RenderFlags.RGBA | pr.RenderFlags.SKIP_CULL_FACES
         if self._shadows_on():
             flags |= pr.RenderFlags.SHADOWS_DIRECTIONAL
-        rgba, _ = self._offscreen.render(self._scene, flags=flags)
-        timings["color_pass"] = time.perf_counter() - start
-
-        start = time.perf_counter()
-        seg_flags = pr.RenderFlags.SEG | pr.RenderFlags.SKIP_CULL_FACES
-        seg, depth = self._offscreen.render(self._scene, flags=seg_flags, seg_node_map=self._seg_map)
-        timings["class_pass"] = time.perf_counter() - start
+        if self.merged:  # the labels and depth come out of the colour pass itself
+            rgba, seg, depth = self._offscreen.render(self._scene, flags=flags, seg_node_map=self._seg_map)
+            timings["color_pass"], timings["class_pass"] = time.perf_counter() - start, 0.0
+        else:
+            rgba, _ = self._offscreen.render(self._scene, flags=flags)
+            timings["color_pass"] = time.perf_counter() - start
+            start = time.perf_counter()
+            seg_flags = pr.RenderFlags.SEG | pr.RenderFlags.SKIP_CULL_FACES
+            seg, depth = self._offscreen.render(self._scene, flags=seg_flags, seg_node_map=self._seg_map)
+            timings["class_pass"] = time.perf_counter() - start
 
         # Fixed for the episode, so the frame may be resolved on another thread later.
         sky = functools.partial(sky_image, self.weather, self.rig, cam, self._clouds)

@@ -41,7 +41,11 @@ in vec4 color_multiplier;
 #ifdef TEXCOORD_0_LOC
 in vec2 uv_0;
 #endif
-out vec4 frag_color;
+layout(location = 0) out vec4 frag_color;
+// The frame's labels in the same pass (passes.install_forward_pass, "merged"): the node's
+// class and instance colour into the second colour attachment; discarded where none is bound.
+layout(location = 1) out vec4 frag_seg;
+uniform vec3 seg_color;
 const float PI = 3.141592653589793;
 
 #ifdef DIRECTIONAL_LIGHT_SHADOWS
@@ -107,5 +111,6 @@ void main()
     color += directional_lights[0].color * directional_lights[0].intensity * nl * sun
              * (diffuse + spec_colour * spec);
     frag_color = vec4(pow(clamp(color, 0.0, 1.0), vec3(1.0 / 2.2)), base.a);
+    frag_seg = vec4(seg_color, 1.0);
 }
 """
