@@ -266,7 +266,7 @@ def _markdown(result: dict, med: dict) -> str:
     lines += [
         "",
         "After, only the GL passes (`scene_update`, `color_pass`, `class_pass`) run on the render thread;",
-        "`resolve` (the sky behind the colour pass, ids and depth out of the class pass's reads), `post_fx`,",
+        "`resolve` (the sky behind the colour pass, ids and depth out of the reads of the labels the colour pass draws), `post_fx`,",
         "`outputs` and `sink` (PNG encoding, hashing, writing) run on a second thread that",
         "finishes frame i while frame i + 1 is drawn; before, all but the sink were part of the frame.",
         "`sink_wait` is the time drawing waited for that thread. Stages overlap and two workers share",
