@@ -170,16 +170,16 @@ def test_the_render_thread_only_draws(renderer, monkeypatch):
     off the render thread, and give the same frame as resolving it at once."""
     import threading
 
-    from render_workers.render import renderer as renderer_module
+    from render_workers.render import sky as sky_module
 
-    real = renderer_module.sky_image
+    real = sky_module.SkyCache.__call__
     skies = []
 
     def sky_image(*args):
         skies.append(threading.current_thread())
         return real(*args)
 
-    monkeypatch.setattr(renderer_module, "sky_image", sky_image)
+    monkeypatch.setattr(sky_module.SkyCache, "__call__", sky_image)
     _, frames = run(spec(frames=3), renderer)
     assert len(skies) == 3 and all(t is not threading.main_thread() for t in skies)
     scene, _ = episode.load_episode(spec(frames=3).drawing, renderer, "test")

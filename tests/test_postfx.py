@@ -87,10 +87,15 @@ def test_fog_pulls_far_pixels_towards_the_horizon_colour():
 
 
 def test_antialias_touches_only_geometry_edges():
+    import cv2
+
     img = image()
+    before = img.copy()
     out = postfx.antialias(img, context())
+    assert np.array_equal(img, before)  # a new image; the input stays as it was
     changed = np.any(out != img, axis=2)
     assert changed.any()
+    assert np.array_equal(out[changed], cv2.blur(img, (3, 3))[changed])  # edges: the 3x3 box blur
     assert not changed[5:10, 5:20].any()  # inside the sky, far from any edge
     assert changed[H // 4 + 2, W // 3 - 1] or changed[H // 4 + 2, W // 3]  # the building's left edge
 

@@ -65,7 +65,7 @@ import numpy as np
 from domains.catalog import Viewpoint, Weather, class_id, lookup
 from render_workers.render import pyrender_setup as compat, passes
 from render_workers.render.camera import CameraRig, hood_mesh, sun_direction
-from render_workers.render.sky import cloud_texture, composite_sky, sky_image
+from render_workers.render.sky import SkyCache, cloud_texture, composite_sky
 from render_workers.render.instances import HOOD_ID, episode_instances, split_static
 from render_workers.worlds.scene import EpisodeScene
 from render_workers.render.shaders import FAST_MESH_FRAG
@@ -273,7 +273,7 @@ class Renderer:
         self.rig = CameraRig(viewpoint, width, height)
         self.weather = weather
         self._episode = scene
-        self._clouds = cloud_texture(sky_seed)
+        self._sky = SkyCache(cloud_texture(sky_seed))  # per episode: its clouds
 
         if self._static_world is not scene.world:
             self._static = self._build_static(scene.world)
@@ -478,7 +478,7 @@ class Renderer:
             timings["class_pass"] = time.perf_counter() - start
 
         # Fixed for the episode, so the frame may be resolved on another thread later.
-        sky = functools.partial(sky_image, self.weather, self.rig, cam, self._clouds)
+        sky = functools.partial(self._sky, self.weather, self.rig, cam)
         return RenderResult(
             rgba=rgba, seg=seg, depth=depth, sky=sky, zfar=self.zfar,
             world_from_camera=cam, rig=self.rig, sun_pixel=self._sun_pixel(cam), timings=timings,
