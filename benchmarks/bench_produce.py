@@ -94,18 +94,32 @@ STAGES = ("world", "populate", "load", "scene_update", "color_pass", "class_pass
           "sink", "sink_wait")
 
 
+def machine_busy_s() -> float | None:
+    """CPU seconds this machine has spent busy since boot (user, nice, system, irq, softirq: not idle,
+    iowait or steal), from /proc/stat; None where there is none. Over one run it counts every process
+    the run starts (Ray's workers included), and moves far less with a noisy host than wall time."""
+    try:
+        with open("/proc/stat") as f:
+            fields = f.readline().split()[1:8]
+    except OSError:
+        return None
+    user, nice, system, _idle, _iowait, irq, softirq = map(int, fields)
+    return (user + nice + system + irq + softirq) / os.sysconf("SC_CLK_TCK")
+
+
 def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...] = ()) -> dict:
-    """One run of the user's command; the rate it reports, its wall time and per-stage s/frame."""
+    """One run of the user's command; the rate it reports, its wall time, the machine's busy CPU
+    seconds per frame and per-stage s/frame."""
     from benchmarks.baseline import tree_env
 
     cwd = tree if tree is not None else Path(__file__).resolve().parent.parent
     env = tree_env(tree) if tree is not None else dict(os.environ)
     env["IDDA_WORLD_CACHE"] = cache
     idda = Path(sys.executable).with_name("idda")
-    start = time.perf_counter()
+    start, busy = time.perf_counter(), machine_busy_s()
     result = subprocess.run([str(idda), "produce", *E2E_ARGS, *extra, "--out", str(out)], cwd=cwd, env=env,
                             capture_output=True, text=True, check=False)
-    wall = time.perf_counter() - start
+    wall, busy = time.perf_counter() - start, (None if busy is None else machine_busy_s() - busy)
     if result.returncode != 0:
         raise RuntimeError(f"{E2E_COMMAND} failed in {cwd}:\n{result.stderr[-3000:]}")
     stats = out / "_stats"
@@ -118,6 +132,7 @@ def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...]
         for stage, seconds in data["stages"].items():
             totals[stage] = totals.get(stage, 0.0) + seconds
     return {"reported_fps": reported, "command_wall_s": wall, "frames": frames, "load_average": os.getloadavg()[0],
+            "machine_cpu_s_per_frame": None if busy is None else busy / frames,
             "stage_s_per_frame": {k: v / frames for k, v in totals.items()}}
 
 
@@ -217,6 +232,17 @@ def _median(runs: list[dict], key: str) -> float:
     return statistics.median(r[key] for r in runs)
 
 
+def _cpu_cell(runs: list[dict]) -> str:
+    """Median machine CPU seconds per frame of ``runs`` (older records lack it)."""
+    values = [r["machine_cpu_s_per_frame"] for r in runs if r.get("machine_cpu_s_per_frame") is not None]
+    return f"{statistics.median(values):.3f}" if values else "-"
+
+
+def _rounds_line(name: str, runs: list[dict]) -> str:
+    return (f"{name}, round by round: " + ", ".join(f"{r['reported_fps']:.2f}" for r in runs) + " frames/s; "
+            + ", ".join(_cpu_cell([r]) for r in runs) + " machine CPU-s per frame.")
+
+
 def _markdown(result: dict, med: dict) -> str:
     e2e = result["end_to_end"]
     before, after, warm, six = e2e["before"], e2e["after"], e2e["after_warm"], e2e["after_six_warm"]
@@ -236,21 +262,30 @@ def _markdown(result: dict, med: dict) -> str:
         "one writes the eight with the rgb as JPEG (`--rgb-format jpg`, quality 95).",
         "Frames/s is the rate the command reports (world builds, shader compiles and Ray start-up included);",
         f"before: revision `{e2e['baseline']}` (`BENCH_BASELINE`); after: this tree; alternately, {e2e['rounds']} of each,",
-        "medians. After runs start with an empty world cache, as a first run does.",
+        "medians. After runs start with an empty world cache, as a first run does. Machine CPU-s per frame: the",
+        "seconds the whole machine was busy during the run (every process, Ray's included; /proc/stat) over the",
+        "frames; on a noisy host it moves far less than the rate does.",
         "",
-        "| variant | reported frames/s | command wall s | runs |",
-        "|---|---:|---:|---:|",
+        "| variant | reported frames/s | command wall s | machine CPU-s / frame | runs |",
+        "|---|---:|---:|---:|---:|",
     ]
     if before:
         lines.append(f"| before | {_median(before, 'reported_fps'):.2f} | {_median(before, 'command_wall_s'):.1f} | "
-                     f"{len(before)} |")
+                     f"{_cpu_cell(before)} | {len(before)} |")
     else:
-        lines.append(f"| before | not measured ({e2e['before_missing']}) | | |")
+        lines.append(f"| before | not measured ({e2e['before_missing']}) | | | |")
     lines += [
-        f"| **after** | **{_median(after, 'reported_fps'):.2f}** | {_median(after, 'command_wall_s'):.1f} | {len(after)} |",
-        f"| after, worlds already in the disk cache | {warm['reported_fps']:.2f} | {warm['command_wall_s']:.1f} | 1 |",
-        f"| after, worlds cached, the paper's six outputs only | {six['reported_fps']:.2f} | {six['command_wall_s']:.1f} | 1 |",
-        f"| after, worlds cached, `--rgb-format jpg` | {jpg['reported_fps']:.2f} | {jpg['command_wall_s']:.1f} | 1 |",
+        f"| **after** | **{_median(after, 'reported_fps'):.2f}** | {_median(after, 'command_wall_s'):.1f} | "
+        f"{_cpu_cell(after)} | {len(after)} |",
+    ]
+    lines += [f"| {name} | {run['reported_fps']:.2f} | {run['command_wall_s']:.1f} | {_cpu_cell([run])} | 1 |"
+              for name, run in (("after, worlds already in the disk cache", warm),
+                                ("after, worlds cached, the paper's six outputs only", six),
+                                ("after, worlds cached, `--rgb-format jpg`", jpg))]
+    lines += [
+        "",
+        *([_rounds_line("Before", before)] if before else []),
+        _rounds_line("After", after),
         "",
         "Per stage in those runs, seconds per frame summed over both workers' episodes (medians):",
         "",
