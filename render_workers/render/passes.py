@@ -104,6 +104,20 @@ def _linear_depth(window: np.ndarray, z_near: float, z_far: float | None) -> np.
     return depth
 
 
+def _read_colour(GL, width: int, height: int, fmt, channels: int) -> np.ndarray:
+    """The bound read buffer's colour, uint8, flipped to image rows."""
+    raw = GL.glReadPixels(0, 0, width, height, fmt, GL.GL_UNSIGNED_BYTE)
+    return np.flip(np.frombuffer(raw, dtype=np.uint8).reshape(height, width, channels), axis=0)
+
+
+def _read_depth(GL, width: int, height: int, scene) -> np.ndarray:
+    """The read framebuffer's depth, linearised by the scene camera's planes, flipped to image rows."""
+    raw = GL.glReadPixels(0, 0, width, height, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
+    window = np.flip(np.frombuffer(raw, dtype=np.float32).reshape(height, width), axis=0)
+    camera = scene.main_camera_node.camera
+    return _linear_depth(window, camera.znear, camera.zfar)
+
+
 def _read_framebuffer(GL, RenderFlags, inner, scene, flags):
     """The read-back: resolve the multisampled buffers, then colour and (SEG, depth-only) linear depth."""
     width, height = inner._main_fb_dims
@@ -117,18 +131,11 @@ def _read_framebuffer(GL, RenderFlags, inner, scene, flags):
         if want_depth:
             GL.glBlitFramebuffer(0, 0, width, height, 0, 0, width, height, GL.GL_DEPTH_BUFFER_BIT, GL.GL_NEAREST)
     GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, inner._main_fb)
-    depth = None
-    if want_depth:
-        raw = GL.glReadPixels(0, 0, width, height, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
-        window = np.flip(np.frombuffer(raw, dtype=np.float32).reshape(height, width), axis=0)
-        camera = scene.main_camera_node.camera
-        depth = _linear_depth(window, camera.znear, camera.zfar)
-        if not want_colour:
-            return depth
+    depth = _read_depth(GL, width, height, scene) if want_depth else None
+    if not want_colour:
+        return depth
     fmt, channels = (GL.GL_RGBA, 4) if flags & RenderFlags.RGBA else (GL.GL_RGB, 3)
-    raw = GL.glReadPixels(0, 0, width, height, fmt, GL.GL_UNSIGNED_BYTE)
-    colour = np.flip(np.frombuffer(raw, dtype=np.uint8).reshape(height, width, channels), axis=0)
-    return colour, depth
+    return _read_colour(GL, width, height, fmt, channels), depth
 
 
 def _read_merged(GL, inner, scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -136,19 +143,10 @@ def _read_merged(GL, inner, scene) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     colours (RGB, from the second attachment) and linear depth, each flipped to image rows."""
     width, height = inner._main_fb_dims
     GL.glBindFramebuffer(GL.GL_READ_FRAMEBUFFER, inner._main_fb)
-
-    def read(attachment, fmt, channels):
-        GL.glReadBuffer(attachment)
-        raw = GL.glReadPixels(0, 0, width, height, fmt, GL.GL_UNSIGNED_BYTE)
-        return np.flip(np.frombuffer(raw, dtype=np.uint8).reshape(height, width, channels), axis=0)
-
-    colour = read(GL.GL_COLOR_ATTACHMENT0, GL.GL_RGBA, 4)
-    seg = read(GL.GL_COLOR_ATTACHMENT1, GL.GL_RGB, 3)
+    GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT1)
+    seg = _read_colour(GL, width, height, GL.GL_RGB, 3)
     GL.glReadBuffer(GL.GL_COLOR_ATTACHMENT0)  # what every other read-back expects
-    raw = GL.glReadPixels(0, 0, width, height, GL.GL_DEPTH_COMPONENT, GL.GL_FLOAT)
-    window = np.flip(np.frombuffer(raw, dtype=np.float32).reshape(height, width), axis=0)
-    camera = scene.main_camera_node.camera
-    return colour, seg, _linear_depth(window, camera.znear, camera.zfar)
+    return _read_colour(GL, width, height, GL.GL_RGBA, 4), seg, _read_depth(GL, width, height, scene)
 
 
 def install_framebuffer(offscreen, samples: int) -> None:

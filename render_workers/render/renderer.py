@@ -137,19 +137,26 @@ class RenderResult:
                 return
             start = time.perf_counter()
             rgba, seg, depth, sky, zfar = self._raw
-            background = depth <= 0.0
-            classes = seg[..., 0].copy()
-            classes[background] = SKY_ID
-            instance = seg[..., 1].astype(np.uint16)
-            instance |= seg[..., 2].astype(np.uint16) << 8
-            instance[background] = 0
+            depth, classes, instance = decode_labels(seg, depth, zfar)
             self._hood = instance == HOOD_ID
-            depth = np.minimum(depth, np.float32(zfar), dtype=np.float32)
-            depth[background] = zfar
             rgb = composite_sky(rgba, sky())
             self._buffers = {"rgb": rgb, "depth": depth, "classes": classes, "instance": instance}
             self._raw = None  # the GL reads are no longer needed
             self.resolve_s = time.perf_counter() - start
+
+
+def decode_labels(seg: np.ndarray, depth: np.ndarray, zfar: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A pass's SEG colours and linear depth -> (planar depth float32 metres, class ids uint8, instance
+    ids uint16); where nothing was drawn (depth 0): ``zfar``, sky and 0."""
+    background = depth <= 0.0
+    classes = seg[..., 0].copy()
+    classes[background] = SKY_ID
+    instance = seg[..., 1].astype(np.uint16)
+    instance |= seg[..., 2].astype(np.uint16) << 8
+    instance[background] = 0
+    depth = np.minimum(depth, np.float32(zfar), dtype=np.float32)
+    depth[background] = zfar
+    return depth, classes, instance
 
 
 @dataclass
@@ -342,14 +349,7 @@ class Renderer:
         cam = self.update(t, shadows=False, cull_m=cull_m)
         seg, depth = self._offscreen.render(self._scene, flags=pr.RenderFlags.SEG | pr.RenderFlags.SKIP_CULL_FACES,
                                             seg_node_map=self._seg_map)
-        background = depth <= 0.0
-        classes = seg[..., 0].copy()
-        classes[background] = SKY_ID
-        instance = seg[..., 1].astype(np.uint16) | (seg[..., 2].astype(np.uint16) << 8)
-        instance[background] = 0
-        depth = np.minimum(depth, np.float32(self.zfar), dtype=np.float32)
-        depth[background] = self.zfar
-        return depth, classes, instance, cam
+        return (*decode_labels(seg, depth, self.zfar), cam)
 
     def set_weather(self, weather: Weather) -> None:
         """Light the loaded episode by ``weather`` from the next frame on (a shift's frame weather):
