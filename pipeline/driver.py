@@ -41,11 +41,13 @@ _FORWARDED_ENV = ("PYOPENGL_PLATFORM", "EGL_DEVICE_ID", "IDDA_FAULT_INJECT", "LP
 # Mesa llvmpipe rasterises with one thread per core in every GL context. When
 # the workers alone fill the cores, that is cores x cores threads on a large
 # machine, so each worker's context then gets this many (unless LP_NUM_THREADS
-# is set). Two, not one: with only the GL passes on the render thread, a second
-# rasterising thread pays, most of all for the last episode of a run, alone on
-# the machine (2 cores, 120 full-HD frames end to end, 4 runs each alternating:
-# median 3.44 frames/s with 2 threads, 3.21 with 1).
-LP_THREADS_WHEN_FULL = "2"
+# is set). None (0: the render thread rasterises): a worker already keeps two
+# threads busy (drawing, and finishing the frame before), and with one pass per
+# frame extra rasterising threads only add hand-offs (2 cores, 120 full-HD
+# frames end to end, 5 rounds each alternating: median 3.00 frames/s and 0.627
+# machine CPU-s per frame with 0, 2.85 and 0.644 with 2; a lone worker, as for
+# the last episode of a run: 0.274 s per frame with 0, 0.30 with 2).
+LP_THREADS_WHEN_FULL = "0"
 
 
 @dataclass(frozen=True)
