@@ -151,8 +151,8 @@ def decode_labels(seg: np.ndarray, depth: np.ndarray, zfar: float) -> tuple[np.n
     background = depth <= 0.0
     classes = seg[..., 0].copy()
     classes[background] = SKY_ID
-    instance = seg[..., 1].astype(np.uint16)
-    instance |= seg[..., 2].astype(np.uint16) << 8
+    # green low byte, blue high byte: the two adjacent bytes read as one little-endian uint16
+    instance = seg[..., 1:3].view("<u2")[..., 0].copy()
     instance[background] = 0
     depth = np.minimum(depth, np.float32(zfar), dtype=np.float32)
     depth[background] = zfar
