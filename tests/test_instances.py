@@ -115,3 +115,28 @@ def test_3d_box_projects_inside_the_2d_box(town):
                 assert row["x0"] - 1 <= cu <= row["x1"] + 1 and row["y0"] - 1 <= cv <= row["y1"] + 1, row
                 checked += 1
     assert checked >= 2
+
+
+def test_silhouette_fills_every_triangle_and_clips_at_the_near_plane():
+    """An amodal silhouette is the union of its triangles' projections: a square of two triangles at
+    10 m fills the square (each triangle is half of it), and a triangle the near plane cuts still fills
+    its visible part."""
+    from render_workers.render.instances import _silhouette
+
+    focal, cx, cy, shape = 100.0, 50.0, 50.0, (100, 100)
+    a, b, c, d = ([x, y, 10.0] for x, y in ((-1.0, -1.0), (1.0, -1.0), (1.0, 1.0), (-1.0, 1.0)))
+    square = np.array([[a, b, c], [a, c, d]])  # 20 x 20 pixels about the centre
+    window = (slice(45, 55), slice(45, 55))
+    for tris in (square, square[:1], square[1:]):
+        (ys, xs), mask = _silhouette(tris, window, shape, focal, cx, cy)
+        filled = np.zeros(shape, bool)
+        filled[ys, xs] = mask
+        share = filled[40:60, 40:60].mean()
+        assert (share == 1.0) if len(tris) == 2 else (0.5 <= share < 0.6)
+        assert filled.sum() == filled[39:61, 39:61].sum()  # nothing outside the square's pixels
+    cut = np.array([[[-1.0, -1.0, 10.0], [1.0, -1.0, 10.0], [0.0, 1.0, -1.0]]])  # a vertex behind the camera
+    (ys, xs), mask = _silhouette(cut, (slice(40, 41), slice(40, 60)), shape, focal, cx, cy)
+    filled = np.zeros(shape, bool)
+    filled[ys, xs] = mask
+    assert filled[40, 41:59].all() and filled[60:].any()  # its far edge, and up to the image's edge
+    assert not filled[:39].any()  # the part behind the near plane (z < NEAR_M) is not drawn
