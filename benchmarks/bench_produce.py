@@ -337,7 +337,7 @@ def _overhead_section(result: dict, med: dict) -> list[str]:
         "",
         f"* Orchestration overhead, Ray 1 worker / plain loop: **{result['overhead_ratio']:.3f}** (target <= 1.03).",
         f"* Scaling, 2 workers over 1: **{result['scaling_2_over_1']:.2f}x** on 2 cores "
-        "(two workers fill the cores; each GL context keeps llvmpipe's 2 threads, the cap produce sets).",
+        "(two workers fill the cores, so each GL context rasterises on its render thread: `LP_NUM_THREADS=0`, as produce sets).",
         f"* Ray start-up and worker warm-up (not included above): median {med['startup']:.1f} s.",
         "",
         "GPU: not measured (no GPU machine was available to these runs).",

@@ -15,7 +15,7 @@ they move less than wall times when other jobs load the machine.
 Worker table (this tree): whole frames in 1 and 2 worker processes
 (multiprocessing, spawn), each with its own Renderer, timed from a shared
 start barrier; 2 workers with the default llvmpipe threads (one per core; ``idda
-produce`` caps them at 2 when workers fill the cores) and with ``LP_NUM_THREADS=1``.
+produce`` makes them 0 when workers fill the cores: the render thread rasterises) and with ``LP_NUM_THREADS=1``.
 """
 
 from __future__ import annotations
@@ -323,7 +323,7 @@ def _workers_section(result: dict) -> list[str]:
         "",
         f"Scaling 1 -> 2 workers: {result['throughput'][1]['frames_per_s'] / one:.2f}x with llvmpipe's default threads, "
         f"{result['throughput'][2]['frames_per_s'] / one:.2f}x with one llvmpipe thread per worker. When workers fill the",
-        "cores, `idda produce` gives each GL context at most 2 llvmpipe threads (here: the default).",
+        "cores, `idda produce` gives each GL context no llvmpipe threads (`LP_NUM_THREADS=0`: the render thread rasterises).",
         "",
     ]
     return lines
@@ -368,19 +368,177 @@ so only CPU per frame moves frames/s end to end):
   is not installed, and its output may follow CPU-specific code paths). libdeflate's cost follows the
   input, not the output: depth_gray, semantic_raw and semantic_color (6.2 MB of rows each, 28-38 KB
   deflated) cost 23 ms each, like depth_log, against rgb's 34-40 ms.
+* **Other deflaters, measured 2026-11-29** (a quiet 2-core AMD EPYC; the filtered rows of four full-HD
+  frames' seven PNGs, T01_CN_A and T03_CS_M at frames 10 and 40 of the `idda produce` root of the
+  production benchmark's command; thread CPU, medians of 3 rounds:
+  `python -m benchmarks.compare_deflaters ROOT`): libdeflate level 2 (the default) **81.5 ms and
+  1,266 KB per frame**; libdeflate level 1 109.5 ms, 1,301 KB; Python's zlib level 1 90.1 ms, 1,645 KB;
+  zlib `Z_RLE` (distance-1 matches only, no hash search) 87.0 ms, 1,626 KB, the same at level 6;
+  zlib Huffman only 251.4 ms, 6,101 KB. The four low-entropy outputs (depth_gray, depth_log,
+  semantic_raw, semantic_color) cost ~9-10 ms each with every deflater but Huffman-only: that is the
+  pass over their 6.2 MB of rows, not the match search, so no deflater configuration cuts it; only
+  smaller inputs would, and the outputs' formats are the contract (RGB PNGs as CARLA writes them).
+  The default stays.
 * **Encoding the outputs in parallel threads**: the `deflate` package releases the GIL
   (`PyEval_SaveThread` in its module), so seven deflates could run at once; that shortens a lone
   worker's frame (the last episode of a run), not the CPU per frame. Not measured end to end: the
   machine was at load 25-37 throughout, and the benchmark's two workers overlap all but the run's tail.
+  Measured 2026-11-29 on the quiet AMD EPYC with a trial build that deflated a frame's PNGs in a pool
+  of 4 threads (not kept): `idda produce --workers 1 --domains T01_CN_A --frames-per-scenario 40 --width 1920
+  --height 1080`, 3 alternating rounds: 2.20, 2.34, 2.32 frames/s serial against 2.44, 2.34, 2.21 in the
+  pool (medians 2.32 and 2.34). No gain even for a lone worker: its render thread, second thread and
+  llvmpipe's two threads already keep about 1.6 of the 2 cores busy.
 * **Work done twice**: the three depth encodings each check for NaN and normalise the same buffer
   (0.056 CPU-s together); semantic_color is already one table lookup (0.005). Sharing the NaN check and
   the float64 normalisation would save at most ~0.02 CPU-s per frame (under 2%).
 * **GL**: the Python side of the two passes and llvmpipe's threads are 44% of the frame; the work done
   before (see the profiling notes below) is where that stands.
 
+* **GL lookups per primitive** (2026-11-28): pyrender asked GL for a uniform's location at every
+  `set_uniform` and ran its program lookup (shader defines, light limits) for every primitive of every
+  pass. `render_workers/render/passes.py` now keeps a uniform's location on its program and looks a
+  program up once per kind of primitive in a pass (the same GL calls with the same values: the default
+  digest is unchanged); the LiDAR work asked pyrender's light limits once per kind of pass. Measured with
+  `python -m benchmarks.profile_frame` on 31047cc (before) and this tree (after), alternating, 3 rounds
+  each, load 1-4: the render thread's Python side **0.227 -> 0.192 CPU-s per frame** (medians; rounds
+  0.227, 0.222, 0.237 against 0.212, 0.192, 0.173), process CPU per frame 1.152 -> 1.079. At small
+  sizes, where the draw's Python side is most of a frame, the test world's 81 frames at 32x32 render
+  in 18-23 s instead of 32 s (`tests/test_layout.py`'s root), which the test suite feels.
+
 So the 5 frames/s goal (0.4 CPU-s per frame at the production benchmark's ~3.7 frames/s on two cores,
 a 26% cut) is not reached by any one of these; the deflate and the GL Python side are the two
-largest single items."""
+largest single items.
+
+### The same profile on another machine (2026-11-29)
+
+`python -m benchmarks.profile_frame` on main at 55175a6 (the frames are the same as at 561ff20's
+profile above but for later default-look changes; the stages are the same), a 2-core AMD EPYC
+(Zen 4) with nothing else running (load average 4.0 / 2.7 at the end: the probe follows three
+`idda produce` runs). CPU seconds per frame, 8 frames of T01_CN_A after the warm-up:
+
+| thread | stage | CPU s / frame | share |
+|---|---|---:|---:|
+| render | GL passes, Python side | 0.078 | 14% |
+| llvmpipe x2 | rasterising and shading both passes | 0.151 | 28% |
+| second | resolve | 0.035 | 6% |
+| second | post effects | 0.079 | 15% |
+| second | objects table, object counts | 0.018 | 3% |
+| second | PNG deflate (libdeflate level 2, seven PNGs) | 0.080 | 15% |
+| second | array encodings (depth_raw 0.014, depth_log 0.004, semantic_color 0.002, depth_gray 0.002, semantic_raw 0.001) | 0.023 | 4% |
+| second | PNG Sub filter, sha256, writes, manifest row | 0.007 | 1% |
+| | the rest (interpreter, allocator, the loop, Ray-less episode set-up over 8 frames) | 0.068 | 13% |
+| | **process CPU per frame** | **0.539** | |
+
+Bytes per frame: rgb 726,965; depth_raw 350,321; depth_log 60,545; depth_gray 37,596; semantic_raw
+28,564; semantic_color 28,378; instance 8,367; objects 5,569: 1,246,311 in all. Two 16-frame runs gave
+0.504 and 0.507 CPU-s per frame. Python's garbage collector, timed with `gc.callbacks` over those
+16 frames: 29 young and 2 middle collections, 0.3 ms per frame, so `gc.freeze()` after the world
+loads (tried: 0.516 and 0.500) is no lever; over the whole probe, imports and world build included,
+it is 0.21 of 8.4 CPU-s.
+
+What that means for the goal: two workers on two cores give at most 2 / 0.50 = 4.0 frames/s before
+any start-up; 5 frames/s end to end over the benchmark's 120 frames (Ray's start and two world
+loads, ~8 s, included) needs about 0.33 CPU-s per frame, a third less than now. The two largest items
+are llvmpipe's rasterising (28%) and, at 15% each, the deflate (no cheaper deterministic deflater: see
+"Other deflaters" above) and the post effects.
+
+### Levers measured on 2026-11-29, second round (the same AMD EPYC)
+
+Each measured in one process with both sides alternating (scripts run from the tree; thread or
+process CPU; full HD), then end to end in `BENCH=produce make bench` (docs/bench_produce.md).
+
+* **Labels drawn in the colour pass (kept, 3e8d671).** The class pass rasterised the whole scene a
+  second time for class, instance and depth: 0.045 CPU-s per T01_CN_A frame (the GL passes alone,
+  12 frames: 0.207 and 0.210 with it, 0.158 and 0.167 without). The fast mesh shader now writes each
+  node's SEG colour into a second colour attachment of the colour pass (`passes.install_forward_pass`),
+  and the frame reads colour, labels and depth from that one pass. GL passes alone, 12 frames, 3
+  alternating rounds: T01_CN_A 0.253, 0.262, 0.275 CPU-s per frame with two passes against 0.226, 0.241,
+  0.236 merged; T03_CS_M 0.333, 0.311, 0.290 against 0.304, 0.291, 0.312. The merged pass draws what
+  the colour pass draws, back faces included; pyrender's SEG pass culled them whatever the flags said,
+  so a surface seen from behind was in the picture and not in the labels: 331, 83, 131, 1,073, 837 and
+  7,281 of 518,400 pixels in T01_CN_A's first six frames at 960x540 (T03_CS_M: 0 to 2,812). A SEG pass
+  (`render_labels`, and renderers with `msaa` or `pbr`, which keep two passes) now honours
+  `SKIP_CULL_FACES` too, so all three give the same bytes (`tests/test_renderer.py`).
+* **The sky kept per camera orientation (kept, 75d7395).** `sky_image` cost 37-42 ms of CPU per full-HD
+  frame (CN, CS, HRN), computed at a quarter size in float64 (ray directions 11 ms, gradient 9, clouds
+  8, sun glow 5, the upscale 2.4). It depends on the camera's rotation only, and an ego on a straight
+  road keeps its rotation bit for bit: T01_CN_A, T03_CS_M and T05_CN_V have 6, 5 and 9 distinct
+  rotations in 60 frames. `sky.SkyCache` keeps the last four images per episode: the same bytes, and
+  resolve fell from 0.038, 0.033, 0.032 to 0.023, 0.017, 0.019 CPU-s per frame
+  (`python -m benchmarks.profile_frame`, 16 frames, 3 alternating rounds).
+* **Antialias without a copy of the frame (kept, 75d7395)**: the blurred image with the original put
+  back off the edges instead of the blur copied onto a copy of the original: 18.0, 22.8, 19.3 ms ->
+  13.2, 17.0, 12.6 ms on a real T01_CN_A frame, the same bytes.
+* **fpng, a PNG writer made for speed (not kept).** `fpng` (PyPI 0.1.0, richgel999's encoder) writes
+  RGB PNGs with the Up filter and one pass of pixel-run matches under a fixed Huffman table: no hash
+  table, no memory it did not write, and its SSE paths compute only the Up filter, CRC-32 and Adler-32,
+  which are exact, so its bytes follow from the pixels alone. On four full-HD frames' six RGB outputs
+  (T01_CN_A, T03_CS_M), thread CPU medians: rgb 10.0 ms and 1,075 KB against libdeflate's 22.1 ms and
+  795 KB; the five others 20.4 ms and 698 KB against 54.9 ms and 459 KB. End to end (the benchmark's
+  command, a trial build writing every RGB PNG with fpng, 3 alternating rounds): 3.01, 2.84, 2.81
+  frames/s against 2.82, 2.74, 2.51 (medians 2.84 and 2.74), with the 120 frames taking 217 MB instead
+  of 151 MB. A 4% faster run for 44% more bytes: the default stays libdeflate.
+* **Motion blur's first, identity warp skipped (not kept)**: the same bytes on eight frames, 16.5-18.5
+  -> 15.1-16.6 ms, about 0.3% of a frame; not worth relying on OpenCV's identity warp being exact.
+
+After these (main at e4ee114), `PF_FRAMES=16 python -m benchmarks.profile_frame`, four runs in a row on
+the same machine, CPU seconds per frame (the second run shows how far this host swings: every stage,
+the deterministic deflate included, took a third more):
+
+| run | process | render, Python | llvmpipe | resolve | post effects | objects | deflate | arrays |
+|---|---:|---:|---:|---:|---:|---:|---:|---:|
+| 1 | 0.488 | 0.069 | 0.143 | 0.019 | 0.074 | 0.019 | 0.078 | 0.026 |
+| 2 | 0.631 | 0.091 | 0.169 | 0.025 | 0.104 | 0.028 | 0.105 | 0.032 |
+| 3 | 0.524 | 0.091 | 0.151 | 0.018 | 0.083 | 0.019 | 0.080 | 0.025 |
+| 4 | 0.528 | 0.076 | 0.165 | 0.019 | 0.084 | 0.020 | 0.079 | 0.026 |
+
+Bytes per frame: rgb 704,094; depth_raw 385,783; depth_log 60,329; depth_gray 36,557; semantic_raw
+27,602; semantic_color 27,451; instance 8,589; objects 5,607: 1,256,012 in all (16 frames; the 8-frame
+figures above average fewer frames). End to end the production benchmark's machine CPU fell from 0.677
+to 0.625 s per frame (docs/bench_produce.md, 5 rounds each). 5 frames/s with two workers on two cores
+still needs about 0.33.
+
+### Levers measured on 2026-11-29, third round (the same AMD EPYC)
+
+In one process, both sides alternating (full HD, thread CPU), then end to end (docs/bench_produce.md).
+
+* **No llvmpipe threads when the workers fill the cores (kept, e420dc3).** With one GL pass per frame
+  a worker's render thread and its second thread (finishing the frame before) already keep a core
+  busy; llvmpipe's own threads only add hand-offs. The benchmark's command, 5 alternating rounds:
+  `LP_NUM_THREADS=0` 2.93, 3.01, 3.00, 2.84, 3.00 frames/s (median 3.00) and 0.627 machine CPU-s per
+  frame (median), against 2.64, 2.80, 2.91, 2.94, 2.85 (median 2.85) and 0.644 with 2, the old
+  default. A lone worker (the last episode of a run; `PF_FRAMES=16 python -m benchmarks.profile_frame`,
+  2 rounds): 0.274 and 0.275 s per frame with 0 against 0.308 and 0.295 with 2; process CPU 0.447 and
+  0.450 against 0.484 and 0.468. `idda produce` now sets 0 when the workers fill the cores (unless
+  `LP_NUM_THREADS` is set); the bytes do not depend on it (docs/contract.md).
+* **Read-back straight into the frame's arrays (kept, bcdc4bc).** PyOpenGL's `glReadPixels` returns a
+  bytes copy of the pixels; reading the labels as RGB made Mesa repack each pixel of the RGBA
+  attachment. Thread CPU per full-HD read (10 reads): labels 3.17 ms as RGB bytes -> 0.38 ms as RGBA
+  into an array; colour 1.87 -> 1.09 ms. Same bytes.
+* **depth_raw in one OpenCV pass (kept, e427679)**: the 24-bit levels as `cv2.multiply(..., dtype=CV_32S)`
+  (its double-to-int conversion rounds half to even, as `np.rint`; a test pins it at the vector and
+  the scalar widths) and the three low bytes by `cvtColor`: 14.1 -> 4.4 ms per frame, same bytes.
+* **Silhouettes' fixed-point vertices at once (kept, e015784)**: ~2,000 triangles per frame were each
+  converted on their own; `frame_objects` 28.7 -> 14.7 ms on a T03_CS_M frame, same bytes.
+* **What the colour pass's shading costs** (render-only loop, 16 frames of T01_CN_A, llvmpipe threads'
+  CPU per frame): 0.132-0.156 with the shader as it is; 0.053 with a shader that writes the base
+  colour only, so shading is ~0.08-0.10 of it. Removing one term at a time (two rounds each): the
+  shadow tap 0.109 and 0.124; the specular term 0.116 and 0.126; the detail texture 0.123 and 0.133;
+  the gamma power 0.148 and 0.144 (no gain). Each is ~0.01-0.02 CPU-s and each changes the look
+  (the realism figures in docs/realism.md were measured with them), so none was taken.
+* **Not kept**: PyOpenGL without its per-call error check (`OpenGL.ERROR_CHECKING = False`; PyOpenGL
+  3.1's EGL module then fails to import unless patched): render-thread CPU 0.168, 0.172, 0.170 with the
+  check against 0.170, 0.170, 0.167 without. Drawing nodes front to back: 0.129 against 0.136 llvmpipe
+  CPU-s (noise; overdraw is low).
+* **Where the benchmark's CPU goes** (the benchmark's command once, every process's CPU from /proc):
+  75.8 CPU-s for 120 frames; the two render workers 67.5 (0.56 per frame, their start-up included),
+  the driver 2.1, Ray's daemons 3.6 (dashboard 0.8, dashboard agent 1.0, runtime-env agent 0.5,
+  autoscaler monitor 0.4, log monitor 0.3, raylet 0.3, GCS 0.3), the progress actor's process 1.0.
+  A worker's start-up in one process: imports 1.1 CPU-s, the episode's load and first frame 1.7
+  (traffic 0.3, the GL scene 0.75). In steady state a frame costs 0.42 CPU-s (24 more frames in one
+  process: user 9.37 s, system 0.66 s; 3,400 minor page faults per frame). So even at no start-up
+  cost, 120 frames at 0.42 CPU-s need 50 CPU-s, more than the 48 that 5 frames/s for 24 s on two
+  cores gives: the goal needs the frame itself at ~0.3."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
@@ -408,7 +566,8 @@ _NOTES = (
     "12-frame episodes, T03_CS_M 0.61 -> 0.57 and T01_CN_A 0.48 -> 0.47 CPU-s per frame. Did not",
     "pay: glibc keeping freed memory (`mallopt`; page faults per frame 4,500 -> 500-1,400, CPU per",
     "frame unchanged within noise); `LP_NUM_THREADS=0` (rasterising on the calling thread) was",
-    "within noise end to end (2.99, 3.19 frames/s against 3.00, 2.99 with 1), so produce keeps 1.",
+    "within noise end to end (2.99, 3.19 frames/s against 3.00, 2.99 with 1) then; with one pass per frame it"
+    " paid (2026-11-29, third round below), so produce now uses 0.",
     "The objects output's silhouettes project their triangles in one numpy pass (0.025 -> 0.010",
     "CPU-s per frame, same bytes).",
     "",

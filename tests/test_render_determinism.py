@@ -46,7 +46,7 @@ print(json.dumps({k: v for k, v in digests.items() if k.startswith(sys.argv[-1] 
 
 # (scenarios rendered by the process, the last one compared; environment)
 RUNS = [
-    (["T01_HRN_A"], {"IDDA_WORLD_CACHE": "off", "LP_NUM_THREADS": "1", "PYTHONHASHSEED": "1", "SINK_DELAY_S": "0"}),
+    (["T01_HRN_A"], {"IDDA_WORLD_CACHE": "off", "LP_NUM_THREADS": "0", "PYTHONHASHSEED": "1", "SINK_DELAY_S": "0"}),
     (["T01_HRN_A"], {"LP_NUM_THREADS": "2", "PYTHONHASHSEED": "2", "SINK_DELAY_S": "0.2"}),
     (["T01_CN_A", "T01_HRN_A"], {"LP_NUM_THREADS": "2", "PYTHONHASHSEED": "3", "SINK_DELAY_S": "0"}),
     (["T01_CN_A", "T01_HRN_A"], {"IDDA_WORLD_CACHE": "off", "LP_NUM_THREADS": "1", "PYTHONHASHSEED": "4",
