@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from functools import cache
 from typing import TYPE_CHECKING
 
+import numpy as np
 import pyarrow as pa
 import pyarrow.parquet as pq
 
@@ -415,6 +416,14 @@ def _dataset(storage, files: list[str]) -> ds.Dataset:
 # ------------------------------------------------------------------ indexes ----
 
 
+def _repeated(value: str, n: int) -> pa.Array:
+    """A string column of ``n`` times ``value``, from its buffers: converting Python objects makes pyarrow
+    import pandas (0.2 CPU-s), which a fold at the end of a run would otherwise wait for."""
+    data = value.encode()
+    offsets = np.arange(n + 1, dtype=np.int32) * len(data)
+    return pa.StringArray.from_buffers(n, pa.py_buffer(offsets), pa.py_buffer(data * n))
+
+
 def index_table(parts: list[pa.Table], scenario: str, episodes: list[int], sizes: dict[int, int] | None = None) -> pa.Table:
     """A scenario's index: its parts' rows with the partition columns; in the
     footer, the covered episodes and, given the parts' ``sizes`` (bytes they
@@ -422,7 +431,7 @@ def index_table(parts: list[pa.Table], scenario: str, episodes: list[int], sizes
     from."""
     table = pa.concat_tables(parts)
     for key, value in zip(PARTITION_KEYS, split_code(scenario)):
-        table = table.append_column(key, pa.array([value] * len(table), pa.string()))
+        table = table.append_column(key, _repeated(value, len(table)))
     meta = {INDEX_EPISODES_KEY: json.dumps(episodes).encode()}
     if sizes is not None:
         items = [summary_of_table(part, sizes[e]).to_json(e) for part, e in zip(parts, episodes)]

@@ -36,6 +36,7 @@ from manifests.reader import (
 )
 from roots.contract import ROOT_MARKER, claim_root
 from manifests.schema import index_path
+from tests.faultkit import REPO
 from tests.roots import part_of, to_old_names
 from manifests.synthetic import episode_table, write_parts
 from manifests.writer import write_part
@@ -177,6 +178,49 @@ def test_fold_reads_only_new_parts_and_equals_a_full_rebuild(tmp_path):
         assert (tmp_path / "inc" / index_path(scenario)).read_bytes() == (tmp_path / "full" / index_path(scenario)).read_bytes()
     assert compact(storage) == []  # all current
     assert read_manifest(storage).equals(read_manifest(full))
+
+
+def test_a_fold_imports_neither_pyarrow_dataset_nor_pandas(tmp_path):
+    """The fold at the end of a run is on its critical path: importing pandas (which pyarrow's dataset
+    module and its conversions of Python objects do) added a quarter of a second to every run. The
+    indexes a fresh process folds are those of the process that imported them."""
+    root = synthetic_root(str(tmp_path / "root"))
+    expected = {}
+    compact(root)
+    for scenario in PLAN_SCENARIOS():
+        expected[scenario] = (tmp_path / "root" / index_path(scenario)).read_bytes()
+        (tmp_path / "root" / index_path(scenario)).unlink()
+    child = ("import sys; from manifests.reader import compact; folded = compact(sys.argv[1]); "
+             "print(len(folded), 'pandas' in sys.modules, 'pyarrow.dataset' in sys.modules)")
+    out = subprocess.run([sys.executable, "-c", child, str(tmp_path / "root")], capture_output=True, text=True,
+                         check=True, cwd=str(REPO), env={**os.environ, "PYTHONPATH": str(REPO)}).stdout.split()
+    assert out == [str(len(expected)), "False", "False"]
+    for scenario, data in expected.items():
+        assert (tmp_path / "root" / index_path(scenario)).read_bytes() == data
+
+
+def test_a_part_is_read_as_pyarrow_reads_it_against_a_schema(tmp_path):
+    """read_part_file without pyarrow.dataset: columns the file lacks come back null, others are dropped,
+    types are cast to the schema's, and the schema's metadata is kept, as pq.read_table(schema=) gives."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    from manifests.part_file import ManifestError, read_part_file
+
+    schema = pa.schema([("frame", pa.int64()), ("name", pa.string()), ("missing", pa.float32())],
+                       metadata={b"k": b"v"})
+    table = pa.table({"extra": pa.array([1.5, 2.5]), "name": pa.array(["a", None]),
+                      "frame": pa.array([3, 4], pa.int32())})
+    pq.write_table(table, tmp_path / "p.parquet")
+    storage = Storage.from_uri(str(tmp_path))
+    for wanted in (schema, None):
+        ours = read_part_file(storage, "p.parquet", wanted)
+        theirs = pq.read_table(tmp_path / "p.parquet", schema=wanted)
+        assert ours.equals(theirs, check_metadata=True)
+    assert read_part_file(storage, "p.parquet", schema).column("missing").null_count == 2
+    bad = pa.schema([("name", pa.int64())])  # "a" is no integer
+    with pytest.raises(ManifestError, match="p.parquet"):
+        read_part_file(storage, "p.parquet", bad)
 
 
 def test_produce_folds_indexes_while_it_runs(ray_local, tmp_path):
