@@ -520,6 +520,11 @@ In one process, both sides alternating (full HD, thread CPU), then end to end (d
   the scalar widths) and the three low bytes by `cvtColor`: 14.1 -> 4.4 ms per frame, same bytes.
 * **Silhouettes' fixed-point vertices at once (kept, e015784)**: ~2,000 triangles per frame were each
   converted on their own; `frame_objects` 28.7 -> 14.7 ms on a T03_CS_M frame, same bytes.
+* **The fold at the end of a run without pandas (kept, 5d95bb5)**: `pq.read_table` imports `pyarrow.dataset`
+  and converting Python objects to Arrow imports pandas, 0.2 CPU-s on the critical path of every run's last
+  index fold. Parts are read with `pq.ParquetFile`, the partition columns built from buffers: folding four
+  scenarios 0.306 -> 0.077 s, the same index bytes; Ray 1 worker / plain loop in `BENCH=produce make bench`
+  1.053 -> 1.007 (time outside episodes 0.33 -> 0.17 s).
 * **What the colour pass's shading costs** (render-only loop, 16 frames of T01_CN_A, llvmpipe threads'
   CPU per frame): 0.132-0.156 with the shader as it is; 0.053 with a shader that writes the base
   colour only, so shading is ~0.08-0.10 of it. Removing one term at a time (two rounds each): the
@@ -538,7 +543,10 @@ In one process, both sides alternating (full HD, thread CPU), then end to end (d
   (traffic 0.3, the GL scene 0.75). In steady state a frame costs 0.42 CPU-s (24 more frames in one
   process: user 9.37 s, system 0.66 s; 3,400 minor page faults per frame). So even at no start-up
   cost, 120 frames at 0.42 CPU-s need 50 CPU-s, more than the 48 that 5 frames/s for 24 s on two
-  cores gives: the goal needs the frame itself at ~0.3."""
+  cores gives: the goal needs the frame itself at ~0.3.
+
+After these (main at 5d95bb5), `BENCH=produce BENCH_BASELINE=ed30bf8 BENCH_ROUNDS=5 make bench`: 3.30 frames/s
+and 0.580 machine CPU-s per frame against 3.01 and 0.614 (docs/bench_produce.md)."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
