@@ -194,9 +194,11 @@ def _silhouette(tri_cam: np.ndarray, window: tuple[slice, slice], shape: tuple[i
     mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
     shift = 4
     origin = np.array([x0, y0], np.float64)
-    # fixed-point vertices of the whole triangles converted at once (the same values one by one gave)
-    fixed = np.rint((whole_px - origin) * (1 << shift)).astype(np.int32)
-    for px in [*fixed, *(np.rint((px - origin) * (1 << shift)).astype(np.int32) for px in cut_px)]:
+    def to_fixed(px: np.ndarray) -> np.ndarray:  # pixels -> the window's fixed-point vertices
+        return np.rint((px - origin) * (1 << shift)).astype(np.int32)
+
+    # the whole triangles converted at once (the same values one by one gave), the cut polygons each
+    for px in [*to_fixed(whole_px), *map(to_fixed, cut_px)]:
         cv2.fillConvexPoly(mask, px, 1, lineType=cv2.LINE_8, shift=shift)
     return (slice(y0, y1), slice(x0, x1)), mask.astype(bool)
 
