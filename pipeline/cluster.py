@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import os
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 log = logging.getLogger(__name__)
@@ -268,7 +270,8 @@ def start_local_cluster(ray, cpus: int | None = None) -> None:
     # address="local": a new instance even where `ray start` left a cluster
     # on this machine (ray.init() with no address would attach to it).
     try:
-        ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, **_RAY_INIT_COMMON)
+        with _lean_head(ray):
+            ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, **_RAY_INIT_COMMON)
     except Exception as exc:  # Ray raises a bare Exception when its raylet does not register in time
         if _LOCAL_START_TIMEOUT not in str(exc):
             raise
@@ -278,8 +281,42 @@ def start_local_cluster(ray, cpus: int | None = None) -> None:
 
 
 
+@contextmanager
+def _lean_head(ray) -> Iterator[None]:
+    """While the private local cluster starts: a head of GCS and raylet, without the API server,
+    the autoscaler monitor and the log monitor.
+
+    ``include_dashboard=False`` still starts the API server, a Python process that loads Ray's
+    usage-stats module, and ``ray.init`` polls for its address before it returns; the monitors
+    do nothing on a private one-node run whose driver does not print worker logs (see
+    :func:`_stop_idle_daemons`). On 2 cores the three cost ~1.4 CPU-s of the start-up, and
+    ``ray.init`` took ~0.7-1.5 s longer with them (docs/bench_produce.md). Reaches into Ray's
+    node and parameter classes; where those are missing (another Ray version), the head starts
+    as Ray starts it. Only a cluster this process starts for itself: attaching to a cluster
+    leaves its head as its owner made it.
+    """
+    try:
+        node_class, params_class = ray._private.node.Node, ray._private.parameter.RayParams
+        start_api_server, params_init = node_class.start_api_server, params_class.__init__
+    except AttributeError:
+        yield
+        return
+
+    def lean_params(self, *args, **kwargs) -> None:
+        params_init(self, *args, **kwargs)
+        self.no_monitor, self.include_log_monitor = True, False
+
+    node_class.start_api_server = lambda self, **_: None
+    params_class.__init__ = lean_params
+    try:
+        yield
+    finally:
+        node_class.start_api_server, params_class.__init__ = start_api_server, params_init
+
+
 def _stop_idle_daemons(ray) -> None:
-    """Kill the autoscaler and log monitors of the local cluster this process started.
+    """Kill the autoscaler and log monitors of the local cluster this process started, where
+    :func:`_lean_head` could not keep them from starting (another Ray version).
 
     Neither does anything for a private one-node run with log_to_driver=False:
     one node has nothing to scale, and the log monitor publishes worker logs
