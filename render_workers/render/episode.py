@@ -44,6 +44,7 @@ from render_workers.render.camera import measured_hood_fraction
 from render_workers.render.flow import episode_flow
 from render_workers.render.instances import frame_objects, instance_classes
 from render_workers.render.lidar import LidarSweep, lidar_frame, lidar_sweep
+from render_workers.render.memory import keep_freed_memory
 from render_workers.render.renderer import Renderer, RenderResult
 from render_workers.worlds.scene import EpisodeScene, Frame, World
 from render_workers.worlds.registry import DEFAULT_WORLD, WORLDS, check_world  # noqa: F401 (re-exported: the API since before the registry)
@@ -237,7 +238,8 @@ def render_episode(spec: DrawSpec, sink: Callable[[Frame], None], *, world: str 
     on the machine (the last episode of a run) keeps two cores busy. An error
     in either stops the episode and is raised here. Timings: ``sink`` is the
     time spent in it, ``sink_wait`` the time drawing waited for the background
-    thread."""
+    thread. A process that renders keeps the memory it frees (``render_workers.render.memory``)."""
+    keep_freed_memory()
     renderer = renderer if renderer is not None else process_renderer()
     scene, timings = load_episode(spec, renderer, world)
     weathers = frame_weathers(spec)
