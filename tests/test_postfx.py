@@ -86,6 +86,25 @@ def test_fog_pulls_far_pixels_towards_the_horizon_colour():
     assert np.abs(foggy[near] - img[near]).sum() < np.abs(foggy[far] - img[far]).sum()
 
 
+def test_fog_keeps_its_horizon_image_for_the_next_frame_unchanged():
+    """The horizon colour's image is filled once per size and colour and shared, read-only: fog on
+    frames of one weather, another and the first again gives what a fresh fill gives each time."""
+    import cv2
+
+    img = image()
+
+    def fresh(code):
+        horizon = np.asarray(weather(code).sky_horizon, np.float32) / 255
+        transmittance = cv2.exp(context(code).depth * np.float32(-postfx.extinction(weather(code).visibility_m)))
+        return postfx._lerp(np.ascontiguousarray(np.broadcast_to(horizon, img.shape)), img, transmittance)
+
+    for code in ("HRN", "CS", "HRN", "CS"):
+        assert np.array_equal(postfx.fog(img, context(code)), fresh(code)), code
+    horizon = np.asarray(weather("HRN").sky_horizon, np.float32) / 255
+    flat = postfx._flat(img.shape, horizon)
+    assert not flat.flags.writeable and flat is postfx._flat(img.shape, horizon)
+
+
 def test_antialias_touches_only_geometry_edges():
     import cv2
 

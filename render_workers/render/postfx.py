@@ -17,6 +17,7 @@ Randomness comes only from ``FxContext.rng`` (per frame) and
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from dataclasses import dataclass
@@ -66,11 +67,19 @@ def _resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
     return cv2.resize(image, (width, height), interpolation=interp)
 
 
-def _flat(shape: tuple, colour) -> np.ndarray:
-    """An HxWx3 float32 image of one colour (per-channel fills: numpy's broadcast over a last axis of 3 is slow)."""
+@functools.lru_cache(maxsize=2)
+def _flat_cached(shape: tuple, colour: tuple) -> np.ndarray:
     import cv2
 
-    return cv2.merge([np.full(shape[:2], np.float32(c), np.float32) for c in colour])
+    flat = cv2.merge([np.full(shape[:2], np.float32(c), np.float32) for c in colour])
+    flat.flags.writeable = False  # shared by every frame of the size and colour
+    return flat
+
+
+def _flat(shape: tuple, colour) -> np.ndarray:
+    """An HxWx3 float32 image of one colour, read-only: kept for the next frame of the same size and colour
+    (fog's horizon colour is the weather's: 3-5 ms per full-HD frame to fill again)."""
+    return _flat_cached(tuple(shape[:2]), tuple(np.asarray(colour, np.float32).tolist()))
 
 
 def _add_scaled(img: np.ndarray, layer: np.ndarray, scale: float) -> np.ndarray:
