@@ -546,7 +546,74 @@ In one process, both sides alternating (full HD, thread CPU), then end to end (d
   cores gives: the goal needs the frame itself at ~0.3.
 
 After these (main at 5d95bb5), `BENCH=produce BENCH_BASELINE=ed30bf8 BENCH_ROUNDS=5 make bench`: 3.30 frames/s
-and 0.580 machine CPU-s per frame against 3.01 and 0.614 (docs/bench_produce.md)."""
+and 0.580 machine CPU-s per frame against 3.01 and 0.614 (docs/bench_produce.md).
+
+### Levers measured on 2026-11-29, fourth round (the same AMD EPYC)
+
+In one process or one Ray start, both sides alternating, then end to end (docs/bench_produce.md).
+This host ran slower than in the rounds above (main at 0cc1e00 gave 2.87 frames/s in the run below
+against 3.30 on the earlier day), so compare within a run.
+
+* **A private Ray head without the daemons a run does not use (kept, 0d3a3ca).** `include_dashboard=False`
+  still starts Ray's API server (a Python process that loads the usage-stats module, and `ray.init`
+  polls ~1 s for its address), and the autoscaler and log monitors were started only to be killed.
+  The local cluster `produce` starts for itself now starts GCS and raylet alone
+  (`pipeline.cluster._lean_head`; another Ray version starts as before). `ray.init` plus two first
+  tasks, 3 alternating rounds: 2.22, 2.37, 2.21 s wall and 3.0, 3.5, 3.0 machine CPU-s, against 2.91,
+  3.91, 3.11 s and 4.5, 4.6, 4.9.
+* **A rendering process keeps the memory it frees (kept, 4530792).** Each frame's 8-25 MB arrays went
+  back to the kernel when freed (glibc's `mmap` threshold and heap trimming) and took their pages,
+  zeroed, again the next frame; huge pages (numpy asks for them) made each fault dearer.
+  `render_workers.render.memory` sets `mallopt` (no trimming, 32 MB `mmap` threshold, 256 MB top pad)
+  when a process renders its first episode. `PF_FRAMES=24 python -m benchmarks.profile_frame`, 3
+  alternating rounds: 107,000 against 215,000 minor page faults per run (~4,200 fewer per frame),
+  system CPU 1.2, 0.9, 1.0 s against 1.9, 1.8, 2.0, process CPU per frame 0.391, 0.405, 0.448 against
+  0.465, 0.436, 0.430 (medians 0.405 and 0.436); the peak resident memory did not grow (690 against
+  705 MB). Setting only the trim threshold was worse than nothing (it turns glibc's adaptive `mmap`
+  threshold off: 1.5 million faults, 0.57-0.66 CPU-s per frame); numpy without huge pages
+  (`NUMPY_MADVISE_HUGEPAGE=0`) too (0.49-0.56).
+* **Fog's horizon image kept (kept, 3e542ce)**: filled once per size and colour, read-only; fog 13-19
+  -> 5-6 ms per T03_CS_M frame in production's loop, but the post effects in all only 78 against 83 ms
+  (20 frames, 3 alternating rounds, medians): bloom, the next effect, now pays part of what fog saved.
+  The post effects are bound by memory traffic: in production's loop (a render thread beside them)
+  each costs 1.5-2x what it costs alone on a captured frame (motion blur 28-37 against 19 ms, bloom
+  12-21 against 9).
+* **Not kept**:
+  * Ray's `preload_python_modules` (workers import the renderer while Ray starts): `ray.init` plus two
+    tasks whose imports were done took 3.74, 3.47, 3.96 s against 3.72, 3.31, 3.61 without, and more
+    CPU: the start is CPU-bound on 2 cores, so the imports only move.
+  * The dashboard agent in its minimal mode: 0.88 against 0.91 CPU-s over 15 s; its cost is its
+    start-up imports.
+  * Shadow casters without the flat ground: without road and road lines, the GL passes alone took
+    0.173 and 0.168 CPU-s per frame against 0.174 and 0.160; without sidewalks, terrain and ground
+    too, 0.164 and 0.149, and kerbs and hills stop casting shadows. A 1,024 shadow map: 0.146 and
+    0.152 against 0.165 and 0.155, with blurrier shadows. No shadows at all: 0.112 (the pass and the
+    tap cost ~0.045 of the 0.16).
+  * Other PNG filters and zlib strategies for the outputs that deflate 100-200 to 1 (semantic, depth
+    grey and log, instance): libdeflate level 2 spends ~9 ms on each whatever the filter (Sub, Up,
+    None) or level (1: 15 ms, 3: 9 ms); zlib's RLE strategy 10-14 ms, Huffman only 25-45 ms. The Up
+    filter makes them 10-25% smaller in the same time (depth_raw 371 against 405 KB, depth_gray 27
+    against 36): a saving of bytes, not time, and a new deflater identity; not taken in this round.
+  * The sink thread one frame behind instead of two (`SINK_AHEAD = 1`): 2.72 and 3.09 frames/s
+    against 3.04 and 3.04 (40 frames per scenario): noise.
+* **Where a run's start goes** (one run with 20 frames per scenario, before the leaner head; seconds
+  after the command started): the first task starts at 4.1 (the driver and Ray's start), the episodes
+  at 4.9 and 5.6 (the worker's imports, 0.8), their first frames are stored at 7.2 and 8.5 (the
+  static scene 0.6, traffic 0.4, the GL upload 0.34, the first frame and its shader compiles 0.54),
+  then 0.44 s per frame per worker; the command ends 0.45 s after the last frame. Every process's CPU
+  in that run: the two workers 27.1 CPU-s for 40 frames (start-up included), the driver 1.6, the
+  dashboard agent 1.0, the progress actor 0.8, the runtime-env agent 0.5, GCS and raylet 0.4.
+* **The profile after these** (`PF_FRAMES=16 python -m benchmarks.profile_frame`, `LP_NUM_THREADS=0`,
+  two runs, CPU-s per frame): process 0.424 and 0.447; the render thread (GL passes, rasterising
+  included) 0.188 and 0.191; post effects 0.066 and 0.068; deflate 0.078 and 0.085; resolve 0.016;
+  objects 0.014; the outputs' arrays 0.015 and 0.017. Bytes per frame as before (1,256,012).
+
+After these (main at 3e542ce), `BENCH=produce BENCH_BASELINE=0cc1e00 BENCH_ROUNDS=5 make bench`: 3.29
+frames/s and 0.575 machine CPU-s per frame against 2.87 and 0.658 (+15% and -13%, docs/bench_produce.md).
+Its Ray 1 worker / plain loop ratio, 1.055, is this host's: measured the same way (`_run` of
+benchmarks/bench_produce.py, alternating) this tree gave 1.037 over 7 rounds and 0cc1e00 1.058 over 5;
+the time outside episodes is 0.2 s of 8.5. 5 frames/s needs the frame at about 0.3 CPU-s in
+production's loop, where it is ~0.48 (two workers share the memory bandwidth; 0.42 alone)."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
