@@ -552,7 +552,7 @@ and 0.580 machine CPU-s per frame against 3.01 and 0.614 (docs/bench_produce.md)
 
 In one process or one Ray start, both sides alternating, then end to end (docs/bench_produce.md).
 This host ran slower than in the rounds above (main at 0cc1e00 gave 2.87 frames/s in the run below
-against 3.30 on the earlier day), so compare within a run.
+against 3.30 earlier that day), so compare within a run.
 
 * **A private Ray head without the daemons a run does not use (kept, 0d3a3ca).** `include_dashboard=False`
   still starts Ray's API server (a Python process that loads the usage-stats module, and `ray.init`
