@@ -48,6 +48,12 @@ _FORWARDED_ENV = ("PYOPENGL_PLATFORM", "EGL_DEVICE_ID", "IDDA_FAULT_INJECT", "LP
 # machine CPU-s per frame with 0, 2.85 and 0.644 with 2; a lone worker, as for
 # the last episode of a run: 0.274 s per frame with 0, 0.30 with 2).
 LP_THREADS_WHEN_FULL = "0"
+# OpenCV's thread pool (the post effects, resizes, blurs) in each worker when the workers fill
+# the cores, unless OPENCV_FOR_THREADS_NUM is set: its helper threads then only compete with the
+# other workers (2 cores, 80 full-HD frames end to end, 5 rounds each alternating: median 3.14
+# frames/s and 0.579 machine CPU-s per frame with 1, 2.96 and 0.612 with OpenCV's default of one per
+# core). The frames' bytes do not depend on it (docs/contract.md).
+CV_THREADS_WHEN_FULL = 1
 
 
 @dataclass(frozen=True)
@@ -360,11 +366,14 @@ def _retry_lost_nodes(ray, watch: _NodeWatch, live: _LiveFrames, in_flight: dict
     return True
 
 
-def _task_options(config: ProduceConfig, slots: int, local: bool, own_cluster: bool) -> tuple[dict, str | None]:
-    """Ray options of the episode task, and the llvmpipe threads each worker's GL context gets
-    (``local``: no cluster address; ``own_cluster``: a local cluster this run started)."""
+def _task_options(config: ProduceConfig, slots: int, local: bool,
+                  own_cluster: bool) -> tuple[dict, str | None, int | None]:
+    """Ray options of the episode task, the llvmpipe threads each worker's GL context gets and the
+    threads of each worker's OpenCV (None: as they are; ``local``: no cluster address;
+    ``own_cluster``: a local cluster this run started)."""
     full = local and not config.gpus_per_task and slots * config.cpus_per_task >= (os.cpu_count() or 1)
     lp_threads = LP_THREADS_WHEN_FULL if full and "LP_NUM_THREADS" not in os.environ else None
+    cv_threads = CV_THREADS_WHEN_FULL if full and "OPENCV_FOR_THREADS_NUM" not in os.environ else None
     options = dict(num_cpus=config.cpus_per_task, max_retries=config.max_retries, retry_exceptions=True)
     if config.gpus_per_task:
         options["num_gpus"] = config.gpus_per_task
@@ -375,7 +384,7 @@ def _task_options(config: ProduceConfig, slots: int, local: bool, own_cluster: b
         # runtime_env would make Ray start fresh workers instead of its
         # prestarted ones (a second or more of imports on each).
         options["runtime_env"] = {"env_vars": env}
-    return options, lp_threads
+    return options, lp_threads, cv_threads
 
 
 def _collect(ray, ref, in_flight: dict, report: ProduceReport, max_retries: int) -> None:
@@ -505,7 +514,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         report.workers = slots
         limit = config.max_in_flight or 2 * slots
         local = not _address(config)
-        options, lp_threads = _task_options(config, slots, local, own_cluster=started and local)
+        options, lp_threads, cv_threads = _task_options(config, slots, local, own_cluster=started and local)
         task = ray.remote(episode_task).options(**options)
         storage_ref = ray.put(storage)
         counter = None
@@ -554,7 +563,8 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
             while queue and len(in_flight) < limit:
                 spec = queue.popleft()
                 ref = task.remote(spec, storage_ref, config.run.world, counter, lp_threads,
-                                  config.progress_interval_s, episode_fn, fence if late is None else gated)
+                                  config.progress_interval_s, episode_fn, fence if late is None else gated,
+                                  cv_threads)
                 in_flight[ref] = spec
             if late is not None and not in_flight:  # the first episodes failed: wait for the checks
                 late.finished(LATE_POLL_S)

@@ -69,14 +69,19 @@ class FrameReporter:
 
 
 def episode_task(spec, storage, world, counter=None, lp_threads=None, progress_interval_s=1.0, episode_fn=None,
-                 fence=None):
+                 fence=None, cv_threads=None):
     """Render one episode in a Ray worker (with ``episode_fn``, default ``run_episode``); a ``Fatal`` in
-    place of errors retrying cannot help (a full disk, or the producer's lease lost: ``fence``)."""
+    place of errors retrying cannot help (a full disk, or the producer's lease lost: ``fence``).
+    ``lp_threads``, ``cv_threads``: llvmpipe's and OpenCV's threads in this worker (None: as they are)."""
     from pipeline.episode_job import run_episode  # deferred: the progress actor imports this module, not the renderer
     from storage import StorageError  # deferred: (as above)
 
     if lp_threads is not None:  # read when this worker's GL context is made (its first episode)
         os.environ.setdefault("LP_NUM_THREADS", lp_threads)
+    if cv_threads is not None:  # OpenCV's pool, process-wide: this and later episodes of this worker
+        import cv2
+
+        cv2.setNumThreads(cv_threads)
     on_frame = None
     if counter is not None:
         import ray

@@ -328,6 +328,49 @@ def test_local_cluster_workers_run_at_the_drivers_priority(monkeypatch):
     assert ray._private.parameter.RayParams.__init__ is params_init
 
 
+def test_workers_that_fill_the_cores_run_opencv_on_one_thread(monkeypatch, tmp_path):
+    """When the workers alone fill the machine's cores, each runs OpenCV on its own thread (its pool's
+    helpers only competed with the other workers); fewer workers, a cluster, or a user's
+    OPENCV_FOR_THREADS_NUM leave it as it is. The worker applies what the task is given."""
+    import cv2
+    import ray
+
+    from pipeline.driver import CV_THREADS_WHEN_FULL, _task_options, start_local_cluster
+    from pipeline.ray_task import episode_task
+    from pipeline.settings import PlanConfig, ProduceConfig, RunConfig
+
+    monkeypatch.delenv("OPENCV_FOR_THREADS_NUM", raising=False)
+    config = ProduceConfig(run=RunConfig(PlanConfig(domains="T01_CN_A", frames_per_scenario=1, width=64, height=36), world="test"),
+                           out=str(tmp_path / "out"))
+    cores = os.cpu_count() or 1
+    assert _task_options(config, cores, local=True, own_cluster=True)[2] == CV_THREADS_WHEN_FULL == 1
+    assert _task_options(config, cores, local=False, own_cluster=False)[2] is None
+    if cores > 1:
+        assert _task_options(config, cores - 1, local=True, own_cluster=True)[2] is None
+    monkeypatch.setenv("OPENCV_FOR_THREADS_NUM", "3")
+    assert _task_options(config, cores, local=True, own_cluster=True)[2] is None
+
+    monkeypatch.delenv("OPENCV_FOR_THREADS_NUM")
+    if ray.is_initialized():
+        ray.shutdown()
+
+    def noting_threads(spec, storage, **kwargs):  # a stand-in episode that notes its worker's OpenCV threads
+        from benchmarks.bench_control import standin_episode
+
+        storage.write_bytes(f"cv_threads_{spec.scenario}", str(cv2.getNumThreads()).encode())
+        return standin_episode(spec, storage, **kwargs)
+
+    report = produce(config, episode_fn=noting_threads)  # its own local cluster, every core a worker
+    assert report.ok and (tmp_path / "out" / "cv_threads_T01_CN_A").read_text() == "1"
+    start_local_cluster(ray, 1)
+    try:  # a worker given none keeps OpenCV's default, a thread per core
+        task = ray.remote(num_cpus=1)(episode_task)
+        given = ray.get(task.remote(None, None, "test", episode_fn=lambda spec, storage, **_: cv2.getNumThreads()))
+    finally:
+        ray.shutdown()
+    assert given > 1 or cores == 1
+
+
 @pytest.mark.parametrize("held, pending", [(6, None), (5, False), (4, True)])
 def test_shrink_guard_refuses_even_one_frame_fewer(held, pending):
     """Issue 21.13e: a guard off by one never tried 6 -> 5 frames. A part holding
