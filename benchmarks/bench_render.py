@@ -578,6 +578,13 @@ against 3.30 earlier that day), so compare within a run.
   The post effects are bound by memory traffic: in production's loop (a render thread beside them)
   each costs 1.5-2x what it costs alone on a captured frame (motion blur 28-37 against 19 ms, bloom
   12-21 against 9).
+* **OpenCV on one thread per worker when the workers fill the cores (kept).** In a Ray worker OpenCV's
+  pool has a thread per core, whose helpers (resizes, blurs, warps of the post effects) only compete
+  with the other workers. The benchmark's command with 40 frames per scenario, 5 alternating rounds:
+  3.14, 3.19, 3.06, 3.14, 3.06 frames/s (median 3.14) and 0.579 machine CPU-s per frame (median) with
+  `OPENCV_FOR_THREADS_NUM=1`, against 3.10, 2.93, 2.92, 2.96, 3.04 (2.96) and 0.612; every pair
+  favoured one thread. `idda produce` now gives each worker one when they fill the cores (unless
+  `OPENCV_FOR_THREADS_NUM` is set); the bytes are the same with 1 and with 16 threads (docs/contract.md).
 * **Not kept**:
   * Ray's `preload_python_modules` (workers import the renderer while Ray starts): `ray.init` plus two
     tasks whose imports were done took 3.74, 3.47, 3.96 s against 3.72, 3.31, 3.61 without, and more
