@@ -620,7 +620,11 @@ frames/s and 0.575 machine CPU-s per frame against 2.87 and 0.658 (+15% and -13%
 Its Ray 1 worker / plain loop ratio, 1.055, is this host's: measured the same way (`_run` of
 benchmarks/bench_produce.py, alternating) this tree gave 1.037 over 7 rounds and 0cc1e00 1.058 over 5;
 the time outside episodes is 0.2 s of 8.5. 5 frames/s needs the frame at about 0.3 CPU-s in
-production's loop, where it is ~0.48 (two workers share the memory bandwidth; 0.42 alone)."""
+production's loop, where it is ~0.48 (two workers share the memory bandwidth; 0.42 alone).
+A second run after the OpenCV change (main at ae01709, `BENCH_ROUNDS=3`, the host faster that hour): 3.49,
+3.22, 3.14 frames/s (median 3.22) and 0.586 machine CPU-s per frame against 0cc1e00's 3.01, 3.24, 3.09 (3.09)
+and 0.611; against 93dc98a (issue 35's reference; main at f64d517, 3 rounds, load 3.1-5.7): 3.17, 3.06, 3.38
+(3.17) and 0.610 against 2.57, 2.63, 2.42 (2.57) and 0.739."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
