@@ -290,7 +290,7 @@ def _lean_head(ray) -> Iterator[None]:
     usage-stats module, and ``ray.init`` polls for its address before it returns; the monitors
     do nothing on a private one-node run whose driver does not print worker logs (see
     :func:`_stop_idle_daemons`). On 2 cores the three cost ~1.4 CPU-s of the start-up, and
-    ``ray.init`` took ~0.7-1.5 s longer with them (docs/bench_produce.md). Reaches into Ray's
+    ``ray.init`` took ~0.7-1.5 s longer with them (docs/bench_render.md, fourth round). Reaches into Ray's
     node and parameter classes; where those are missing (another Ray version), the head starts
     as Ray starts it. Only a cluster this process starts for itself: attaching to a cluster
     leaves its head as its owner made it.
