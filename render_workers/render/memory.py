@@ -37,4 +37,4 @@ def keep_freed_memory() -> bool:
     except (OSError, AttributeError):  # no C library by that name, or one without mallopt
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
-    return all([mallopt(param, value) == 1 for param, value in KEEP])
+    return all([mallopt(param, value) == 1 for param, value in KEEP])  # a list: every setting is tried

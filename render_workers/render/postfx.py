@@ -68,10 +68,10 @@ def _resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=2)
-def _flat_cached(shape: tuple, colour: tuple) -> np.ndarray:
+def _flat_cached(size: tuple[int, int], colour: tuple) -> np.ndarray:
     import cv2
 
-    flat = cv2.merge([np.full(shape[:2], np.float32(c), np.float32) for c in colour])
+    flat = cv2.merge([np.full(size, np.float32(c), np.float32) for c in colour])
     flat.flags.writeable = False  # shared by every frame of the size and colour
     return flat
 
