@@ -461,3 +461,26 @@ def test_roofs_and_tall_crops_wear_their_textures(worlds):
     assert maize and {p.class_id for p in maize} == {class_id("vegetation")}
     tops = np.concatenate([p.mesh.vertices[:, 2] for p in maize])
     assert 1.8 < tops.max() < 3.5  # taller than a person, lower than the trees
+
+
+def test_a_path_measures_itself_once_and_answers_as_before():
+    """Arc lengths are made once per path (``Path.at`` ran for every actor at every frame) and
+    shared read-only; positions and headings are those of measuring afresh each time."""
+    from render_workers.worlds.scene import Path
+
+    rng = np.random.default_rng(7)
+    for closed in (True, False):
+        pts = np.cumsum(rng.normal(size=(9, 3)), axis=0)
+        path = Path(pts, closed=closed)
+        loop = np.vstack([pts, pts[:1]]) if closed else pts
+        cum = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(loop, axis=0), axis=1))])
+        assert np.array_equal(path.cumulative, cum) and path.length == cum[-1]
+        assert path.cumulative is path.cumulative  # measured once
+        assert not path.cumulative.flags.writeable and not path._loop().flags.writeable
+        for s in np.linspace(-3 * cum[-1], 3 * cum[-1], 41):
+            pos, heading = path.at(float(s))
+            fresh = Path(pts.copy(), closed=closed)  # a path never asked before
+            pos2, heading2 = fresh.at(float(s))
+            assert np.array_equal(pos, pos2) and heading == heading2
+            pos[:] = 0.0  # the caller's own array: the path is untouched
+        assert np.array_equal(path.points, pts) and np.array_equal(path.cumulative, cum)

@@ -13,6 +13,8 @@ Conventions:
 
 from __future__ import annotations
 
+import functools
+
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -45,16 +47,25 @@ class Path:
 
     @property
     def cumulative(self) -> np.ndarray:
-        pts = self._loop()
-        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-        return np.concatenate([[0.0], np.cumsum(seg)])
+        """Arc length at each point of the loop (read-only)."""
+        return self._arc[1]
 
     @property
     def length(self) -> float:
         return float(self.cumulative[-1])
 
     def _loop(self) -> np.ndarray:
-        return np.vstack([self.points, self.points[:1]]) if self.closed else self.points
+        return self._arc[0]
+
+    @functools.cached_property
+    def _arc(self) -> tuple[np.ndarray, np.ndarray]:
+        """(the points, closed by the first again; their arc lengths), both read-only: made once per
+        path, not at every ``at`` (every actor's pose, every frame)."""
+        pts = np.vstack([self.points, self.points[:1]]) if self.closed else self.points.copy()
+        seg = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        cum = np.concatenate([[0.0], np.cumsum(seg)])
+        pts.flags.writeable = cum.flags.writeable = False
+        return pts, cum
 
     def at(self, s: float) -> tuple[np.ndarray, float]:
         """Position and heading (radians from +x) at arc length ``s``.
