@@ -309,6 +309,31 @@ def test_a_rigs_sensors_pose_the_actors_once_per_instant(renderer, monkeypatch):
     assert posed == [1.0, 2.0] and (seen == WALL).any()
 
 
+def _slab(cls: int, x: float, width: float = 4.0) -> Part:
+    slab = trimesh.creation.box(extents=(1.0, width, 6.0))
+    slab.apply_translation((x, 0.0, 3.0))
+    slab.visual.vertex_colors = np.tile([150, 120, 100, 255], (len(slab.vertices), 1))
+    return Part(cls, slab, "matte")
+
+
+def test_nodes_are_drawn_nearest_first_and_the_hood_before_all(renderer):
+    """Opaque nodes drawn near first, so what is covered fails the early depth test unshaded: the
+    order follows the camera, not the order the scene was built in; the hood (on the camera) first."""
+    from domains.catalog import class_id
+
+    near_to_far = [class_id("fence"), class_id("pole"), class_id("wall"), class_id("building")]
+    for xs in ((20.0, 40.0, 60.0, 80.0), (80.0, 60.0, 40.0, 20.0)):
+        scene = flat_scene(tuple(_slab(cls, x) for cls, x in zip(near_to_far, xs)))
+        renderer.load(scene, weather("CN"), viewpoint("A"), W, H)  # A: the hood in view
+        renderer.render(0.0)
+        order = renderer._draw_order(renderer._scene)
+        assert order[0] is renderer._hood_node
+        drawn = [int(renderer._seg_map[node][0]) for node in order]
+        slabs = [cls for k, cls in enumerate(drawn) if cls in near_to_far and cls not in drawn[:k]]  # a slab may be 2 nodes
+        assert slabs == (near_to_far if xs[0] < xs[-1] else near_to_far[::-1])
+        assert drawn[-1] == ROAD  # the road's tiles reach farther than any slab
+
+
 def test_a_pass_asks_gl_for_its_light_limits_once_per_kind_of_pass(renderer, monkeypatch):
     """pyrender derives its per-program light limits from a GL query at every primitive; a renderer asks once
     per set of flags (the context's answer does not change), so a frame makes no such query after the first."""

@@ -229,6 +229,8 @@ class Renderer:
         self._scene = None
         self._episode: EpisodeScene | None = None
         self._draw_list: list = []
+        self._near_first: list = []  # this frame's draw order (update)
+        self._rank: dict = {}
         self._cut_short = False  # a GL call of this renderer was interrupted: load() starts afresh
 
     # -- lifecycle ---------------------------------------------------------
@@ -241,7 +243,7 @@ class Renderer:
     def close(self) -> None:
         offscreen, self._offscreen = self._offscreen, None
         self._scene = self._static = self._static_world = self._episode = None
-        self._draw_list = []
+        self._draw_list, self._near_first, self._rank = [], [], {}
         if offscreen is not None:
             compat.delete_offscreen(offscreen)
 
@@ -253,8 +255,8 @@ class Renderer:
             passes.install_framebuffer(self._offscreen, self.msaa)
             passes.install_shadow_pass(self._offscreen, lambda: self._shadow_frame, depth_compare=not self.pbr)
             # pyrender sorts nodes by distance and breaks ties in set (id) order,
-            # so coplanar faces could resolve differently from run to run: draw
-            # the visible nodes in the fixed order load() built them instead.
+            # so coplanar faces could resolve differently from run to run: here
+            # nearest first with ties in the order load() built them (update()).
             compat.install_draw_order(self._offscreen, self._draw_order)
             passes.install_forward_pass(self._offscreen)
         elif self._size != (width, height):
@@ -315,8 +317,10 @@ class Renderer:
             prs.add_node(hood_node, parent_node=self._camera_node)
             self._hood_node = hood_node
             self._seg_map[hood_node] = _seg_color(VEHICLE_ID, HOOD_ID)
-        self._draw_list = list(self._seg_map)  # hood, then actors, then static: near first
+        self._draw_list = list(self._seg_map)  # hood, then actors, then static: the shadow casters' order
         self._draw_list.reverse()
+        self._rank = {node: i for i, node in enumerate(self._draw_list)}  # ties of the draw order
+        self._near_first = list(self._draw_list)  # until update() sorts the first frame's
 
         sun = sun_direction(weather.sun_elevation_deg, weather.sun_azimuth_deg)
         light = pr.DirectionalLight(color=np.asarray(weather.light_color),
@@ -393,8 +397,9 @@ class Renderer:
         return node_set, actor_of
 
     def _draw_order(self, scene) -> list:
-        """Replacement for pyrender's ``_sorted_mesh_nodes``: a fixed, deterministic order."""
-        return [node for node in self._draw_list if node.mesh.is_visible]
+        """Replacement for pyrender's ``_sorted_mesh_nodes``: the frame's visible nodes nearest first
+        (:meth:`update` sorts them), the hood before all."""
+        return [node for node in self._near_first if node.mesh.is_visible]
 
     # -- per frame -----------------------------------------------------------
     def _visible(self, centres: np.ndarray, radii: np.ndarray, cam: np.ndarray, cull_m: float | None = None) -> np.ndarray:
@@ -430,9 +435,31 @@ class Renderer:
                 node.mesh.is_visible = bool(on)
         else:
             world_centres = np.empty((0, 3))
+        self._near_first = self._nearest_first(cam, world_centres)
         if shadows and self._shadows_on():
             self._shadow_frame = self._fit_shadows(cam, world_centres)
         return cam
+
+    def _nearest_first(self, cam: np.ndarray, actor_centres: np.ndarray) -> list:
+        """The visible nodes by the distance of their bounding sphere's centre from the camera, nearest
+        first, ties in the order :meth:`load` built them; the hood (on the camera) first.
+
+        Opaque nodes only (every material is), so the order decides no pixel but the rare tie of equal
+        depths, and those the same way in every run. Drawn near first, a farther surface behind a
+        nearer one fails llvmpipe's early depth test and is never shaded; in the order of the build,
+        whole tiles of road and buildings were shaded and then covered (docs/bench_render.md)."""
+        nodes = [self._hood_node] if self._hood_node is not None else []
+        centres = [cam[:3, 3]] if nodes else []
+        for node_set, world in ((self._actors, actor_centres), (self._static, self._static.centres)):
+            for node, centre in zip(node_set.nodes, world):
+                if node.mesh.is_visible:
+                    nodes.append(node)
+                    centres.append(centre)
+        if not nodes:
+            return []
+        distance = np.linalg.norm(np.asarray(centres, np.float64) - cam[:3, 3], axis=1)
+        rank = [self._rank[node] for node in nodes]
+        return [nodes[i] for i in np.lexsort((rank, distance))]
 
     def _shadows_on(self) -> bool:
         return self.shadows and self._shadow_strength >= MIN_SHADOW_STRENGTH
