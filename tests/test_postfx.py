@@ -65,6 +65,34 @@ def test_motion_blur_grows_with_speed_and_spares_a_parked_car():
     assert fast > slow > 0
 
 
+def test_motion_blur_equals_all_five_samples_warped():
+    """The blur's first sample (zoom 1) is taken as it is, not warped: the same values as warping
+    it too, as the blur was written (a sum of five warps from zero), at a frame's real size."""
+    import cv2
+
+    h, w = 216, 384
+    rng = np.random.default_rng(5)
+    img = rng.uniform(0.0, 1.0, (h, w, 3)).astype(np.float32)
+    ctx = context(speed=14.0)
+    rig = camera_rig("V", w, h)
+    depth = rng.uniform(0.5, 80.0, (h, w)).astype(np.float32)
+    ctx = postfx.FxContext(**{**ctx.__dict__, "depth": depth, "classes": np.zeros((h, w), np.uint8),
+                              "hood_mask": np.zeros((h, w), bool), "rig": rig})
+    travel = 14.0 * postfx.EXPOSURE_S
+    zoom = min(0.08, travel / postfx.BLUR_REF_M)
+    small = cv2.resize(img, (w // 2, h // 2), interpolation=cv2.INTER_AREA)
+    acc = np.zeros_like(small)
+    for k in range(5):
+        s = 1.0 - zoom * k / 4
+        m = np.array([[s, 0, (1 - s) * rig.cx / 2], [0, s, (1 - s) * rig.cy / 2]], np.float32)
+        acc += cv2.warpAffine(small, m, (w // 2, h // 2), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                              borderMode=cv2.BORDER_REFLECT)
+    blurred = cv2.resize(acc * np.float32(0.2), (w, h), interpolation=cv2.INTER_LINEAR)
+    weight = cv2.min(cv2.divide(float(travel / zoom), cv2.max(depth, 0.1)), 1.0)
+    expected = cv2.blendLinear(img, blurred, 1.0 - weight, weight)
+    assert np.array_equal(postfx.motion_blur(img, ctx), expected)
+
+
 def test_rain_and_wet_road_only_in_hard_rain():
     img = image()
     for name in ("rain", "wet_road", "puddles"):

@@ -291,9 +291,9 @@ def motion_blur(img: np.ndarray, ctx: FxContext) -> np.ndarray:
     sw, sh = max(1, w // 2), max(1, h // 2)
     small = _resize(img, sw, sh)
     cx, cy = ctx.rig.cx / 2, ctx.rig.cy / 2
-    acc = np.zeros_like(small)
     steps = 5
-    for k in range(steps):
+    acc = small.copy()  # k = 0 samples at the pixel itself: that warp gives ``small`` exactly
+    for k in range(1, steps):
         s = 1.0 - max_zoom * k / (steps - 1)  # sample towards the focus of expansion
         m = np.array([[s, 0, (1 - s) * cx], [0, s, (1 - s) * cy]], np.float32)
         acc += cv2.warpAffine(small, m, (sw, sh), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
