@@ -165,6 +165,26 @@ def test_sink_runs_in_frame_order_off_the_render_thread(renderer):
     assert all(t is not threading.main_thread() for _, t in seen)
 
 
+def test_each_actor_is_posed_once_per_frame_and_the_objects_match_posing_afresh(renderer, monkeypatch):
+    """The renderer's poses of a frame are the ones its objects table is made from: each actor
+    posed once per frame (131 actors cost ~1 ms a posing), the same table as posing them again."""
+    from render_workers.render import renderer as renderer_module
+    from render_workers.worlds.scene import Actor
+
+    job = spec(frames=3).drawing
+    shared = [frame.buffers["objects"] for frame in run(spec(frames=3), renderer)[1]]
+    posed = []
+    pose = Actor.pose
+    monkeypatch.setattr(Actor, "pose", lambda self, t: (posed.append((bool(self.parts), t)), pose(self, t))[1])
+    frames = run(spec(frames=3), renderer)[1]
+    actors = len(episode.load_episode(job, renderer, "test")[0].actors)
+    assert len([t for drawn, t in posed if drawn]) == 3 * actors  # the ego (no parts) poses the camera
+    monkeypatch.setattr(renderer_module.RenderResult, "actor_poses", property(lambda self: None, lambda self, v: None), raising=False)
+    fresh = [frame.buffers["objects"] for frame in run(spec(frames=3), renderer)[1]]
+    assert all(a.equals(b) and a.equals(c.buffers["objects"]) for a, b, c in zip(shared, fresh, frames))
+    assert shared[0].num_rows > 0
+
+
 def test_the_render_thread_only_draws(renderer, monkeypatch):
     """The sky and the decoding of the class pass run where the frame is finished,
     off the render thread, and give the same frame as resolving it at once."""

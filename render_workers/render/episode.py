@@ -189,7 +189,9 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     timings["post_fx"] = time.perf_counter() - start
     start = time.perf_counter()
     if "objects" in spec.buffers:
-        poses = [actor.pose(t) for actor in scene.actors]
+        poses = result.actor_poses  # as the renderer posed them for this instant
+        if poses is None:
+            poses = [actor.pose(t) for actor in scene.actors]
         buffers["objects"] = frame_objects(buffers["instance"], renderer.instances, poses,
                                            result.world_from_camera, result.rig.focal_px)
     if "normals" in spec.buffers:  # opt-in: from the planar depth and the rig's intrinsics

@@ -109,12 +109,14 @@ class RenderResult:
 
     def __init__(self, *, rgba: np.ndarray, seg: np.ndarray, depth: np.ndarray, sky: Callable[[], np.ndarray],
                  zfar: float, world_from_camera: np.ndarray, rig: CameraRig,
-                 sun_pixel: tuple[float, float] | None, timings: dict, weather: Weather) -> None:
+                 sun_pixel: tuple[float, float] | None, timings: dict, weather: Weather,
+                 actor_poses: list | None = None) -> None:
         self.world_from_camera = world_from_camera  # 4x4
         self.weather = weather  # the parameters this frame was lit under (a shift's, at its time)
         self.rig = rig
         self.sun_pixel = sun_pixel  # sun position in pixels when in front of the camera
         self.timings = timings  # stage -> seconds, of the GL passes
+        self.actor_poses = actor_poses  # every actor's world-from-actor pose at the frame's time, where posed
         self.resolve_s = 0.0
         self._raw = (rgba, seg, depth, sky, zfar)
         self._buffers: dict | None = None
@@ -288,7 +290,7 @@ class Renderer:
             self._static = self._build_static(scene.world)
             self._static_world = scene.world
         self._actors, self._actor_of = self._build_actors(scene)
-        self._posed_at = None  # (t, the actors' world centres): the instant the actors were last posed for
+        self._posed_at = None  # (t, the actors' world centres, their poses): the instant last posed for
 
         prs = pr.Scene(bg_color=[0.0, 0.0, 0.0, 0.0], ambient_light=_ambient(weather))
         self.instances = episode_instances(scene, self._static_objects)
@@ -429,7 +431,7 @@ class Renderer:
                 for node, a in zip(self._actors.nodes, self._actor_of):
                     self._scene.set_pose(node, poses[a])
                 centres = np.array([poses[a][:3, :3] @ c + poses[a][:3, 3] for c, a in zip(self._actors.centres, self._actor_of)])
-                self._posed_at = (t, centres.reshape(self._actors.centres.shape))
+                self._posed_at = (t, centres.reshape(self._actors.centres.shape), poses)
             world_centres = self._posed_at[1]
             for node, on in zip(self._actors.nodes, self._visible(world_centres, self._actors.radii, cam, cull_m)):
                 node.mesh.is_visible = bool(on)
@@ -506,10 +508,11 @@ class Renderer:
 
         # Fixed for the episode, so the frame may be resolved on another thread later.
         sky = functools.partial(self._sky, self.weather, self.rig, cam)
+        posed = self._posed_at
         return RenderResult(
             rgba=rgba, seg=seg, depth=depth, sky=sky, zfar=self.zfar,
             world_from_camera=cam, rig=self.rig, sun_pixel=self._sun_pixel(cam), timings=timings,
-            weather=self.weather,
+            weather=self.weather, actor_poses=posed[2] if posed is not None and posed[0] == t else None,
         )
 
     def _sun_pixel(self, cam: np.ndarray) -> tuple[float, float] | None:

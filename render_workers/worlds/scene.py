@@ -84,7 +84,7 @@ class Path:
             period = s % (2 * total)
             direction = 1.0 if period <= total else -1.0
             s = period if period <= total else 2 * total - period
-        i = int(np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(pts) - 2))
+        i = min(max(int(np.searchsorted(cum, s, side="right")) - 1, 0), len(pts) - 2)
         seg = pts[i + 1] - pts[i]
         seg_len = cum[i + 1] - cum[i]
         frac = 0.0 if seg_len == 0 else (s - cum[i]) / seg_len
