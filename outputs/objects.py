@@ -105,14 +105,16 @@ def objects_as_arrays(table: pa.Table) -> dict[str, np.ndarray]:
     return {name: table.column(name).to_numpy(zero_copy_only=False) for name in OBJECT_SCHEMA.names}
 
 
-def object_counts(instance: np.ndarray, instance_classes: np.ndarray) -> dict[str, int]:
+def object_counts(instance: np.ndarray, instance_classes: np.ndarray, pixels: np.ndarray | None = None) -> dict[str, int]:
     """Visible objects per instance class, as manifest columns (``obj_<class>``).
 
     ``instance`` is a frame's HxW instance ids; ``instance_classes[i]`` is the
     class id of instance id ``i`` (-1 for ids that are not objects, like 0
-    and the hood)."""
+    and the hood); ``pixels``: ``np.bincount`` of ``instance``, where the caller has it."""
     classes = np.asarray(instance_classes)
-    present = np.flatnonzero(np.bincount(instance.ravel(), minlength=len(classes)))  # ids in the frame
+    if pixels is None:
+        pixels = np.bincount(instance.ravel())
+    present = np.flatnonzero(pixels)  # ids in the frame
     classes = classes[present]
     return {label.object_column: int(np.count_nonzero(classes == label.id)) for label in INSTANCE_LABELS}
 

@@ -188,12 +188,13 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     buffers["rgb"] = postfx.apply(buffers["rgb"], ctx)
     timings["post_fx"] = time.perf_counter() - start
     start = time.perf_counter()
+    pixels = np.bincount(buffers["instance"].ravel())  # per instance id: the objects table's and counts'
     if "objects" in spec.buffers:
         poses = result.actor_poses  # as the renderer posed them for this instant
         if poses is None:
             poses = [actor.pose(t) for actor in scene.actors]
         buffers["objects"] = frame_objects(buffers["instance"], renderer.instances, poses,
-                                           result.world_from_camera, result.rig.focal_px)
+                                           result.world_from_camera, result.rig.focal_px, pixels)
     if "normals" in spec.buffers:  # opt-in: from the planar depth and the rig's intrinsics
         buffers["normals"] = normals_from_depth(buffers["depth"], result.rig.K)
     if "flow" in spec.buffers:  # opt-in: to the next frame; none after the last
@@ -201,7 +202,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
                                         t, spec.frame_time(index + 1)) if index + 1 < spec.frames
                            else np.zeros(buffers["depth"].shape + (3,), np.float32))
     counts = np.bincount(buffers["classes"].ravel(), minlength=NUM_CLASSES).astype(np.int64)
-    objects = object_counts(buffers["instance"], instance_classes(renderer.instances))
+    objects = object_counts(buffers["instance"], instance_classes(renderer.instances), pixels)
     timings["outputs"] = time.perf_counter() - start
     ego_to_world = scene.ego.pose(t)
     frame = Frame(

@@ -204,10 +204,11 @@ def _silhouette(tri_cam: np.ndarray, window: tuple[slice, slice], shape: tuple[i
 
 
 def frame_objects(instance: np.ndarray, instances: list[Instance], poses: list[np.ndarray],
-                 world_from_camera: np.ndarray, focal: float):
+                 world_from_camera: np.ndarray, focal: float, pixels: np.ndarray | None = None):
     """The frame's ``objects`` sidecar: one row per instance id visible in ``instance``.
 
-    ``poses[a]`` is actor a's world-from-actor pose at the frame's time."""
+    ``poses[a]`` is actor a's world-from-actor pose at the frame's time; ``pixels``: the frame's
+    pixels per instance id (``np.bincount`` of ``instance``), where the caller has it already."""
     from scipy import ndimage
 
     h, w = instance.shape
@@ -215,8 +216,9 @@ def frame_objects(instance: np.ndarray, instances: list[Instance], poses: list[n
     cam_from_world = np.linalg.inv(world_from_camera)
     rot = CV_FROM_GL @ cam_from_world[:3, :3]
     by_id = {inst.id: inst for inst in instances}
-    pixels = np.bincount(instance.ravel(), minlength=len(by_id) + HOOD_ID + 1)
-    boxes = ndimage.find_objects(instance.astype(np.int32))
+    if pixels is None:
+        pixels = np.bincount(instance.ravel())
+    boxes = ndimage.find_objects(instance)  # the uint16 ids as they are (an int32 copy gave the same boxes)
     rows = []
     for iid in np.flatnonzero(pixels):
         inst = by_id.get(int(iid))
