@@ -176,7 +176,7 @@ def _node_set(items) -> tuple[_NodeSet, list[int]]:
     for cls, material, soup, texture in items:
         mesh, positions = _pyrender_mesh(soup, material, texture)
         centre, radius = _sphere(positions)
-        nodes.append(pr.Node(mesh=mesh, matrix=np.eye(4)))
+        nodes.append(pr.Node(mesh=mesh))  # identity, as matrix=np.eye(4) gives, without deriving a quaternion from it
         centres.append(centre)
         radii.append(radius)
         keys.append(cls)
