@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from domains.catalog import NUM_CLASSES, VIEWPOINTS, viewpoint, weather
+from domains.catalog import NUM_CLASSES, VIEWPOINTS, class_id as class_id_of, viewpoint, weather
 from render_workers.render import camera
 from render_workers.render.renderer import Renderer
 from render_workers.render.part_meshes import look
@@ -332,6 +332,40 @@ def test_nodes_are_drawn_nearest_first_and_the_hood_before_all(renderer):
         slabs = [cls for k, cls in enumerate(drawn) if cls in near_to_far and cls not in drawn[:k]]  # a slab may be 2 nodes
         assert slabs == (near_to_far if xs[0] < xs[-1] else near_to_far[::-1])
         assert drawn[-1] == ROAD  # the road's tiles reach farther than any slab
+
+
+def test_a_base_colour_texture_is_bound_as_pyrender_binds_it(renderer, monkeypatch):
+    """A primitive whose only texture is its base colour is drawn without pyrender's per-primitive
+    binding, with the same pixels: its texture on the unit after the shadow map's, the lights as set
+    for the program's first primitive; pyrender's own binding (forced here) draws the same frame."""
+    import pyrender.renderer as pr_renderer
+
+    from render_workers.render import passes
+    from render_workers.worlds.textures import TEXTURE_PX
+
+    rng = np.random.default_rng(3)
+    textures = {name: rng.integers(60, 255, (TEXTURE_PX, TEXTURE_PX, 3), dtype=np.uint8) for name in ("asphalt", "brick")}
+    road = Part(ROAD, _grid(), "road", texture="asphalt")
+    wall = _wall(25.0)
+    wall = Part(WALL, wall.mesh, "matte", texture="brick")
+    base = flat_scene()
+    world = dataclasses.replace(base.world, static=(road, wall, _slab(class_id_of("pole"), 12.0)), textures=textures)
+    scene = dataclasses.replace(base, world=world)
+    drawn = []
+    own = pr_renderer.Renderer._bind_and_draw_primitive
+    monkeypatch.setattr(pr_renderer.Renderer, "_bind_and_draw_primitive", lambda *a, **k: (drawn.append(1), own(*a, **k))[1])
+    with Renderer() as fresh:  # a renderer whose pass binds textures itself
+        fast = render(fresh, scene, "A", 320, 180)
+        fast_frames = [fast.buffers[k].copy() for k in ("rgb", "classes", "depth")]
+    assert drawn == []
+    monkeypatch.setattr(passes, "pyrender_binds", lambda flags: flags != 0)
+    with Renderer() as fresh:
+        slow = render(fresh, scene, "A", 320, 180)
+        slow_frames = [slow.buffers[k] for k in ("rgb", "classes", "depth")]
+    assert len(drawn) >= 2  # the road's tiles and the wall, through pyrender's binding
+    assert all(np.array_equal(a, b) for a, b in zip(fast_frames, slow_frames))
+    plain = render(renderer, flat_scene((_wall(25.0), _slab(class_id_of("pole"), 12.0))), "A", 320, 180).buffers["rgb"]
+    assert not np.array_equal(plain, fast_frames[0])  # the textures are in the picture
 
 
 def test_a_pass_asks_gl_for_its_light_limits_once_per_kind_of_pass(renderer, monkeypatch):
