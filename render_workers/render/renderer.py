@@ -459,7 +459,10 @@ class Renderer:
                     centres.append(centre)
         if not nodes:
             return []
-        distance = np.linalg.norm(np.asarray(centres, np.float64) - cam[:3, 3], axis=1)
+        d = np.asarray(centres, np.float64) - cam[:3, 3]
+        # squared, by elementwise IEEE operations only: the same order on every CPU path (a reduction's
+        # summation order, as in np.linalg.norm, may follow the SIMD width)
+        distance = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
         rank = [self._rank[node] for node in nodes]
         return [nodes[i] for i in np.lexsort((rank, distance))]
 
