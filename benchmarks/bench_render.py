@@ -624,7 +624,83 @@ production's loop, where it is ~0.48 (two workers share the memory bandwidth; 0.
 A second run after the OpenCV change (main at ae01709, `BENCH_ROUNDS=3`, the host faster that hour): 3.49,
 3.22, 3.14 frames/s (median 3.22) and 0.586 machine CPU-s per frame against 0cc1e00's 3.01, 3.24, 3.09 (3.09)
 and 0.611; against 93dc98a (issue 35's reference; main at f64d517, 3 rounds, load 3.1-5.7): 3.17, 3.06, 3.38
-(3.17) and 0.610 against 2.57, 2.63, 2.42 (2.57) and 0.739."""
+(3.17) and 0.610 against 2.57, 2.63, 2.42 (2.57) and 0.739.
+
+### Levers measured on 2026-11-29, fifth round (the same AMD EPYC)
+
+Render-thread and process CPU per frame from one renderer in one process (`LP_NUM_THREADS=0`, as produce
+runs it; 12-30 frames after a 2-frame warm-up), both sides alternating; this host's rate moved by 10-20%
+between runs, so compare within a pair.
+
+* **Nearest first (kept, 6ea12f6).** The colour pass drew its nodes in the order they were built (hood,
+  actors, then the static tiles), so whole tiles of road and buildings were shaded and then covered by
+  nearer ones. Now each frame's visible nodes are drawn by the distance of their bounding sphere's centre
+  from the camera, nearest first, ties in the build order (the same in every run): a covered fragment
+  fails llvmpipe's early depth test unshaded. Render thread per full-HD frame, 4 alternating rounds of 20
+  frames, medians: T03_CS_M (dense streets) 0.218 against 0.263 CPU-s (-17%); T01_CN_A (open streets,
+  little covered) about the same (0.19-0.21 both). All materials are opaque, so the order decides a
+  pixel only where two surfaces have exactly the same depth: tens of edge pixels per full-HD frame
+  changed (the full-HD digest below moved; the 160x90 one did not). Smaller static tiles for a finer
+  order (100 m, 50 m against 200 m): no gain (T03_CS_M 0.272 and 0.236 against 0.258 and 0.227).
+* **Actors posed once per frame, cheaply (kept, c7cd35c, b5017d1).** `Path.at` measured its polyline
+  (stacking, differences, norms, cumulative sums) at every call, and clipped its segment index with
+  numpy (most of a pose's time for one scalar); the objects table posed every actor again on the sink
+  thread. A path now measures itself once (read-only arrays), the index is clipped in Python, and the
+  renderer's poses of a frame travel with it to the objects table. T01_CN_A's 131 actors: 3.0 -> 1.1 ms
+  a posing, once a frame instead of twice; at 160x90 (where geometry is all) the render thread 0.050 and
+  0.046 -> 0.039 and 0.034 CPU-s per frame, the process 0.086 and 0.080 -> 0.065 and 0.060.
+* **Textured draws bound by the pass (kept, bdf6f88).** A primitive with a texture (the towns' ground
+  and walls wear a grey detail texture: ~27 draws a frame in T03_CS_M) took pyrender's per-primitive
+  binding: camera, every light uniform and the shadow map set again, 0.43 ms a draw against 0.09 for an
+  untextured one. One whose only texture is its base colour now gets it on the unit pyrender would give
+  it (after the shadow map's) and the rest as untextured draws do: render thread 0.070 -> 0.066 CPU-s
+  per T03_CS_M frame at 160x90 (3 alternating rounds); the same pixels as pyrender's binding (tested).
+* **Smaller, same bytes (kept):** motion blur's first sample (zoom 1) taken as it is, not warped (the
+  identity warp gave the same floats; ~3 ms; 0047483); one `bincount` of the instance ids for the
+  objects table and the manifest's object counts, and `find_objects` on the uint16 ids without an
+  int32 copy (~5 ms; objects table and counts 0.0185 and 0.014 -> 0.012 and 0.010 CPU-s, 69b8d3b); mesh
+  nodes made without an identity matrix for pyrender to decompose (~60 ms per ~800-node load, 84d84b6).
+* **Not kept**:
+  * PyOpenGL's error check after every GL call, off during the passes (its checker set to the null one):
+    0.0641, 0.0625, 0.0603 against 0.0626, 0.0644, 0.0615 CPU-s per 160x90 frame: `glGetError` is
+    cheap; `OpenGL.ERROR_CHECKING = False` itself breaks pyrender's EGL set-up.
+  * A libdeflate level per output (two full-HD frames each of T01_CN_A and T03_CS_M, best of 3, ms and
+    bytes per output): level 6 deflates depth_log in 10.1 ms against 15.2 at level 2 and 12% smaller,
+    semantic_raw and semantic_color in the same time and 14% smaller, but the rgb in 43.7 ms against 18.5
+    (level 1: 17.9 ms, 3% larger). A level per output would save ~5 ms a frame and some bytes, as a new
+    deflater identity for new roots: not taken in this round.
+  * Ray's worker prestart (`RAY_enable_worker_prestart=0`, or `RAY_num_prestart_python_workers=3` with no
+    prestart at the first driver): a spare idle worker (0.4-0.55 CPU-s of imports) went away in one
+    setting only, and the second task's worker then started later; run to run, the same two render
+    workers took 6.9-9.0 CPU-s for the same 10 frames each, so no difference could be seen.
+  * OpenCV's OpenCL probe off (`cv2.ocl.setUseOpenCL(False)`): a process's first OpenCV call 37 against
+    84 ms, ~0.05 CPU-s per worker and run: too small to carry.
+* **Where a run's start goes now** (one run of 10 frames per scenario, seconds after the command
+  started, traced in the worker): Ray's start 0.82 -> 2.67 (the driver's imports and plan before it),
+  the tasks start at 3.21 and 3.63 (the progress actor took one of the two workers Ray starts at once,
+  so the second task's worker was started for it), the worker's imports 0.8 (trimesh's import of
+  scipy.spatial is 0.32 of them), the episode's load 0.76 (world from the disk cache 0.02, traffic 0.2,
+  renderer 0.5), the first frame 0.48 (shader compiles), its finishing and storing 1.05 s against ~0.2
+  later (first use: pyarrow imports pandas for the objects table, 0.21; OpenCV's first call, 0.08; first
+  touches of the frame's memory). First frames stored at 6.3 and 7.7 s. In the benchmark's command
+  (60 frames per scenario) the first file lands at 7.7 s and the 120 frames take 29.7 s more (4.0
+  frames/s once both workers render); the command ends 0.56 s after its last file.
+* **The profile after these** (`PF_FRAMES=16 python -m benchmarks.profile_frame`, `LP_NUM_THREADS=0`,
+  2 rounds alternating with the last stop's main, 273ad8c; CPU-s per frame): process 0.455 and 0.408
+  against 0.559 and 0.459; the render thread (GL passes, rasterising included) 0.207 and 0.174 against
+  0.254 and 0.197; post effects 0.064 and 0.064 against 0.080 and 0.068; deflate 0.086 and 0.079
+  against 0.101 and 0.085; resolve 0.017 against 0.018-0.020; objects table and counts 0.012 and 0.010
+  against 0.022 and 0.017; the outputs' arrays 0.017 and 0.016. Bytes per frame 1,256,015 (3 more than
+  before: the edge pixels above).
+
+After these (main at bdf6f88), `BENCH=produce BENCH_BASELINE=93dc98a BENCH_ROUNDS=3 make bench`: 2.92
+frames/s and 0.653 machine CPU-s per frame against 93dc98a's 2.25 and 0.834 (1.30x and -22%; the host in a
+slow hour: load average 3.1-4.9; docs/bench_produce.md). Against the last stop's main (273ad8c), the
+benchmark's command with an empty world cache, 6 alternating rounds in two runs: 3.69, 3.53, 3.59, 3.68,
+3.60, 3.49 frames/s (median 3.60) against 3.50, 3.43, 3.50, 3.28, 3.36, 3.53 (3.47), and 0.522 machine
+CPU-s per frame (median) against 0.555: +4% and -6%. 5 frames/s over 120 frames is 24 s, of which the
+start takes 7.7 s here: the frames would have to come at ~7.4 a second, 0.27 machine CPU-s each, where
+they take ~0.45 in production's loop."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
