@@ -76,3 +76,38 @@ def test_a_renderer_process_keeps_freed_memory(monkeypatch):
     with pytest.raises(Stop):
         ep.render_episode(None, lambda frame: None)
     assert calls == [1]
+
+
+def test_the_loaded_scene_is_frozen_while_frames_render_and_only_then():
+    """Frames render with the episode's objects out of the cyclic collector's walks (frozen), and the
+    episode ends with them back in it, an error included; a process that froze objects itself keeps
+    them frozen, and nothing more is frozen for it."""
+    import gc
+
+    from render_workers.render import episode as ep
+    from render_workers.render.renderer import Renderer
+    from roots.episode_spec import EpisodeSpec
+
+    assert gc.get_freeze_count() == 0
+    frozen = []
+    spec = EpisodeSpec("T01_CN_A", 0, 1, 2, 64, 36, "train", 0).drawing
+    with Renderer() as renderer:
+        ep.render_episode(spec, lambda frame: frozen.append(gc.get_freeze_count()), world="test", renderer=renderer)
+        assert len(frozen) == 2 and min(frozen) > 1000  # the world, traffic and scene
+        assert gc.get_freeze_count() == 0
+
+        def fail(frame):
+            raise RuntimeError("sink down")
+
+        with pytest.raises(RuntimeError, match="sink down"):
+            ep.render_episode(spec, fail, world="test", renderer=renderer)
+        assert gc.get_freeze_count() == 0
+        gc.freeze()  # the process's own (as before forking workers)
+        try:
+            mine = gc.get_freeze_count()
+            seen = []
+            ep.render_episode(spec, lambda frame: seen.append(gc.get_freeze_count()), world="test", renderer=renderer)
+            # nothing more frozen (objects frozen and then freed leave the count), nothing unfrozen
+            assert len(seen) == 2 and max(seen) <= mine and gc.get_freeze_count() > mine // 2
+        finally:
+            gc.unfreeze()

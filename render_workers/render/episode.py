@@ -44,7 +44,7 @@ from render_workers.render.camera import measured_hood_fraction
 from render_workers.render.flow import episode_flow
 from render_workers.render.instances import frame_objects, instance_classes
 from render_workers.render.lidar import LidarSweep, lidar_frame, lidar_sweep
-from render_workers.render.memory import keep_freed_memory
+from render_workers.render.memory import keep_freed_memory, scene_frozen
 from render_workers.render.renderer import Renderer, RenderResult
 from render_workers.worlds.scene import EpisodeScene, Frame, World
 from render_workers.worlds.registry import DEFAULT_WORLD, WORLDS, check_world  # noqa: F401 (re-exported: the API since before the registry)
@@ -241,7 +241,8 @@ def render_episode(spec: DrawSpec, sink: Callable[[Frame], None], *, world: str 
     on the machine (the last episode of a run) keeps two cores busy. An error
     in either stops the episode and is raised here. Timings: ``sink`` is the
     time spent in it, ``sink_wait`` the time drawing waited for the background
-    thread. A process that renders keeps the memory it frees (``render_workers.render.memory``)."""
+    thread. A process that renders keeps the memory it frees, and the loaded scene stays out of
+    Python's cyclic garbage collection while the frames render (``render_workers.render.memory``)."""
     keep_freed_memory()
     renderer = renderer if renderer is not None else process_renderer()
     scene, timings = load_episode(spec, renderer, world)
@@ -261,7 +262,7 @@ def render_episode(spec: DrawSpec, sink: Callable[[Frame], None], *, world: str 
         timings["sink_wait"] += time.perf_counter() - start
 
     rig = rig_from_json(spec.rig)
-    with ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
+    with scene_frozen(), ThreadPoolExecutor(max_workers=1, thread_name_prefix="idda-sink") as pool:
         try:
             for index in range(spec.frames):
                 for k, sensor in enumerate(rig.sensors):  # every sensor at the frame's instant, in rig order
