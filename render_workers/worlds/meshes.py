@@ -228,15 +228,17 @@ def value_noise(points: np.ndarray, scale: float, seed: int) -> np.ndarray:
     i0 = np.floor(p).astype(np.int64)
     f = p - i0
     f = f * f * (3 - 2 * f)
+    # the eight corners' hashes in one pass (integer arithmetic: the same values one by one gave)
+    corner = i0[None, :, :] + _CORNERS[:, None, :]  # (8, N, 3)
+    hashes = _hash01(corner[..., 0], corner[..., 1], corner[..., 2], seed)
+    weights = ((1 - f).T, f.T)  # [side][axis]: (3, N) each
     out = np.zeros(len(p))
-    for dx in (0, 1):
-        wx = f[:, 0] if dx else 1 - f[:, 0]
-        for dy in (0, 1):
-            wy = f[:, 1] if dy else 1 - f[:, 1]
-            for dz in (0, 1):
-                wz = f[:, 2] if dz else 1 - f[:, 2]
-                out += wx * wy * wz * _hash01(i0[:, 0] + dx, i0[:, 1] + dy, i0[:, 2] + dz, seed)
+    for k, (dx, dy, dz) in enumerate(_CORNERS):  # summed in the same order, so the same floats
+        out += weights[dx][0] * weights[dy][1] * weights[dz][2] * hashes[k]
     return out
+
+
+_CORNERS = np.array([(dx, dy, dz) for dx in (0, 1) for dy in (0, 1) for dz in (0, 1)], np.int64)
 
 
 def noisy_colors(verts: np.ndarray, base, amount: float = 0.15, scale: float = 3.0,
