@@ -655,6 +655,16 @@ between runs, so compare within a pair.
   untextured one. One whose only texture is its base colour now gets it on the unit pyrender would give
   it (after the shadow map's) and the rest as untextured draws do: render thread 0.070 -> 0.066 CPU-s
   per T03_CS_M frame at 160x90 (3 alternating rounds); the same pixels as pyrender's binding (tested).
+* **The loaded scene out of the garbage collector's walks (kept, bd219f5).** A frame leaves little but
+  arrays, yet allocates enough to start a collection of Python's oldest generation every dozen or so
+  frames, and each walked the episode's ~200,000 objects (world, traffic, pyrender scene): ~100 ms a
+  collection, ~6 ms per full-HD frame on average (T03_CS_M, 16 frames, timed by `gc.callbacks`). The
+  episode's objects are frozen (`gc.freeze`) while its frames render and unfrozen after: no such
+  collection in the same 16 frames.
+* **World builds (kept, db7a865).** Value noise (the vertex colours' two octaves) hashed its eight
+  corners in eight small passes, a third of a build; one pass now, summed in the same order (the same
+  floats): building T03's world 1.36 -> 1.00 CPU-s, T01's 1.14 -> 0.79. The benchmark's first run
+  builds both (an empty world cache), one per worker.
 * **Smaller, same bytes (kept):** motion blur's first sample (zoom 1) taken as it is, not warped (the
   identity warp gave the same floats; ~3 ms; 0047483); one `bincount` of the instance ids for the
   objects table and the manifest's object counts, and `find_objects` on the uint16 ids without an
