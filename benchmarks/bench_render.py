@@ -708,7 +708,10 @@ frames/s and 0.653 machine CPU-s per frame against 93dc98a's 2.25 and 0.834 (1.3
 slow hour: load average 3.1-4.9; docs/bench_produce.md). Against the last stop's main (273ad8c), the
 benchmark's command with an empty world cache, 6 alternating rounds in two runs: 3.69, 3.53, 3.59, 3.68,
 3.60, 3.49 frames/s (median 3.60) against 3.50, 3.43, 3.50, 3.28, 3.36, 3.53 (3.47), and 0.522 machine
-CPU-s per frame (median) against 0.555: +4% and -6%. 5 frames/s over 120 frames is 24 s, of which the
+CPU-s per frame (median) against 0.555: +4% and -6%. With the garbage-collector and world-build levers too (main at
+db7a865), 4 more alternating rounds against 273ad8c: 3.92, 3.57, 3.23, 3.57 frames/s (median 3.57) against
+3.61, 3.21, 3.25, 2.92 (3.23), and 0.543 machine CPU-s per frame against 0.583 (medians; +10% and -7%;
+load 1.7-3.2). 5 frames/s over 120 frames is 24 s, of which the
 start takes 7.7 s here: the frames would have to come at ~7.4 a second, 0.27 machine CPU-s each, where
 they take ~0.45 in production's loop."""
 
