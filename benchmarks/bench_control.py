@@ -164,9 +164,20 @@ def _run(root: str, episode_fn, scale: float, progress_interval_s: float = 1.0) 
     config = ProduceConfig(run=RunConfig(plan=plan, world="test"), out=root, progress_interval_s=progress_interval_s)
     updates = []
     load = [os.getloadavg()[0]]
+    import ray
+
+    from pipeline.cluster import shutdown, start_local_cluster
+
     with MemorySampler() as sampler:
         start = time.perf_counter()
-        report = produce(config, progress=lambda p: updates.append(p.frames_done), episode_fn=episode_fn)
+        # Started here, not by produce(): a cluster produce() did not start gets the progress path of a
+        # cluster of machines (the actor), the one that has to scale; a run's own local cluster counts
+        # through files instead (pipeline.ray_task.FileCounts).
+        start_local_cluster(ray)
+        try:
+            report = produce(config, progress=lambda p: updates.append(p.frames_done), episode_fn=episode_fn)
+        finally:
+            shutdown(ray)
         seconds = time.perf_counter() - start
     load.append(os.getloadavg()[0])
     if not report.ok:
@@ -261,6 +272,8 @@ def _markdown(f: dict) -> str:
 `BENCH=control make bench` (benchmarks/bench_control.py): the plan of `--domains {DOMAINS} --scale {SCALE:g}`
 ({full['episodes']:,} episodes, {full['frames']:,} frames) through `pipeline.driver.produce` on a local Ray cluster of
 {full['cpus']} CPUs, with a stand-in episode function (real manifest rows and parts, no rendering, no image files).
+The benchmark starts that cluster itself, so `produce` reports progress as on a cluster of machines, through
+the progress actor (a run that starts its own local cluster counts frames through files instead).
 Memory sampled every {SAMPLE_S} s (RSS; driver = the benchmark's process).
 
 | run | seconds | episodes/s | frames/s accounted | driver MiB median / peak / drift | progress actor MiB median / peak | largest worker MiB |

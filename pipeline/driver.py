@@ -12,6 +12,8 @@ from __future__ import annotations
 import json
 import logging
 import os
+import shutil
+import tempfile
 import threading
 import time
 from collections import deque
@@ -27,7 +29,7 @@ from pipeline.cluster import _import_ray, attach, cluster_address, shutdown, sta
 from pipeline.cluster import _host_port
 from pipeline.planner import make_plan
 from pipeline.provenance import RunConfigError, check_rows, for_root, prepare_root, read_run, recorded_as_asked
-from pipeline.ray_task import ChecksGate, Fatal, FrameCounter, GatedFence, episode_task
+from pipeline.ray_task import ChecksGate, Fatal, FileCounts, FrameCounter, GatedFence, episode_task
 from pipeline.repair import check_no_repair_running, refuse_in_the_way, repair_alone
 from pipeline.settings import ProduceConfig
 from roots.contract import claim_root
@@ -158,6 +160,7 @@ PROGRESS_WAIT_S = 5.0  # longest the driver waits for a frame before it looks ag
 
 PROGRESS_ACTOR_OPTIONS = dict(num_cpus=0, max_restarts=-1, max_task_retries=0)
 PROGRESS_RETRY_S = 1.0  # after a failed call to the progress actor, ask again this much later
+FILE_POLL_S = 0.01  # the driver reads the count files of its own machine's run at most this often
 
 
 def on_driver_node(ray) -> dict:
@@ -252,6 +255,38 @@ class _LiveFrames:
         live = sum(min(self._counts.get(spec.key, 0), spec.frames) for spec in running)
         self._shown = max(self._shown, finished + live)
         return self._shown
+
+
+class _FileFrames(_LiveFrames):
+    """Progress of a run on a cluster this process started on its own machine: the tasks write
+    their counts to files of a folder of its own (``FileCounts``), read here at most every
+    ``interval_s`` (the tasks write at most that often; ``FILE_POLL_S`` at the least), when the
+    display asks for frames. The files of episodes no longer running are removed; ``close``
+    removes the folder."""
+
+    def __init__(self, ray, interval_s: float) -> None:
+        super().__init__(ray, FileCounts(tempfile.mkdtemp(prefix="idda-progress-")))
+        self._every, self._due = max(interval_s, FILE_POLL_S), 0.0
+
+    def ask(self, keys: list[str]) -> None:
+        """Nothing to ask: the counts are read when shown."""
+
+    def wait_s(self) -> float:
+        return max(0.0, self._due - time.monotonic())
+
+    def frames(self, finished: int, running) -> int:
+        if time.monotonic() >= self._due:
+            keys = {spec.key for spec in running}
+            for key in set(self._counts) - keys:
+                self.counter.forget(key)
+            read = self.counter.read(keys)
+            # the highest count per running episode: a retried one starts over from 0
+            self._counts = {key: max(n, self._counts.get(key, 0)) for key, n in read.items()}
+            self._due = time.monotonic() + self._every
+        return super().frames(finished, running)
+
+    def close(self) -> None:
+        shutil.rmtree(self.counter.folder, ignore_errors=True)
 
 
 NODE_POLL_S = 2.0  # on a cluster, the driver looks for nodes Ray marked dead this often
@@ -503,7 +538,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
     tasks' part commits wait (``ChecksGate``), and the episodes they find pending join the queue."""
     ray = _import_ray()
     started = not ray.is_initialized()
-    reaper = watch = None
+    reaper = watch = live = None
     try:
         _connect(ray, config)
         if started and not _address(config):  # our own local cluster: it dies with this process
@@ -517,10 +552,13 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         options, lp_threads, cv_threads = _task_options(config, slots, local, own_cluster=started and local)
         task = ray.remote(episode_task).options(**options)
         storage_ref = ray.put(storage)
-        counter = None
-        if progress is not None or not local:  # on a cluster, it also tells which node runs each episode
-            counter = ray.remote(FrameCounter).options(**PROGRESS_ACTOR_OPTIONS).remote()
-        live = _LiveFrames(ray, counter)
+        if progress is not None and local and started:  # every task on this machine: no actor needed
+            live = _FileFrames(ray, config.progress_interval_s)
+        elif progress is not None or not local:  # on a cluster, it also tells which node runs each episode
+            live = _LiveFrames(ray, ray.remote(FrameCounter).options(**PROGRESS_ACTOR_OPTIONS).remote())
+        else:
+            live = _LiveFrames(ray, None)
+        counter = live.counter
         stuck = None if on_head_lost is None else (lambda: on_head_lost(HeadLost(report, _address(config))))
         watch = None if local else _NodeWatch(ray, address=_address(config), on_stuck=stuck)
         queue, in_flight, given_up = deque(todo), {}, []
@@ -599,6 +637,8 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
     finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
         if watch is not None:
             watch.close()
+        if isinstance(live, _FileFrames):
+            live.close()
         if started and ray.is_initialized():
             shutdown(ray)
         if reaper is not None:

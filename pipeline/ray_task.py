@@ -1,4 +1,5 @@
-"""What runs inside Ray's worker processes: the episode task and the progress counter.
+"""What runs inside Ray's worker processes: the episode task and the progress counters
+(the actor of a cluster, the count files of a run on the driver's own machine).
 
 Kept apart from ``pipeline.driver`` because Ray ships a remote function or
 actor class by reference, so a worker imports the module that defines it. The
@@ -14,6 +15,7 @@ import logging
 import os
 import time
 from dataclasses import dataclass
+from urllib.parse import quote
 
 log = logging.getLogger(__name__)
 
@@ -25,9 +27,51 @@ class Fatal:
     message: str
 
 
+class FileCounts:
+    """The frame counts of the episodes of a Ray cluster on the driver's own machine (the one
+    ``produce`` starts for itself): one small file per running episode in ``folder``, replaced whole
+    at each report (a reader never sees half a count), read by the driver (``pipeline.driver``).
+
+    No actor, so no process of its own. On 2 cores the progress actor's process took ~1 CPU-s of a
+    run's start, and, as it took one of the two workers Ray prestarts, the second episode waited
+    ~0.5 s for a worker started for it (docs/bench_render.md, sixth round). A cluster of several
+    machines keeps the actor (``FrameCounter``): its tasks share no folder with the driver."""
+
+    def __init__(self, folder: str) -> None:
+        self.folder = folder
+
+    def _path(self, key: str) -> str:
+        return os.path.join(self.folder, quote(key, safe=""))
+
+    def write(self, key: str, n: int) -> None:
+        path = self._path(key)
+        part = f"{path}.{os.getpid()}.part"
+        with open(part, "w") as f:
+            f.write(str(n))
+        os.replace(part, path)
+
+    def read(self, keys) -> dict[str, int]:
+        """The counts of those of ``keys`` that have one (an episode not started yet has none)."""
+        counts = {}
+        for key in keys:
+            try:
+                with open(self._path(key)) as f:
+                    counts[key] = int(f.read())
+            except (OSError, ValueError):  # not started yet, or the run's folder is gone
+                continue
+        return counts
+
+    def forget(self, key: str) -> None:
+        try:
+            os.unlink(self._path(key))
+        except OSError:
+            pass
+
+
 class FrameReporter:
     """An episode's ``on_frame``: sends its frame count, and the Ray node it runs
-    on (``node``), to the progress actor, batched and back-pressured.
+    on (``node``), to the progress actor, batched and back-pressured; or, given a
+    ``FileCounts``, writes the count to its file at most once per ``interval_s``.
 
     At most one call is in flight (a new count waits until the actor acked
     the last one; counts are cumulative, so a skipped one is carried by the
@@ -44,6 +88,14 @@ class FrameReporter:
     def __call__(self, n: int) -> None:
         now = time.monotonic()
         if now - self._last < self._interval:
+            return
+        if isinstance(self._counter, FileCounts):
+            try:
+                self._counter.write(self._key, n)
+            except OSError as exc:  # best effort, as below: never the episode's failure
+                log.debug("progress of %s not written: %s", self._key, exc)
+                return
+            self._last = now
             return
         if self._pending is not None and not self._acked():
             return

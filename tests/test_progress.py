@@ -1,5 +1,6 @@
-"""produce's progress: reported by the workers (through a Ray actor, batched
-and with at most one report in flight per task), from the start of the work;
+"""produce's progress: reported by the workers (on a cluster through a Ray actor, batched
+and with at most one report in flight per task; on the local cluster a run starts for
+itself, through count files the driver reads), from the start of the work;
 "estimating" until a window of frames gives a rate, then the window's rate and
 ETA; one line per finished episode when stderr is not a terminal. No timing
 thresholds: the displayed rate is compared with the window's frames over the
@@ -8,7 +9,9 @@ elapsed times the run reported."""
 from __future__ import annotations
 
 import io
+import os
 import re
+import tempfile
 import time
 
 import pytest
@@ -16,7 +19,7 @@ import pytest
 from pipeline.cli.progress import RATE_WINDOW, ProgressDisplay, RateWindow, format_progress
 from pipeline.settings import ProduceConfig
 from pipeline.driver import Progress, produce
-from pipeline.ray_task import FrameCounter, FrameReporter
+from pipeline.ray_task import FileCounts, FrameCounter, FrameReporter
 from pipeline.settings import PlanConfig, RunConfig
 
 FRAMES = 4  # per scenario: one episode each
@@ -34,22 +37,30 @@ def test_progress_per_frame_then_the_window_rate(tmp_path):
     log, terminal = io.StringIO(), _Terminal()
     logged, drawn = ProgressDisplay(log, window=WINDOW), ProgressDisplay(terminal, window=WINDOW)
     seen: list[tuple[Progress, str]] = []
+    titles: set[str] = set()  # of the run's Ray worker processes, while frames are counted
+    folders = set(os.listdir(tempfile.gettempdir()))
 
     def on_progress(p: Progress) -> None:
         logged.update(p)
         drawn.update(p)
         seen.append((p, format_progress(p, drawn.window.rate)))
+        if 0 < p.frames_done < total:
+            titles.update(_worker_titles())
 
+    total = 2 * FRAMES
     config = ProduceConfig(run=RunConfig(plan, world="test"), out=str(tmp_path / "out"), workers=1, progress_interval_s=0.0)
     report = produce(config, on_progress)
     logged.close()
     drawn.close()
-    total = 2 * FRAMES
     assert report.ok and report.rendered_frames == total
+    # The local cluster the run started for itself: counts through files, no progress actor,
+    # and the files' folder removed at the end.
+    assert any("episode_task" in t for t in titles) and not any("FrameCounter" in t for t in titles), titles
+    assert not {f for f in os.listdir(tempfile.gettempdir()) if f.startswith("idda-progress-")} - folders
 
     frames = [p.frames_done for p, _ in seen]
     assert frames[0] == 0 and seen[0][0].frames_total == total  # shown before any frame is done
-    assert [f for f in frames if f][0] == 1  # the first frame moves it, not the first episode
+    assert 0 < [f for f in frames if f][0] < FRAMES  # frames move it, not the first episode's end
     assert frames == sorted(frames) and frames[-1] == total
     assert len(set(frames)) > 3  # it moved within episodes, not once per episode
     first = next(p for p, _ in seen if p.frames_done)
@@ -69,6 +80,60 @@ def test_progress_per_frame_then_the_window_rate(tmp_path):
     assert "episodes 1/2" in lines[0] and f"rendering {total}/{total} frames (100%)" in lines[1]
     redraws = terminal.getvalue().split("\r")[1:]  # a terminal: the line redrawn at every update
     assert len(redraws) == len(seen) and terminal.getvalue().endswith("\n")
+
+
+def _worker_titles() -> set[str]:
+    """The process titles (``ray::...``) of this process's Ray workers."""
+    from pipeline.reaper import _proc_table, descendants
+
+    titles = set()
+    for pid in descendants(os.getpid(), _proc_table()):
+        try:
+            with open(f"/proc/{pid}/cmdline", "rb") as f:
+                titles.add(f.read().replace(b"\0", b" ").decode(errors="replace").strip())
+        except OSError:
+            continue
+    return {t for t in titles if t.startswith("ray::")}
+
+
+def test_count_files_batched_per_interval_and_best_effort(tmp_path):
+    counts = FileCounts(str(tmp_path))
+    report = FrameReporter(counts, "T01_CN_A_e0000", interval_s=3600.0)
+    for n in range(1, 101):
+        report(n)
+    assert counts.read(["T01_CN_A_e0000", "T01_CN_A_e0001"]) == {"T01_CN_A_e0000": 1}  # one write per interval
+    every = FrameReporter(counts, "T01_CN_A_e0000", interval_s=0.0)
+    every(7)
+    assert counts.read(["T01_CN_A_e0000"]) == {"T01_CN_A_e0000": 7} and os.listdir(tmp_path) == ["T01_CN_A_e0000"]
+    counts.forget("T01_CN_A_e0000")
+    assert counts.read(["T01_CN_A_e0000"]) == {} and os.listdir(tmp_path) == []
+    gone = FrameReporter(FileCounts(str(tmp_path / "gone")), "e", interval_s=0.0)
+    for n in range(1, 11):  # progress is best effort: a folder that is gone never fails the episode
+        gone(n)
+
+
+def test_driver_reads_the_highest_count_of_running_episodes_and_removes_the_rest():
+    from types import SimpleNamespace
+
+    from pipeline.driver import _FileFrames
+
+    live = _FileFrames(None, interval_s=0.0)
+    a, b = SimpleNamespace(key="a", frames=10), SimpleNamespace(key="b/1", frames=10)
+    try:
+        live.counter.write("a", 4)
+        live.counter.write("b/1", 2)
+        assert live.frames(0, [a, b]) == 6 and live.wait_s() <= 0.01
+        live._due = 0.0
+        live.counter.write("a", 1)  # a retried attempt starting over: its count does not go back
+        live.counter.write("b/1", 4)
+        assert live.frames(0, [a, b]) == 8
+        live._due = 0.0
+        live.counter.write("b/1", 5)
+        assert live.frames(10, [b]) == 15  # "a" finished (10 frames): its file is removed
+        assert sorted(os.listdir(live.counter.folder)) == ["b%2F1"]
+    finally:
+        live.close()
+    assert not os.path.exists(live.counter.folder)
 
 
 class _GatedCounter(FrameCounter):
