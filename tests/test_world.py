@@ -507,3 +507,20 @@ def test_value_noise_hashes_the_eight_corners_at_once_with_the_same_floats():
                     wz = f[:, 2] if dz else 1 - f[:, 2]
                     expected += wx * wy * wz * _hash01(i0[:, 0] + dx, i0[:, 1] + dy, i0[:, 2] + dz, seed)
         assert np.array_equal(value_noise(points, scale, seed), expected)
+
+
+def test_noisy_colours_take_both_octaves_in_one_pass_with_the_same_floats():
+    """Both octaves of a mesh's colour noise come from one pass over its points stacked twice (world
+    builds call it thousands of times for a few dozen vertices): bit for bit the two separate passes."""
+    from render_workers.worlds.meshes import noisy_colors, value_noise
+
+    rng = np.random.default_rng(5)
+    for n, scale, seed in ((0, 3.0, 0), (1, 0.7, 96), (37, 3.0, 9972), (500, 18.0, 65535), (20, 1.0, np.int64(41))):
+        verts = rng.uniform(-400.0, 400.0, (n, 3))
+        base, amount, fine = (141, 120, 98), 0.2, 0.06
+        n1 = value_noise(verts, scale, seed) - 0.5
+        n2 = value_noise(verts, scale * 0.23, seed + 7) - 0.5
+        gain = 1.0 + 2 * amount * n1 + 2 * fine * n2
+        expected = np.full((n, 4), 255, np.uint8)
+        expected[:, :3] = np.clip(np.asarray(base, np.float64)[None] * gain[:, None], 0, 255).astype(np.uint8)
+        assert np.array_equal(noisy_colors(verts, base, amount, scale, seed, fine), expected)
