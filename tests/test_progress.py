@@ -32,13 +32,16 @@ class _Terminal(io.StringIO):
 
 
 @pytest.mark.slow
-def test_progress_per_frame_then_the_window_rate(tmp_path):
+def test_progress_per_frame_then_the_window_rate(tmp_path, monkeypatch):
     plan = PlanConfig(domains="T01_CN_A,T07_HRN_B", frames_per_scenario=FRAMES, width=64, height=36, seed=1)
     log, terminal = io.StringIO(), _Terminal()
     logged, drawn = ProgressDisplay(log, window=WINDOW), ProgressDisplay(terminal, window=WINDOW)
     seen: list[tuple[Progress, str]] = []
     titles: set[str] = set()  # of the run's Ray worker processes, while frames are counted
-    folders = set(os.listdir(tempfile.gettempdir()))
+    scratch = tmp_path / "tmp"  # the driver's temporary folders go here (other tests make theirs elsewhere)
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    folders: set[str] = set()
 
     def on_progress(p: Progress) -> None:
         logged.update(p)
@@ -46,6 +49,7 @@ def test_progress_per_frame_then_the_window_rate(tmp_path):
         seen.append((p, format_progress(p, drawn.window.rate)))
         if 0 < p.frames_done < total:
             titles.update(_worker_titles())
+            folders.update(os.listdir(scratch))
 
     total = 2 * FRAMES
     config = ProduceConfig(run=RunConfig(plan, world="test"), out=str(tmp_path / "out"), workers=1, progress_interval_s=0.0)
@@ -56,7 +60,7 @@ def test_progress_per_frame_then_the_window_rate(tmp_path):
     # The local cluster the run started for itself: counts through files, no progress actor,
     # and the files' folder removed at the end.
     assert any("episode_task" in t for t in titles) and not any("FrameCounter" in t for t in titles), titles
-    assert not {f for f in os.listdir(tempfile.gettempdir()) if f.startswith("idda-progress-")} - folders
+    assert any(f.startswith("idda-progress-") for f in folders) and os.listdir(scratch) == []
 
     frames = [p.frames_done for p, _ in seen]
     assert frames[0] == 0 and seen[0][0].frames_total == total  # shown before any frame is done
