@@ -509,6 +509,24 @@ def test_value_noise_hashes_the_eight_corners_at_once_with_the_same_floats():
         assert np.array_equal(value_noise(points, scale, seed), expected)
 
 
+def test_quads_write_their_corners_in_place_with_the_same_floats():
+    """``quads`` writes its corners into one array (world builds make ~7,000 calls): the corners,
+    faces and floats of stacking broadcast copies, for one or many of each of p0, u and v."""
+    from render_workers.worlds.meshes import quads
+
+    rng = np.random.default_rng(8)
+    many = lambda: rng.uniform(-300.0, 300.0, (4, 3))  # noqa: E731
+    one = lambda: rng.uniform(-300.0, 300.0, 3)  # noqa: E731
+    for p0, u, v in ((one(), one(), one()), (many(), one(), many()), (one(), many(), one()),
+                     (one()[None], many(), one()), (many(), many(), many()), (one().tolist(), one(), one()[None])):
+        a, b, c = (np.atleast_2d(np.asarray(x, np.float64)) for x in (p0, u, v))
+        n = max(len(a), len(b), len(c))
+        a, b, c = (np.broadcast_to(x, (n, 3)) for x in (a, b, c))
+        verts, faces = quads(p0, u, v)
+        assert np.array_equal(verts, np.stack([a, a + b, a + b + c, a + c], axis=1).reshape(-1, 3))
+        assert np.array_equal(faces, (np.array([[0, 1, 2], [0, 2, 3]])[None] + 4 * np.arange(n)[:, None, None]).reshape(-1, 3))
+
+
 def test_noisy_colours_take_both_octaves_in_one_pass_with_the_same_floats():
     """Both octaves of a mesh's colour noise come from one pass over its points stacked twice (world
     builds call it thousands of times for a few dozen vertices): bit for bit the two separate passes."""

@@ -31,12 +31,19 @@ _QUAD_FACES = np.array([[0, 1, 2], [0, 2, 3]], dtype=np.int64)
 # --------------------------------------------------------------------------
 def quads(p0: np.ndarray, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """N quads with corners p0, p0+u, p0+u+v, p0+v; front side along u x v."""
-    p0, u, v = (np.atleast_2d(np.asarray(a, dtype=np.float64)) for a in (p0, u, v))
-    n = max(len(p0), len(u), len(v))
-    p0, u, v = (np.broadcast_to(a, (n, 3)) for a in (p0, u, v))
-    verts = np.stack([p0, p0 + u, p0 + u + v, p0 + v], axis=1).reshape(-1, 3)
+    p0, u, v = (np.asarray(a, dtype=np.float64) for a in (p0, u, v))
+    n = max(len(a) if a.ndim == 2 else 1 for a in (p0, u, v))
+    # corners written in place, each (n, 3) or (3,) broadcast: the same sums as stacking broadcast
+    # copies (a world build makes ~7,000 of these, most of a few quads, where numpy's calls are the cost)
+    verts = np.empty((n, 4, 3))
+    verts[:, 0] = p0
+    verts[:, 1] = p0
+    verts[:, 1] += u
+    np.add(verts[:, 1], v, out=verts[:, 2])
+    verts[:, 3] = p0
+    verts[:, 3] += v
     faces = (_QUAD_FACES[None] + 4 * np.arange(n)[:, None, None]).reshape(-1, 3)
-    return verts, faces
+    return verts.reshape(-1, 3), faces
 
 
 def grid(p0, u, v, nu: int, nv: int) -> tuple[np.ndarray, np.ndarray]:
