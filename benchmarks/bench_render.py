@@ -713,7 +713,65 @@ db7a865), 4 more alternating rounds against 273ad8c: 3.92, 3.57, 3.23, 3.57 fram
 3.61, 3.21, 3.25, 2.92 (3.23), and 0.543 machine CPU-s per frame against 0.583 (medians; +10% and -7%;
 load 1.7-3.2). 5 frames/s over 120 frames is 24 s, of which the
 start takes 7.7 s here: the frames would have to come at ~7.4 a second, 0.27 machine CPU-s each, where
-they take ~0.45 in production's loop."""
+they take ~0.45 in production's loop.
+
+### Levers measured on 2026-11-29, sixth round (the same AMD EPYC)
+
+* **No progress actor on a run's own local cluster (kept, 53f9757).** The progress actor's process
+  cost ~1 CPU-s of a run's start (its worker's imports and its event loop), and, as it took one of the
+  two workers Ray prestarts, the second episode waited for a worker started for it: traced with 20
+  frames per scenario, 2 alternating runs each, the tasks started at 3.78 and 4.24 s, and 3.16 and
+  3.67, with the actor; at 3.07 and 3.15, and 3.16 and 3.16, without. On the cluster a run starts for
+  itself every task is on the driver's machine, so the tasks now write their frame counts (at most
+  once per interval, each file replaced whole) to a folder the driver makes, reads when it shows
+  progress and removes (`pipeline.ray_task.FileCounts`); clusters of machines keep the actor, which
+  also says which node runs each episode. The benchmark's command, 4 alternating rounds against the
+  last stop's main (dee78d9): 3.53, 3.90, 3.75, 3.67 frames/s (median 3.71) against 3.38, 3.72, 3.64,
+  3.35 (3.51), 0.514 against 0.540 machine CPU-s per frame (medians); every pair favoured it. Every
+  process's CPU in one run now: the two workers 30.6 and 26.2 CPU-s, the dashboard agent 1.06, the
+  runtime-env agent 0.44, the raylet 0.27, GCS 0.19, the reaper 0.15; no third worker.
+* **World builds (kept, f46155d, c22e23e).** A mesh's two octaves of colour noise now come from one
+  pass over its points stacked twice (a build makes ~3,000 such calls for a few dozen vertices each,
+  where numpy's per-call cost is the time), its eight corners' terms from one product and one
+  sequential accumulate; `quads` writes its corners into one array in place (~7,000 calls). The same
+  floats (tested; every static part of T01-T07 hashes the same): building T03's world 0.97 -> ~0.76
+  CPU-s.
+* **Where the colour pass's shading goes** (measured, nothing kept). Render thread per T03_CS_M
+  full-HD frame with parts of `FAST_MESH_FRAG` cut out, 3 alternating rounds of 16 frames, medians:
+  the shader as it is 0.187 CPU-s; a flat colour 0.112; without the shadow tap 0.167; without the
+  detail texture 0.186; without its three `pow`s 0.176; without all of these and the specular term
+  0.139. So the lighting is ~0.075 of the 0.187, of which the shadow tap ~0.02 and the `pow`s ~0.01;
+  the rest is interpolating and lighting the fragments. Every such cut changes the pictures.
+* **Not kept**:
+  * numpy's huge pages off (`_set_madvise_hugepage(False)`; it asks for them on arrays of 4 MB or
+    more): system CPU 0.68 against 1.04 s per profile run, but process CPU 0.415 against 0.400 s per
+    frame (T03_CS_M, 16 frames, 3 alternating rounds, medians): the post effects run faster on huge
+    pages (0.066 against 0.070). Once an episode's first five frames have run, its frames take no
+    page faults either way (counted per frame with `getrusage`).
+  * Ray's dashboard-dependency check without importing the modules it checks (`find_spec`): the
+    driver 0.1 CPU-s less, `ray.init` plus two tasks 2.04-3.30 s either way (3 alternating rounds).
+  * Building the objects table without pyarrow importing pandas (0.2 s, once per worker): every way
+    to make a table from Python lists (`pa.table`, `Table.from_pydict`, `pa.array` per column)
+    imports it.
+* **Where a run's start goes now** (the benchmark's command, traced in the workers; seconds after it
+  started): the driver's imports and plan until 0.86, Ray's start until 2.92, the tasks start at 3.18
+  and 3.28, the worker's imports 0.66 and 0.95, then T01_CN_A's world 0.8, traffic 0.14, renderer
+  0.48 and T03_CS_M's 1.27, 0.17, 0.96; first frames stored at 6.84 and 8.70; the command ended at
+  33.9 s (3.64 frames/s). The machine is busy from ~1.7 s on; before, only the driver runs.
+* **The profile after these** (`PF_FRAMES=16 python -m benchmarks.profile_frame`, `LP_NUM_THREADS=0`,
+  CPU-s per frame, T01_CN_A and T03_CS_M): process 0.393 and 0.419; the render thread 0.175 and
+  0.187; post effects 0.059 and 0.066; deflate 0.080 and 0.081; resolve 0.015 and 0.018; objects
+  table and counts 0.010 and 0.011; the outputs' arrays 0.014 and 0.014. Bytes per frame as before
+  (1,256,015 for T01_CN_A); the small and full-HD digests of docs/contract.md are unchanged.
+
+After these (main at 9ae58ac), `BENCH=produce BENCH_BASELINE=93dc98a BENCH_ROUNDS=3 make bench`: 3.60
+frames/s and 0.522 machine CPU-s per frame against 93dc98a's 2.68 and 0.704 (1.34x and -26%; load
+average 3.7-4.6; docs/bench_produce.md). Against the last stop's main (dee78d9) with the world-build
+levers too (main at c22e23e), 4 alternating rounds of the benchmark's command: 3.76, 3.97, 3.70, 3.61
+frames/s (median 3.73) against 3.45, 3.57, 3.35, 3.45 (3.45), and 0.509 against 0.548 machine CPU-s
+per frame (medians; +8% and -7%; load 1.8-3.5). 5 frames/s over 120 frames is 24 s, of which the
+start takes ~7-8.7 s here: the frames would have to come at ~7.3 a second, 0.27 machine CPU-s each,
+where they take ~0.42 in production's loop, ~0.18 of it llvmpipe's rasterising and shading alone."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
