@@ -262,10 +262,10 @@ class _FileFrames(_LiveFrames):
     their counts to files of a folder of its own (``FileCounts``), read here at most every
     ``interval_s`` (the tasks write at most that often; ``FILE_POLL_S`` at the least), when the
     display asks for frames. The files of episodes no longer running are removed; ``close``
-    removes the folder."""
+    removes the folder (and the run's ``Reaper`` does, if the driver is killed)."""
 
     def __init__(self, ray, interval_s: float) -> None:
-        super().__init__(ray, FileCounts(tempfile.mkdtemp(prefix="idda-progress-")))
+        super().__init__(ray, FileCounts(tempfile.mkdtemp(prefix=f"idda-progress-{os.getpid()}-")))
         self._every, self._due = max(interval_s, FILE_POLL_S), 0.0
 
     def ask(self, keys: list[str]) -> None:
@@ -554,6 +554,8 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
         storage_ref = ray.put(storage)
         if progress is not None and local and started:  # every task on this machine: no actor needed
             live = _FileFrames(ray, config.progress_interval_s)
+            if reaper is not None:  # a driver killed outright leaves no folder behind either
+                reaper.remove_on_exit(live.counter.folder)
         elif progress is not None or not local:  # on a cluster, it also tells which node runs each episode
             live = _LiveFrames(ray, ray.remote(FrameCounter).options(**PROGRESS_ACTOR_OPTIONS).remote())
         else:

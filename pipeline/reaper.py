@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import os
 import select
+import shutil
 import signal
 import subprocess
 import sys
@@ -27,6 +28,7 @@ import time
 
 POLL_S = 0.5
 STOP = b"stop\n"
+REMOVE = b"remove "  # + a folder's path and a newline: removed when the watcher ends
 GRACE_S = 1.0  # after a clean shutdown, how long Ray's processes get to exit by themselves
 GONE_S = 5.0  # how long to wait for killed processes to disappear
 
@@ -99,8 +101,10 @@ def _kill(seen: dict[int, str]) -> None:
 
 def watch(driver: int) -> None:
     """Record ``driver``'s Ray descendants until stdin says stop or closes; on close, kill
-    them; on stop, kill those that do not exit within GRACE_S."""
+    them; on stop, kill those that do not exit within GRACE_S. Either way, remove the folders
+    the driver named in ``remove <path>`` lines (its scratch folders: progress counts)."""
     seen: dict[int, str] = {}
+    folders: list[str] = []
     stdin = sys.stdin.buffer
     while True:
         table = _proc_table()
@@ -111,11 +115,16 @@ def watch(driver: int) -> None:
             if line == STOP:
                 _kill(_wait_gone(seen, GRACE_S))
                 break
+            if line.startswith(REMOVE):
+                folders.append(os.fsdecode(line[len(REMOVE):].rstrip(b"\n")))
+                continue
             if line:
                 continue
             _kill(seen)  # EOF without "stop": the driver is gone
             break
     _wait_gone(seen, GONE_S)
+    for folder in folders:  # after the workers that wrote there are gone
+        shutil.rmtree(folder, ignore_errors=True)
 
 
 class Reaper:
@@ -130,6 +139,16 @@ class Reaper:
                 start_new_session=True,  # a kill of the driver's process group spares it
                 env={**os.environ, "PYTHONPATH": os.pathsep.join(p for p in sys.path if p)},
             )
+
+    def remove_on_exit(self, folder: str) -> None:
+        """Have the watcher remove ``folder`` when it ends, however the driver ends."""
+        if self._proc is None:
+            return
+        try:
+            self._proc.stdin.write(REMOVE + os.fsencode(folder) + b"\n")
+            self._proc.stdin.flush()
+        except OSError:  # the watcher is gone: the driver's own cleanup is all there is
+            pass
 
     def stop(self) -> None:
         if self._proc is None:

@@ -3,6 +3,7 @@ does, nothing is lost and nothing false is reported. Real Ray, real files."""
 
 from __future__ import annotations
 
+import glob
 import io
 import json
 import os
@@ -10,6 +11,7 @@ import shutil
 import signal
 import subprocess
 import sys
+import tempfile
 import threading
 import time
 from pathlib import Path
@@ -360,16 +362,18 @@ def test_local_cluster_dies_with_a_killed_driver(tmp_path):
     while time.time() < deadline and proc.poll() is None and not done_episodes(storage):
         time.sleep(0.2)
     victims = _descendants(proc.pid)
-    assert proc.poll() is None and victims
+    counts = glob.glob(os.path.join(tempfile.gettempdir(), f"idda-progress-{proc.pid}-*"))  # the tasks' progress counts
+    assert proc.poll() is None and victims and counts
     os.kill(proc.pid, signal.SIGKILL)  # the driver alone: its cluster must follow
     proc.wait()
     deadline = time.time() + 15
-    while time.time() < deadline and any(_alive(p) for p in victims):
+    while time.time() < deadline and (any(_alive(p) for p in victims) or any(map(os.path.exists, counts))):
         time.sleep(0.5)
     left = [p for p in victims if _alive(p)]
     for pid in left:  # do not leave them behind for the next test
         os.kill(pid, signal.SIGKILL)
     assert not left, f"{len(left)} Ray processes outlived the driver by 15 s"
+    assert not any(map(os.path.exists, counts)), "the driver's progress folder outlived it"
 
 
 def test_ray_is_shut_down_after_a_failed_run(tmp_path, monkeypatch):
