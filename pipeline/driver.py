@@ -257,6 +257,30 @@ class _LiveFrames:
         return self._shown
 
 
+_COUNTS_PREFIX = "idda-progress-"  # + the driver's pid and "-": a run's count folder in the temp dir
+
+
+def _remove_orphaned_counts() -> None:
+    """Remove the count folders of drivers that are gone (killed with their watcher: a whole
+    process tree killed at once leaves one behind). Best effort: a folder of a pid that is in
+    use again stays until that process ends."""
+    scratch = tempfile.gettempdir()
+    try:
+        names = os.listdir(scratch)
+    except OSError:
+        return
+    for name in names:
+        pid = name[len(_COUNTS_PREFIX):].partition("-")[0]
+        if not (name.startswith(_COUNTS_PREFIX) and pid.isdigit()):
+            continue
+        try:
+            os.kill(int(pid), 0)
+        except ProcessLookupError:
+            shutil.rmtree(os.path.join(scratch, name), ignore_errors=True)
+        except (PermissionError, OverflowError):  # another user's live process, or no pid at all
+            continue
+
+
 class _FileFrames(_LiveFrames):
     """Progress of a run on a cluster this process started on its own machine: the tasks write
     their counts to files of a folder of its own (``FileCounts``), read here at most every
@@ -265,7 +289,8 @@ class _FileFrames(_LiveFrames):
     removes the folder (and the run's ``Reaper`` does, if the driver is killed)."""
 
     def __init__(self, ray, interval_s: float) -> None:
-        super().__init__(ray, FileCounts(tempfile.mkdtemp(prefix=f"idda-progress-{os.getpid()}-")))
+        _remove_orphaned_counts()
+        super().__init__(ray, FileCounts(tempfile.mkdtemp(prefix=f"{_COUNTS_PREFIX}{os.getpid()}-")))
         self._every, self._due = max(interval_s, FILE_POLL_S), 0.0
 
     def ask(self, keys: list[str]) -> None:

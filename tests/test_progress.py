@@ -11,6 +11,8 @@ from __future__ import annotations
 import io
 import os
 import re
+import subprocess
+import sys
 import tempfile
 import time
 
@@ -42,6 +44,12 @@ def test_progress_per_frame_then_the_window_rate(tmp_path, monkeypatch):
     scratch.mkdir()
     monkeypatch.setattr(tempfile, "tempdir", str(scratch))
     folders: set[str] = set()
+    # count folders left by drivers killed with their watchers: a gone one's is removed, a live one's kept
+    ended = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True)
+    orphan, alive = scratch / f"idda-progress-{int(ended.stdout)}-x1", scratch / f"idda-progress-{os.getppid()}-x2"
+    for folder in (orphan, alive):
+        folder.mkdir()
+        (folder / "T01_CN_A%2Fe0000").write_text("3")
 
     def on_progress(p: Progress) -> None:
         logged.update(p)
@@ -49,7 +57,7 @@ def test_progress_per_frame_then_the_window_rate(tmp_path, monkeypatch):
         seen.append((p, format_progress(p, drawn.window.rate)))
         if 0 < p.frames_done < total:
             titles.update(_worker_titles())
-            folders.update(os.listdir(scratch))
+            folders.update(set(os.listdir(scratch)) - {alive.name})
 
     total = 2 * FRAMES
     config = ProduceConfig(run=RunConfig(plan, world="test"), out=str(tmp_path / "out"), workers=1, progress_interval_s=0.0)
@@ -60,7 +68,7 @@ def test_progress_per_frame_then_the_window_rate(tmp_path, monkeypatch):
     # The local cluster the run started for itself: counts through files, no progress actor,
     # and the files' folder removed at the end.
     assert any("episode_task" in t for t in titles) and not any("FrameCounter" in t for t in titles), titles
-    assert any(f.startswith("idda-progress-") for f in folders) and os.listdir(scratch) == []
+    assert any(f.startswith("idda-progress-") for f in folders) and os.listdir(scratch) == [alive.name]
 
     frames = [p.frames_done for p, _ in seen]
     assert frames[0] == 0 and seen[0][0].frames_total == total  # shown before any frame is done
