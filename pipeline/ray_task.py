@@ -44,6 +44,8 @@ class FileCounts:
         return os.path.join(self.folder, quote(key, safe=""))
 
     def write(self, key: str, n: int) -> None:
+        # Not storage.atomic.atomic_write: that fsyncs (a count a second needs no durability) and
+        # makes the folder again, where a folder the driver removed must stay gone.
         path = self._path(key)
         part = f"{path}.{os.getpid()}.part"
         with open(part, "w") as f:
