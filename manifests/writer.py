@@ -23,6 +23,7 @@ from manifests.schema import (FIELD_SOURCE, OBJECT_FIELDS, OLD_PART_SCHEMA, PART
 from outputs.table import OUTPUTS
 from manifests.part_file import ManifestError
 from storage import sha256_bytes
+from storage.buffers import arrow_table
 
 
 def frame_row(spec, frame, files: dict[str, bytes]) -> dict:
@@ -89,8 +90,10 @@ def part_table(rows: list[dict]) -> pa.Table:
     missing = [name for name in schema.names if name not in rows[0]]
     if missing:
         raise ManifestError(f"frame row lacks manifest columns: {', '.join(missing)}")
-    columns = {name: [row[name] for row in rows] for name in schema.names}
-    return pa.table(columns, schema=schema)
+    try:  # the table pa.table gives, without importing pandas in the worker (storage.buffers.arrow_table)
+        return arrow_table({name: [row[name] for row in rows] for name in schema.names}, schema)
+    except ValueError as exc:
+        raise ManifestError(f"frame rows do not fit the manifest schema: {exc}") from None
 
 
 def part_bytes(table: pa.Table, store_schema: bool = False) -> bytes:

@@ -40,7 +40,7 @@ import pyarrow as pa
 import pyarrow.parquet as pq
 
 from domains.catalog import INSTANCE_LABELS
-from storage.buffers import arrow_reader
+from storage.buffers import arrow_reader, arrow_table
 
 OBJECT_SCHEMA = pa.schema(
     [
@@ -68,9 +68,9 @@ HOOD_ID = 1  # instance id of the ego hood (not an object); 0 = static geometry 
 
 
 def object_table(rows: list[dict]) -> pa.Table:
-    """A sidecar table from row dicts; every OBJECT_SCHEMA column must be present."""
-    columns = {name: [row[name] for row in rows] for name in OBJECT_SCHEMA.names}
-    return pa.table(columns, schema=OBJECT_SCHEMA)
+    """A sidecar table from row dicts; every OBJECT_SCHEMA column must be present
+    (``arrow_table``: the table ``pa.table`` gives, without importing pandas in the worker)."""
+    return arrow_table({name: [row[name] for row in rows] for name in OBJECT_SCHEMA.names}, OBJECT_SCHEMA)
 
 
 def encode_objects(table: pa.Table) -> pa.Table:
