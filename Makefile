@@ -27,7 +27,7 @@ _given   = $(findstring $(1),$(PRODUCE_ARGS))
 _SIZE    = $(if $(SCALE),--scale $(SCALE),$(if $(_FULL)$(call _given,--frames-per-scenario),,--frames-per-scenario $(FRAMES))) \
 	$(if $(call _given,--width),,--width $(WIDTH)) $(if $(call _given,--height),,--height $(HEIGHT))
 
-.PHONY: help venv venv-test produce test mutants bench report clean
+.PHONY: help venv venv-test bytecode produce test mutants bench report clean
 
 help: ## list the targets
 	@grep -E '^[a-z-]+:.*## ' $(MAKEFILE_LIST) | awk -F ':.*## ' '{printf "  make %-9s %s\n", $$1, $$2}'
@@ -49,9 +49,16 @@ $(STAMP_TEST): $(STAMP) pyproject.toml
 
 venv: $(STAMP) ## create .venv with the project and what producing needs
 
+# The project's byte-code, refreshed before every run (half a second when it is current). Where
+# PYTHONDONTWRITEBYTECODE is set, Python never writes it itself: every CLI process and Ray worker
+# compiled the ~22,000 lines it imports, ~0.3 CPU-s each, at every start (docs/bench_render.md).
+PY_DIRS := storage domains outputs manifests roots render_workers exports analysis pipeline benchmarks reports tests
+bytecode: $(STAMP)
+	@$(BIN)/python -m compileall -q -j 0 $(PY_DIRS) >/dev/null
+
 venv-test: $(STAMP_TEST) ## add the test extras (torch, polars, duckdb, moto, datasets...) to .venv
 
-produce: $(STAMP) ## render DOMAINS (default all) into OUT; FRAMES/WIDTH/HEIGHT size the run, SCALE=1 is the full dataset
+produce: $(STAMP) bytecode ## render DOMAINS (default all) into OUT; FRAMES/WIDTH/HEIGHT size the run, SCALE=1 is the full dataset
 	$(BIN)/idda produce --domains '$(DOMAINS)' --out '$(OUT)' $(_SIZE) --seed $(SEED) $(PRODUCE_ARGS)
 
 # Two pytest workers (pytest-xdist), whole files to each. On 2 cores the suite
@@ -61,7 +68,7 @@ produce: $(STAMP) ## render DOMAINS (default all) into OUT; FRAMES/WIDTH/HEIGHT 
 # The 30 slowest tests are listed at the end (issue 35: the suite's budget is 15 minutes).
 TEST_WORKERS ?= 2
 
-test: $(STAMP_TEST) ## add the test extras to .venv, then run the test suite (TEST_WORKERS=2 processes)
+test: $(STAMP_TEST) bytecode ## add the test extras to .venv, then run the test suite (TEST_WORKERS=2 processes)
 	$(BIN)/python -m pytest -q -n $(TEST_WORKERS) --dist loadfile --durations=30
 
 $(STAMP_MUTANTS): $(STAMP_TEST) pyproject.toml
@@ -73,10 +80,10 @@ MUTANTS ?=
 mutants: $(STAMP_MUTANTS) ## mutation testing (mutmut) of the data-protecting modules against their fast tests; score per module (docs/mutants.md). Not part of `make test`; CPU-heavy
 	nice $(BIN)/python -m tests.mutants $(MUTANTS)
 
-bench: $(STAMP_TEST) ## run the benchmarks; figures go to docs/
+bench: $(STAMP_TEST) bytecode ## run the benchmarks; figures go to docs/
 	$(BIN)/python -m benchmarks.run
 
-report: $(STAMP_TEST) ## render a 105-scenario sample and write docs/worlds.md (class shares, distances, contact sheets) and docs/weathers.md's pictures
+report: $(STAMP_TEST) bytecode ## render a 105-scenario sample and write docs/worlds.md (class shares, distances, contact sheets) and docs/weathers.md's pictures
 	$(BIN)/python -m reports.worlds
 	$(BIN)/python -m reports.weathers
 

@@ -48,6 +48,7 @@ def test_make_produce_installs_the_base_and_make_test_adds_the_extras(tmp_path):
     venv = tmp_path / "venv"
     fresh = _make_dry_run("produce", venv)
     assert "pip install --quiet -e ." in fresh and "[test]" not in fresh and "idda produce" in fresh
+    assert fresh.index("pip install --quiet -e .") < fresh.index("-m compileall") < fresh.index("idda produce")
     # After make produce (its stamp newer than pyproject.toml), make test adds only the extras.
     venv.mkdir()
     (venv / ".installed-produce").touch()
@@ -56,6 +57,7 @@ def test_make_produce_installs_the_base_and_make_test_adds_the_extras(tmp_path):
     assert "pytest" in after_produce
     (venv / ".installed-test").touch()
     assert "pip install" not in _make_dry_run("test", venv)  # both stamps: nothing to install
+    assert _make_dry_run("test", venv).index("-m compileall") < _make_dry_run("test", venv).index("-m pytest")
     assert "pip install" not in _make_dry_run("produce", venv)
 
 
@@ -139,3 +141,13 @@ def test_readme_is_one_screen_and_links_every_docs_page():
             assert f"(docs/{page.name})" in readme, page.name
     for needed in ("make produce", "make test", "output/", "idda evaluate", "docs/images/contact_sheet_CN.png"):
         assert needed in readme, needed
+
+
+def test_the_byte_code_step_compiles_every_package_of_the_project():
+    """`make` compiles the sources it runs (PY_DIRS): every package pyproject.toml ships is among them."""
+    import re
+
+    dirs = re.search(r"^PY_DIRS := (.*)$", (REPO / "Makefile").read_text(), re.M).group(1).split()
+    assert all((REPO / d / "__init__.py").is_file() for d in dirs)
+    shipped = [p.rstrip("*") for p in tomllib.loads((REPO / "pyproject.toml").read_text())["tool"]["setuptools"]["packages"]["find"]["include"]]
+    assert set(shipped) <= set(dirs)
