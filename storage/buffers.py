@@ -41,29 +41,33 @@ def arrow_column(values: list, kind: pa.DataType, name: str = "column") -> pa.Ar
     float32. As ``pa.array``, no validity bitmap unless a value is None."""
     import numpy as np
 
-    missing = np.fromiter((v is None for v in values), bool, len(values))
-    nulls = int(missing.sum())
+    types = set(map(type, values))  # the checks per kind of value, not per value
+    nulls = sum(v is None for v in values) if type(None) in types else 0
+    missing = np.fromiter((v is None for v in values), bool, len(values)) if nulls else None
     validity = _owned(np.packbits(~missing, bitorder="little")) if nulls else None
-    present = [v for v in values if v is not None]
+    present = [v for v in values if v is not None] if nulls else values
     if kind in _NUMBERS:
-        if any(isinstance(v, (str, bytes, bool, np.bool_)) for v in present):
+        if any(issubclass(t, (str, bytes, bool, np.bool_)) for t in types):
             raise ValueError(f"{name}: expected numbers for {kind}, got {present!r:.80}")
-        if pa.types.is_integer(kind) and any(isinstance(v, (float, np.floating)) and not float(v).is_integer()
-                                             for v in present):
+        if pa.types.is_integer(kind) and any(issubclass(t, (float, np.floating)) for t in types) and any(
+                isinstance(v, (float, np.floating)) and not float(v).is_integer() for v in present):
             raise ValueError(f"{name}: a fraction in an integer column: {present!r:.80}")
         try:
-            dense = np.zeros(len(values), _NUMBERS[kind])
-            dense[~missing] = np.asarray(present, _NUMBERS[kind]) if present else dense[:0]
+            dense = np.asarray(present, _NUMBERS[kind]) if present else np.zeros(0, _NUMBERS[kind])
+            if nulls:
+                dense, given = np.zeros(len(values), _NUMBERS[kind]), dense
+                dense[~missing] = given
         except (OverflowError, TypeError, ValueError) as exc:
             raise ValueError(f"{name}: {exc}") from None
         return pa.Array.from_buffers(kind, len(values), [validity, _owned(dense)], null_count=nulls)
     if kind == pa.string():
-        if not all(isinstance(v, str) for v in present):
+        if not all(issubclass(t, str) for t in types - {type(None)}):
             raise ValueError(f"{name}: expected strings, got {present!r:.80}")
         data = [b"" if v is None else v.encode() for v in values]
         offsets = np.zeros(len(data) + 1, np.int32)
         np.cumsum([len(d) for d in data], out=offsets[1:])
-        return pa.Array.from_buffers(kind, len(values), [validity, _owned(offsets), _owned(np.frombuffer(b"".join(data) or b"\0", np.uint8))],
+        text = np.frombuffer(b"".join(data) or b"\0", np.uint8)
+        return pa.Array.from_buffers(kind, len(values), [validity, _owned(offsets), _owned(text)],
                                      null_count=nulls)
     if pa.types.is_fixed_size_list(kind) and kind.value_type == pa.float64():
         size = kind.list_size
