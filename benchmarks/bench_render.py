@@ -776,7 +776,62 @@ levers too (main at c22e23e), 4 alternating rounds of the benchmark's command: 3
 frames/s (median 3.73) against 3.45, 3.57, 3.35, 3.45 (3.45), and 0.509 against 0.548 machine CPU-s
 per frame (medians; +8% and -7%; load 1.8-3.5). 5 frames/s over 120 frames is 24 s, of which the
 start takes ~7-8.7 s here: the frames would have to come at ~7.3 a second, 0.27 machine CPU-s each,
-where they take ~0.42 in production's loop, ~0.18 of it llvmpipe's rasterising and shading alone."""
+where they take ~0.42 in production's loop, ~0.18 of it llvmpipe's rasterising and shading alone.
+
+### Levers measured on 2026-11-29, seventh round (the same AMD EPYC)
+
+* **Where a run's CPU goes, start and steady** (the benchmark's command once, /proc/stat sampled every
+  0.25 s, the rgb files' times): the first frame is stored at 7.97 s, when the machine has spent 11.9
+  CPU-s; from the 11th file to the 110th, 100 frames in 22.0 s, 4.54 frames/s at 0.439 machine CPU-s a
+  frame; the whole run 63.7 CPU-s in 34.4 s (3.57 frames/s). In a steady window the machine is 98.0%
+  user, 1.6% system, 0.2% idle, 0% I/O wait: the run is CPU-bound throughout, and the files' fsyncs
+  cost nothing visible. 5 frames/s (24 s, 48 CPU-s on two cores) is out of reach even with no start at
+  all (120 frames at 0.439 are 52.7 CPU-s).
+* **No pandas in the render workers (kept, 8958960).** `pa.array` and `pa.table` import pandas to check
+  whether their input is a pandas object: ~0.25 CPU-s in each worker, at its first objects table (and
+  again at its part), and nothing else in a worker uses it. `storage.buffers.arrow_column` builds the
+  same arrays from numpy buffers Arrow owns (the same Parquet bytes, tested; nulls and fixed-size lists
+  included); no process of a produce run imports pandas now.
+* **The project's byte-code (kept, 8e4e82a).** These machines set `PYTHONDONTWRITEBYTECODE`, so Python
+  never wrote the project's `.pyc` files, and every CLI process and Ray worker compiled the ~22,000 lines
+  it imports at every start: the worker's imports took 1.46 and 1.51 CPU-s from source, 1.17 and 1.25
+  from byte-code. `make` now runs `compileall` on the project before produce, test, bench and report
+  (0.5 s when current); the benchmark's baseline tree is compiled too.
+  Together, on the benchmark's two scenarios with 2 frames each (where the start is most of the run;
+  4 alternating rounds, machine CPU-s per run): 13.83, 13.73, 13.54, 15.25 (median 13.78) against the
+  last stop's main (06f60b4, sources only) 15.02, 14.15, 15.94, 15.74 (15.38); wall 8.96 against 10.2 s
+  (medians). Every pair favoured it: -1.6 CPU-s per run, ~2.5% of the 60-frame benchmark's CPU, too little
+  to see in its frames/s on this host (7 alternating rounds spread 3.22-3.93 frames/s on both sides).
+* **Where the shadow pass goes** (T03_CS_M, full HD, render thread CPU per frame, the pass timed
+  alone): the Python side of its ~120-240 casters 0.005, their vertices and binning 0.012, llvmpipe
+  rasterising the 2,048-texel map 0.025: ~0.04 of the render thread's ~0.2. Casters without road and
+  road lines measured again: 0.194 and 0.20 CPU-s per frame with and without them (2 rounds each of
+  4): noise, as in the fourth round.
+* **Not kept**:
+  * Vertex shaders without pyrender's per-vertex `inverse(M * inst_m)` and with matrix-vector products
+    only (`gl_Position = P * (V * (M * (inst_m * p)))`, the normal by the rigid transform's rotation):
+    render thread 0.2015, 0.1987, 0.1960 against 0.2173, 0.1814, 0.1990 CPU-s per T03_CS_M frame (3
+    alternating rounds of 16 frames): the passes are bound by fragments, not vertices (~370,000
+    vertices a frame).
+  * Drawing order: the colour pass's fragments that pass the depth test, counted with an occlusion
+    query, are 0.63-1.06 per pixel in T03_CS_M's first six frames and 0.69-1.24 in T01_CN_A's (960x540;
+    the sky is not drawn): nearest-first leaves next to nothing shaded twice.
+  * fpng, measured again per output on current full-HD frames (thread CPU, best of 5, and bytes):
+    depth_gray 6.4 ms and 60 KB against libdeflate's 9.8 ms and 39 KB; depth_log 4.6 / 90 KB against
+    9.9 / 67 KB; semantic_color 4.3 / 66 KB against 9.6 / 31 KB; semantic_raw 6.5 / 55 KB against 9.6 /
+    31 KB; depth_raw 4.5 / 459 KB against 13.5 / 314 KB; rgb 9.0 / 1,082 KB against 21.8 / 798 KB. For
+    the four small outputs 17 ms a frame (~4%) for 92 KB more; for all six 39 ms for 522 KB (+42%) more.
+    The default stays libdeflate.
+  * llvmpipe's vector width (`LP_NATIVE_VECTOR_WIDTH=256` on this AVX-512 CPU): 0.2132 and 0.1954
+    against 0.2585 and 0.1912 CPU-s per frame: no difference.
+
+After these (main at ac575a8), `BENCH=produce BENCH_BASELINE=93dc98a BENCH_ROUNDS=3 make bench`, both
+sides byte-compiled: 3.62 frames/s and 0.531 machine CPU-s per frame against 93dc98a's 2.62 and 0.724
+(1.38x and -27%; rounds 3.93, 3.62, 3.19 against 2.56, 2.84, 2.62; load average 3.3-4.6; the one-run
+variants with worlds already cached came out slower than the cold runs, 3.28-3.53: this host's swing,
+docs/bench_produce.md). At the start of this round the same command's alternating runs gave 3.62, 3.70,
+3.72 frames/s against 93dc98a's 2.71, 2.79, 2.86 (1.33x). The gap to 5 frames/s is per frame: ~0.44
+machine CPU-s a frame once both workers render, where 5 frames/s needs ~0.30 after a ~12 CPU-s start."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
