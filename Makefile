@@ -89,3 +89,4 @@ report: $(STAMP_TEST) bytecode ## render a 105-scenario sample and write docs/wo
 
 clean: ## remove the .venv and caches (never your output)
 	rm -rf $(VENV) .pytest_cache .hypothesis
+	find $(PY_DIRS) -name __pycache__ -type d -prune -exec rm -rf {} +
