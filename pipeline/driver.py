@@ -256,6 +256,9 @@ class _LiveFrames:
         self._shown = max(self._shown, finished + live)
         return self._shown
 
+    def close(self) -> None:
+        """Nothing of its own to remove (the actor goes with the cluster)."""
+
 
 _COUNTS_PREFIX = "idda-progress-"  # + the driver's pid and "-": a run's count folder in the temp dir
 
@@ -664,7 +667,7 @@ def _render_on_ray(config: ProduceConfig, storage, todo: list, report: ProduceRe
     finally:  # every path, errors and Ctrl-C included: a cluster we started goes down cleanly
         if watch is not None:
             watch.close()
-        if isinstance(live, _FileFrames):
+        if live is not None:
             live.close()
         if started and ray.is_initialized():
             shutdown(ray)

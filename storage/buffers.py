@@ -12,9 +12,7 @@ def arrow_reader(data: bytes) -> pa.BufferReader:
     the GIL: during the interpreter's exit that thread is made to exit, and the unwind
     through Arrow's C++ ends in ``std::terminate`` (issue 33: ``idda verify`` aborted,
     exit 134, "terminate called without an active exception"). A copy holds no Python object."""
-    buffer = pa.allocate_buffer(len(data))
-    memoryview(buffer).cast("B")[:] = data
-    return pa.BufferReader(buffer)
+    return pa.BufferReader(_owned(data))
 
 
 _NUMBERS = {pa.int16(): "int16", pa.int32(): "int32", pa.int64(): "int64", pa.float32(): "float32",

@@ -82,8 +82,8 @@ def test_a_part_with_a_value_that_does_not_fit_is_a_manifest_error():
     from pipeline.settings import PlanConfig
 
     rows = episode_rows(make_plan(PlanConfig(domains="T01_CN_A", frames_per_scenario=2)).episodes[0])
-    assert part_table(rows).equals(pa.table({k: [r[k] for r in rows] for k in part_table(rows).schema.names},
-                                            schema=part_table(rows).schema))
+    table = part_table(rows)
+    assert table.equals(pa.table({k: [r[k] for r in rows] for k in table.schema.names}, schema=table.schema))
     rows[1]["episode"] = "one"
     with pytest.raises(ManifestError, match="episode"):
         part_table(rows)
