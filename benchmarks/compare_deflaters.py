@@ -38,12 +38,16 @@ def _zlib(level: int, strategy: int):
 def candidates() -> dict:
     """Name -> compress; the first is the deflater new roots use (``outputs.deflaters``), as they call it."""
     import deflate
+    from zlib_ng import zlib_ng
 
     from outputs.deflaters import DEFAULT_DEFLATER, deflater
 
     default = deflater(DEFAULT_DEFLATER)
     return {
         f"{default.name} {default.level}": default.compress,
+        "zlib-ng 2": lambda d: zlib_ng.compress(d, 2),
+        "zlib-ng 1": lambda d: zlib_ng.compress(d, 1),
+        "libdeflate 2": lambda d: bytes(deflate.zlib_compress(d, 2)),
         "libdeflate 1": lambda d: bytes(deflate.zlib_compress(d, 1)),
         "zlib 1": _zlib(1, zlib.Z_DEFAULT_STRATEGY),
         "zlib 1 rle": _zlib(1, zlib.Z_RLE),

@@ -1,27 +1,28 @@
 """The deflate inside every PNG file this tool writes, and which one a root keeps.
 
-New roots deflate with libdeflate (the ``deflate`` package bundles it), at
-:data:`LIBDEFLATE_LEVEL`. libdeflate is deterministic for one version, with
-no state carried between calls and no CPU-specific parsing, so one frame is
-one sequence of bytes however often, wherever and in whichever process it is
-rendered. Roots written before used ISA-L at level 1 (``isal``): ISA-L is
-faster, but it gave two different byte streams for the same input in two
-worker processes (issue 21.11: same pixels, same filtered rows, one match
-found in one process and not in the other), which breaks resume and verify,
-since a re-rendered frame must equal its files.
+New roots deflate with zlib-ng (the ``zlib-ng`` package bundles it) at
+:data:`ZLIBNG_LEVEL`. One frame is one sequence of bytes however often,
+wherever and in whichever process it is rendered, for one version of the
+package, because nothing but the input chooses a match: zlib-ng (2.2 on) hashes
+with one function on every CPU (the SSE4.2 and ARM CRC-32 hashes were removed),
+the functions it picks by CPU for deflate (``compare256``, ``longest_match``,
+``slide_hash``, ``adler32``) return the same values on every path, only faster,
+and it zeroes its hash tables and the window bytes past the data before the
+match search can read them (docs/contract.md: checked against a build with no
+CPU-specific code at all). Issue 35: at level 3 its PNGs are as small as
+libdeflate's level 2 (1,271 against 1,266 KB per full-HD frame) for 46 against
+84 CPU-ms: libdeflate spends ~10 ms on each low-entropy output (depth grey and
+log, the two semantic images), zlib-ng ~2.
 
-Measured on two full-HD frames' seven default PNGs (T01_CN_A, T07_HRN_J;
-medians of 7 alternating rounds, one core of the shared 2-core machine,
-/tmp/codec_bench2.py in the issue 21 note): ISA-L level 1 34 ms and 2.053 MB
-per frame; libdeflate level 2 176 ms and 1.722 MB (16% smaller files, 140 ms
-more CPU per frame, on the episode's second thread); zlib level 1 194 ms and
-2.204 MB.
-
-An old root keeps its deflater (its ``run.json`` names it, see
-``outputs.encoding.encoder_identity``): its workers deflate with ISA-L as
-before, so resuming, extending and repairing it mix nothing. The deflater in
-force is a context variable, set per frame around the encoding
-(:func:`deflating_with`), so two threads may encode for two roots at once.
+Roots written before keep their deflater (their ``run.json`` names it, see
+``outputs.encoding.encoder_identity``): libdeflate level 2 (issue 21.11 to 35)
+or ISA-L level 1 (before). ISA-L is fast but gave two different byte streams
+for the same input in two worker processes (issue 21.11: same pixels, same
+filtered rows, one match found in one process and not in the other), which
+breaks resume and verify, since a re-rendered frame must equal its files; so
+resuming, extending and repairing an old root mix nothing. The deflater in force
+is a context variable, set per frame around the encoding (:func:`deflating_with`),
+so two threads may encode for two roots at once.
 """
 
 from __future__ import annotations
@@ -34,8 +35,15 @@ from functools import cache
 
 from domains.catalog import lookup
 
-LIBDEFLATE_LEVEL = 2  # libdeflate 1..12: level 2 was the fastest of 1-5 here, and smaller than ISA-L's level 1
+ZLIBNG_LEVEL = 3  # zlib-ng 1..9: level 3 (deflate_medium) is as small as libdeflate's 2 at ~half its CPU; 2 is 9% larger
+LIBDEFLATE_LEVEL = 2  # what roots written with libdeflate (issue 21.11 to 35) use
 ISAL_LEVEL = 1  # what roots written with ISA-L used
+
+
+def _zlib_ng(data) -> bytes:
+    from zlib_ng import zlib_ng
+
+    return zlib_ng.compress(data, ZLIBNG_LEVEL)
 
 
 def _libdeflate(data) -> bytes:
@@ -69,10 +77,11 @@ class Deflater:
 
 
 DEFLATERS = {
-    "libdeflate": Deflater("libdeflate", LIBDEFLATE_LEVEL, "deflate", _libdeflate),
+    "zlib-ng": Deflater("zlib-ng", ZLIBNG_LEVEL, "zlib-ng", _zlib_ng),
+    "libdeflate": Deflater("libdeflate", LIBDEFLATE_LEVEL, "deflate", _libdeflate),  # roots of issues 21.11-35
     "isal": Deflater("isal", ISAL_LEVEL, "isal", _isal),  # roots written before libdeflate
 }
-DEFAULT_DEFLATER = "libdeflate"
+DEFAULT_DEFLATER = "zlib-ng"
 _IN_FORCE: ContextVar[str] = ContextVar("png_deflater", default=DEFAULT_DEFLATER)
 
 

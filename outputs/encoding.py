@@ -1,4 +1,4 @@
-"""Per-frame output encodings (CARLA conventions) and PNG bytes, in numpy + libdeflate (cv2 decodes).
+"""Per-frame output encodings (CARLA conventions) and PNG bytes, in numpy + zlib-ng (cv2 decodes).
 
 Each output in ``outputs.table.OUTPUT_TABLE`` names one of these encoders,
 which turns one of the renderer's buffers into the array its file holds:
@@ -22,9 +22,9 @@ This is part of the dataset's vocabulary: the renderer encodes with it, and
 exports, loaders and verification decode with it.
 
 PNG files are written here, not by a codec library: every row gets PNG filter
-1 (Sub, in numpy) and the image is one IDAT deflated by libdeflate
-(``outputs.deflaters``; roots written before keep ISA-L, which they were
-made with). Skipping libpng's adaptive per-row filter choice, most of its
+1 (Sub, in numpy) and the image is one IDAT deflated by zlib-ng
+(``outputs.deflaters``; roots written before keep libdeflate or ISA-L, which
+they were made with). Skipping libpng's adaptive per-row filter choice, most of its
 cost, makes this several times faster than OpenCV's PNG writer. Any PNG reader
 decodes the files; a different deflater (or version) gives different bytes,
 so the run record names it (:func:`encoder_identity`).

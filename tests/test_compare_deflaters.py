@@ -15,8 +15,8 @@ def test_the_default_deflater_gives_back_each_files_own_stream(reference):
     assert len(files) == 4 and all(path.is_file() for frame in files for path in frame.values())
     for output in bench.OUTPUTS:
         streams = [len(png_stream(frame[output].read_bytes())) for frame in files]
-        # the root was written with libdeflate level 2: its rows, deflated again, are its streams byte for byte
-        assert figures["libdeflate 2"][output][1] == sum(streams) / len(streams)
+        # the root was written with the default deflater: its rows, deflated again, are its streams byte for byte
+        assert figures[next(iter(figures))][output][1] == sum(streams) / len(streams)
         assert all(cpu >= 0 and size > 0 for cpu, size in (row[output] for row in figures.values()))
     page = bench.table(figures)
     assert page.count("\n") == len(figures) + 1 and "| zlib 1 rle |" in page

@@ -1,4 +1,4 @@
-"""The PNG deflater: libdeflate for new roots, ISA-L kept by roots written with it (issue 21.11)."""
+"""The PNG deflater: zlib-ng for new roots (issue 35); libdeflate (issue 21.11) and ISA-L kept by roots written with them."""
 
 from __future__ import annotations
 
@@ -24,6 +24,8 @@ from storage import Storage
 
 PLAN = PlanConfig(domains="T01_CN_A,T01_HRN_A", frames_per_scenario=2, width=64, height=36, seed=5)
 ISAL_IDENTITY = f"png-sub-isal level 1, isal {metadata.version('isal')}"  # as roots written before recorded it
+LIBDEFLATE_IDENTITY = f"png-sub-libdeflate level 2, deflate {metadata.version('deflate')}"  # roots of issues 21.11-35
+OLD_IDENTITIES = {"isal": ISAL_IDENTITY, "libdeflate": LIBDEFLATE_IDENTITY}
 
 
 def idat(data: bytes) -> bytes:
@@ -45,59 +47,78 @@ def deflated_by(png: bytes) -> set[str]:
 
 
 def test_identities_name_the_deflater_its_level_and_version():
-    assert enc.encoder_identity() == f"png-sub-libdeflate level 2, deflate {metadata.version('deflate')}"
+    assert enc.encoder_identity() == f"png-sub-zlib-ng level 3, zlib-ng {metadata.version('zlib-ng')}"
     assert enc.encoder_identity("png", "isal") == ISAL_IDENTITY  # what older run.json files hold, to the letter
-    assert deflater_named_by(ISAL_IDENTITY) == "isal" and deflater_named_by(enc.encoder_identity()) == "libdeflate"
+    assert enc.encoder_identity("png", "libdeflate") == LIBDEFLATE_IDENTITY
+    assert deflater_named_by(ISAL_IDENTITY) == "isal" and deflater_named_by(LIBDEFLATE_IDENTITY) == "libdeflate"
+    assert deflater_named_by(enc.encoder_identity()) == "zlib-ng"
     assert deflater_named_by("png-sub-isal level 1, isal 0.0.1") is None  # another version: not ours
-    with pytest.raises(ValueError, match="unknown PNG deflater 'zopfli'; valid PNG deflaters: libdeflate, isal"):
+    assert deflater_named_by("png-sub-zlib-ng level 3, zlib-ng 0.0.1") is None
+    with pytest.raises(ValueError, match="unknown PNG deflater 'zopfli'; valid PNG deflaters: zlib-ng, libdeflate, isal"):
         deflater("zopfli")
 
 
 def test_png_files_are_deflated_by_the_deflater_in_force_in_this_thread_only():
     image = np.random.default_rng(0).integers(0, 4, (27, 48, 3), dtype=np.uint8)
-    assert deflated_by(enc.encode_png(image)) >= {"libdeflate"}
-    with deflating_with("isal"):
-        old = enc.encode_png(image)
-        assert deflated_by(old) >= {"isal"}
-    assert enc.encode_png(image) != old  # the two deflaters write different bytes for this image
-    assert np.array_equal(enc.decode_png(old), image) and np.array_equal(enc.decode_png(enc.encode_png(image)), image)
+    new = enc.encode_png(image)
+    assert deflated_by(new) == {"zlib-ng"}
+    for name in ("isal", "libdeflate"):
+        with deflating_with(name):
+            old = enc.encode_png(image)
+            assert name in deflated_by(old)
+        assert enc.encode_png(image) == new != old  # each deflater writes its own bytes for this image
+        assert np.array_equal(enc.decode_png(old), image) and np.array_equal(enc.decode_png(new), image)
+
+
+def test_zlib_ng_is_deterministic_on_real_sized_rows():
+    """Full-HD-sized rows of low-entropy and noisy images: one stream per input, every call, and
+    the rows come back; level 3 is zlib-ng's medium strategy, not the fixed-Huffman quick one."""
+    from zlib_ng import zlib_ng
+
+    rng = np.random.default_rng(3)
+    flat = np.repeat(rng.integers(0, 24, (1080, 8), dtype=np.uint8), 240, axis=1)  # label-like runs
+    noisy = rng.integers(0, 256, (1080, 1920 * 3), dtype=np.uint8)
+    for rows in (flat, noisy):
+        data = rows.tobytes()
+        first = deflater("zlib-ng").compress(data)
+        assert all(deflater("zlib-ng").compress(bytearray(data)) == first for _ in range(3))
+        assert zlib.decompress(first) == data and first == zlib_ng.compress(data, 3) != zlib_ng.compress(data, 1)
 
 
 def test_root_deflater_reads_the_record():
-    assert root_deflater(None) == "libdeflate" and root_deflater({}) == "libdeflate"
+    assert root_deflater(None) == "zlib-ng" and root_deflater({}) == "zlib-ng"
     assert root_deflater({"encoder": ISAL_IDENTITY}) == "isal"
+    assert root_deflater({"encoder": LIBDEFLATE_IDENTITY}) == "libdeflate"
     assert root_deflater({"encoder": f"{ISAL_IDENTITY}; rgb jpeg-libjpeg-turbo-opencv quality 95, opencv 4"}) == "isal"
-    assert root_deflater({"encoder": "png-sub-isal level 1, isal 0.0.1"}) == "libdeflate"
+    assert root_deflater({"encoder": "png-sub-isal level 1, isal 0.0.1"}) == "zlib-ng"
 
 
-def _old_root(root: Path) -> Storage:
-    """A root as the ISA-L version left it: run.json names ISA-L, its first episode done with it."""
+def _old_root(root: Path, name: str = "isal") -> Storage:
+    """A root as an older version left it: run.json names deflater ``name``, its first episode done with it."""
     storage = Storage.from_uri(str(root))
     storage.ensure_writable()
     config = RunConfig(plan=PLAN, world="test")
     record = prepare_root(storage, config)
-    storage.write_bytes("run.json", record_bytes({**record, "encoder": ISAL_IDENTITY}))
+    storage.write_bytes("run.json", record_bytes({**record, "encoder": OLD_IDENTITIES[name]}))
     first = make_plan(PLAN).episodes[0]
-    run_episode(replace(first, png_deflater="isal"), storage, world="test")
+    run_episode(replace(first, png_deflater=name), storage, world="test")
     return storage
 
 
-def test_an_isal_root_resumes_with_isal_and_a_new_root_uses_libdeflate(tmp_path):
+@pytest.mark.parametrize("name", ["isal", "libdeflate"])
+def test_an_old_root_resumes_with_its_deflater_and_a_new_root_uses_zlib_ng(tmp_path, name):
     from pipeline.episode_job import render_plan
 
-    storage = _old_root(tmp_path / "old")
+    storage = _old_root(tmp_path / "old", name)
     render_plan(storage, RunConfig(plan=PLAN, world="test"))  # resume: the second episode, the root's deflater
-    assert json.loads((tmp_path / "old" / "run.json").read_text())["encoder"] == ISAL_IDENTITY
-    table = read_manifest(str(tmp_path / "old"))
-    pngs = [p for col in ("rgb_path", "semantic_color_path", "depth_raw_path", "instance_path")
-            for p in table.column(col).to_pylist()]
-    assert len(pngs) == 16 and all("isal" in deflated_by((tmp_path / "old" / p).read_bytes()) for p in pngs)
+    assert json.loads((tmp_path / "old" / "run.json").read_text())["encoder"] == OLD_IDENTITIES[name]
+    assert _pngs_by(tmp_path / "old", name) == (16, 16)
 
     fresh = Storage.from_uri(str(tmp_path / "new"))
     render_plan(fresh, RunConfig(plan=PLAN, world="test"))
     record = json.loads((tmp_path / "new" / "run.json").read_text())
     assert record["encoder"] == enc.encoder_identity()
-    assert all("libdeflate" in deflated_by((tmp_path / "new" / p).read_bytes()) for p in pngs)
+    assert _pngs_by(tmp_path / "new", "zlib-ng") == (16, 16)
 
 
 def test_a_root_of_an_unknown_deflater_is_still_refused(tmp_path):
@@ -108,37 +129,44 @@ def test_a_root_of_an_unknown_deflater_is_still_refused(tmp_path):
     assert check_encoder(storage, record)["encoder"] == ISAL_IDENTITY  # its own: kept
 
 
-def _isal_pngs(root: Path) -> tuple[int, int]:
-    """(PNG files the manifest lists, those deflated by ISA-L)."""
+def _pngs_by(root: Path, name: str) -> tuple[int, int]:
+    """(PNG files the manifest lists, those deflated by ``name``)."""
     table = read_manifest(str(root))
     pngs = [p for col in ("rgb_path", "semantic_color_path", "depth_raw_path", "instance_path")
             for p in table.column(col).to_pylist()]
-    return len(pngs), sum("isal" in deflated_by((root / p).read_bytes()) for p in pngs)
+    return len(pngs), sum(name in deflated_by((root / p).read_bytes()) for p in pngs)
 
 
-def test_an_isal_root_extended_keeps_isal(tmp_path):
+def _isal_pngs(root: Path) -> tuple[int, int]:
+    """(PNG files the manifest lists, those deflated by ISA-L)."""
+    return _pngs_by(root, "isal")
+
+
+@pytest.mark.parametrize("name", ["isal", "libdeflate"])
+def test_an_old_root_extended_keeps_its_deflater(tmp_path, name):
     """Issue 33: ``--extend`` rewrote run.json's encoder to libdeflate, so the new
     episodes were deflated by libdeflate beside the ISA-L ones: one root, two deflaters."""
     from pipeline.episode_job import run_episode
 
-    storage = _old_root(tmp_path / "old")
+    storage = _old_root(tmp_path / "old", name)
     more = RunConfig(plan=replace(PLAN, domains="T01_CN_A,T01_HRN_A,T07_CN_A"), world="test")
     record = prepare_root(storage, more, extend=True)
-    assert record["encoder"] == ISAL_IDENTITY == json.loads((tmp_path / "old" / "run.json").read_text())["encoder"]
-    assert root_deflater(record) == "isal"
+    assert record["encoder"] == OLD_IDENTITIES[name] == json.loads((tmp_path / "old" / "run.json").read_text())["encoder"]
+    assert root_deflater(record) == name
     for spec in make_plan(more.plan).episodes[1:]:  # what produce's workers are handed
         run_episode(replace(spec, png_deflater=root_deflater(record)), storage, world="test")
-    assert _isal_pngs(tmp_path / "old") == (24, 24)
+    assert _pngs_by(tmp_path / "old", name) == (24, 24)
 
 
-def test_an_isal_root_repaired_with_a_damaged_run_json_keeps_isal(tmp_path):
+@pytest.mark.parametrize("name", ["isal", "libdeflate"])
+def test_an_old_root_repaired_with_a_damaged_run_json_keeps_its_deflater(tmp_path, name):
     """A damaged (or lost) run.json is written afresh by repair: with the deflater of the
     root's own PNG files, not the default one (which would mix two deflaters)."""
-    storage = _old_root(tmp_path / "old")
+    storage = _old_root(tmp_path / "old", name)
     run = tmp_path / "old" / "run.json"
     run.write_bytes(run.read_bytes()[:-9])  # torn
     record = prepare_root(storage, RunConfig(plan=PLAN, world="test"), repair=True)
-    assert record["encoder"] == ISAL_IDENTITY and root_deflater(record) == "isal"
+    assert record["encoder"] == OLD_IDENTITIES[name] and root_deflater(record) == name
     run.unlink()  # lost: the same
-    assert prepare_root(storage, RunConfig(plan=PLAN, world="test"))["encoder"] == ISAL_IDENTITY
+    assert prepare_root(storage, RunConfig(plan=PLAN, world="test"))["encoder"] == OLD_IDENTITIES[name]
 

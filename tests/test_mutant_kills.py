@@ -1067,7 +1067,7 @@ def test_root_deflater_and_holds_frames(tmp_path):
     from pipeline.provenance import holds_frames, root_deflater
 
     assert root_deflater({"encoder": encoder_identity("jpg", "isal")}) == "isal"
-    assert root_deflater({"encoder": "png-sub-zlib level 9"}) == root_deflater(None) == "libdeflate"
+    assert root_deflater({"encoder": "png-sub-zlib level 9"}) == root_deflater(None) == "zlib-ng"
     storage, _ = _tiny_root(tmp_path, parts=False)
     assert not holds_frames(storage)
     storage.write_bytes("T01_CN_A/e0000/rgb/x.png", b"png")
