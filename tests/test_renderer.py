@@ -420,3 +420,61 @@ def test_a_frames_gl_lookups_do_not_grow_with_what_it_draws(renderer, monkeypatc
     few, many = lookups(2), lookups(12)
     assert (few[2] == WALL).sum() < (many[2] == WALL).sum()  # the twelve cars are drawn
     assert many[:2] == few[:2], (few[:2], many[:2])
+
+
+def test_gl_calls_made_through_ctypes_draw_what_pyopengl_draws(monkeypatch):
+    """Uniforms and draws go to GL through bare ctypes entry points (``passes.gl_entry``): the same
+    frame, bit for bit, as through PyOpenGL's wrappers, as pyrender calls them (matrices transposed,
+    float64 made float32, a name the shader lacks skipped), with shadows, cars and a textured wall."""
+    import ctypes
+
+    from OpenGL import GL
+    from render_workers.render import passes
+    from render_workers.worlds.scene import Actor, Path as LanePath
+    from render_workers.worlds.textures import TEXTURE_PX
+
+    lane = LanePath(np.array([[0.0, 0.0, 0.0], [300.0, 0.0, 0.0]]))
+    cars = []
+    for i in range(3):
+        box = trimesh.creation.box(extents=(4.0, 2.0, 1.5))
+        box.visual.vertex_colors = np.tile([200, 40 * i, 20, 255], (len(box.vertices), 1))
+        cars.append(Actor("sedan", (Part(WALL, box, "matte"),), lane, 12.0 + 9.0 * i, 0.0, 0.0))
+    textures = {"brick": np.random.default_rng(5).integers(60, 255, (TEXTURE_PX, TEXTURE_PX, 3), dtype=np.uint8)}
+    wall = _wall(40.0)
+    base = flat_scene((Part(WALL, wall.mesh, "matte", texture="brick"), _slab(class_id_of("pole"), 20.0)))
+    scene = EpisodeScene(world=dataclasses.replace(base.world, textures=textures), actors=tuple(cars), ego=base.ego,
+                         n_vehicles=3, n_pedestrians=0)
+
+    def frame() -> list[np.ndarray]:
+        with Renderer() as fresh:
+            fresh.load(scene, weather("CS"), viewpoint("A"), 320, 180)
+            result = fresh.render(0.5)
+            return [result.buffers[k].copy() for k in ("rgb", "classes", "depth", "instance")]
+
+    direct = frame()
+    calls = []
+    entry = passes.gl_entry
+    monkeypatch.setattr(passes, "gl_entry", lambda name, *types: (calls.append(name), entry(name, *types))[1])
+    assert all(np.array_equal(a, b) for a, b in zip(direct, frame()))
+    assert {"glUniformMatrix4fv", "glUniform3fv", "glUniform4fv", "glDrawArraysInstanced"} <= set(calls)
+
+    def wrapped_uniform(program, name, value):  # pyrender's own ShaderProgram.set_uniform, PyOpenGL's calls
+        try:
+            program.set_uniform(name, value)
+        except ValueError:  # pyrender raises for a name the shader lacks; the pass skips it
+            pass
+
+    def wrapped_draw(primitive):
+        instances = 1 if primitive.poses is None else len(primitive.poses)
+        if primitive.indices is not None:
+            GL.glDrawElementsInstanced(primitive.mode, primitive.indices.size, GL.GL_UNSIGNED_INT,
+                                       ctypes.c_void_p(0), instances)
+        else:
+            GL.glDrawArraysInstanced(primitive.mode, 0, len(primitive.positions), instances)
+
+    monkeypatch.setattr(passes, "set_uniform", wrapped_uniform)
+    monkeypatch.setattr(passes, "draw_primitive", wrapped_draw)
+    through_pyopengl = frame()
+    assert all(np.array_equal(a, b) for a, b in zip(direct, through_pyopengl))
+    assert (through_pyopengl[1] == WALL).sum() > 1000 and (through_pyopengl[3] > 0).sum() > 100  # wall and cars drawn
+

@@ -55,6 +55,7 @@ binds no lights, so class ids and depth do not change with shadows on.
 from __future__ import annotations
 
 import ctypes
+import functools
 import hashlib
 import os
 import shutil
@@ -256,16 +257,39 @@ def install_mesh_shader(offscreen, fragment_source: str) -> Path:
     return directory
 
 
+# GL entry points called per draw, straight through ctypes: PyOpenGL's wrappers convert and check
+# every argument (~25-40 us a call; a frame makes ~900 such calls). C types of the arguments, in order.
+_INT, _UINT, _SIZE, _BOOL, _PTR = ctypes.c_int, ctypes.c_uint, ctypes.c_int, ctypes.c_ubyte, ctypes.c_void_p
+_UNIFORM_ARGS = (_INT, _SIZE, _PTR)  # glUniform{1..4}{f,i,ui}v(location, count, values)
+_MATRIX_ARGS = (_INT, _SIZE, _BOOL, _PTR)  # glUniformMatrix{2..4}fv(location, count, transpose, values)
+_UNIFORM_SUFFIX = {"f": "f", "i": "i", "u": "ui"}
+
+
+@functools.cache
+def gl_entry(name: str, *argtypes) -> Callable:
+    """The GL function ``name`` (void, taking ``argtypes``) as a bare ctypes call: no argument
+    conversion and no ``glGetError`` after it (an error stays pending for the next checked call,
+    which raises it). Asked of EGL once per process, after a context exists; its address is GL's
+    dispatch stub, the same for every context of the process."""
+    from OpenGL import platform
+
+    address = platform.PLATFORM.getExtensionProcedure(name.encode())
+    if not address:
+        raise RuntimeError(f"GL entry point {name} is not available")
+    return ctypes.CFUNCTYPE(None, *argtypes)(address)
+
+
 def draw_primitive(primitive) -> None:
     """Draw a bound primitive (all its instances), as pyrender does."""
     from OpenGL import GL
 
     instances = 1 if primitive.poses is None else len(primitive.poses)
     if primitive.indices is not None:
-        GL.glDrawElementsInstanced(primitive.mode, primitive.indices.size, GL.GL_UNSIGNED_INT, ctypes.c_void_p(0),
-                                   instances)
+        gl_entry("glDrawElementsInstanced", _UINT, _SIZE, _UINT, _PTR, _SIZE)(
+            primitive.mode, primitive.indices.size, GL.GL_UNSIGNED_INT, None, instances)
     else:
-        GL.glDrawArraysInstanced(primitive.mode, 0, len(primitive.positions), instances)
+        gl_entry("glDrawArraysInstanced", _UINT, _INT, _SIZE, _SIZE)(primitive.mode, 0, len(primitive.positions),
+                                                                     instances)
 
 
 def _change(state: dict, key, value, apply: Callable) -> None:
@@ -321,9 +345,15 @@ def set_uniform(program, name: str, value) -> None:
                 dtype, value = "i", value.astype(np.int32)
             else:
                 dtype, value = "f", value.astype(np.float32)
-            ShaderProgram._FUNC_MAP[(value.shape[0], dtype)](location, 1, value)
+            if (value.shape[0], dtype) not in ShaderProgram._FUNC_MAP:  # pyrender has no call for it either
+                raise ValueError(f"uniform {name}: no GL call for a vector of {value.shape[0]} {value.dtype}")
+            name = f"glUniform{value.shape[0]}{_UNIFORM_SUFFIX[dtype]}v"
+            gl_entry(name, *_UNIFORM_ARGS)(location, 1, value.ctypes.data)
         else:
-            ShaderProgram._FUNC_MAP[(value.shape[0], value.shape[1])](location, 1, GL.GL_TRUE, value)
+            if value.shape not in ((2, 2), (3, 3), (4, 4)):
+                raise ValueError(f"uniform {name}: no GL call for a {value.shape[0]}x{value.shape[1]} matrix")
+            matrix = np.ascontiguousarray(value, np.float32)  # what PyOpenGL hands GL for a float matrix
+            gl_entry(f"glUniformMatrix{value.shape[0]}fv", *_MATRIX_ARGS)(location, 1, GL.GL_TRUE, matrix.ctypes.data)
     elif isinstance(value, float):
         GL.glUniform1f(location, value)
     elif isinstance(value, int):
