@@ -339,9 +339,10 @@ def set_uniform(program, name: str, value) -> None:
         return
     if isinstance(value, np.ndarray):
         if value.ndim == 1:
-            if np.issubdtype(value.dtype, np.unsignedinteger):
+            kind = value.dtype.kind  # as np.issubdtype decides, without its cost: u unsigned, i signed, else float
+            if kind == "u":
                 dtype, value = "u", value.astype(np.uint32)
-            elif np.issubdtype(value.dtype, np.integer):
+            elif kind == "i":
                 dtype, value = "i", value.astype(np.int32)
             else:
                 dtype, value = "f", value.astype(np.float32)
