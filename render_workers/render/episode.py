@@ -34,7 +34,7 @@ from domains.ramps import weather_at
 from domains.conditions import frame_conditions
 from domains.rigs import rig_from_json
 from outputs.geometry import CV_FROM_GL, normals_from_depth, pose_cells
-from outputs.objects import object_counts
+from outputs.objects import label_counts, object_counts
 from manifests.schema import NEW_RULES
 from outputs.table import BUFFERS
 from roots.episode_spec import DrawSpec, check_frame_interval, check_rules, town_seed
@@ -188,7 +188,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
     buffers["rgb"] = postfx.apply(buffers["rgb"], ctx)
     timings["post_fx"] = time.perf_counter() - start
     start = time.perf_counter()
-    pixels = np.bincount(buffers["instance"].ravel())  # per instance id: the objects table's and counts'
+    pixels = label_counts(buffers["instance"])  # per instance id: the objects table's and counts'
     if "objects" in spec.buffers:
         poses = result.actor_poses  # as the renderer posed them for this instant
         if poses is None:
@@ -201,7 +201,7 @@ def finish_frame(result: RenderResult, renderer: Renderer, scene: EpisodeScene, 
         buffers["flow"] = (episode_flow(buffers["depth"], buffers["instance"], result.rig, scene, renderer.instances,
                                         t, spec.frame_time(index + 1)) if index + 1 < spec.frames
                            else np.zeros(buffers["depth"].shape + (3,), np.float32))
-    counts = np.bincount(buffers["classes"].ravel(), minlength=NUM_CLASSES).astype(np.int64)
+    counts = label_counts(buffers["classes"], NUM_CLASSES)
     objects = object_counts(buffers["instance"], instance_classes(renderer.instances), pixels)
     timings["outputs"] = time.perf_counter() - start
     ego_to_world = scene.ego.pose(t)

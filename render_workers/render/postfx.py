@@ -503,6 +503,9 @@ EFFECTS: dict[str, Effect] = {
 ORDER: tuple[str, ...] = tuple(EFFECTS)
 
 
+_UNIT = np.arange(256, dtype=np.float32) * np.float32(1.0 / 255.0)  # uint8 level -> [0, 1], float32
+
+
 def apply(rgb: np.ndarray, ctx: FxContext, order: tuple[str, ...] = ORDER,
           timings: dict | None = None) -> np.ndarray:
     """Run effects in ``order`` on an HxWx3 uint8 image; returns uint8. Unknown names raise."""
@@ -513,7 +516,7 @@ def apply(rgb: np.ndarray, ctx: FxContext, order: tuple[str, ...] = ORDER,
         raise ValueError(f"rgb: expected HxWx3 uint8, got {rgb.dtype} {rgb.shape}")
     import cv2
 
-    img = np.multiply(rgb, np.float32(1.0 / 255.0), dtype=np.float32)
+    img = cv2.LUT(rgb, _UNIT)  # rgb / 255 in float32, as np.multiply(rgb, float32(1 / 255)) gives it, in half the time
     for name in order:
         start = time.perf_counter()
         img = EFFECTS[name](img, ctx)
