@@ -66,7 +66,7 @@ def main() -> dict:
     ep.frame_objects = timed("second thread: objects table", ep.frame_objects)
     ep.object_counts = timed("second thread: object counts", ep.object_counts)
     ep.finish_frame = timed("second thread: finish_frame (resolve, post_fx, outputs)", ep.finish_frame)
-    enc.deflate_png_data = timed("second thread: sink: PNG deflate (libdeflate)", enc.deflate_png_data)
+    enc.deflate_png_data = timed("second thread: sink: PNG deflate (the default deflater)", enc.deflate_png_data)
     enc._sub_filtered = timed("second thread: sink: PNG Sub filter", enc._sub_filtered)
     writer.sha256_bytes = timed("second thread: sink: sha256", writer.sha256_bytes)
 
