@@ -831,7 +831,63 @@ sides byte-compiled: 3.62 frames/s and 0.531 machine CPU-s per frame against 93d
 variants with worlds already cached came out slower than the cold runs, 3.28-3.53: this host's swing,
 docs/bench_produce.md). At the start of this round the same command's alternating runs gave 3.62, 3.70,
 3.72 frames/s against 93dc98a's 2.71, 2.79, 2.86 (1.33x). The gap to 5 frames/s is per frame: ~0.44
-machine CPU-s a frame once both workers render, where 5 frames/s needs ~0.30 after a ~12 CPU-s start."""
+machine CPU-s a frame once both workers render, where 5 frames/s needs ~0.30 after a ~12 CPU-s start.
+
+### Levers measured on 2026-11-29, eighth round (the same AMD EPYC)
+
+* **Where a steady frame goes, by library** (`perf record -a` over 16 s of the benchmark's command once
+  both workers render, main at b42d5d3): llvmpipe 39.8% (its compiled shaders 27.9%, its C code 11.9%),
+  libdeflate 19.0%, OpenCV 16.1%, numpy 9.9%, the Python interpreter 7.0%, libc 2.9%, the kernel 1.4%;
+  Ray's own processes (raylet, GCS, agents, driver) under 1%. The deflate was the largest single item
+  outside the GL passes.
+* **zlib-ng for new roots' PNGs (kept, fd8477b).** `python -m benchmarks.compare_deflaters ROOT` on four
+  full-HD frames of the benchmark's scenarios (thread CPU per frame, medians of 3, and bytes): libdeflate
+  level 2 (the default until now) 84.3 ms and 1,266 KB; zlib-ng (the `zlib-ng` package, zlib-ng 2.3.3)
+  level 1 24.0 ms and 2,187 KB (fixed Huffman codes), level 2 36.2 ms and 1,375 KB, **level 3 45.8 ms and
+  1,271 KB**, level 4 59.2 ms and 1,220 KB, level 6 123.1 ms and 1,118 KB. libdeflate spends ~10 ms on
+  each of the four low-entropy outputs (depth grey and log, semantic raw and colour, ~30-60 KB each),
+  zlib-ng level 3 2.0-3.0. Level 3 is as small as libdeflate's level 2 at 54% of its CPU. Its bytes
+  follow from the input alone on every CPU (docs/contract.md, "The deflater on every CPU": zlib-ng's own
+  sources built with no CPU-specific code, with AVX2 and with AVX-512 give the package's streams byte for
+  byte); libdeflate and ISA-L roots keep theirs. In production's loop (`PF_FRAMES=16
+  python -m benchmarks.profile_frame`, T03_CS_M) the deflate stage went from 0.077 to 0.042 CPU-s per
+  frame. The benchmark's command, with /proc/stat sampled (two alternating runs each): once both workers
+  render, 5.16 and 5.22 frames/s at 0.385 and 0.378 machine CPU-s a frame, against libdeflate's 4.30 and
+  4.67 at 0.464 and 0.425; whole runs 4.17 and 4.01 frames/s against 3.53 and 3.57. Files are the same
+  pixels in other bytes (the small run's 42 PNG files decode equal), 1.5% more of them in T03_CS_M.
+* **Uniforms and draws through bare ctypes (kept, 0fc7162, a19a0f8).** PyOpenGL's wrappers convert and
+  check every argument, ~25-40 us a call, and a frame makes ~900 of them on the render thread (cProfile at
+  240x135, where the fixed cost of a frame shows: `wrapperCall` was the largest item). The same calls with
+  the same values go through `ctypes` entry points asked of EGL once (`passes.gl_entry`); a frame drawn
+  through PyOpenGL's wrappers is the same bit for bit (`tests/test_renderer.py`). Render thread per
+  T03_CS_M frame at 240x135, 6 alternating rounds: 0.0766 against 0.084 CPU-s (medians), ~2% of a full-HD
+  frame.
+* **Label images counted by OpenCV's histogram, post effects' input by a table (kept, 5598ab3).**
+  `np.bincount` casts every pixel to int64 before it counts: 3.2 ms for a frame's classes and again for
+  its instances, `cv2.calcHist` 0.4-0.5 ms with the same whole numbers (below 2**24 pixels; numpy's path
+  beyond). `rgb / 255` as a 256-entry float32 table (`cv2.LUT`) is numpy's float32 product in 1.8 against
+  3.4 ms. Digests and every manifest column unchanged.
+* **What does not scale with pixels**: the render thread per T03_CS_M frame at 1920x1080, 960x540,
+  480x270 and 240x135: 0.232, 0.147, 0.101, 0.087 CPU-s. ~0.08 of a full-HD frame's GL work is fixed:
+  the shadow pass (~0.04, its 2,048-texel map whatever the frame's size) and the ~300 draws' vertices,
+  set-up and binning.
+* **Not kept**:
+  * Ray's dashboard agent in its minimal mode (as Ray runs it when the dashboard's packages are missing):
+    0.86-0.88 against 0.92-1.11 CPU-s per run, `ray.init` plus two tasks 2.0-2.3 s either way; it still
+    imports most of what it does. The raylet refuses to start without an agent command.
+  * A shadow map kept across frames (static casters drawn once while the camera stays in a cell): frames
+    are 3 s apart, 25-30 m of travel at the egos' speeds, so no map could be reused without covering that
+    much more ground at the same texel size.
+
+After these (main at 0b8d826), `BENCH=produce BENCH_BASELINE=93dc98a BENCH_ROUNDS=5 make bench`: **4.01 frames/s
+and 0.478 machine CPU-s per frame against 93dc98a's 2.58 and 0.750 (1.55x and -36%)**; rounds 4.26, 4.02, 3.85,
+4.01, 4.01 against 2.37, 2.64, 2.65, 2.48, 2.58 (every pair 1.45x or more; load average 3.3-4.9;
+docs/bench_produce.md). A 3-round run an hour before gave 4.03 against 2.51 (1.61x). Production's loop per frame
+(`PF_FRAMES=16 python -m benchmarks.profile_frame`, load 0.8-1.0, CPU-s, T01_CN_A and T03_CS_M): process 0.336 and
+0.389; render thread 0.162 and 0.192; post effects 0.058 and 0.070; deflate 0.042 and 0.042; resolve 0.016 and
+0.019; objects table 0.009 and 0.011; the outputs' arrays 0.015 and 0.015; bytes per frame 1,261,508 and 1,177,354.
+On this host 5 frames/s is still ~1.25x away: the machine ran 93dc98a at 2.4-2.9 frames/s in these rounds, where the
+machine issue 35 was filed from ran it at 3.53-3.77; at this run's ratio that machine would give ~5.5-5.8."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
