@@ -24,7 +24,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from domains.catalog import LABELS
-from outputs.objects import HOOD_ID, INSTANCE_CLASS_IDS, box_corners, object_table
+from outputs.objects import HOOD_ID, INSTANCE_CLASS_IDS, box_corners, label_counts, object_table
 from render_workers.worlds.scene import EpisodeScene, Part
 
 MAX_ID = 2**16 - 1
@@ -208,7 +208,7 @@ def frame_objects(instance: np.ndarray, instances: list[Instance], poses: list[n
     """The frame's ``objects`` sidecar: one row per instance id visible in ``instance``.
 
     ``poses[a]`` is actor a's world-from-actor pose at the frame's time; ``pixels``: the frame's
-    pixels per instance id (``np.bincount`` of ``instance``), where the caller has it already."""
+    pixels per instance id (``label_counts`` of ``instance``), where the caller has it already."""
     from scipy import ndimage
 
     h, w = instance.shape
@@ -217,7 +217,7 @@ def frame_objects(instance: np.ndarray, instances: list[Instance], poses: list[n
     rot = CV_FROM_GL @ cam_from_world[:3, :3]
     by_id = {inst.id: inst for inst in instances}
     if pixels is None:
-        pixels = np.bincount(instance.ravel())
+        pixels = label_counts(instance)
     boxes = ndimage.find_objects(instance)  # the uint16 ids as they are (an int32 copy gave the same boxes)
     rows = []
     for iid in np.flatnonzero(pixels):

@@ -348,9 +348,10 @@ def set_uniform(program, name: str, value) -> None:
                 dtype, value = "f", value.astype(np.float32)
             if (value.shape[0], dtype) not in ShaderProgram._FUNC_MAP:  # pyrender has no call for it either
                 raise ValueError(f"uniform {name}: no GL call for a vector of {value.shape[0]} {value.dtype}")
-            name = f"glUniform{value.shape[0]}{_UNIFORM_SUFFIX[dtype]}v"
-            gl_entry(name, *_UNIFORM_ARGS)(location, 1, value.ctypes.data)
+            call = f"glUniform{value.shape[0]}{_UNIFORM_SUFFIX[dtype]}v"
+            gl_entry(call, *_UNIFORM_ARGS)(location, 1, value.ctypes.data)
         else:
+            # square only (pyrender sent a 3x3 as a 4x4; nothing here sets one)
             if value.shape not in ((2, 2), (3, 3), (4, 4)):
                 raise ValueError(f"uniform {name}: no GL call for a {value.shape[0]}x{value.shape[1]} matrix")
             matrix = np.ascontiguousarray(value, np.float32)  # what PyOpenGL hands GL for a float matrix
