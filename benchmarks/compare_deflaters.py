@@ -29,26 +29,30 @@ OUTPUTS = _png_outputs()
 
 
 def _zlib(level: int, strategy: int):
-    def compress(data: bytes) -> bytes:
+    def compress(data: bytes, output: str) -> bytes:
         c = zlib.compressobj(level, zlib.DEFLATED, 15, 8, strategy)
         return c.compress(data) + c.flush()
     return compress
 
 
 def candidates() -> dict:
-    """Name -> compress; the first is the deflater new roots use (``outputs.deflaters``), as they call it."""
+    """Name -> compress(data, output); the first is the deflater new roots use (``outputs.deflaters``), as
+    they call it (a photograph's rows, ``outputs.encoding.PHOTO_OUTPUTS``, apart)."""
     import deflate
     from zlib_ng import zlib_ng
 
     from outputs.deflaters import DEFAULT_DEFLATER, deflater
+    from outputs.encoding import PHOTO_OUTPUTS
 
     default = deflater(DEFAULT_DEFLATER)
     return {
-        f"{default.name} {default.level}": default.compress,
-        "zlib-ng 2": lambda d: zlib_ng.compress(d, 2),
-        "zlib-ng 1": lambda d: zlib_ng.compress(d, 1),
-        "libdeflate 2": lambda d: bytes(deflate.zlib_compress(d, 2)),
-        "libdeflate 1": lambda d: bytes(deflate.zlib_compress(d, 1)),
+        f"{default.name} {default.level}, rgb run-length": lambda d, o: default.deflate(d, o in PHOTO_OUTPUTS),
+        "zlib-ng 3": lambda d, o: zlib_ng.compress(d, 3),
+        "zlib-ng 2": lambda d, o: zlib_ng.compress(d, 2),
+        "zlib-ng 1": lambda d, o: zlib_ng.compress(d, 1),
+        "zlib-ng rle": lambda d, o: default.photo(d),  # every output as a photograph
+        "libdeflate 2": lambda d, o: bytes(deflate.zlib_compress(d, 2)),
+        "libdeflate 1": lambda d, o: bytes(deflate.zlib_compress(d, 1)),
         "zlib 1": _zlib(1, zlib.Z_DEFAULT_STRATEGY),
         "zlib 1 rle": _zlib(1, zlib.Z_RLE),
         "zlib 6 rle": _zlib(6, zlib.Z_RLE),
@@ -85,7 +89,7 @@ def measure(root: str, rounds: int = 3, indexes: tuple[int, ...] = FRAMES) -> di
             for frame in rows:
                 for o in OUTPUTS:
                     start = time.thread_time()
-                    n = len(compress(frame[o]))
+                    n = len(compress(frame[o], o))
                     cpu[name][o].append(time.thread_time() - start)
                     if r == 0:
                         size[name][o] += n

@@ -22,9 +22,9 @@ This is part of the dataset's vocabulary: the renderer encodes with it, and
 exports, loaders and verification decode with it.
 
 PNG files are written here, not by a codec library: every row gets PNG filter
-1 (Sub, in numpy) and the image is one IDAT deflated by zlib-ng
-(``outputs.deflaters``; roots written before keep libdeflate or ISA-L, which
-they were made with). Skipping libpng's adaptive per-row filter choice, most of its
+1 (Sub, in numpy) and the image is one IDAT deflated by zlib-ng, a photograph
+(:data:`PHOTO_OUTPUTS`) with run-length matches only (``outputs.deflaters``; roots
+written before keep the deflater they were made with). Skipping libpng's adaptive per-row filter choice, most of its
 cost, makes this several times faster than OpenCV's PNG writer. Any PNG reader
 decodes the files; a different deflater (or version) gives different bytes,
 so the run record names it (:func:`encoder_identity`).
@@ -55,6 +55,9 @@ LOG_DEPTH_SCALE = 5.70378  # ln(300): the log ramp covers ~3.33 m .. 1000 m
 JPEG_QUALITY = 95  # the released IDDA RGB images' quality
 JPEG_ENCODER = "jpeg-libjpeg-turbo-opencv"  # cv2.imencode: libjpeg-turbo, 4:2:0, baseline Huffman
 RGB_FORMATS = ("png", "jpg")  # file formats of the rgb output; the first is the default
+# Outputs whose PNG rows are a photograph (continuous tone after post effects: runs, few repeats), which the
+# deflater may treat apart (outputs.deflaters: run-length matches only). Chosen by the output's name.
+PHOTO_OUTPUTS = frozenset({"rgb"})
 
 def _check(name: str, array: np.ndarray, dtype, ndim: int) -> None:
     if not isinstance(array, np.ndarray):
@@ -161,7 +164,8 @@ def _sub_filtered(rows: np.ndarray, bpp: int) -> np.ndarray:
 
 def png_bytes(image: np.ndarray, name: str = "image") -> bytes:
     """Lossless, deterministic PNG bytes of an HxW (grey), HxWx3 (RGB) or HxWx4 (RGBA) image, uint8 or uint16,
-    deflated by the deflater in force (``outputs.deflaters.deflating_with``)."""
+    deflated by the deflater in force (``outputs.deflaters.deflating_with``); ``name``: the output's (one
+    of PHOTO_OUTPUTS is deflated as a photograph) or a name for messages."""
     if not isinstance(image, np.ndarray) or image.dtype not in (np.uint8, np.uint16):
         raise ValueError(f"{name}: expected a uint8 or uint16 numpy array, got {getattr(image, 'dtype', type(image))}")
     channels = 1 if image.ndim == 2 else (image.shape[2] if image.ndim == 3 else 0)
@@ -171,7 +175,7 @@ def png_bytes(image: np.ndarray, name: str = "image") -> bytes:
     depth = image.dtype.itemsize * 8
     big_endian = image.astype(">u2", copy=False) if depth == 16 else image
     rows = np.ascontiguousarray(big_endian).view(np.uint8).reshape(height, -1)
-    data = deflate_png_data(_sub_filtered(rows, channels * image.dtype.itemsize))
+    data = deflate_png_data(_sub_filtered(rows, channels * image.dtype.itemsize), name in PHOTO_OUTPUTS)
     header = struct.pack(">IIBBBBB", width, height, depth, _PNG_COLOUR_TYPE[channels], 0, 0, 0)
     return _PNG_SIGNATURE + _png_chunk(b"IHDR", header) + _png_chunk(b"IDAT", data) + _png_chunk(b"IEND", b"")
 

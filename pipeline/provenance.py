@@ -28,8 +28,8 @@ from manifests.layout import LAYOUT_KEY, NEW_ROOT_LAYOUT, held_layout, record_la
 from manifests.part_file import ManifestError, read_part_file
 from manifests.reader import done_episodes, part_summaries
 from manifests.schema import MANIFEST_DIR, NEW_RULES, PART_SCHEMA, RUN_FILE, output_columns
-from outputs.deflaters import DEFAULT_DEFLATER, deflater_named_by, deflater_of_png
-from outputs.encoding import encoder_identity
+from outputs.deflaters import DEFAULT_DEFLATER, deflater_named_by, deflater_of_files, deflaters_of_png
+from outputs.encoding import PHOTO_OUTPUTS, encoder_identity
 from outputs.table import OUTPUTS
 from pipeline.planner import scene_places, scene_split
 from pipeline.settings import CONFIG_SHAPE, FRAME_DEFINING, PlanConfig, RunConfig, recorded
@@ -155,13 +155,14 @@ def _encoder_held(storage, rgb_format: str) -> str:
     for rel in storage.list_files(MANIFEST_DIR + "/", suffix=".parquet")[:8]:
         try:
             table = read_part_file(storage, rel, PART_SCHEMA)
-            paths = [p for name in OUTPUTS for p in table.column(output_columns(name)[0]).to_pylist()[:1]
+            paths = [(name, p) for name in OUTPUTS for p in table.column(output_columns(name)[0]).to_pylist()[:1]
                      if p is not None and p.endswith(".png")]
-            found = {deflater_of_png(storage.read_bytes(p)) for p in paths[:3]} - {None}
+            found = deflater_of_files([deflaters_of_png(storage.read_bytes(p), name in PHOTO_OUTPUTS)
+                                       for name, p in paths[:3]])  # the rgb file first: it tells zlib-ng's two apart
         except (ManifestError, StorageError, OSError, ValueError):
             continue
-        if len(found) == 1:
-            return encoder_identity(rgb_format, found.pop())
+        if found is not None:
+            return encoder_identity(rgb_format, found)
     return encoder_identity(rgb_format, DEFAULT_DEFLATER)
 
 

@@ -1,4 +1,5 @@
-"""The PNG deflater: zlib-ng for new roots (issue 35); libdeflate (issue 21.11) and ISA-L kept by roots written with them."""
+"""The PNG deflater: zlib-ng for new roots, photographs by runs (issue 35); zlib-ng at level 3 for every output
+(issue 35's eighth round), libdeflate (issue 21.11) and ISA-L kept by roots written with them."""
 
 from __future__ import annotations
 
@@ -13,7 +14,8 @@ import numpy as np
 import pytest
 
 from outputs import encoding as enc
-from outputs.deflaters import DEFLATERS, deflater, deflater_named_by, deflating_with
+from outputs.deflaters import (DEFLATERS, deflater, deflater_named_by, deflater_of_files, deflaters_of_png,
+                               deflating_with)
 from manifests.reader import read_manifest
 from roots.run_file import record_bytes
 from pipeline.episode_job import run_episode
@@ -25,7 +27,8 @@ from storage import Storage
 PLAN = PlanConfig(domains="T01_CN_A,T01_HRN_A", frames_per_scenario=2, width=64, height=36, seed=5)
 ISAL_IDENTITY = f"png-sub-isal level 1, isal {metadata.version('isal')}"  # as roots written before recorded it
 LIBDEFLATE_IDENTITY = f"png-sub-libdeflate level 2, deflate {metadata.version('deflate')}"  # roots of issues 21.11-35
-OLD_IDENTITIES = {"isal": ISAL_IDENTITY, "libdeflate": LIBDEFLATE_IDENTITY}
+ZLIBNG_L3_IDENTITY = f"png-sub-zlib-ng level 3, zlib-ng {metadata.version('zlib-ng')}"  # issue 35's eighth round
+OLD_IDENTITIES = {"isal": ISAL_IDENTITY, "libdeflate": LIBDEFLATE_IDENTITY, "zlib-ng-l3": ZLIBNG_L3_IDENTITY}
 
 
 def idat(data: bytes) -> bytes:
@@ -39,35 +42,71 @@ def idat(data: bytes) -> bytes:
     return out
 
 
-def deflated_by(png: bytes) -> set[str]:
-    """The deflaters that give this PNG's zlib stream from its own rows."""
+def deflated_by(png: bytes, photo: bool = False) -> set[str]:
+    """The deflaters that give this PNG's zlib stream from its own rows (``photo``: as a photograph's)."""
     stream = idat(png)
     rows = zlib.decompress(stream)
-    return {name for name, row in DEFLATERS.items() if row.compress(rows) == stream}
+    return {name for name, row in DEFLATERS.items() if row.deflate(rows, photo) == stream}
 
 
 def test_identities_name_the_deflater_its_level_and_version():
-    assert enc.encoder_identity() == f"png-sub-zlib-ng level 3, zlib-ng {metadata.version('zlib-ng')}"
+    assert enc.encoder_identity() == f"png-sub-zlib-ng level 3, rgb run-length, zlib-ng {metadata.version('zlib-ng')}"
     assert enc.encoder_identity("png", "isal") == ISAL_IDENTITY  # what older run.json files hold, to the letter
     assert enc.encoder_identity("png", "libdeflate") == LIBDEFLATE_IDENTITY
+    assert enc.encoder_identity("png", "zlib-ng-l3") == ZLIBNG_L3_IDENTITY
     assert deflater_named_by(ISAL_IDENTITY) == "isal" and deflater_named_by(LIBDEFLATE_IDENTITY) == "libdeflate"
-    assert deflater_named_by(enc.encoder_identity()) == "zlib-ng"
+    assert deflater_named_by(enc.encoder_identity()) == "zlib-ng" and deflater_named_by(ZLIBNG_L3_IDENTITY) == "zlib-ng-l3"
     assert deflater_named_by("png-sub-isal level 1, isal 0.0.1") is None  # another version: not ours
     assert deflater_named_by("png-sub-zlib-ng level 3, zlib-ng 0.0.1") is None
-    with pytest.raises(ValueError, match="unknown PNG deflater 'zopfli'; valid PNG deflaters: zlib-ng, libdeflate, isal"):
+    assert deflater_named_by("png-sub-zlib-ng level 3, rgb run-length, zlib-ng 0.0.1") is None
+    with pytest.raises(ValueError, match="unknown PNG deflater 'zopfli'; valid PNG deflaters: zlib-ng, zlib-ng-l3, "
+                                         "libdeflate, isal"):
         deflater("zopfli")
 
 
 def test_png_files_are_deflated_by_the_deflater_in_force_in_this_thread_only():
     image = np.random.default_rng(0).integers(0, 4, (27, 48, 3), dtype=np.uint8)
     new = enc.encode_png(image)
-    assert deflated_by(new) == {"zlib-ng"}
+    assert deflated_by(new) == {"zlib-ng", "zlib-ng-l3"}  # not a photograph: both give level 3's stream
     for name in ("isal", "libdeflate"):
         with deflating_with(name):
             old = enc.encode_png(image)
             assert name in deflated_by(old)
         assert enc.encode_png(image) == new != old  # each deflater writes its own bytes for this image
         assert np.array_equal(enc.decode_png(old), image) and np.array_equal(enc.decode_png(new), image)
+
+
+def test_a_photograph_is_deflated_by_runs_and_every_other_output_at_level_3():
+    """The rgb output's rows (PHOTO_OUTPUTS, by the output's name) get run-length matches only; the
+    semantic colours, an RGB image too, and every other output get level 3; a root of the eighth round
+    (zlib-ng-l3) deflates its photographs at level 3 as well. Each file names its deflater."""
+    from zlib_ng import zlib_ng
+
+    from outputs.table import file_bytes
+
+    rng = np.random.default_rng(1)
+    photo = np.clip(rng.normal(120, 30, (36, 64, 3)) + np.arange(64)[None, :, None], 0, 255).astype(np.uint8)
+    photo[10:20, 5:40] = photo[10, 5]  # flat runs beside noise: run-length and full matching differ
+    runs, full = file_bytes("rgb", photo), file_bytes("semantic_color", photo)
+    rows = zlib.decompress(idat(runs))
+    assert zlib.decompress(idat(full)) == rows and np.array_equal(enc.decode_png(runs), photo)
+    c = zlib_ng.compressobj(3, zlib_ng.DEFLATED, 15, 8, zlib_ng.Z_RLE)
+    assert idat(runs) == c.compress(rows) + c.flush() != idat(full) == zlib_ng.compress(rows, 3)
+    assert deflated_by(runs, photo=True) == {"zlib-ng"} and deflated_by(full) == {"zlib-ng", "zlib-ng-l3"}
+    assert deflaters_of_png(runs, photo=True) == {"zlib-ng"} and deflaters_of_png(full) == {"zlib-ng", "zlib-ng-l3"}
+    with deflating_with("zlib-ng-l3"):
+        assert file_bytes("rgb", photo) == full  # the eighth round's photograph: level 3
+        assert deflated_by(full, photo=True) == {"zlib-ng-l3"}
+    assert file_bytes("rgb", photo) == runs  # the deflater in force is back to the default
+
+
+def test_the_deflater_of_a_roots_files_is_the_one_every_file_names():
+    assert deflater_of_files([{"zlib-ng-l3"}, {"zlib-ng", "zlib-ng-l3"}]) == "zlib-ng-l3"  # its photograph tells
+    assert deflater_of_files([{"zlib-ng", "zlib-ng-l3"}] * 3) == "zlib-ng"  # no photograph (a JPEG root): the default
+    assert deflater_of_files([{"isal"}, set(), {"isal"}]) == "isal"  # a damaged file says nothing
+    assert deflater_of_files([{"isal"}, {"libdeflate"}]) is None and deflater_of_files([]) is None
+    assert deflater_of_files([{"isal", "libdeflate"}]) is None  # several, none the default: no guess
+    assert deflaters_of_png(b"\x89PNG\r\n\x1a\n") == set()
 
 
 def test_zlib_ng_is_deterministic_on_real_sized_rows():
@@ -83,12 +122,16 @@ def test_zlib_ng_is_deterministic_on_real_sized_rows():
         first = deflater("zlib-ng").compress(data)
         assert all(deflater("zlib-ng").compress(bytearray(data)) == first for _ in range(3))
         assert zlib.decompress(first) == data and first == zlib_ng.compress(data, 3) != zlib_ng.compress(data, 1)
+        runs = deflater("zlib-ng").deflate(data, photo=True)
+        assert all(deflater("zlib-ng").deflate(bytearray(data), photo=True) == runs for _ in range(3))
+        assert zlib.decompress(runs) == data and runs != first
 
 
 def test_root_deflater_reads_the_record():
     assert root_deflater(None) == "zlib-ng" and root_deflater({}) == "zlib-ng"
     assert root_deflater({"encoder": ISAL_IDENTITY}) == "isal"
     assert root_deflater({"encoder": LIBDEFLATE_IDENTITY}) == "libdeflate"
+    assert root_deflater({"encoder": ZLIBNG_L3_IDENTITY}) == "zlib-ng-l3"
     assert root_deflater({"encoder": f"{ISAL_IDENTITY}; rgb jpeg-libjpeg-turbo-opencv quality 95, opencv 4"}) == "isal"
     assert root_deflater({"encoder": "png-sub-isal level 1, isal 0.0.1"}) == "zlib-ng"
 
@@ -105,7 +148,7 @@ def _old_root(root: Path, name: str = "isal") -> Storage:
     return storage
 
 
-@pytest.mark.parametrize("name", ["isal", "libdeflate"])
+@pytest.mark.parametrize("name", ["isal", "libdeflate", "zlib-ng-l3"])
 def test_an_old_root_resumes_with_its_deflater_and_a_new_root_uses_zlib_ng(tmp_path, name):
     from pipeline.episode_job import render_plan
 
@@ -132,9 +175,9 @@ def test_a_root_of_an_unknown_deflater_is_still_refused(tmp_path):
 def _pngs_by(root: Path, name: str) -> tuple[int, int]:
     """(PNG files the manifest lists, those deflated by ``name``)."""
     table = read_manifest(str(root))
-    pngs = [p for col in ("rgb_path", "semantic_color_path", "depth_raw_path", "instance_path")
+    pngs = [(p, col == "rgb_path") for col in ("rgb_path", "semantic_color_path", "depth_raw_path", "instance_path")
             for p in table.column(col).to_pylist()]
-    return len(pngs), sum(name in deflated_by((root / p).read_bytes()) for p in pngs)
+    return len(pngs), sum(name in deflated_by((root / p).read_bytes(), photo) for p, photo in pngs)
 
 
 def _isal_pngs(root: Path) -> tuple[int, int]:
@@ -142,7 +185,7 @@ def _isal_pngs(root: Path) -> tuple[int, int]:
     return _pngs_by(root, "isal")
 
 
-@pytest.mark.parametrize("name", ["isal", "libdeflate"])
+@pytest.mark.parametrize("name", ["isal", "libdeflate", "zlib-ng-l3"])
 def test_an_old_root_extended_keeps_its_deflater(tmp_path, name):
     """Issue 33: ``--extend`` rewrote run.json's encoder to libdeflate, so the new
     episodes were deflated by libdeflate beside the ISA-L ones: one root, two deflaters."""
@@ -158,7 +201,7 @@ def test_an_old_root_extended_keeps_its_deflater(tmp_path, name):
     assert _pngs_by(tmp_path / "old", name) == (24, 24)
 
 
-@pytest.mark.parametrize("name", ["isal", "libdeflate"])
+@pytest.mark.parametrize("name", ["isal", "libdeflate", "zlib-ng-l3"])
 def test_an_old_root_repaired_with_a_damaged_run_json_keeps_its_deflater(tmp_path, name):
     """A damaged (or lost) run.json is written afresh by repair: with the deflater of the
     root's own PNG files, not the default one (which would mix two deflaters)."""

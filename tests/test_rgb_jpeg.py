@@ -52,7 +52,7 @@ def test_jpeg_bytes_are_a_quality_95_jpeg_and_deterministic():
     back = enc.decode_jpeg(data)
     assert back.shape == image.shape and np.abs(back.astype(int) - image).mean() < 3.0  # lossy, but close
     assert file_bytes("rgb", image, "jpg") == data and read_output("rgb", data, "x/0000_000_T01_CN_A.jpg").shape == image.shape
-    assert file_bytes("rgb", image) == enc.encode_png(image)  # png stays the default
+    assert file_bytes("rgb", image) == enc.encode_png(image, "rgb")  # png stays the default
     with pytest.raises(ValueError, match="HxWx3"):
         enc.encode_jpeg(image[..., 0])
     with pytest.raises(ValueError, match="valid formats: png, jpg"):
