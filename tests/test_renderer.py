@@ -201,6 +201,28 @@ def test_labels_and_depth_are_what_the_colour_pass_draws_back_faces_included(ren
     assert merged["rgb"].tobytes() == two["rgb"].tobytes()
 
 
+def test_pyrender_is_imported_without_its_viewer():
+    """A fresh process that imports pyrender as the renderer does never loads pyglet's windows or GL
+    bindings (the viewer's, ~0.15 CPU-s), still renders off-screen, and says so if the viewer is asked for."""
+    import subprocess
+    import sys
+
+    probe = (
+        "import sys\n"
+        "from render_workers.render.pyrender_setup import import_pyrender\n"
+        "pr = import_pyrender()\n"
+        "assert 'pyglet.gl' not in sys.modules and 'pyglet.window' not in sys.modules, sorted(sys.modules)\n"
+        "assert pr.OffscreenRenderer is not None and pr.Scene is not None\n"
+        "try:\n"
+        "    pr.Viewer(pr.Scene())\n"
+        "except RuntimeError as exc:\n"
+        "    print(exc)\n"
+    )
+    done = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+    assert "viewer is not loaded" in done.stdout
+
+
 def test_unknown_material_raises():
     with pytest.raises(ValueError, match="valid"):
         look("chrome")

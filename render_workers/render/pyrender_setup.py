@@ -10,7 +10,9 @@ import it:
 * restores ``np.infty``, which numpy 2 removed and pyrender still uses (mesh
   bounds, shadows);
 * makes pyrender's import-time ``import pyglet`` harmless on a headless machine
-  (no shadow window; the viewer is never used).
+  (no shadow window), and leaves its interactive viewer out: a stand-in takes the
+  place of ``pyrender.viewer`` (pyglet's windowing and GL bindings, ~0.15 CPU-s
+  in every process that renders; nothing here opens a window).
 
 Rules the renderer follows (``render_workers.render.renderer``):
 
@@ -44,6 +46,7 @@ import ctypes
 import ctypes.util
 import logging
 import os
+import sys
 from types import ModuleType
 from typing import Callable
 
@@ -103,6 +106,25 @@ def _quiet_pyglet() -> None:
     pyglet.options["shadow_window"] = False
 
 
+class _NoViewer:
+    """Stands in for ``pyrender.Viewer``: the interactive viewer is not loaded (:func:`_without_viewer`)."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        raise RuntimeError("pyrender's interactive viewer is not loaded in this process "
+                           "(render_workers.render.pyrender_setup renders off-screen only)")
+
+
+def _without_viewer() -> None:
+    """pyrender's package imports its viewer (``from .viewer import Viewer``), whose pyglet window and
+    GL modules cost ~0.15 CPU-s at every worker's start; a module already in ``sys.modules`` under
+    that name is what the import takes instead."""
+    if "pyrender" in sys.modules or "pyrender.viewer" in sys.modules:
+        return  # imported already (by someone else): as it is
+    stand_in = ModuleType("pyrender.viewer", _NoViewer.__doc__)
+    stand_in.Viewer = _NoViewer
+    sys.modules["pyrender.viewer"] = stand_in
+
+
 _pyrender: ModuleType | None = None
 
 
@@ -114,6 +136,7 @@ def import_pyrender() -> ModuleType:
     platform = choose_platform()
     _patch_numpy()
     _quiet_pyglet()
+    _without_viewer()
     try:
         import pyrender
     except ImportError as exc:
