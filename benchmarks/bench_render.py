@@ -887,7 +887,59 @@ docs/bench_produce.md). A 3-round run an hour before gave 4.03 against 2.51 (1.6
 0.389; render thread 0.162 and 0.192; post effects 0.058 and 0.070; deflate 0.042 and 0.042; resolve 0.016 and
 0.019; objects table 0.009 and 0.011; the outputs' arrays 0.015 and 0.015; bytes per frame 1,261,508 and 1,177,354.
 On this host 5 frames/s is still ~1.25x away: the machine ran 93dc98a at 2.4-2.9 frames/s in these rounds, where the
-machine issue 35 was filed from ran it at 3.53-3.77; at this run's ratio that machine would give ~5.5-5.8."""
+machine issue 35 was filed from ran it at 3.53-3.77; at this run's ratio that machine would give ~5.5-5.8.
+
+### Levers measured on 2026-11-29, ninth round (the same AMD EPYC)
+
+* **Where a run's start goes now** (the benchmark's command; per-process CPU sampled every 0.1-0.2 s, Ray's
+  own logs): the driver alone until ~1.2 s (its imports, the plan, then `ray.init`), the GCS at ~1.0, the
+  raylet at ~1.45, which then waits ~0.85-1.0 s for its dashboard agent to come up (the agent and the
+  runtime-env agent import for ~1.5 CPU-s together), the two workers import Ray from ~2.4 and take their
+  tasks at ~3.1-3.3; the machine is busy from ~2.7 s on. Before that it is 34-85% busy: ~1.5 core-seconds
+  unused. `RAY_enable_metrics_collection=0` does not shorten the raylet's wait (`ray.init` 2.9, 4.1, 2.9 s
+  against 3.0, 2.0, 2.1 with it on: this host's noise). At the end, `ray.shutdown()` takes 0.35 s, 0.26 of it
+  in the driver's core worker.
+* **The fragment shader's share** (T03_CS_M, full HD, render thread CPU per frame, one run each): 0.187
+  with `FAST_MESH_FRAG`, 0.100 with a shader that writes the base colour only; without the shadow lookup
+  0.166, without the gamma power 0.176, without the specular power 0.172, without the Fresnel power 0.177.
+  Nearly half of the render thread is the shader's arithmetic, and what it computes is the look.
+* **zlib-ng's run-length matching for the rgb files (kept).** After the Sub filter a post-processed frame
+  holds runs and few repeats: `python -m benchmarks.compare_deflaters ROOT` (four full-HD frames, medians of
+  3) gives the rgb file 16.9 ms and 764 KB with `Z_RLE` against 24.9 ms and 751 KB at level 3 (levels 2 and
+  1: 18.6 ms / 817 KB, 10.3 ms / 1,216 KB); the other outputs lose a lot by runs alone (depth_raw 358 to
+  631 KB) and keep level 3. Per frame 37.6 ms and 1,283 KB against 44.4 ms and 1,271 KB (+0.9%). Run-length
+  matching searches nothing, so its bytes follow from the input alone: zlib-ng 2.3.3 built with no CPU-specific
+  code, with AVX2 and with AVX-512 gave the package's streams for 64 full-HD files, `Z_RLE` and level 3, in one
+  call and in the package's call pattern (768 streams, docs/contract.md). In production's loop
+  (`PF_FRAMES=16 python -m benchmarks.profile_frame`, T03_CS_M, 2 alternating rounds): deflate 0.0331 and
+  0.0375 CPU-s per frame against 0.0439 and 0.0410; bytes per frame 1,187,208 against 1,177,354. Roots of the
+  eighth round keep level 3 for their rgb files (`zlib-ng-l3`); their run.json tells them apart.
+* **pyrender without its viewer (kept).** `import pyrender` loads its interactive viewer, pyglet's windows
+  and GL bindings: 0.145 s of every rendering process's start (`python -X importtime`). A stand-in module
+  takes its place (`pyrender_setup`); its `Viewer` raises a clear error.
+* **Not kept**:
+  * Building the run's worlds in the driver while Ray starts (a thread, into the world cache the workers
+    read): 4 alternating runs of 20 frames per scenario, first frames at 6.13, 6.19, 5.68, 6.46 s against
+    5.77, 5.55, 5.53, 6.75, and 3.07, 2.96, 2.98, 2.98 frames/s against 3.09, 3.05, 3.11, 2.90. The thread's
+    imports and builds (2.5-3.9 s) compete with Ray's processes and `ray.init` itself; the idle ~1.5
+    core-seconds are spread too thin to hold them.
+  * Cheaper shader arithmetic with the same look (Fresnel's fifth power by products, one distance for the
+    view vector and the shadow fade, the normal not normalised): 0.185 and 0.182 against 0.180 and 0.189
+    CPU-s per frame: LLVM had already done it.
+  * Python's cyclic garbage collection in steady state: 20 young collections and 2 of the middle generation
+    in 16 full-HD frames, 5 ms in all (the scene is frozen).
+  * Label decoding (`decode_labels`, 4.1 ms a frame) and the post effects' parts (motion blur 24.5 ms: four
+    warps 8.2, the weight 3.2, the blend 2.7; anti-aliasing 16.3: the edges 5.1, the blur 4.6): nothing left to
+    take without changing their arithmetic.
+
+After these (main at 01f1c07), `BENCH=produce BENCH_BASELINE=93dc98a BENCH_ROUNDS=3 make bench`: 3.62 frames/s and
+0.510 machine CPU-s per frame against 93dc98a's 2.57 and 0.735 (1.41x and -31%; rounds 4.13, 3.60, 3.62 against
+2.59, 2.57, 2.36; load average 2.3-4.5; docs/bench_produce.md), an hour in which this host ran everything slower
+than in the eighth round's run (4.01 against 2.58). Against the eighth round's main (93e78c8), the same command, 6
+alternating rounds: 4.22, 3.64, 3.92, 4.27, 4.13, 3.96 frames/s (median 4.05) against 3.71, 4.05, 3.72, 4.14, 4.14,
+3.98 (4.02), and 0.466 against 0.481 machine CPU-s per frame (medians, -3%). On this host 5 frames/s stays
+~1.25x away; the run's start (first frames at 6-8 s) and ~0.38 machine CPU-s per steady frame, half of its render
+thread the shader's arithmetic, are what is left."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
