@@ -165,11 +165,15 @@ def check_cluster(address: str) -> bool:
 # group that the raylet kills with it. Workers run at the driver's priority:
 # Ray's default (nice 15) is for shared machines, where its daemons must stay
 # responsive; on a cluster that exists for this run, it only lets every daemon
-# wake-up preempt rendering (the Ray overhead in docs/bench_produce.md).
+# wake-up preempt rendering (the Ray overhead in docs/bench_produce.md). No task events: they
+# feed Ray's dashboard and state API, which a private cluster without a dashboard never serves,
+# and the driver's core worker flushed them at shutdown (`ray.shutdown()` 0.40 s with them, 0.15-0.17
+# without; issue 35).
 _LOCAL_CLUSTER_ENV = {
     "RAY_enable_pipe_based_agent_to_parent_health_check": "true",
     "RAY_process_group_cleanup_enabled": "true",
     "RAY_worker_niceness": "0",
+    "RAY_task_events_report_interval_ms": "0",
 }
 _RAY_INIT_COMMON = dict(log_to_driver=False, logging_level=logging.WARNING)
 
