@@ -917,6 +917,11 @@ machine issue 35 was filed from ran it at 3.53-3.77; at this run's ratio that ma
 * **pyrender without its viewer (kept).** `import pyrender` loads its interactive viewer, pyglet's windows
   and GL bindings: 0.145 s of every rendering process's start (`python -X importtime`). A stand-in module
   takes its place (`pyrender_setup`); its `Viewer` raises a clear error.
+* **No task events on the private cluster (kept).** Ray's task events feed its dashboard and state API,
+  which the private cluster `produce` starts for itself (no dashboard) never serves, and the driver's core
+  worker flushed them at shutdown: `ray.shutdown()` took 0.40 s with them, 0.15-0.17 without (2 runs
+  each). Set for that cluster only (`RAY_task_events_report_interval_ms=0`, unless the user set it); a
+  cluster at `RAY_ADDRESS` is left as its owner made it.
 * **Not kept**:
   * Building the run's worlds in the driver while Ray starts (a thread, into the world cache the workers
     read): 4 alternating runs of 20 frames per scenario, first frames at 6.13, 6.19, 5.68, 6.46 s against
@@ -937,7 +942,8 @@ After these (main at 01f1c07), `BENCH=produce BENCH_BASELINE=93dc98a BENCH_ROUND
 2.59, 2.57, 2.36; load average 2.3-4.5; docs/bench_produce.md), an hour in which this host ran everything slower
 than in the eighth round's run (4.01 against 2.58). Against the eighth round's main (93e78c8), the same command, 6
 alternating rounds: 4.22, 3.64, 3.92, 4.27, 4.13, 3.96 frames/s (median 4.05) against 3.71, 4.05, 3.72, 4.14, 4.14,
-3.98 (4.02), and 0.466 against 0.481 machine CPU-s per frame (medians, -3%). On this host 5 frames/s stays
+3.98 (4.02), and 0.466 against 0.481 machine CPU-s per frame (medians, -3%); with the task events off too (main at
+76c1888), 3 more: 4.16, 4.14, 4.09 against 4.13, 3.96, 4.07 frames/s, 0.469 against 0.476 CPU-s per frame. On this host 5 frames/s stays
 ~1.25x away; the run's start (first frames at 6-8 s) and ~0.38 machine CPU-s per steady frame, half of its render
 thread the shader's arithmetic, are what is left."""
 
