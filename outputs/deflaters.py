@@ -2,11 +2,14 @@
 
 New roots deflate with zlib-ng (the ``zlib-ng`` package bundles it) at
 :data:`ZLIBNG_LEVEL`, and a photograph (the ``rgb`` output,
-``outputs.encoding.PHOTO_OUTPUTS``) with run-length matches only (``Z_RLE``): after the Sub filter a
-rendered, post-processed frame holds few repeats but runs, so the full match search of level 3 made its
-file 1.7% smaller for 35% more CPU (23.4 against 15.3 ms per full-HD frame, 751 against 764 KB). One frame is one sequence of bytes however often,
-wherever and in whichever process it is rendered, for one version of the
-package, because nothing but the input chooses a match: zlib-ng (2.2 on) hashes
+``outputs.encoding.PHOTO_OUTPUTS``) with run-length matches only (``Z_RLE``):
+after the Sub filter a rendered, post-processed frame holds few repeats but
+runs, so level 3's full match search made its file 1.7% smaller for 35% more
+CPU (751 against 764 KB, 23.4 against 15.3 ms per full-HD frame).
+
+One frame is one sequence of bytes however often, wherever and in whichever
+process it is rendered, for one version of the package, because nothing but
+the input chooses a match: zlib-ng (2.2 on) hashes
 with one function on every CPU (the SSE4.2 and ARM CRC-32 hashes were removed),
 the functions it picks by CPU for deflate (``compare256``, ``longest_match``,
 ``slide_hash``, ``adler32``) return the same values on every path, only faster,
@@ -18,9 +21,10 @@ libdeflate's level 2 (1,271 against 1,266 KB per full-HD frame) for 46 against
 log, the two semantic images), zlib-ng ~2.
 
 Roots written before keep their deflater (their ``run.json`` names it, see
-``outputs.encoding.encoder_identity``): zlib-ng level 3 for every output (issue 35's
-eighth round), libdeflate level 2 (issue 21.11 to 35) or ISA-L level 1 (before). ISA-L is fast but gave two different byte streams
-for the same input in two worker processes (issue 21.11: same pixels, same
+``outputs.encoding.encoder_identity``): zlib-ng level 3 for every output
+(issue 35's eighth round), libdeflate level 2 (issue 21.11 to 35) or ISA-L
+level 1 (before). ISA-L is fast but gave two different byte streams for the
+same input in two worker processes (issue 21.11: same pixels, same
 filtered rows, one match found in one process and not in the other), which
 breaks resume and verify, since a re-rendered frame must equal its files; so
 resuming, extending and repairing an old root mix nothing. The deflater in force

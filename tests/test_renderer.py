@@ -212,6 +212,7 @@ def test_pyrender_is_imported_without_its_viewer():
         "from render_workers.render.pyrender_setup import import_pyrender\n"
         "pr = import_pyrender()\n"
         "assert 'pyglet.gl' not in sys.modules and 'pyglet.window' not in sys.modules, sorted(sys.modules)\n"
+        "assert 'pyglet' not in sys.modules\n"
         "assert pr.OffscreenRenderer is not None and pr.Scene is not None\n"
         "try:\n"
         "    pr.Viewer(pr.Scene())\n"

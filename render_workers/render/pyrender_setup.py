@@ -9,10 +9,10 @@ import it:
   once, at its own import, so the choice cannot change later in a process;
 * restores ``np.infty``, which numpy 2 removed and pyrender still uses (mesh
   bounds, shadows);
-* makes pyrender's import-time ``import pyglet`` harmless on a headless machine
-  (no shadow window), and leaves its interactive viewer out: a stand-in takes the
-  place of ``pyrender.viewer`` (pyglet's windowing and GL bindings, ~0.15 CPU-s
-  in every process that renders; nothing here opens a window).
+* leaves pyrender's interactive viewer out: a stand-in takes the place of
+  ``pyrender.viewer``, so pyglet (its windowing and GL bindings, ~0.15 CPU-s in
+  every process that renders, and a shadow window that would try to open an X
+  display) is never imported; nothing here opens a window.
 
 Rules the renderer follows (``render_workers.render.renderer``):
 
@@ -96,16 +96,6 @@ def _patch_numpy() -> None:
         np.infty = np.inf  # removed in numpy 2, still used by pyrender 0.1.45
 
 
-def _quiet_pyglet() -> None:
-    try:
-        import pyglet
-    except ImportError:
-        return  # pyrender will say so when it imports pyglet itself
-    # pyrender's viewer sets this too, but only after pyglet has been imported;
-    # a shadow window would try to open an X display.
-    pyglet.options["shadow_window"] = False
-
-
 class _NoViewer:
     """Stands in for ``pyrender.Viewer``: the interactive viewer is not loaded (:func:`_without_viewer`)."""
 
@@ -135,7 +125,6 @@ def import_pyrender() -> ModuleType:
         return _pyrender
     platform = choose_platform()
     _patch_numpy()
-    _quiet_pyglet()
     _without_viewer()
     try:
         import pyrender
