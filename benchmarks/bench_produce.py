@@ -90,6 +90,7 @@ E2E_FRAMES, E2E_WIDTH, E2E_HEIGHT = 60, 1920, 1080
 E2E_ARGS = ["--domains", E2E_DOMAINS, "--frames-per-scenario", str(E2E_FRAMES),
             "--width", str(E2E_WIDTH), "--height", str(E2E_HEIGHT)]
 E2E_COMMAND = "idda produce " + " ".join(E2E_ARGS)
+LONG_FRAMES = 300  # per scenario in one more after run: a longer run, where the start weighs less
 STAGES = ("world", "populate", "load", "scene_update", "color_pass", "class_pass", "resolve", "post_fx", "outputs",
           "sink", "sink_wait")
 
@@ -107,17 +108,34 @@ def machine_busy_s() -> float | None:
     return (user + nice + system + irq + softirq) / os.sysconf("SC_CLK_TCK")
 
 
-def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...] = ()) -> dict:
+def frame_timeline(root: Path, since: float) -> dict:
+    """When a run's frames were stored: the rgb files' modification times in seconds after ``since``
+    (the command's start, epoch seconds), sorted; the first and the last; and the steady rate, the
+    frames between the 10% and the 90% marks over the seconds between them (both workers rendering,
+    start and tail left out). Empty where the root holds no rgb files."""
+    times = sorted(p.stat().st_mtime - since for p in root.rglob("*")
+                   if p.suffix in (".png", ".jpg") and "rgb" in p.relative_to(root).parts[:-1])
+    if not times:
+        return {"times_s": [], "first_s": None, "last_s": None, "steady_fps": None}
+    lo, hi = len(times) // 10, len(times) - 1 - len(times) // 10
+    steady = (hi - lo) / (times[hi] - times[lo]) if hi > lo and times[hi] > times[lo] else None
+    return {"times_s": [round(t, 3) for t in times], "first_s": times[0], "last_s": times[-1], "steady_fps": steady}
+
+
+def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...] = (),
+                frames_per_scenario: int = E2E_FRAMES) -> dict:
     """One run of the user's command; the rate it reports, its wall time, the machine's busy CPU
-    seconds per frame and per-stage s/frame."""
+    seconds per frame, per-stage s/frame and when its frames were stored (:func:`frame_timeline`)."""
     from benchmarks.baseline import tree_env
 
     cwd = tree if tree is not None else Path(__file__).resolve().parent.parent
     env = tree_env(tree) if tree is not None else dict(os.environ)
     env["IDDA_WORLD_CACHE"] = cache
     idda = Path(sys.executable).with_name("idda")
-    start, busy = time.perf_counter(), machine_busy_s()
-    result = subprocess.run([str(idda), "produce", *E2E_ARGS, *extra, "--out", str(out)], cwd=cwd, env=env,
+    args = [*E2E_ARGS, *extra]
+    args[args.index("--frames-per-scenario") + 1] = str(frames_per_scenario)
+    since, start, busy = time.time(), time.perf_counter(), machine_busy_s()
+    result = subprocess.run([str(idda), "produce", *args, "--out", str(out)], cwd=cwd, env=env,
                             capture_output=True, text=True, check=False)
     wall, busy = time.perf_counter() - start, (None if busy is None else machine_busy_s() - busy)
     if result.returncode != 0:
@@ -133,7 +151,7 @@ def _end_to_end(tree: Path | None, out: Path, cache: str, extra: tuple[str, ...]
             totals[stage] = totals.get(stage, 0.0) + seconds
     return {"reported_fps": reported, "command_wall_s": wall, "frames": frames, "load_average": os.getloadavg()[0],
             "machine_cpu_s_per_frame": None if busy is None else busy / frames,
-            "stage_s_per_frame": {k: v / frames for k, v in totals.items()}}
+            "stage_s_per_frame": {k: v / frames for k, v in totals.items()}, "timeline": frame_timeline(out, since)}
 
 
 def end_to_end() -> dict:
@@ -151,8 +169,10 @@ def end_to_end() -> dict:
         warm = _end_to_end(None, Path(tmp) / "warm", str(cold))  # the last after run filled this cache
         six = _end_to_end(None, Path(tmp) / "six", str(cold), ("--outputs", ",".join(SEED_OUTPUTS)))
         jpg = _end_to_end(None, Path(tmp) / "jpg", str(cold), ("--rgb-format", "jpg"))
+        long = _end_to_end(None, Path(tmp) / "long", str(Path(tmp) / "worlds_long"), frames_per_scenario=LONG_FRAMES)
     return {"baseline": ref, "before_missing": reason, "before": before, "after": after, "after_warm": warm,
-            "after_six_warm": six, "after_jpg_warm": jpg, "command": E2E_COMMAND, "rounds": rounds()}
+            "after_six_warm": six, "after_jpg_warm": jpg, "after_long": long, "long_frames_per_scenario": LONG_FRAMES,
+            "command": E2E_COMMAND, "rounds": rounds()}
 
 
 # What Ray sets in a worker that runs a num_cpus=1 task (OpenBLAS and OpenMP read it); the plain
@@ -213,6 +233,7 @@ def main(out_dir: str = "docs", repeats: int = 5) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench_produce.json").write_text(json.dumps(result, indent=2) + "\n")
     (out / "bench_produce.md").write_text(_markdown(result, med))
+    plot_timelines(e2e, out / "bench_produce.png")
     return result
 
 
@@ -309,7 +330,68 @@ def _markdown(result: dict, med: dict) -> str:
         f"Load average (1 min) after each run: {', '.join(f'{x:.1f}' for x in loads)}.",
         "",
     ]
-    return "\n".join(lines + _overhead_section(result, med))
+    return "\n".join(lines + _timeline_section(e2e) + _overhead_section(result, med))
+
+
+def _timeline_median(runs: list[dict], key: str) -> str:
+    values = [r["timeline"][key] for r in runs if r.get("timeline", {}).get(key) is not None]
+    return f"{statistics.median(values):.2f}" if values else "-"
+
+
+def _timeline_section(e2e: dict) -> list[str]:
+    """Start, steady rate and tail of the runs above (their rgb files' times), and the long run."""
+    long = e2e.get("after_long")
+    if long is None or not any(r.get("timeline") for r in e2e["after"]):
+        return []  # a record from before the timelines
+    rows = [("before", e2e["before"]), ("after", e2e["after"]), ("after, worlds cached", [e2e["after_warm"]]),
+            (f"after, {2 * e2e['long_frames_per_scenario']} frames (one run)", [long])]
+    lines = [
+        "## Where a run's time goes: start, steady rate, tail",
+        "",
+        "From the same runs: when the first rgb file was stored (seconds after the command started), the",
+        "rate between the 10% and the 90% marks of the frames (both workers rendering: no start, no tail), and",
+        "when the last one was stored; medians. One more after run renders "
+        f"{e2e['long_frames_per_scenario']} frames per scenario (`--frames-per-scenario "
+        f"{e2e['long_frames_per_scenario']}`, empty world cache), where the start weighs less.",
+        "",
+        "| variant | first frame s | steady frames/s | last frame s | command wall s | reported frames/s |",
+        "|---|---:|---:|---:|---:|---:|",
+    ]
+    for name, runs in rows:
+        if runs:
+            lines.append(f"| {name} | {_timeline_median(runs, 'first_s')} | {_timeline_median(runs, 'steady_fps')} | "
+                         f"{_timeline_median(runs, 'last_s')} | {_median(runs, 'command_wall_s'):.1f} | "
+                         f"{_median(runs, 'reported_fps'):.2f} |")
+    lines += ["", "![frames stored over time, before and after](bench_produce.png)", ""]
+    return lines
+
+
+def plot_timelines(e2e: dict, path: Path) -> None:
+    """Frames stored over time: each before and after run of the 120-frame command, and the long run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4))
+    for runs, colour, label in ((e2e["before"], "0.55", f"before ({e2e['baseline']})"), (e2e["after"], "C0", "after")):
+        for i, run in enumerate(runs):
+            times = run.get("timeline", {}).get("times_s") or []
+            left.plot(times, range(1, len(times) + 1), color=colour, lw=1.2, label=label if i == 0 else None)
+    left.set(title=f"{E2E_COMMAND.split(' --width')[0]}", xlabel="seconds after the command started",
+             ylabel="frames stored")
+    left.title.set_fontsize(8)
+    times = (e2e.get("after_long") or {}).get("timeline", {}).get("times_s") or []
+    right.plot(times, range(1, len(times) + 1), color="C0", lw=1.2, label="after")
+    if times:
+        right.plot([0, times[-1]], [0, 5 * times[-1]], "k--", lw=0.8, label="5 frames/s from the command's start")
+    right.set(title=f"{2 * e2e.get('long_frames_per_scenario', 0)} frames", xlabel="seconds after the command started")
+    for ax in (left, right):
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8, loc="upper left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
 
 
 def _overhead_section(result: dict, med: dict) -> list[str]:
