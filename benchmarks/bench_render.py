@@ -945,7 +945,51 @@ alternating rounds: 4.22, 3.64, 3.92, 4.27, 4.13, 3.96 frames/s (median 4.05) ag
 3.98 (4.02), and 0.466 against 0.481 machine CPU-s per frame (medians, -3%); with the task events off too (main at
 76c1888), 3 more: 4.16, 4.14, 4.09 against 4.13, 3.96, 4.07 frames/s, 0.469 against 0.476 CPU-s per frame. On this host 5 frames/s stays
 ~1.25x away; the run's start (first frames at 6-8 s) and ~0.38 machine CPU-s per steady frame, half of its render
-thread the shader's arithmetic, are what is left."""
+thread the shader's arithmetic, are what is left.
+
+### Levers measured on 2026-11-30, tenth round (the same AMD EPYC)
+
+* **Where a 120-frame run's time goes** (`BENCH=produce make bench` now records when each rgb file was
+  stored: docs/bench_produce.md, "start, steady rate, tail", and its picture). In a quiet hour the first
+  frame is stored at 6.2 s, then both workers store 5.95 frames/s until the last one at 26.4 s; the command
+  ends 0.45 s later (4.59 frames/s reported). Sampled in one run (/proc, 10 s once both render): 60 frames
+  at 0.329 CPU-s each in the two workers, which had 19.7 of the window's 20 core-seconds. So the frames run
+  at ~6 a second and the start costs ~6 s of the ~27: 5 frames/s over 120 frames needs the first frame by
+  ~4 s at today's steady rate. A 600-frame run gives 5.24 frames/s (one run).
+* **What the start is made of** (a worker's steps in one process, T03_CS_M, CPU-s, user + system, and
+  minor page faults): our imports 0.70 + 0.20 (24k faults, mostly mapping the libraries), the episode's load
+  (world build, traffic, scene) 1.37-1.53 + 0.15-0.21 (33k), the first frame 0.56-0.79 + 0.07-0.42 (29-37k),
+  each later frame 0.23 + 0.01 (no files written in this probe). The first frame's extra work: pyrender's
+  upload of ~840 primitives (~0.15 s), its textures, llvmpipe's shader variants (Mesa's disk cache keeps
+  them: 0.35 s for the first frame's GL passes with it, 0.69 without) and the first touch of ~150 MB of
+  buffers. Ray's own processes take ~2 CPU-s and the workers' import of Ray ~0.7 each, as measured before.
+* **Two workers do not slow each other's frames** (`PF_FRAMES=16 python -m benchmarks.profile_frame` alone
+  and two at once, T01_CN_A and T03_CS_M): process CPU per frame 0.326 and 0.337 alone, 0.318 and 0.345 side by
+  side; every stage within ~3%.
+* **Not kept**:
+  * Shadow casters culled to the light-space footprint of what the camera can see within `SHADOW_FAR_M` (its
+    view pyramid to 150 m inside the light box, exact: the same rgb bytes in 16 frames): 113 casters a frame
+    against 121.5 (medians), render thread 0.189 against 0.176 CPU-s per frame (one run each): the light box
+    already fits them.
+  * Back-face culling in the shadow pass: render thread 0.1744, 0.1731, 0.1724 against 0.1773, 0.1782, 0.1768
+    CPU-s per T03_CS_M frame (-2%), but 6,490 pixels of 8 frames change (up to 28 levels: the shadows of
+    open panels, such as a railing's glass, drawn from one side only).
+  * Python's collector paused while an episode loads: 0.04 s less collecting per worker; CPU to the first
+    frame 2.48, 2.60, 2.65 s against 2.71, 2.57, 2.66.
+  * glibc's malloc on transparent huge pages (`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`): 7,859 and ~740 page
+    faults for the load and the first frame against ~33,000 and ~35,000, but 0.35-0.39 and 0.71-0.73 s of
+    system CPU against 0.15-0.18 and 0.07-0.42.
+  * The slow colour-pass draws of an episode's third and fourth frames (0.11-0.13 s for one draw) are
+    llvmpipe rasterising its bin scene when the scene fills up, not compiles: the same with Mesa's shader
+    cache off.
+
+After these (main at 9bc0284, no change to what is rendered), `BENCH=produce BENCH_BASELINE=93dc98a
+BENCH_ROUNDS=3 make bench` in a quiet hour (load average 0.2 before it, 2.6-5.1 after each run, the runs' own): **4.59 frames/s and 0.407 machine CPU-s per
+frame against 93dc98a's 2.92 and 0.644 (1.57x and -37%)**; rounds 4.48, 4.73, 4.59 against 2.92, 2.75, 3.06; the
+paper's six outputs with worlds cached 5.01, the rgb as JPEG 4.92. 5 frames/s for the 120-frame command is still
+~1.09x away on this host: the start (~10 CPU-s: Ray's processes ~2, each worker's import of Ray ~0.7, our imports
+~0.9, its world ~0.6-0.8, its load ~0.6 and its first frame ~0.6 more than later ones) against ~0.33 CPU-s a
+steady frame."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
