@@ -288,34 +288,133 @@ def start_local_cluster(ray, cpus: int | None = None) -> None:
 @contextmanager
 def _lean_head(ray) -> Iterator[None]:
     """While the private local cluster starts: a head of GCS and raylet, without the API server,
-    the autoscaler monitor and the log monitor.
+    the autoscaler monitor and the log monitor, with a stand-in for the dashboard agent, and
+    ``ray.init`` back as soon as its raylet has registered.
 
     ``include_dashboard=False`` still starts the API server, a Python process that loads Ray's
     usage-stats module, and ``ray.init`` polls for its address before it returns; the monitors
     do nothing on a private one-node run whose driver does not print worker logs (see
     :func:`_stop_idle_daemons`). On 2 cores the three cost ~1.4 CPU-s of the start-up, and
-    ``ray.init`` took ~0.7-1.5 s longer with them (docs/bench_render.md, fourth round). Reaches into Ray's
-    node and parameter classes; where those are missing (another Ray version), the head starts
-    as Ray starts it. Only a cluster this process starts for itself: attaching to a cluster
-    leaves its head as its owner made it.
+    ``ray.init`` took ~0.7-1.5 s longer with them (docs/bench_render.md, fourth round). The
+    dashboard agent (see :func:`_agent_stand_in`) and the node wait (see
+    :func:`_registered_node`): the eleventh round. Reaches into Ray's node, parameter and
+    services modules; where those are missing (another Ray version), the head starts as Ray
+    starts it. Only a cluster this process starts for itself: attaching to a cluster leaves its
+    head as its owner made it.
     """
     try:
         node_class, params_class = ray._private.node.Node, ray._private.parameter.RayParams
-        start_api_server, params_init = node_class.start_api_server, params_class.__init__
+        services, utils = ray._private.services, ray._private.utils
+        patches = [(node_class, "start_api_server", lambda self, **_: None)]
+        params_init = params_class.__init__
+
+        def lean_params(self, *args, **kwargs) -> None:
+            params_init(self, *args, **kwargs)
+            self.no_monitor, self.include_log_monitor = True, False
+
+        patches.append((params_class, "__init__", lean_params))
+        node_wait = _registered_node(ray._private.state.GlobalState, services._get_gcs_client_options,
+                                     services.get_node)
+        patches.append((services, "get_node", node_wait))
+        if _pipe_health_check():
+            ports = [getattr(ray._raylet, name) for name in _AGENT_PORTS]
+            stand_in = _agent_stand_in(services.start_ray_process, ray._private.ray_constants.PROCESS_TYPE_RAYLET,
+                                       ray._raylet.persist_port, ports)
+            patches.append((services, "start_ray_process", stand_in))
+            # what it answers only chose the real agent's mode (and imports aiohttp, ~0.3 CPU-s)
+            patches.append((utils, "get_dashboard_dependency_error", lambda: None))
+        saved = [(owner, name, getattr(owner, name)) for owner, name, _ in patches]
     except AttributeError:
         yield
         return
-
-    def lean_params(self, *args, **kwargs) -> None:
-        params_init(self, *args, **kwargs)
-        self.no_monitor, self.include_log_monitor = True, False
-
-    node_class.start_api_server = lambda self, **_: None
-    params_class.__init__ = lean_params
+    for owner, name, value in patches:
+        setattr(owner, name, value)
     try:
         yield
     finally:
-        node_class.start_api_server, params_class.__init__ = start_api_server, params_init
+        for owner, name, value in saved:
+            setattr(owner, name, value)
+
+
+_NODE_POLL_S = 0.02
+_NODE_WAIT_S = 30.0  # Ray's own wait for a new raylet (raylet_start_wait_time_s)
+
+
+def _registered_node(global_state, gcs_options, get_node):
+    """Ray's ``services.get_node``, called once this node's raylet has registered with the GCS.
+
+    ``ray.init`` asks for the new node's record 0.1 s after starting its raylet, and the GCS's
+    accessor, finding none yet, sleeps a whole second before asking again: ~0.4-0.6 s of every
+    start on 2 cores went by with the raylet up and nothing waiting on it but that sleep. The
+    node table is read here every 20 ms instead (one GCS call each), up to Ray's own 30 s; then
+    Ray's call, which finds the node at once.
+    """
+
+    def get_registered_node(gcs_address, node_id):
+        import time
+
+        state = global_state()
+        state._initialize_global_state(gcs_options(gcs_address))
+        try:
+            deadline = time.monotonic() + _NODE_WAIT_S
+            while time.monotonic() < deadline:
+                if any(node.get("NodeID") == node_id and node.get("Alive") for node in state.node_table()):
+                    break
+                time.sleep(_NODE_POLL_S)
+        finally:
+            state.disconnect()
+        return get_node(gcs_address, node_id)
+
+    return get_registered_node
+
+
+_AGENT_PORTS = ("METRICS_AGENT_PORT_NAME", "METRICS_EXPORT_PORT_NAME", "DASHBOARD_AGENT_LISTEN_PORT_NAME")
+# The stand-in: blocks on the pipe its raylet holds as its stdin, and ends when the raylet does.
+AGENT_STAND_IN = "import sys; sys.stdin.buffer.read()"
+
+
+def _pipe_health_check() -> bool:
+    return os.environ.get("RAY_enable_pipe_based_agent_to_parent_health_check", "").lower() in ("1", "true")
+
+
+def _agent_stand_in(start_ray_process, raylet_type: str, persist_port, ports):
+    """Ray's ``services.start_ray_process``, starting the raylet with a stand-in for its dashboard
+    agent: a bare Python that reads the pipe the raylet holds as its stdin and ends when the
+    raylet does (Ray's pipe-based health check, which the private cluster turns on), after the
+    agent's three ports are written as a minimal agent writes them (-1: not served).
+
+    The agent serves metrics, logs, job submission and node reports to a dashboard; the private
+    cluster ``produce`` starts for itself has no dashboard and scrapes no metrics. It imported for
+    ~1 CPU-s (aiohttp, gRPC, OpenTelemetry, its seven modules) while the raylet waited ~0.5-0.8 s
+    for its ports before registering, and both workers' imports of Ray competed with it. The
+    runtime-env agent stays: the raylet asks it for every worker's environment.
+    """
+
+    def start(command, process_type, *args, **kwargs):
+        if process_type == raylet_type:
+            command = [_stand_in_argument(argument, persist_port, ports) for argument in command]
+        return start_ray_process(command, process_type, *args, **kwargs)
+
+    return start
+
+
+def _stand_in_argument(argument: str, persist_port, ports) -> str:
+    """One argument of the raylet's command: the stand-in's command in place of the dashboard
+    agent's (whose ports are written first), any other as it is."""
+    import shlex
+    import subprocess
+    import sys
+
+    flag = "--dashboard_agent_command="
+    if not argument.startswith(flag):
+        return argument
+    options = dict(word[2:].split("=", 1) for word in shlex.split(argument[len(flag):])
+                   if word.startswith("--") and "=" in word)
+    if "session-dir" not in options or "node-id" not in options:
+        return argument  # another Ray's agent: left as it is
+    for port in ports:
+        persist_port(options["session-dir"], options["node-id"], port, -1)
+    return flag + subprocess.list2cmdline([sys.executable, "-I", "-S", "-c", AGENT_STAND_IN])
 
 
 def _stop_idle_daemons(ray) -> None:

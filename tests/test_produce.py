@@ -330,6 +330,126 @@ def test_local_cluster_workers_run_at_the_drivers_priority(monkeypatch):
     assert ray._private.parameter.RayParams.__init__ is params_init
 
 
+def test_local_cluster_runs_a_stand_in_for_the_dashboard_agent(monkeypatch):
+    """The private cluster's raylet starts a stand-in for its dashboard agent (no dashboard reads
+    it; the real one imported for ~1 CPU-s while the raylet waited for its ports): the agent's
+    ports are written as a minimal agent writes them, tasks run, and the stand-in ends with its
+    raylet; Ray's functions are as they were afterwards."""
+    import psutil
+    import ray
+    import ray._private.services as services
+    import ray._private.utils as utils
+    from ray._raylet import get_port_filename
+
+    from pipeline import cluster
+
+    if ray.is_initialized():
+        ray.shutdown()
+    monkeypatch.delenv("RAY_enable_pipe_based_agent_to_parent_health_check", raising=False)
+    before = (services.start_ray_process, services.get_node, utils.get_dashboard_dependency_error)
+    cluster.start_local_cluster(ray, 1)
+    try:
+        node = ray._private.worker._global_node
+        raylet = psutil.Process(node.all_processes["raylet"][0].process.pid)
+        children = raylet.children()
+        commands = [" ".join(child.cmdline()) for child in children]
+        stand_ins = [child for child, command in zip(children, commands) if cluster.AGENT_STAND_IN in command]
+        ports = [(Path(node.get_session_dir_path()) / get_port_filename(node.node_id, getattr(ray._raylet, name))
+                  ).read_text() for name in cluster._AGENT_PORTS]
+        answer = ray.get(ray.remote(num_cpus=1)(lambda: os.getpid()).remote())
+    finally:
+        ray.shutdown()
+    assert len(stand_ins) == 1 and not any("dashboard/agent.py" in command for command in commands)
+    assert ports == ["-1"] * 3 and answer != os.getpid()
+    _, alive = psutil.wait_procs(stand_ins, timeout=30)
+    assert alive == []  # it read its raylet's end of the pipe and ended
+    assert (services.start_ray_process, services.get_node, utils.get_dashboard_dependency_error) == before
+
+
+def test_the_stand_in_replaces_only_the_dashboard_agents_command(tmp_path):
+    """The raylet's other arguments, and an agent command without the session dir and node id it
+    needs (another Ray's), are left as they are; the stand-in's ports are Ray's own files."""
+    import subprocess
+    import sys
+
+    import ray._raylet
+    from ray._raylet import get_port_filename, persist_port
+
+    from pipeline import cluster
+
+    ports = [getattr(ray._raylet, name) for name in cluster._AGENT_PORTS]
+    node_id = "ab" * 28
+    agent = subprocess.list2cmdline(["python", "agent.py", f"--node-id={node_id}", f"--session-dir={tmp_path}",
+                                     "--grpc-port=0", "--head"])
+    stand_in = cluster._stand_in_argument(f"--dashboard_agent_command={agent}", persist_port, ports)
+    assert stand_in == "--dashboard_agent_command=" + subprocess.list2cmdline(
+        [sys.executable, "-I", "-S", "-c", cluster.AGENT_STAND_IN])
+    assert [(tmp_path / get_port_filename(node_id, port)).read_text() for port in ports] == ["-1"] * 3
+    assert cluster._stand_in_argument("--node_manager_port=0", persist_port, ports) == "--node_manager_port=0"
+    other = "--dashboard_agent_command=" + subprocess.list2cmdline(["python", "agent.py", "--grpc-port=0"])
+    assert cluster._stand_in_argument(other, persist_port, ports) == other
+
+
+def test_without_the_pipe_health_check_the_dashboard_agent_starts_as_ray_starts_it(monkeypatch):
+    """The stand-in ends only through the pipe its raylet holds; where the user turned that check
+    off, the raylet's agent is Ray's own."""
+    import ray
+    import ray._private.services as services
+
+    from pipeline import cluster
+
+    start = services.start_ray_process
+    for value, replaced in (("false", False), ("0", False), ("true", True), ("1", True)):
+        monkeypatch.setenv("RAY_enable_pipe_based_agent_to_parent_health_check", value)
+        with cluster._lean_head(ray):
+            assert (services.start_ray_process is not start) is replaced, value
+        assert services.start_ray_process is start
+
+
+def test_the_node_wait_reads_the_node_table_until_this_raylet_is_alive_in_it(monkeypatch):
+    """``ray.init``'s wait for its new raylet: Ray's accessor slept a whole second after its first
+    look; the node table is read again until this node is there and alive, then Ray's call
+    (which finds it at once) answers; past Ray's own deadline, Ray's call says what is wrong."""
+    from pipeline import cluster
+
+    calls = []
+
+    def state_class(tables):
+        class State:
+            def _initialize_global_state(self, options):
+                calls.append(("options", options))
+
+            def node_table(self):
+                calls.append("table")
+                return tables.pop(0) if len(tables) > 1 else tables[0]
+
+            def disconnect(self):
+                calls.append("disconnect")
+
+        return State
+
+    def options(address):
+        return f"options of {address}"
+
+    monkeypatch.setattr(cluster, "_NODE_POLL_S", 0.001)
+    tables = [[], [{"NodeID": "other", "Alive": True}], [{"NodeID": "n1", "Alive": False}],
+              [{"NodeID": "other", "Alive": True}, {"NodeID": "n1", "Alive": True}]]
+    get = cluster._registered_node(state_class(tables), options, lambda address, node: ("record", address, node))
+    assert get("gcs:1", "n1") == ("record", "gcs:1", "n1")
+    assert calls == [("options", "options of gcs:1"), "table", "table", "table", "table", "disconnect"]
+
+    calls.clear()
+    monkeypatch.setattr(cluster, "_NODE_WAIT_S", 0.05)
+
+    def not_found(address, node):
+        raise RuntimeError(f"GCS cannot find the node with node ID {node}")
+
+    get = cluster._registered_node(state_class([[]]), options, not_found)
+    with pytest.raises(RuntimeError, match="cannot find the node with node ID n1"):
+        get("gcs:1", "n1")
+    assert calls[0] == ("options", "options of gcs:1") and calls[-1] == "disconnect" and calls.count("table") > 1
+
+
 def test_workers_that_fill_the_cores_run_opencv_on_one_thread(monkeypatch, tmp_path):
     """When the workers alone fill the machine's cores, each runs OpenCV on its own thread (its pool's
     helpers only competed with the other workers); fewer workers, a cluster, or a user's
