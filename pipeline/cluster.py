@@ -239,9 +239,10 @@ def shutdown(ray) -> None:
         os.close(saved)
 
 
-def attach(ray, address: str | None, workers: int | None = None) -> None:
+def attach(ray, address: str | None, workers: int | None = None, runtime_envs: bool = True) -> None:
     """Attach to the cluster at ``address`` (one line if nothing answers there), or start a
-    local one of ``workers`` CPUs (default all cores), unless this process already has Ray."""
+    local one of ``workers`` CPUs (default all cores), unless this process already has Ray
+    (``runtime_envs``: as :func:`start_local_cluster` takes it)."""
     if ray.is_initialized():
         return
     _quiet_cluster_messages(ray)
@@ -256,7 +257,7 @@ def attach(ray, address: str | None, workers: int | None = None) -> None:
         except ConnectionError as exc:
             raise ConnectionError(f"could not attach to the Ray cluster at {address} ({exc})") from exc
     else:
-        start_local_cluster(ray, workers)
+        start_local_cluster(ray, workers, runtime_envs)
 
 
 # What Ray 2.x says when a new node's raylet does not register with its GCS within a fixed 30 s (seen on a
@@ -264,9 +265,13 @@ def attach(ray, address: str | None, workers: int | None = None) -> None:
 _LOCAL_START_TIMEOUT = "timed out during startup"
 
 
-def start_local_cluster(ray, cpus: int | None = None) -> None:
+def start_local_cluster(ray, cpus: int | None = None, runtime_envs: bool = True) -> None:
     """Start the private one-machine Ray cluster ``produce`` runs on when given no address
-    (``cpus``: its CPU count, default all cores). Public so benchmarks start the same one."""
+    (``cpus``: its CPU count, default all cores). Public so benchmarks start the same one.
+    ``runtime_envs=False``: no task on it will carry a ``runtime_env`` (``produce``'s own
+    cluster: its tasks inherit its environment), so its raylet gets a stand-in for its
+    runtime-env agent too (see :func:`_agent_stand_in`); a task that did carry one would make
+    that raylet exit."""
     # Ray's notice that it turned token authentication on is not something the user has to act on.
     logging.getLogger(_RAY_TOKEN_LOGGER).setLevel(logging.ERROR)
     for name, value in _LOCAL_CLUSTER_ENV.items():  # read by the raylet and agents it starts
@@ -274,7 +279,7 @@ def start_local_cluster(ray, cpus: int | None = None) -> None:
     # address="local": a new instance even where `ray start` left a cluster
     # on this machine (ray.init() with no address would attach to it).
     try:
-        with _lean_head(ray):
+        with _lean_head(ray, runtime_envs):
             ray.init(address="local", num_cpus=cpus or os.cpu_count(), include_dashboard=False, **_RAY_INIT_COMMON)
     except Exception as exc:  # Ray raises a bare Exception when its raylet does not register in time
         if _LOCAL_START_TIMEOUT not in str(exc):
@@ -286,10 +291,11 @@ def start_local_cluster(ray, cpus: int | None = None) -> None:
 
 
 @contextmanager
-def _lean_head(ray) -> Iterator[None]:
+def _lean_head(ray, runtime_envs: bool = True) -> Iterator[None]:
     """While the private local cluster starts: a head of GCS and raylet, without the API server,
-    the autoscaler monitor and the log monitor, with a stand-in for the dashboard agent, and
-    ``ray.init`` back as soon as its raylet has registered.
+    the autoscaler monitor and the log monitor, with a stand-in for the dashboard agent (and for
+    the runtime-env agent unless ``runtime_envs``), and ``ray.init`` back as soon as its raylet
+    has registered.
 
     ``include_dashboard=False`` still starts the API server, a Python process that loads Ray's
     usage-stats module, and ``ray.init`` polls for its address before it returns; the monitors
@@ -317,9 +323,10 @@ def _lean_head(ray) -> Iterator[None]:
                                      services.get_node)
         patches.append((services, "get_node", node_wait))
         if _pipe_health_check():
-            ports = [getattr(ray._raylet, name) for name in _AGENT_PORTS]
+            agents = {flag: [getattr(ray._raylet, name) for name in names] for flag, names in _AGENTS.items()
+                      if runtime_envs is False or flag != _RUNTIME_ENV_AGENT}
             stand_in = _agent_stand_in(services.start_ray_process, ray._private.ray_constants.PROCESS_TYPE_RAYLET,
-                                       ray._raylet.persist_port, ports)
+                                       ray._raylet.persist_port, agents)
             patches.append((services, "start_ray_process", stand_in))
             # what it answers only chose the real agent's mode (and imports aiohttp, ~0.3 CPU-s)
             patches.append((utils, "get_dashboard_dependency_error", lambda: None))
@@ -368,7 +375,14 @@ def _registered_node(global_state, gcs_options, get_node):
     return get_registered_node
 
 
-_AGENT_PORTS = ("METRICS_AGENT_PORT_NAME", "METRICS_EXPORT_PORT_NAME", "DASHBOARD_AGENT_LISTEN_PORT_NAME")
+_RUNTIME_ENV_AGENT = "--runtime_env_agent_command="
+# The raylet's argument for each agent a stand-in can take the place of -> the ports (the names of
+# Ray's constants) that agent writes, which the raylet waits for before it registers.
+_AGENTS = {
+    "--dashboard_agent_command=": ("METRICS_AGENT_PORT_NAME", "METRICS_EXPORT_PORT_NAME",
+                                   "DASHBOARD_AGENT_LISTEN_PORT_NAME"),
+    _RUNTIME_ENV_AGENT: ("RUNTIME_ENV_AGENT_PORT_NAME",),
+}
 # The stand-in: blocks on the pipe its raylet holds as its stdin, and ends when the raylet does.
 AGENT_STAND_IN = "import sys; sys.stdin.buffer.read()"
 
@@ -377,36 +391,41 @@ def _pipe_health_check() -> bool:
     return os.environ.get("RAY_enable_pipe_based_agent_to_parent_health_check", "").lower() in ("1", "true")
 
 
-def _agent_stand_in(start_ray_process, raylet_type: str, persist_port, ports):
-    """Ray's ``services.start_ray_process``, starting the raylet with a stand-in for its dashboard
-    agent: a bare Python that reads the pipe the raylet holds as its stdin and ends when the
-    raylet does (Ray's pipe-based health check, which the private cluster turns on), after the
-    agent's three ports are written as a minimal agent writes them (-1: not served).
+def _agent_stand_in(start_ray_process, raylet_type: str, persist_port, agents: dict):
+    """Ray's ``services.start_ray_process``, starting the raylet with a stand-in for each of the
+    ``agents`` (its argument's flag -> the ports that agent writes): a bare Python that reads the
+    pipe the raylet holds as its stdin and ends when the raylet does (Ray's pipe-based health
+    check, which the private cluster turns on), after the agent's ports are written as a minimal
+    agent writes those it does not serve (-1).
 
-    The agent serves metrics, logs, job submission and node reports to a dashboard; the private
-    cluster ``produce`` starts for itself has no dashboard and scrapes no metrics. It imported for
-    ~1 CPU-s (aiohttp, gRPC, OpenTelemetry, its seven modules) while the raylet waited ~0.5-0.8 s
-    for its ports before registering, and both workers' imports of Ray competed with it. The
-    runtime-env agent stays: the raylet asks it for every worker's environment.
+    The dashboard agent serves metrics, logs, job submission and node reports to a dashboard; the
+    private cluster ``produce`` starts for itself has no dashboard and scrapes no metrics. It
+    imported for ~1 CPU-s (aiohttp, gRPC, OpenTelemetry, its seven modules) while the raylet waited
+    ~0.5-0.8 s for its ports before registering, and both workers' imports of Ray competed with
+    it. The runtime-env agent (~0.5 CPU-s of imports, and the raylet waited ~0.45 s for its port)
+    serves only tasks that carry a ``runtime_env``, which ``produce``'s tasks on its own cluster
+    never do; the raylet would exit at such a task's first worker.
     """
 
     def start(command, process_type, *args, **kwargs):
         if process_type == raylet_type:
-            command = [_stand_in_argument(argument, persist_port, ports) for argument in command]
+            command = [_stand_in_argument(argument, persist_port, agents) for argument in command]
         return start_ray_process(command, process_type, *args, **kwargs)
 
     return start
 
 
-def _stand_in_argument(argument: str, persist_port, ports) -> str:
-    """One argument of the raylet's command: the stand-in's command in place of the dashboard
-    agent's (whose ports are written first), any other as it is."""
+def _stand_in_argument(argument: str, persist_port, agents: dict) -> str:
+    """One argument of the raylet's command: the stand-in's command in place of one of the
+    ``agents``' (whose ports are written first), any other as it is."""
     import shlex
     import subprocess
     import sys
 
-    flag = "--dashboard_agent_command="
-    if not argument.startswith(flag):
+    for flag, ports in agents.items():
+        if argument.startswith(flag):
+            break
+    else:
         return argument
     options = dict(word[2:].split("=", 1) for word in shlex.split(argument[len(flag):])
                    if word.startswith("--") and "=" in word)

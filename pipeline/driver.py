@@ -149,7 +149,8 @@ def _connect(ray, config: ProduceConfig) -> None:
     main = threading.current_thread() is threading.main_thread()
     keep = signal.getsignal(signal.SIGTERM) if main else None
     try:
-        attach(ray, _address(config), config.workers)
+        # a cluster this call starts runs only this run's tasks, which carry no runtime_env (_task_options)
+        attach(ray, _address(config), config.workers, runtime_envs=False)
     finally:
         if main and keep is not None:
             signal.signal(signal.SIGTERM, keep)

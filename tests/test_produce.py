@@ -330,16 +330,18 @@ def test_local_cluster_workers_run_at_the_drivers_priority(monkeypatch):
     assert ray._private.parameter.RayParams.__init__ is params_init
 
 
-def test_local_cluster_runs_a_stand_in_for_the_dashboard_agent(monkeypatch):
+@pytest.mark.parametrize("runtime_envs", [True, False])
+def test_local_cluster_runs_stand_ins_for_the_agents_it_has_no_use_for(monkeypatch, runtime_envs):
     """The private cluster's raylet starts a stand-in for its dashboard agent (no dashboard reads
-    it; the real one imported for ~1 CPU-s while the raylet waited for its ports): the agent's
-    ports are written as a minimal agent writes them, tasks run, and the stand-in ends with its
-    raylet; Ray's functions are as they were afterwards."""
+    it; the real one imported for ~1 CPU-s while the raylet waited for its ports), and for its
+    runtime-env agent too where no task will carry a runtime_env (``produce``'s own cluster): the
+    agents' ports are written as a minimal agent writes them, tasks run, and the stand-ins end with
+    their raylet; Ray's functions are as they were afterwards."""
     import psutil
     import ray
     import ray._private.services as services
     import ray._private.utils as utils
-    from ray._raylet import get_port_filename
+    from ray._raylet import RUNTIME_ENV_AGENT_PORT_NAME, get_port_filename
 
     from pipeline import cluster
 
@@ -347,28 +349,34 @@ def test_local_cluster_runs_a_stand_in_for_the_dashboard_agent(monkeypatch):
         ray.shutdown()
     monkeypatch.delenv("RAY_enable_pipe_based_agent_to_parent_health_check", raising=False)
     before = (services.start_ray_process, services.get_node, utils.get_dashboard_dependency_error)
-    cluster.start_local_cluster(ray, 1)
+    cluster.start_local_cluster(ray, 1, runtime_envs=runtime_envs)
     try:
         node = ray._private.worker._global_node
         raylet = psutil.Process(node.all_processes["raylet"][0].process.pid)
         children = raylet.children()
         commands = [" ".join(child.cmdline()) for child in children]
         stand_ins = [child for child, command in zip(children, commands) if cluster.AGENT_STAND_IN in command]
-        ports = [(Path(node.get_session_dir_path()) / get_port_filename(node.node_id, getattr(ray._raylet, name))
-                  ).read_text() for name in cluster._AGENT_PORTS]
+
+        def port(name):
+            return (Path(node.get_session_dir_path()) / get_port_filename(node.node_id, name)).read_text()
+
+        agent_ports = [port(getattr(ray._raylet, name)) for name in cluster._AGENTS["--dashboard_agent_command="]]
+        runtime_env_port = port(RUNTIME_ENV_AGENT_PORT_NAME)
         answer = ray.get(ray.remote(num_cpus=1)(lambda: os.getpid()).remote())
     finally:
         ray.shutdown()
-    assert len(stand_ins) == 1 and not any("dashboard/agent.py" in command for command in commands)
-    assert ports == ["-1"] * 3 and answer != os.getpid()
+    assert len(stand_ins) == (1 if runtime_envs else 2)
+    assert not any("dashboard/agent.py" in command for command in commands)
+    assert agent_ports == ["-1"] * 3 and answer != os.getpid()
+    assert (runtime_env_port == "-1") is not runtime_envs  # Ray's own agent writes the port it serves
     _, alive = psutil.wait_procs(stand_ins, timeout=30)
-    assert alive == []  # it read its raylet's end of the pipe and ended
+    assert alive == []  # they read their raylet's end of the pipe and ended
     assert (services.start_ray_process, services.get_node, utils.get_dashboard_dependency_error) == before
 
 
-def test_the_stand_in_replaces_only_the_dashboard_agents_command(tmp_path):
-    """The raylet's other arguments, and an agent command without the session dir and node id it
-    needs (another Ray's), are left as they are; the stand-in's ports are Ray's own files."""
+def test_the_stand_in_replaces_only_the_agents_it_is_given(tmp_path):
+    """The raylet's other arguments, an agent not given, and an agent command without the session dir
+    and node id it needs (another Ray's), are left as they are; the stand-in's ports are Ray's own files."""
     import subprocess
     import sys
 
@@ -377,17 +385,39 @@ def test_the_stand_in_replaces_only_the_dashboard_agents_command(tmp_path):
 
     from pipeline import cluster
 
-    ports = [getattr(ray._raylet, name) for name in cluster._AGENT_PORTS]
+    flag = "--dashboard_agent_command="
+    agents = {flag: [getattr(ray._raylet, name) for name in cluster._AGENTS[flag]]}
     node_id = "ab" * 28
     agent = subprocess.list2cmdline(["python", "agent.py", f"--node-id={node_id}", f"--session-dir={tmp_path}",
                                      "--grpc-port=0", "--head"])
-    stand_in = cluster._stand_in_argument(f"--dashboard_agent_command={agent}", persist_port, ports)
-    assert stand_in == "--dashboard_agent_command=" + subprocess.list2cmdline(
-        [sys.executable, "-I", "-S", "-c", cluster.AGENT_STAND_IN])
-    assert [(tmp_path / get_port_filename(node_id, port)).read_text() for port in ports] == ["-1"] * 3
-    assert cluster._stand_in_argument("--node_manager_port=0", persist_port, ports) == "--node_manager_port=0"
-    other = "--dashboard_agent_command=" + subprocess.list2cmdline(["python", "agent.py", "--grpc-port=0"])
-    assert cluster._stand_in_argument(other, persist_port, ports) == other
+    stand_in = cluster._stand_in_argument(flag + agent, persist_port, agents)
+    assert stand_in == flag + subprocess.list2cmdline([sys.executable, "-I", "-S", "-c", cluster.AGENT_STAND_IN])
+    assert [(tmp_path / get_port_filename(node_id, port)).read_text() for port in agents[flag]] == ["-1"] * 3
+    assert cluster._stand_in_argument("--node_manager_port=0", persist_port, agents) == "--node_manager_port=0"
+    runtime_env = "--runtime_env_agent_command=" + agent
+    assert cluster._stand_in_argument(runtime_env, persist_port, agents) == runtime_env
+    other = flag + subprocess.list2cmdline(["python", "agent.py", "--grpc-port=0"])
+    assert cluster._stand_in_argument(other, persist_port, agents) == other
+
+
+def test_produce_starts_its_own_cluster_without_runtime_envs(monkeypatch, tmp_path):
+    """``produce``'s own cluster stands in for the runtime-env agent, which is only safe because its
+    tasks never carry a runtime_env: even with variables to forward they inherit the driver's
+    environment, and a cluster it attaches to (or one already up) gets them as a runtime_env."""
+    import ray
+
+    from pipeline import driver
+
+    asked = []
+    monkeypatch.setattr(driver, "attach", lambda ray_, address, workers, runtime_envs=True: asked.append(runtime_envs))
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    driver._connect(ray, ProduceConfig(run=RunConfig(plan=PlanConfig(domains="T01_CN_A")), out=str(tmp_path)))
+    assert asked == [False]
+    monkeypatch.setenv("IDDA_WORLD_CACHE", str(tmp_path))
+    config = ProduceConfig(run=RunConfig(plan=PlanConfig(domains="T01_CN_A")), out=str(tmp_path))
+    assert "runtime_env" not in driver._task_options(config, 1, local=True, own_cluster=True)[0]
+    forwarded = driver._task_options(config, 1, local=True, own_cluster=False)[0]["runtime_env"]["env_vars"]
+    assert forwarded["IDDA_WORLD_CACHE"] == str(tmp_path)
 
 
 def test_without_the_pipe_health_check_the_dashboard_agent_starts_as_ray_starts_it(monkeypatch):
