@@ -989,7 +989,60 @@ frame against 93dc98a's 2.92 and 0.644 (1.57x and -37%)**; rounds 4.48, 4.73, 4.
 paper's six outputs with worlds cached 5.01, the rgb as JPEG 4.92. 5 frames/s for the 120-frame command is still
 ~1.09x away on this host: the start (~10 CPU-s: Ray's processes ~2, each worker's import of Ray ~0.7, our imports
 ~0.9, its world ~0.6-0.8, its load ~0.6 and its first frame ~0.6 more than later ones) against ~0.33 CPU-s a
-steady frame."""
+steady frame.
+
+### Levers measured on 2026-11-30, eleventh round (the same AMD EPYC)
+
+* **Where Ray's start went** (the private cluster of 2 CPUs; Ray's logs and a profile of `ray.init`): the raylet
+  registers with the GCS only once both agents have written their port files: the dashboard agent's ~0.7 s
+  after its start (it imports aiohttp, gRPC and OpenTelemetry and loads seven modules first), the runtime-env
+  agent's ~0.45 s. Explicit ports do not shorten that (Ray 2.60's raylet waits for the files whatever ports it
+  was given: 0.66-0.76 s between starting the agent and registering, against 0.70-0.80), nor does the agent's
+  minimal mode (0.71-0.76 s: its imports). Then `ray.init` asks the GCS for the new node 0.1 s after starting
+  the raylet and, finding none yet, Ray's accessor sleeps a whole second before it asks again
+  (`GlobalStateAccessor::GetNode`): `services.get_node` took 1.00 s in every start, the node registered
+  0.4-0.6 s before it returned. And choosing the agent's mode imported aiohttp in the driver (0.31 s).
+* **A stand-in for the dashboard agent, and the node read every 20 ms (kept, aa41dee).** The private cluster's
+  raylet starts a bare Python in the agent's place that reads the pipe its raylet holds as its stdin (Ray's
+  pipe-based health check) and ends with it, after the agent's three ports are written as a minimal agent
+  writes them (-1: not served); the dashboard it would report to is never started, and nothing scrapes its
+  metrics. `ray.init` reads the node table every 20 ms until its raylet is there, then Ray's own lookup finds
+  it at once (`pipeline.cluster._lean_head`; where the pipe check is off, or Ray's functions are missing, the
+  head starts as Ray starts it). `ray.init` plus two first tasks: 1.58, 1.59, 1.60 s against 2.42 and 2.76 before; the benchmark's command, 3 alternating rounds:
+  4.81, 4.69, 4.75 frames/s and 0.404-0.415 machine CPU-s per frame against b71f383's 4.45, 4.64, 4.52 and
+  0.415-0.429.
+* **A stand-in for the runtime-env agent on `produce`'s own cluster (kept, 25b8727).** That agent serves only
+  tasks that carry a `runtime_env`; `produce`'s tasks on a cluster it started never do (they inherit its
+  environment), so `start_local_cluster(..., runtime_envs=False)` writes its port as -1 and starts the
+  stand-in. A task that did carry one would make the raylet exit (measured: `LocalRayletDiedError` after
+  30 s), so the default, which benchmarks and `verify` use, keeps Ray's agent. `ray.init` plus two tasks
+  1.31, 1.36, 1.43 s; `ray.init` alone 0.66 s, 0.39 of it the driver's core worker connecting (Ray's C++).
+  The benchmark's command, 3 alternating rounds: **4.86, 4.90, 4.81 frames/s and 0.398-0.404 machine CPU-s per
+  frame against b71f383's 4.59, 4.62, 4.55 and 0.414-0.423 (+6%)**.
+* **Where a 120-frame run's time goes now** (one run, seconds after the command started): the first frames
+  are stored at 4.42 (T01_CN_A) and 5.34 (T03_CS_M), against ~6.2 before; the last at 22.67 and 25.34; the
+  command ends at 25.66 (4.78 frames/s reported). T03_CS_M's episode starts later (its world 0.81 s against
+  0.65, its load 0.92 against 0.43, from the episodes' stats) and runs ~9% slower per frame while both render,
+  so for its last ~2.7 s one worker renders alone (on its two threads, ~1.6 cores). With a warm world cache
+  the worlds load in 0.013 and 0.025 s.
+* **Not kept**:
+  * trimesh imported without its optional scipy.spatial and scipy.optimize (networkx stays: pyrender's scene
+    graph is one): trimesh and pyrender in 0.98, 1.03, 1.07 CPU-s against 1.14, 1.20, 1.29 (noisy), ~0.15 CPU-s
+    per worker, and any trimesh function that needs them would fail inside a worker.
+  * The depth outputs from one normalised buffer: 4.4, 1.4 and 3.2 ms for raw, grey and log alone, 3.0 of the
+    raw's the float64 normalising that the other two cannot share byte for byte (they normalise in float32).
+
+After these (main at 25b8727; no change to what is rendered: the same frame bytes), `BENCH=produce
+BENCH_BASELINE=93dc98a BENCH_ROUNDS=3 make bench` (596 s; an hour in which this host ran 93dc98a at 2.70 frames/s
+against 2.92 in the tenth round's quiet hour; load average 3.4-4.3 after each run, the runs' own): **4.66 frames/s
+and 0.420 machine CPU-s per frame against 93dc98a's 2.70 and 0.697 (1.73x and -40%)**; rounds 4.67, 4.66, 4.08
+against 2.70, 2.86, 2.68; the first frame stored at 4.59 s (93dc98a 9.53), then 5.58 frames/s (3.66) until the
+last at 25.92; worlds cached 4.78 (first frame at 3.40 s), the paper's six outputs with worlds cached 4.59, the rgb
+as JPEG 4.89; the 600-frame run 4.71 (steady 4.80: the host slowed during it). Against the tenth round's main
+(b71f383), alternating, the benchmark's command: 4.86, 4.90, 4.81 frames/s against 4.59, 4.62, 4.55 (+6%). 5
+frames/s for the 120-frame command is still ~1.04-1.07x away on this host: the start is now ~4.4-5.3 s to the
+first frames (Ray ~0.7 s, then each worker's imports, world, load and first frame, ~3-3.6 CPU-s each on two
+cores), and the steady ~0.33 CPU-s a frame."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
