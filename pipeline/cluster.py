@@ -302,8 +302,8 @@ def _lean_head(ray, runtime_envs: bool = True) -> Iterator[None]:
     do nothing on a private one-node run whose driver does not print worker logs (see
     :func:`_stop_idle_daemons`). On 2 cores the three cost ~1.4 CPU-s of the start-up, and
     ``ray.init`` took ~0.7-1.5 s longer with them (docs/bench_render.md, fourth round). The
-    dashboard agent (see :func:`_agent_stand_in`) and the node wait (see
-    :func:`_registered_node`): the eleventh round. Reaches into Ray's node, parameter and
+    agents (see :func:`_agent_stand_in`) and the node wait (see :func:`_registered_node`):
+    its eleventh round. Reaches into Ray's node, parameter and
     services modules; where those are missing (another Ray version), the head starts as Ray
     starts it. Only a cluster this process starts for itself: attaching to a cluster leaves its
     head as its owner made it.
@@ -365,7 +365,12 @@ def _registered_node(global_state, gcs_options, get_node):
         try:
             deadline = time.monotonic() + _NODE_WAIT_S
             while time.monotonic() < deadline:
-                if any(node.get("NodeID") == node_id and node.get("Alive") for node in state.node_table()):
+                try:
+                    table = state.node_table()
+                except Exception as exc:  # a GCS still starting: asked again, then Ray's call says what is wrong
+                    log.debug("node table not read yet (%s)", exc)
+                    table = []
+                if any(node.get("NodeID") == node_id and node.get("Alive") for node in table):
                     break
                 time.sleep(_NODE_POLL_S)
         finally:

@@ -451,7 +451,10 @@ def test_the_node_wait_reads_the_node_table_until_this_raylet_is_alive_in_it(mon
 
             def node_table(self):
                 calls.append("table")
-                return tables.pop(0) if len(tables) > 1 else tables[0]
+                table = tables.pop(0) if len(tables) > 1 else tables[0]
+                if isinstance(table, Exception):
+                    raise table
+                return table
 
             def disconnect(self):
                 calls.append("disconnect")
@@ -462,11 +465,12 @@ def test_the_node_wait_reads_the_node_table_until_this_raylet_is_alive_in_it(mon
         return f"options of {address}"
 
     monkeypatch.setattr(cluster, "_NODE_POLL_S", 0.001)
-    tables = [[], [{"NodeID": "other", "Alive": True}], [{"NodeID": "n1", "Alive": False}],
+    tables = [[], RuntimeError("the GCS is still starting"), [{"NodeID": "other", "Alive": True}],
+              [{"NodeID": "n1", "Alive": False}],
               [{"NodeID": "other", "Alive": True}, {"NodeID": "n1", "Alive": True}]]
     get = cluster._registered_node(state_class(tables), options, lambda address, node: ("record", address, node))
     assert get("gcs:1", "n1") == ("record", "gcs:1", "n1")
-    assert calls == [("options", "options of gcs:1"), "table", "table", "table", "table", "disconnect"]
+    assert calls == [("options", "options of gcs:1"), "table", "table", "table", "table", "table", "disconnect"]
 
     calls.clear()
     monkeypatch.setattr(cluster, "_NODE_WAIT_S", 0.05)
