@@ -324,7 +324,7 @@ def _lean_head(ray, runtime_envs: bool = True) -> Iterator[None]:
         patches.append((services, "get_node", node_wait))
         if _pipe_health_check():
             agents = {flag: [getattr(ray._raylet, name) for name in names] for flag, names in _AGENTS.items()
-                      if runtime_envs is False or flag != _RUNTIME_ENV_AGENT}
+                      if not runtime_envs or flag != _RUNTIME_ENV_AGENT}
             stand_in = _agent_stand_in(services.start_ray_process, ray._private.ray_constants.PROCESS_TYPE_RAYLET,
                                        ray._raylet.persist_port, agents)
             patches.append((services, "start_ray_process", stand_in))
