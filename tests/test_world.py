@@ -542,3 +542,94 @@ def test_noisy_colours_take_both_octaves_in_one_pass_with_the_same_floats():
         expected = np.full((n, 4), 255, np.uint8)
         expected[:, :3] = np.clip(np.asarray(base, np.float64)[None] * gain[:, None], 0, 255).astype(np.uint8)
         assert np.array_equal(noisy_colors(verts, base, amount, scale, seed, fine), expected)
+
+
+def test_colours_asked_of_a_batch_are_made_together_as_each_piece_s_own_bytes(monkeypatch):
+    """A world builder's pieces ask for their noisy colours when added (``NoiseColors``) and get them when
+    the batch merges, in a few passes for all (~3,000 calls of a few dozen points were a quarter of a
+    town's build): bit for bit ``noisy_colors`` of each piece, of any subset of its points, across passes."""
+    import render_workers.worlds.meshes as M
+
+    monkeypatch.setattr(M, "NOISE_POINTS_PER_PASS", 64)  # several passes, and a piece larger than one
+    rng = np.random.default_rng(3)
+    asked, expected = [], []
+    for n, scale, seed, base in ((0, 3.0, 0, (90, 91, 92)), (1, 0.7, 96, (10, 200, 30, 255)),
+                                 (37, 3.0, 9972, np.array([141.5, 120.0, 98.25])), (200, 18.0, 65535, (255, 0, 7)),
+                                 (20, 1.0, np.int64(41), (5, 6, 7)), (3, 2.5, 8, (250, 250, 250))):
+        verts = rng.uniform(-400.0, 400.0, (n, 3))
+        amount, fine = float(rng.uniform(0.0, 0.3)), float(rng.uniform(0.0, 0.1))
+        piece = M.NoiseColors(verts, base, amount, scale, seed, fine)
+        asked.append(piece)
+        expected.append(M.noisy_colors(verts, base, amount, scale, seed, fine))
+        some = rng.permutation(n)[: n // 2]  # what add_tiled keeps of a piece for one tile
+        asked.append(piece[some])
+        expected.append(expected[-1][some])
+        verts[:] = 0.0  # the caller's array changed after adding: the colours are of the points as added
+    made = M.made_colors(asked)
+    assert len(made) == len(expected)
+    for got, want in zip(made, expected):
+        assert got.dtype == np.uint8 and np.array_equal(got, want)
+    assert all(np.array_equal(piece.made(), want) for piece, want in zip(asked, expected))
+
+
+def test_a_batch_merges_asked_colours_as_if_made_when_added():
+    """``MeshBatch.parts`` of pieces added with colours to make (whole, or split between tiles by
+    ``add_tiled``) and of pieces added with their colours: the same parts, vertex for vertex."""
+    import render_workers.worlds.meshes as M
+
+    rng = np.random.default_rng(4)
+    pieces = []
+    for k in range(12):
+        verts, faces = M.boxes(rng.uniform(-300.0, 300.0, (3, 3)), rng.uniform(0.5, 40.0, (3, 3)))
+        pieces.append((k % 3, verts, faces, (rng.integers(0, 256, 3)), 0.1 + 0.01 * k, 1.0 + k, k, 0.05))
+    batches = []
+    for asked in (True, False):
+        batch = M.MeshBatch(tile_m=50.0)
+        for cls, verts, faces, base, amount, scale, seed, fine in pieces:
+            colors = (M.NoiseColors(verts, base, amount, scale, seed, fine) if asked
+                      else M.noisy_colors(verts, base, amount, scale, seed, fine))
+            if cls == 2:
+                batch.add_tiled(cls, "matte", verts, faces, colors)
+            else:
+                batch.add(cls, "matte", verts, faces, colors)
+        batches.append(batch.parts())
+    asked, made = batches
+    assert len(asked) == len(made) > 3
+    for a, b in zip(asked, made):
+        assert (a.class_id, a.material) == (b.class_id, b.material)
+        assert np.array_equal(a.mesh.vertices, b.mesh.vertices) and np.array_equal(a.mesh.faces, b.mesh.faces)
+        assert np.array_equal(a.mesh.visual.vertex_colors, b.mesh.visual.vertex_colors)
+
+
+def test_static_groups_put_each_face_in_its_centroid_s_tile():
+    """A part wholly in one tile goes to it without sorting its tiles; one across tiles is split face by
+    face: the groups hold the faces of each (tile, class, material) in the parts' and faces' order."""
+    import trimesh
+
+    from render_workers.render.part_meshes import _triangles, static_groups
+    from render_workers.worlds.scene import Part
+
+    rng = np.random.default_rng(6)
+    parts = []
+    for k, (lo, hi) in enumerate(((5.0, 45.0), (-90.0, 90.0), (120.0, 130.0), (-30.0, 70.0))):
+        verts = rng.uniform(lo, hi, (30, 3))
+        faces = rng.integers(0, 30, (20, 3))
+        colors = rng.integers(0, 256, (30, 4)).astype(np.uint8)
+        mesh = trimesh.Trimesh(vertices=verts, faces=faces, vertex_colors=colors, process=False)
+        parts.append(Part(class_id=k % 2, mesh=mesh, material="matte"))
+    groups = static_groups(tuple(parts), 50.0)
+    expected: dict = {}
+    for part in parts:
+        tri, normals, colors = _triangles(part.mesh)
+        for f in range(len(tri)):
+            tx, ty = np.floor(tri[f].mean(axis=0)[:2] / 50.0).astype(np.int64)
+            got = expected.setdefault((int(tx), int(ty), part.class_id, part.material, part.texture), ([], [], []))
+            got[0].append(tri[f])
+            got[1].append(normals[f])
+            got[2].append(colors[f])
+    assert set(groups) == set(expected) and len(groups) > 4
+    for key, soup in groups.items():
+        positions, normals, colors, uvs = soup.arrays()
+        tri, nor, col = (np.concatenate(x).astype(np.float32) for x in expected[key])
+        assert np.array_equal(positions, tri) and np.array_equal(normals, nor) and np.array_equal(colors, col)
+        assert uvs is None

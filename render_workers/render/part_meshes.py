@@ -132,10 +132,13 @@ def static_groups(parts: tuple[Part, ...], tile_m: float) -> dict[tuple, _Soup]:
     for part, (tri, normals, colors) in _part_triangles(parts):
         uv = box_uv(tri, normals[:, 0], texture_kind(part.texture).size_m) if part.texture else None
         tiles = np.floor(tri.mean(axis=1)[:, :2] / tile_m).astype(np.int64)
-        keys, inverse = np.unique(tiles, axis=0, return_inverse=True)
-        inverse = inverse.ravel()
+        if (tiles == tiles[0]).all():  # the whole part in one tile (most are: the world is batched by tile)
+            keys, inverse = tiles[:1], None
+        else:
+            keys, inverse = np.unique(tiles, axis=0, return_inverse=True)
+            inverse = inverse.ravel()
         for k, (tx, ty) in enumerate(keys):
-            sel = inverse == k
+            sel = slice(None) if inverse is None else inverse == k
             soup = groups.setdefault((int(tx), int(ty), part.class_id, part.material, part.texture), _Soup())
             soup.add(tri[sel].reshape(-1, 3), normals[sel].reshape(-1, 3), colors[sel].reshape(-1, 4),
                      None if uv is None else uv[sel].reshape(-1, 2))

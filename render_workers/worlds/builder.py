@@ -90,7 +90,7 @@ class Kit:
     def add(self, cls: str, verts, faces, base, material="matte", amount=0.12, scale=3.0,
             tiled=False, fine=0.05, texture=""):
         self._cseed += 1
-        colors = M.noisy_colors(verts, base, amount, scale, seed=self._cseed % 9973, fine=fine)
+        colors = M.NoiseColors(verts, base, amount, scale, seed=self._cseed % 9973, fine=fine)  # made with the batch's
         self.add_colored(cls, verts, faces, colors, material, tiled, texture)
 
     def paint(self, cls: str, verts, faces, name: str, tiled=False, fine=0.05, tint: float = 1.0):

@@ -278,6 +278,69 @@ def noisy_colors(verts: np.ndarray, base, amount: float = 0.15, scale: float = 3
     return out
 
 
+class NoiseColors:
+    """:func:`noisy_colors` of a piece, asked for when the piece is added and made when its batch is
+    merged (:meth:`MeshBatch.parts`), together with every other piece's in a few numpy passes: a town
+    adds some 3,000 pieces of a few dozen vertices each, where numpy's per-call cost was most of the
+    time (~0.25 of T03's ~0.9 CPU-s world build). Each point's noise is computed on its own, so made
+    together or one by one the colours are the same bytes."""
+
+    __slots__ = ("verts", "base", "amount", "scale", "seed", "fine")
+
+    def __init__(self, verts: np.ndarray, base, amount: float = 0.15, scale: float = 3.0, seed: int = 0,
+                 fine: float = 0.05) -> None:
+        self.verts = np.array(verts, dtype=np.float64)  # a copy: the colours are of the points as added
+        self.base = np.array(base, dtype=np.float64)
+        self.amount, self.scale, self.seed, self.fine = amount, scale, seed, fine
+
+    def __len__(self) -> int:
+        return len(self.verts)
+
+    def made(self) -> np.ndarray:
+        return noisy_colors(self.verts, self.base, self.amount, self.scale, self.seed, self.fine)
+
+    def __getitem__(self, index) -> NoiseColors:
+        """The colours of some of the points (an index into them), still to be made: each point's are its own."""
+        return NoiseColors(self.verts[index], self.base, self.amount, self.scale, self.seed, self.fine)
+
+
+NOISE_POINTS_PER_PASS = 1 << 15  # points per batched noise pass (its temporaries: ~400 bytes a point)
+
+
+def made_colors(asked: list[NoiseColors]) -> list[np.ndarray]:
+    """The colours of ``asked``, in order: as :meth:`NoiseColors.made` gives each, a few passes for all."""
+    out: list[np.ndarray] = []
+    start = 0
+    while start < len(asked):
+        stop, points = start, 0
+        while stop < len(asked) and (points == 0 or points + len(asked[stop]) <= NOISE_POINTS_PER_PASS):
+            points += len(asked[stop])
+            stop += 1
+        out.extend(_made_together(asked[start:stop]))
+        start = stop
+    return out
+
+
+def _made_together(asked: list[NoiseColors]) -> list[np.ndarray]:
+    """:func:`noisy_colors` of several pieces in one pass: per point the same floats, operation by operation."""
+    counts = [len(a) for a in asked]
+    n = sum(counts)
+    points = np.concatenate([a.verts / a.scale for a in asked] + [a.verts / (a.scale * 0.23) for a in asked])
+    terms = np.repeat(np.array([_seed_term(a.seed) for a in asked] + [_seed_term(a.seed + 7) for a in asked],
+                               np.int64), counts + counts)
+    noise = _noise(points, terms)
+    n1, n2 = noise[:n] - 0.5, noise[n:] - 0.5
+    amount = np.repeat(np.array([2 * a.amount for a in asked], np.float64), counts)
+    detail = np.repeat(np.array([2 * a.fine for a in asked], np.float64), counts)
+    gain = 1.0 + amount * n1 + detail * n2
+    base = np.repeat(np.array([a.base[:3] for a in asked], np.float64).reshape(-1, 3), counts, axis=0)
+    rgb = np.clip(base * gain[:, None], 0, 255)
+    out = np.empty((n, 4), dtype=np.uint8)
+    out[:, :3] = rgb.astype(np.uint8)
+    out[:, 3] = 255
+    return np.split(out, np.cumsum(counts)[:-1])
+
+
 def flat_colors(n: int, base) -> np.ndarray:
     out = np.empty((n, 4), dtype=np.uint8)
     out[:, :3] = np.asarray(base, dtype=np.uint8)[:3]
@@ -317,6 +380,10 @@ class MeshBatch:
                 (verts[used], remap.reshape(-1, 3), colors[used]))
 
     def parts(self) -> tuple[Part, ...]:
+        asked = [c for chunks in self._chunks.values() for _, _, c in chunks if isinstance(c, NoiseColors)]
+        made = dict(zip(map(id, asked), made_colors(asked)))
+        for chunks in self._chunks.values():
+            chunks[:] = [(v, f, made.get(id(c), c)) for v, f, c in chunks]
         out = []
         for key in sorted(self._chunks):
             _, class_id, material, texture = key
