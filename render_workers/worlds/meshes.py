@@ -92,8 +92,10 @@ def boxes(centers, sizes, yaws=0.0, bottom: bool = False) -> tuple[np.ndarray, n
     ]
     if bottom:
         faces_def.append((base + ey, ex, -ey))
-    parts = [quads(p, u, v) for p, u, v in faces_def]
-    return _concat(parts)
+    # every side of every box in one ``quads`` call: side by side, box by box, the vertices, faces and
+    # floats of a call per side (a world build makes ~1,600 calls of a box or a few)
+    p0, u, v = (np.concatenate(side) for side in zip(*faces_def))
+    return quads(p0, u, v)
 
 
 def prism_roofs(centers, sizes, heights, yaws=0.0) -> tuple[np.ndarray, np.ndarray]:
