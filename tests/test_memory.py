@@ -111,15 +111,3 @@ def test_the_loaded_scene_is_frozen_while_frames_render_and_only_then():
             assert len(seen) == 2 and max(seen) <= mine and gc.get_freeze_count() > mine // 2
         finally:
             gc.unfreeze()
-
-
-def test_a_rendering_process_gives_no_huge_page_advice():
-    """``keep_freed_memory`` turns numpy's huge-page advice off for the arrays allocated after it (each first
-    touch of an advised 2 MB page may compact memory first: ~0.4 CPU-s of a worker's start): in a fresh
-    process where numpy gives it, after the call numpy's switch reads off."""
-    probe = ("import json; from numpy._core.multiarray import _set_madvise_hugepage as switch\n"
-             "from render_workers.render.memory import keep_freed_memory\n"
-             "switch(True); keep_freed_memory(); print(json.dumps(switch(False)))")  # switch: the state it replaced
-    env = dict(os.environ, PYTHONPATH=str(REPO))
-    out = subprocess.run([sys.executable, "-c", probe], env=env, capture_output=True, text=True, timeout=120, check=True)
-    assert json.loads(out.stdout.strip().splitlines()[-1]) is False

@@ -13,15 +13,6 @@ arrays of the same sizes take their pages again, zeroed by the kernel. With
 Only where malloc takes these settings (glibc's ``mallopt``); elsewhere nothing changes. Where
 memory comes from does not change what is computed: the same frames' bytes with and without
 (the small and full-HD produce digests of the issue 35 notes).
-
-The same call turns off numpy's advice to back its large arrays with huge pages (``madvise``
-``MADV_HUGEPAGE`` on every block of 4 MB or more): where the kernel defragments on such a fault
-(transparent huge pages' ``defrag`` set to ``madvise``, a common default), the first touch of each
-fresh 2 MB page compacts memory before it zeroes it. A rendering process touches ~700 MB for the
-first time while it builds its world, loads an episode and draws the first frame: measured in
-fresh processes (T03_CS_M at full HD, world built, 12 frames, 3 alternating rounds), the first
-frame was stored after 2.08-2.19 CPU-s without the advice against 2.51-2.65 with it (system CPU
-0.31-0.34 against 0.61-0.64), and the 12 frames took 5.02-5.07 against 5.44-5.55 CPU-s.
 """
 
 from __future__ import annotations
@@ -43,29 +34,13 @@ KEEP = (
 
 @functools.cache
 def keep_freed_memory() -> bool:
-    """Make this process's malloc keep freed blocks for reuse and numpy give no huge-page advice (once per
-    process); whether malloc took the settings."""
-    no_huge_page_advice()
+    """Make this process's malloc keep freed blocks for reuse (once per process); whether it took the settings."""
     try:
         mallopt = ctypes.CDLL(None).mallopt  # the C library the process runs on
     except (OSError, AttributeError):  # no C library by that name, or one without mallopt
         return False
     mallopt.argtypes, mallopt.restype = (ctypes.c_int, ctypes.c_int), ctypes.c_int
     return all([mallopt(param, value) == 1 for param, value in KEEP])  # a list: every setting is tried
-
-
-def no_huge_page_advice() -> bool:
-    """Stop numpy advising huge pages for the large arrays it allocates from now on (its switch, as the
-    environment variable ``NUMPY_MADVISE_HUGEPAGE=0`` sets it at import); whether this numpy has the switch."""
-    try:
-        from numpy._core.multiarray import _set_madvise_hugepage
-    except ImportError:  # numpy before 2.0 kept it in numpy.core
-        try:
-            from numpy.core.multiarray import _set_madvise_hugepage
-        except ImportError:
-            return False
-    _set_madvise_hugepage(False)
-    return True
 
 
 @contextlib.contextmanager
