@@ -1042,7 +1042,64 @@ as JPEG 4.89; the 600-frame run 4.71 (steady 4.80: the host slowed during it). A
 (b71f383), alternating, the benchmark's command: 4.86, 4.90, 4.81 frames/s against 4.59, 4.62, 4.55 (+6%). 5
 frames/s for the 120-frame command is still ~1.04-1.07x away on this host: the start is now ~4.4-5.3 s to the
 first frames (Ray ~0.7 s, then each worker's imports, world, load and first frame, ~3-3.6 CPU-s each on two
-cores), and the steady ~0.33 CPU-s a frame."""
+cores), and the steady ~0.33 CPU-s a frame.
+
+### Levers measured on 2026-11-30, twelfth round (the same AMD EPYC)
+
+* **Where a 120-frame run's time goes now** (per-thread CPU of every process of one run, read from /proc): the
+  workers 21.1-21.8 (T01_CN_A) and 25.1-25.9 CPU-s (T03_CS_M), the driver 1.0-1.15, the GCS and raylet ~0.1; of the
+  ~54 core-seconds of a ~27 s run ~5 go unused: the driver alone before Ray starts (~0.6 s), T01_CN_A's worker done
+  ~3 s before T03_CS_M's (its episode returned at 22.6 s, T03_CS_M's at 25.6; the timed span ended at 25.7), and
+  Ray's shutdown. So the run ends when T03_CS_M's worker does: CPU taken off that episode's path is time off the
+  run. Its start in one process (T03_CS_M, world built, full HD): our imports ~0.8 CPU-s, the world ~0.6-0.9, the
+  traffic 0.1-0.25, the load 0.45-0.6, the first frame ~0.4 more than a later one.
+* **The world's colours made with its batch (kept, 2433c3d).** A town adds ~3,000 pieces of a few dozen vertices,
+  and colouring each on its own (`noisy_colors`: two octaves of hashed value noise) was ~0.25 of T03's ~0.9 CPU-s
+  build, numpy's per-call cost. `Kit.add` now asks for them (`NoiseColors`, the points copied as added) and
+  `MeshBatch.parts` makes them in passes of up to 32k points; `add_tiled` splits a request by the same index. Each
+  point's noise is its own, so the colours are the same bytes. The renderer's static grouping skips `np.unique` for
+  a part wholly in one tile (most: the world is batched by tile): the same soups, 0.21 -> 0.14 s for T03.
+* **Every side of every box in one `quads` call (kept, 0005ef6)**: ~1,600 calls a town of a box or a few, one
+  `quads` call per side, now one for all: the same vertices, faces and floats. The seven towns and their traffic
+  (T01-T07, one seed): **6.58 -> 5.04 -> 4.72 CPU-s**; in the benchmark's runs T03_CS_M's world 0.85 -> 0.63 s. Both
+  byte for byte: the seven towns' parts (vertices, faces, colours) and traffic hash as before, and a small `idda
+  produce` (T01_CN_A, T03_CS_M, T05_HRN_B, T07_NT_V, 3 frames each at 640x360, worlds built) gives the same frame
+  files (digest `cc95284c…` before and after). End to end against the eleventh round's main (4993b31), both trees
+  compiled, 3 alternating rounds: 4.55, 4.64, 4.67 frames/s against 4.58, 4.65, 4.60 (medians 4.64 and 4.60,
+  +0.8%), the first frame stored at 4.08-4.60 s against 4.42-4.65.
+* **A measuring pitfall**: this environment sets `PYTHONDONTWRITEBYTECODE=1`, so a tree checked out for comparison
+  and never compiled compiles every module of ours in each of its processes (the driver and both workers). Against
+  such a tree the same changes looked like +3.5% (4.85 against 4.69). The benchmark's baseline is compiled
+  (`benchmarks.baseline`), and so were both trees of the figures above.
+* **Not kept**:
+  * numpy's huge-page advice off in rendering processes (b98e02d, reverted in d300a4a). numpy advises huge pages for
+    every array of 4 MB or more, and this kernel defragments on such a fault (`defrag` = `madvise`): a worker's
+    first touches of ~700 MB (world, load, first frame) cost 2.51-2.65 CPU-s to the first frame with the advice and
+    2.08-2.19 without (system CPU 0.61-0.64 against 0.31-0.34; 3 alternating rounds in fresh processes). But end
+    to end the frames after ran slower on 4 KB pages: 4.62, 4.44, 4.34 frames/s without the advice against 4.76,
+    4.54, 4.41 with it (steady 5.25-5.49 against 5.31-5.71).
+  * glibc's malloc on transparent huge pages (`GLIBC_TUNABLES=glibc.malloc.hugetlb=1`), end to end: 4.13, 4.51,
+    4.43 against 4.66, 4.44, 4.45. One llvmpipe thread per worker (`LP_NUM_THREADS=1`) again: 4.76, 4.50, 4.68
+    against 4.87, 4.79, 4.78 with none.
+  * The detail textures minified from the nearest mipmap level (bilinear) instead of between two (trilinear):
+    render thread 0.202, 0.201, 0.214 against 0.209, 0.189, 0.215 CPU-s per T03_CS_M frame: texturing is not
+    what the colour pass spends.
+  * Motion blur's blend, the grading and the conversion to bytes fused over strips of 32 or 64 rows (to stay in
+    the caches): 22.5-23.5 ms against 22.1-22.7 for the three passes over the whole frame: not bound by memory
+    traffic here.
+  * Measured and left: the colour pass shades 1.11-1.42 (T03_CS_M) and 1.15-1.50 (T01_CN_A) fragments per drawn
+    pixel (`GL_SAMPLES_PASSED` over the pixels not sky); a depth pre-pass would draw every node twice (~30 ms of
+    draw calls a frame) to save the shading of ~0.3 M fragments (~13 ms). The sky is made anew 8 and 14 times in
+    60 frames (T01_CN_A, T03_CS_M: the ego turns), 24-35 ms each.
+
+After these (main at 0005ef6 with d300a4a; the same frame bytes), `BENCH=produce BENCH_BASELINE=93dc98a
+BENCH_ROUNDS=3 make bench` (601 s) in the noisiest hour of these rounds (93dc98a at 2.51 frames/s against 2.70 and
+2.92 in the last two rounds' runs; load average 3.2-5.1 after each run): **4.34 frames/s and 0.452 machine CPU-s per
+frame against 93dc98a's 2.51 and 0.755 (1.73x and -40%)**; rounds 3.81, 4.34, 4.60 against 2.51, 2.29, 2.84; worlds
+cached 4.81, the paper's six outputs with worlds cached 5.07, the rgb as JPEG 5.07; the 600-frame run **5.08** (first
+frame at 4.42 s, then 5.21 frames/s). 5 frames/s for the 120-frame command is still ~1.04-1.15x away on this host,
+depending on the hour: the start to the first frames (~4-5 s) and T03_CS_M's ~0.37 CPU-s a steady frame, which set
+the run's end."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
