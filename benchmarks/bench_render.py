@@ -1093,13 +1093,15 @@ cores), and the steady ~0.33 CPU-s a frame.
     60 frames (T01_CN_A, T03_CS_M: the ego turns), 24-35 ms each.
 
 After these (main at 0005ef6 with d300a4a; the same frame bytes), `BENCH=produce BENCH_BASELINE=93dc98a
-BENCH_ROUNDS=3 make bench` (601 s) in the noisiest hour of these rounds (93dc98a at 2.51 frames/s against 2.70 and
-2.92 in the last two rounds' runs; load average 3.2-5.1 after each run): **4.34 frames/s and 0.452 machine CPU-s per
-frame against 93dc98a's 2.51 and 0.755 (1.73x and -40%)**; rounds 3.81, 4.34, 4.60 against 2.51, 2.29, 2.84; worlds
-cached 4.81, the paper's six outputs with worlds cached 5.07, the rgb as JPEG 5.07; the 600-frame run **5.08** (first
-frame at 4.42 s, then 5.21 frames/s). 5 frames/s for the 120-frame command is still ~1.04-1.15x away on this host,
-depending on the hour: the start to the first frames (~4-5 s) and T03_CS_M's ~0.37 CPU-s a steady frame, which set
-the run's end."""
+BENCH_ROUNDS=3 make bench`, twice. In a quieter hour (552 s; load average 3.5-6.0 after each run, the runs' own):
+**4.89 frames/s and 0.402 machine CPU-s per frame against 93dc98a's 2.85 and 0.659 (1.72x and -39%)**; rounds 4.83,
+4.89, 4.94 against 2.57, 2.85, 2.94; the first frame stored at 4.15 s (93dc98a 10.12), then 5.83 frames/s (3.83)
+until the last at 24.83; worlds cached **5.13** (first frame at 3.15 s), the paper's six outputs with worlds cached
+5.33, the rgb as JPEG 5.21; the 600-frame run **5.19** (docs/bench_produce.md). Half an hour before, in the noisiest
+hour of these rounds (601 s; 93dc98a at 2.51), 4.34 against 2.51 (1.73x; rounds 3.81, 4.34, 4.60), worlds cached
+4.81, the 600-frame run 5.08. So 5 frames/s for the 120-frame command from an empty world cache is ~1.02x away in
+a quiet hour on this host (and reached once the worlds are cached: a user's second run), ~1.15x in a noisy one: the
+start to the first frames (~4 s) and T03_CS_M's ~0.37 CPU-s a steady frame set the run's end."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
