@@ -1061,7 +1061,7 @@ cores), and the steady ~0.33 CPU-s a frame.
   a part wholly in one tile (most: the world is batched by tile): the same soups, 0.21 -> 0.14 s for T03.
 * **Every side of every box in one `quads` call (kept, 0005ef6)**: ~1,600 calls a town of a box or a few, one
   `quads` call per side, now one for all: the same vertices, faces and floats. The seven towns and their traffic
-  (T01-T07, one seed): **6.58 -> 5.04 -> 4.72 CPU-s**; in the benchmark's runs T03_CS_M's world 0.85 -> 0.63 s. Both
+  (T01-T07, one seed): **6.58 -> 5.04 -> 4.72 CPU-s**; in the benchmark's runs T03_CS_M's world 0.81-0.85 -> 0.63 s. Both
   byte for byte: the seven towns' parts (vertices, faces, colours) and traffic hash as before, and a small `idda
   produce` (T01_CN_A, T03_CS_M, T05_HRN_B, T07_NT_V, 3 frames each at 640x360, worlds built) gives the same frame
   files (digest `cc95284c…` before and after). End to end against the eleventh round's main (4993b31), both trees
