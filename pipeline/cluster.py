@@ -9,6 +9,10 @@ from __future__ import annotations
 
 import logging
 import os
+import shlex
+import subprocess
+import sys
+import time
 from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -97,9 +101,6 @@ def _probe_gcs(address: str, with_token: bool = False) -> str:
     """"ok", "token" (the cluster uses token authentication), with ``with_token`` then
     "token-ok" or "token-refused" (this machine's token), or why the GCS at ``address``
     did not answer."""
-    import subprocess
-    import sys
-
     env = {k: v for k, v in os.environ.items() if k != RAY_AUTH_MODE}
     try:
         done = subprocess.run([sys.executable, "-c", _PROBE, address, str(ATTACH_TIMEOUT_S), "1" if with_token else "0"], env=env,
@@ -189,8 +190,6 @@ def _quiet_cluster_messages(ray) -> None:
     idda says in its own words what happened (a lost node, a failed episode). On a
     terminal they are left as Ray prints them. Where Ray's printer is not found (another
     Ray version), nothing changes."""
-    import sys
-
     worker = getattr(getattr(ray, "_private", None), "worker", None)
     printer = getattr(worker, "print_to_stdstream", None)
     if printer is None or getattr(printer, "idda_quiet", False):
@@ -217,8 +216,6 @@ def shutdown(ray) -> None:
     per task it can no longer report to its raylet ("Failed to push error to driver ..."),
     which the user can do nothing with, between idda's own last lines. Where the logs dir is
     unknown (another Ray version), those lines are dropped."""
-    import sys
-
     try:
         target = os.path.join(ray._private.worker._global_node.get_logs_dir_path(), SHUTDOWN_LOG)
     except AttributeError:  # not connected, or another Ray version
@@ -358,8 +355,6 @@ def _registered_node(global_state, gcs_options, get_node):
     """
 
     def get_registered_node(gcs_address, node_id):
-        import time
-
         state = global_state()
         state._initialize_global_state(gcs_options(gcs_address))
         try:
@@ -423,10 +418,6 @@ def _agent_stand_in(start_ray_process, raylet_type: str, persist_port, agents: d
 def _stand_in_argument(argument: str, persist_port, agents: dict) -> str:
     """One argument of the raylet's command: the stand-in's command in place of one of the
     ``agents``' (whose ports are written first), any other as it is."""
-    import shlex
-    import subprocess
-    import sys
-
     for flag, ports in agents.items():
         if argument.startswith(flag):
             break
@@ -456,8 +447,6 @@ def _stop_idle_daemons(ray) -> None:
     full second for it (1.0 of ~1.4 s). Reaches into Ray's node record; where that is missing (another
     Ray version), the daemons are left as they are.
     """
-    import subprocess
-
     try:
         constants, node = ray._private.ray_constants, ray._private.worker._global_node
         kinds = (constants.PROCESS_TYPE_MONITOR, constants.PROCESS_TYPE_LOG_MONITOR)

@@ -263,21 +263,10 @@ def noisy_colors(verts: np.ndarray, base, amount: float = 0.15, scale: float = 3
                  seed: int = 0, fine: float = 0.05) -> np.ndarray:
     """uint8 RGBA colours: ``base`` modulated by two octaves of value noise.
 
-    Both octaves in one pass over the points stacked twice (a world build makes thousands of these
-    for a few dozen vertices each, where numpy's per-call cost is most of the time): the same
-    floats as ``value_noise`` at ``scale`` and ``seed``, then at ``scale * 0.23`` and ``seed + 7``."""
-    base = np.asarray(base, dtype=np.float64)
-    v = np.asarray(verts, dtype=np.float64)
-    n = len(v)
-    terms = np.repeat(np.array([_seed_term(seed), _seed_term(seed + 7)], np.int64), n)
-    noise = _noise(np.concatenate([v / scale, v / (scale * 0.23)]), terms)
-    n1, n2 = noise[:n] - 0.5, noise[n:] - 0.5
-    gain = 1.0 + 2 * amount * n1 + 2 * fine * n2
-    rgb = np.clip(base[None, :3] * gain[:, None], 0, 255)
-    out = np.empty((len(verts), 4), dtype=np.uint8)
-    out[:, :3] = rgb.astype(np.uint8)
-    out[:, 3] = 255
-    return out
+    The same floats as ``value_noise`` at ``scale`` and ``seed``, then at ``scale * 0.23`` and ``seed + 7``,
+    both octaves in one pass over the points stacked twice; one piece made as a batch makes many
+    (:class:`NoiseColors`)."""
+    return _made_together([NoiseColors(verts, base, amount, scale, seed, fine)])[0]
 
 
 class NoiseColors:
@@ -299,7 +288,7 @@ class NoiseColors:
         return len(self.verts)
 
     def made(self) -> np.ndarray:
-        return noisy_colors(self.verts, self.base, self.amount, self.scale, self.seed, self.fine)
+        return _made_together([self])[0]
 
     def __getitem__(self, index) -> NoiseColors:
         """The colours of some of the points (an index into them), still to be made: each point's are its own."""
