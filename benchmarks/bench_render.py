@@ -1101,7 +1101,59 @@ until the last at 24.83; worlds cached **5.13** (first frame at 3.15 s), the pap
 hour of these rounds (601 s; 93dc98a at 2.51), 4.34 against 2.51 (1.73x; rounds 3.81, 4.34, 4.60), worlds cached
 4.81, the 600-frame run 5.08. So 5 frames/s for the 120-frame command from an empty world cache is ~1.02x away in
 a quiet hour on this host (and reached once the worlds are cached: a user's second run), ~1.15x in a noisy one: the
-start to the first frames (~4 s) and T03_CS_M's ~0.37 CPU-s a steady frame set the run's end."""
+start to the first frames (~4 s) and T03_CS_M's ~0.37 CPU-s a steady frame set the run's end.
+
+### Levers measured on 2026-11-30, thirteenth round (another machine: a 2-core Intel Xeon)
+
+A second kind of machine: 2 cores of an Intel Xeon (family 6, model 207, 2.1 GHz, AVX-512, KVM), about half
+the AMD EPYC's speed per core. No rendering, encoding or storage code changed in this round: the frames are the
+twelfth round's bytes.
+
+* **The benchmark here** (`BENCH=produce BENCH_BASELINE=93dc98a BENCH_ROUNDS=3 make bench`, 703 s; load average
+  3.2-5.2 after each run, the runs' own): **3.56 frames/s and 0.553 machine CPU-s per frame against 93dc98a's
+  2.26 and 0.845 (1.58x, -35%)**; rounds 3.60, 3.56, 3.54 against 2.20, 2.26, 2.28; the first frame stored at
+  4.52 s (93dc98a 10.05), then 4.09 frames/s (2.85) until the last at 34.01 s; worlds cached 3.60, the paper's six
+  outputs 3.76, the rgb as JPEG 3.84, the 600-frame run 3.67 (docs/bench_produce.md). Half an hour before, in a
+  noisier spell, single runs of the same command gave 2.66-2.98. So on this machine 5 frames/s is 1.40x away, and
+  the start is not what is missing: the steady rate alone (4.09) is 1.22x short. It would take about 30% less CPU
+  per frame.
+* **Where a steady frame's CPU goes here** (`python -m benchmarks.profile_frame`, T03_CS_M, `LP_NUM_THREADS=0` as
+  production; `perf` over 40 frames after the start): process 0.55-0.71 CPU-s per frame (the AMD EPYC: 0.35).
+  The render thread is about half of it, and llvmpipe's code is most of that thread (its JIT-compiled shaders 30% of
+  the process's samples, the rest of the driver 11%, Python 5%). The second thread: OpenCV 20%, the deflate 10%,
+  numpy 9%. Post effects per frame (thread CPU, OpenCV at its default threads): antialias 25.6 ms, fog 10.0,
+  bloom 17.1, lens flare 3.0, motion blur 36.7, grading 8.7 (T01_CN_A within 1 ms of these, with no flare or
+  grading: its weather has none). By py-spy samples
+  of that thread with OpenCV at one thread, as produce runs it: the deflate 19%, motion blur's four warps 9% (its
+  weight 3% more), antialias 8%, resizes 6%, blends 6%, class and instance counts 4% (1.7 and 4.3 ms), grading 4%,
+  the depth and colour encodings ~10%.
+* **Sun shadows are a third of the render thread.** Frames interleaved in one process between variants
+  (`Renderer.render`'s thread CPU, 24-30 frames, medians): T01_CN_A 209 ms with shadows, 168 with the map cleared
+  but no casters drawn, 131 without shadows; T03_CS_M 239, 202 and 159. So the shadow pass costs ~40 ms and the
+  lookups in the colour pass ~40 ms: ~15% of a frame's CPU. None of it can go with the same bytes:
+  * a 1024-texel map instead of 2048 (separate processes, alternating, 2 rounds): T03_CS_M's render thread 224 and
+    226 ms against 247 and 234. 10-20 ms for texels twice as coarse (0.2-0.3 m): the pass is not mostly fill.
+    Not taken: every frame's shadows would change for 2-4% of a frame's CPU.
+  * casters without the flat classes (road, road line, sidewalk, terrain, railway, ground): ~30 ms less in one
+    probe, but the bytes cannot be argued equal: the outskirts' terrain rises into hills, kerbs and embankments
+    cast shadows. Not taken.
+  * nodes beyond the shadow distance drawn without the lookup (their sun visibility is exactly 1 there): under
+    1% of a frame's pixels lie beyond 150 m (planar; 25-45% are sky). Nothing to gain.
+* **The start here** (one run with timestamps, in the noisier spell, 46 s): `ray.init` back at 1.94 s, the
+  episodes submitted at 1.99, started in the workers at 3.27 (1.28 s: importing our modules; 1.2-1.5 s in a
+  fresh process, of which trimesh 0.83 s: scipy.spatial 0.39-0.48 s, scipy.special's array-API wrappers
+  0.11-0.19 s of it, networkx 0.12 s), the worlds built by 4.29-4.38, loaded by 5.09-5.12 (the first load
+  imports pyrender: 30% of it), the first frames drawn at 5.95 and stored at 6.80-7.12. About one core is idle
+  for ~1 s while Ray starts; both are busy from 2 s on, and in the tail (T03_CS_M alone for its last ~4 s) 1.6-2.0
+  are. trimesh imports scipy inside `try` blocks and pyrender requires scipy, so that import cannot go short of
+  hiding an installed package from trimesh (not done).
+* `LP_NATIVE_VECTOR_WIDTH=512` on this AVX-512 machine: llvmpipe crashes (a segmentation fault in
+  `profile_frame`, twice), as 128 does. The default (256) stays.
+
+What is left for 5 frames/s on this machine is ~30% of a frame's CPU, and what the profile shows that large is
+what is drawn: the sun's shadows (~15%), the post effects (~18%) and the PNG deflate (~11%, its bytes the root's
+record); each would change every frame's look or bytes. The rounds before took everything measured here that
+kept them."""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
