@@ -1122,7 +1122,7 @@ twelfth round's bytes.
   The render thread is about half of it, and llvmpipe's code is most of that thread (its JIT-compiled shaders 30% of
   the process's samples, the rest of the driver 11%, Python 5%). The second thread: OpenCV 20%, the deflate 10%,
   numpy 9%. Post effects per frame (thread CPU, OpenCV at its default threads): antialias 25.6 ms, fog 10.0,
-  bloom 17.1, lens flare 3.0, motion blur 36.7, grading 8.7 (T01_CN_A within 1 ms of these, with no flare or
+  bloom 17.1, lens flare 3.0, motion blur 36.7, grading 8.7 (T01_CN_A within ~1 ms of these, with no flare or
   grading: its weather has none). By py-spy samples
   of that thread with OpenCV at one thread, as produce runs it: the deflate 19%, motion blur's four warps 9% (its
   weight 3% more), antialias 8%, resizes 6%, blends 6%, class and instance counts 4% (1.7 and 4.3 ms), grading 4%,
