@@ -1134,6 +1134,9 @@ twelfth round's bytes.
   * a 1024-texel map instead of 2048 (separate processes, alternating, 2 rounds): T03_CS_M's render thread 224 and
     226 ms against 247 and 234. 10-20 ms for texels twice as coarse (0.2-0.3 m): the pass is not mostly fill.
     Not taken: every frame's shadows would change for 2-4% of a frame's CPU.
+  * within the pass (a `glFinish` after it, 24 frames, medians, in a noisier spell: the render thread at
+    344-411 ms): issuing the casters' draws 16-19 ms (llvmpipe's vertex work and binning in `glDrawElements`
+    half of it, pyrender's pose lookups a quarter), rasterising them 34-36 ms.
   * casters without the flat classes (road, road line, sidewalk, terrain, railway, ground): ~30 ms less in one
     probe, but the bytes cannot be argued equal: the outskirts' terrain rises into hills, kerbs and embankments
     cast shadows. Not taken.
