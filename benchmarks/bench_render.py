@@ -1130,7 +1130,7 @@ twelfth round's bytes.
 * **Sun shadows are a third of the render thread.** Frames interleaved in one process between variants
   (`Renderer.render`'s thread CPU, 24-30 frames, medians): T01_CN_A 209 ms with shadows, 168 with the map cleared
   but no casters drawn, 131 without shadows; T03_CS_M 239, 202 and 159. So the shadow pass costs ~40 ms and the
-  lookups in the colour pass ~40 ms: ~15% of a frame's CPU. None of it can go with the same bytes:
+  lookups in the colour pass ~40 ms: ~15% of a frame's CPU. Nothing measured takes any of it with the same bytes:
   * a 1024-texel map instead of 2048 (separate processes, alternating, 2 rounds): T03_CS_M's render thread 224 and
     226 ms against 247 and 234. 10-20 ms for texels twice as coarse (0.2-0.3 m): the pass is not mostly fill.
     Not taken: every frame's shadows would change for 2-4% of a frame's CPU.
