@@ -1156,7 +1156,33 @@ twelfth round's bytes.
 What is left for 5 frames/s on this machine is ~30% of a frame's CPU, and what the profile shows that large is
 what is drawn: the sun's shadows (~15%), the post effects (~18%) and the PNG deflate (~11%, its bytes the root's
 record); each would change every frame's look or bytes. The rounds before took everything measured here that
-kept them."""
+kept them.
+
+### Levers measured on 2026-11-30, fourteenth round (the same Intel Xeon)
+
+* **What 5 frames/s here would take: frames without sun shadows and without any post effect, and then only
+  just.** A scratch build of this main (8e15519) with two switches read from the environment, one turning the
+  renderer's shadows off and one returning the rendered RGB from `postfx.apply` untouched (not kept: the frames
+  lose their look), against itself with neither; the benchmark's command (`idda produce --domains
+  T01_CN_A,T03_CS_M --frames-per-scenario 60 --width 1920 --height 1080`, an empty world cache each run, the
+  eight default outputs), alternating, in an hour when this host ran main at 2.36-3.12 frames/s (3.56 in the
+  thirteenth round's quieter hour; load average 1.7-3.5 after each run, the runs' own):
+
+  | variant | frames/s, round by round | median vs main, same round | machine CPU-s / frame vs main |
+  |---|---|---:|---:|
+  | main (both on) | 3.12, 2.86, 2.36; 2.48, 2.53, 2.45 | 1 | 1 |
+  | no sun shadows | 3.36, 3.42, 2.73 | 1.16x | 0.86 |
+  | no post effects | 3.23, 3.40, 2.73 | 1.16x | 0.85 |
+  | neither | 4.42, 3.98, 3.39; 3.70, 3.83, 3.53 | **1.44x** (1.39-1.51) | 0.69 |
+
+  The thirteenth round put 5 frames/s 1.40x away from this host's quiet-hour 3.56; stripping both gains 1.44x
+  (steady rate 4.57 against 2.86 in these runs). So on this kind of machine the goal takes a frame drawn flat,
+  with no shadows, anti-aliasing, fog, bloom, motion blur or grading (~5.1 frames/s estimated for a quiet hour),
+  and what remains of such a frame (the colour pass, resolving, the outputs' encodings and deflate, the start)
+  is already what the rounds before measured and trimmed. No look worth producing reaches it on 2 cores of this
+  Xeon; on the AMD EPYC of rounds 1-12 the full look came within ~1.02x (4.89 frames/s; 5.13 with the worlds
+  cached, 5.19 over 600 frames).
+"""
 
 # Standing notes under the figures: what bounds a CPU run, what was tried.
 _NOTES = (
